@@ -1,0 +1,1 @@
+//! The canodom daemon (filled by the daemon issue).

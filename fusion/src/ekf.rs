@@ -1,0 +1,1 @@
+//! The extended Kalman filter fusing rear and front odometry (filled next).

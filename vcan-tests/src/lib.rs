@@ -1,0 +1,1 @@
+//! End-to-end tests on real vcan interfaces (filled by the vcan-tests issue).
