@@ -1,1 +1,0 @@
-//! The ground-truth vehicle simulator (filled next).
