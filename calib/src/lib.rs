@@ -18,6 +18,7 @@
 pub mod error;
 pub mod methods;
 pub mod run;
+pub mod session;
 pub mod steering;
 pub mod synth;
 pub mod track;

@@ -212,6 +212,11 @@ impl RunRecorder {
         self.faults.push((t_s, fault));
     }
 
+    /// The direction announced for the run.
+    pub fn direction(&self) -> Direction {
+        self.direction
+    }
+
     /// Samples recorded so far.
     pub fn samples(&self) -> &[RevSample] {
         &self.samples
