@@ -1300,7 +1300,6 @@ mod tests {
                 radius_m: [0.78, 0.0, f64::NAN, 0.78][usize::from(a)],
                 runs_per_direction: [1, 2, 0, 30][usize::from(a)],
             },
-            1 => Event::StartRun,
             2 => Event::EndRun,
             3 => Event::MeasuredEndPose(Pose {
                 x_m: [0.01, f64::INFINITY, -0.02, 99.0][usize::from(a)],
