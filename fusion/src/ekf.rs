@@ -1,1 +1,873 @@
-//! The extended Kalman filter fusing rear and front odometry (filled next).
+//! The extended Kalman filter fusing rear and front odometry
+//! (`calibration-math.md` §11–§12).
+//!
+//! **State** `X = [x, y, θ]` of the rear-axle centre, θ wrapped to (−π, π]
+//! (the unwrapped heading is kept beside it), covariance `P` (3×3).
+//! **Input** per sample: the four wheels' distances and the measured
+//! road-wheel angle φ ([`OdometryInput`]).
+//!
+//! **Prediction** (paper eqs. 28–30) from rear odometry `u = [Δd, Δθ]`,
+//! with `m = θ + Δθ/2`:
+//! `A = [[1, 0, −Δd sin m], [0, 1, Δd cos m], [0, 0, 1]]`,
+//! `B = [[cos m, −(Δd/2) sin m], [sin m, (Δd/2) cos m], [0, 1]]`,
+//! `P⁻ = A P Aᵀ + B Q_u Bᵀ`, `Q_u = J diag(k_r|d_R|, k_r|d_L|) Jᵀ`,
+//! `J = [[½, ½], [1/b, −1/b]]`.
+//!
+//! The filter works in **windows** of `correct_every` samples: the rear and
+//! the front odometry are each integrated from zero in the frame of the
+//! window's start (the *anchor*), with their own covariances. At the end of
+//! a window one of the [`CorrectionForm`]s fuses them and the result is
+//! composed onto the anchor (`P = J_a P_a J_aᵀ + R P_w Rᵀ`, which equals the
+//! sample-by-sample propagation). Every covariance update is the Joseph form,
+//! symmetrised.
+//!
+//! - [`CorrectionForm::Anchored`] (default): `ν = front − rear` increment
+//!   over the window, `S = P_w,rear + P_w,front`, `K = P_w,rear S⁻¹`.
+//! - [`CorrectionForm::Literal`]: the paper's own filter: `z` is the front
+//!   odometry integrated on its own from the start, `H = I`, `S = P⁻ + R`.
+//! - [`CorrectionForm::RearOnly`]: no correction (rear odometry with a covariance).
+//!
+//! **Gate**: the squared Mahalanobis distance `d² = νᵀS⁻¹ν` against a
+//! threshold (χ²₃(0.99) = 11.34). On rejection the [`GateAction::Consensus`]
+//! compares each wheel's implied centre distance `s_i = Σ d_i/g_i(φ)` over the
+//! window: the wheel farthest from the median of the four slipped; if it is a
+//! rear wheel the front increment is used, if a front wheel the rear one is kept.
+//!
+//! Steps are pure: [`Ekf::step`] takes the previous [`State`] and returns a
+//! new one, or an error for a non-finite input, leaving the caller's state
+//! untouched; no step allocates.
+#![allow(non_snake_case)]
+
+use crate::error::{Error, Result};
+use crate::odometry::{
+    Increment, Pose, front_increment_differential, front_increment_exact, rear_increment,
+    wheel_distance_factors,
+};
+use crate::params::VehicleParams;
+use crate::{Wheel, WheelSet, wrap_angle};
+use nalgebra::{Matrix2, Matrix3, Matrix3x2, Vector3};
+
+/// 3-vector of the state `[x, y, θ]`.
+pub type Vec3 = Vector3<f64>;
+/// 3×3 covariance.
+pub type Mat3 = Matrix3<f64>;
+
+/// How the front odometry corrects the rear prediction.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum CorrectionForm {
+    /// No correction: rear odometry with a propagated covariance.
+    RearOnly,
+    /// The paper's literal filter: `z` = front odometry pose integrated on its
+    /// own from the start, `H = I`, measurement covariance `R = diag(r)`
+    /// (m², m², rad²). Its error is a random walk, not white, so `R` acts as a
+    /// blending knob.
+    Literal {
+        /// The diagonal of `R`.
+        r_diag: [f64; 3],
+    },
+    /// Front increment over the window against the rear one (default).
+    Anchored,
+}
+
+/// Where the front odometry's heading change comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FrontHeading {
+    /// `Δθ = Δd_r tan φ / L` from the steering angle (eqs. 21–26).
+    Steering,
+    /// `Δθ` from the front wheels' difference; φ enters only through cos φ
+    /// (§12), which removes a steering bias but doubles the slip exposure.
+    WheelDifference,
+}
+
+/// What to do when the gate rejects a correction.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum GateAction {
+    /// Decide by the four wheels' implied centre distances (§11).
+    Consensus,
+    /// Always take the front increment (right for rear slips only).
+    UseFront,
+    /// Always keep the rear prediction.
+    KeepRear,
+}
+
+/// The filter's configuration. Build with [`EkfConfig::new`] (the default
+/// chosen from evidence, see the crate's `tests/experiments.rs`) and adjust.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EkfConfig {
+    /// The vehicle parameters in use (nominal or calibrated), not the truth.
+    pub params: VehicleParams,
+    /// The correction form.
+    pub form: CorrectionForm,
+    /// Rear wheel distance noise: variance `k_r·|d|` per wheel, metres.
+    pub k_rear_m: f64,
+    /// Front wheel distance noise: variance `k_f·|Δd_f|`, metres.
+    pub k_front_m: f64,
+    /// Standard deviation of the steering angle as the window model sees it.
+    /// Large (20°) on purpose: a steering error is a bias, and treated as
+    /// white noise it would leak into the heading (§12).
+    pub steer_sigma_rad: f64,
+    /// Standard deviation of a steering error that holds over a whole window
+    /// (a bias or slow drift, as real sensors have, §12). Its effect on the
+    /// front window is propagated exactly as a sensitivity vector, so the
+    /// window's heading is trusted as little as a bias deserves. 0 = off.
+    pub steer_bias_sigma_rad: f64,
+    /// A correction every this many samples (50 = 0.5 s at 100 Hz).
+    pub correct_every: u32,
+    /// The χ² gate threshold on `d²`; `None` disables the gate.
+    pub gate_threshold: Option<f64>,
+    /// What a rejection does.
+    pub gate_action: GateAction,
+    /// Where the front heading comes from.
+    pub front_heading: FrontHeading,
+}
+
+impl EkfConfig {
+    /// The default configuration: anchored increments every 50 samples,
+    /// k_r = k_f = 1e-5 m, σ_φ = 20°, consensus gate at χ²₃(0.99) = 11.34,
+    /// front heading from the steering angle. It passes both §11's slip
+    /// experiment and §12's full-size car (see `tests/experiments.rs`).
+    pub fn new(params: VehicleParams) -> Self {
+        Self {
+            params,
+            form: CorrectionForm::Anchored,
+            k_rear_m: 1e-5,
+            k_front_m: 1e-5,
+            steer_sigma_rad: 0.5f64.to_radians(),
+            steer_bias_sigma_rad: 5f64.to_radians(),
+            correct_every: 50,
+            gate_threshold: Some(CHI2_3_99),
+            gate_action: GateAction::Consensus,
+            front_heading: FrontHeading::Steering,
+        }
+    }
+
+    /// The paper's filter: literal form, `R = diag(10, 10, 10)`, a correction
+    /// every 10 samples (10 Hz at 100 Hz), no gate.
+    pub fn paper_literal(params: VehicleParams) -> Self {
+        Self {
+            form: CorrectionForm::Literal {
+                r_diag: [10.0, 10.0, 10.0],
+            },
+            correct_every: 10,
+            gate_threshold: None,
+            ..Self::new(params)
+        }
+    }
+
+    /// Rear odometry only.
+    pub fn rear_only(params: VehicleParams) -> Self {
+        Self {
+            form: CorrectionForm::RearOnly,
+            gate_threshold: None,
+            ..Self::new(params)
+        }
+    }
+
+    fn validate(&self) -> Result<()> {
+        let positive = |name: &'static str, v: f64| {
+            if v.is_finite() && v > 0.0 {
+                Ok(())
+            } else {
+                Err(Error::InvalidConfig {
+                    name,
+                    reason: format!("must be finite and > 0, got {v}"),
+                })
+            }
+        };
+        positive("k_rear_m", self.k_rear_m)?;
+        positive("k_front_m", self.k_front_m)?;
+        positive("steer_sigma_rad", self.steer_sigma_rad)?;
+        if !(self.steer_bias_sigma_rad.is_finite() && self.steer_bias_sigma_rad >= 0.0) {
+            return Err(Error::InvalidConfig {
+                name: "steer_bias_sigma_rad",
+                reason: format!("must be finite and >= 0, got {}", self.steer_bias_sigma_rad),
+            });
+        }
+        if self.correct_every == 0 {
+            return Err(Error::InvalidConfig {
+                name: "correct_every",
+                reason: "must be at least 1".into(),
+            });
+        }
+        if let Some(t) = self.gate_threshold {
+            positive("gate_threshold", t)?;
+        }
+        if let CorrectionForm::Literal { r_diag } = self.form {
+            for r in r_diag {
+                positive("literal r_diag", r)?;
+            }
+        }
+        Ok(())
+    }
+}
+
+/// χ²₃(0.99), the default gate.
+pub const CHI2_3_99: f64 = 11.34;
+
+/// One sample's input: each wheel's distance since the previous sample and
+/// the measured road-wheel angle (the steering signal mapped through the
+/// steering map in use).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct OdometryInput {
+    /// Distance of each wheel since the previous sample (signed).
+    pub wheel_m: WheelSet<f64>,
+    /// False when the front wheels' sample is missing (stale): the window then
+    /// is not corrected and the filter predicts from the rear alone.
+    pub front_valid: bool,
+    /// The measured road-wheel angle φ.
+    pub steer_angle_rad: f64,
+}
+
+/// How the corrections went.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct GateStats {
+    /// Windows closed with a correction attempt.
+    pub corrections: u64,
+    /// Corrections the gate let through (or all, without a gate).
+    pub accepted: u64,
+    /// Rejections resolved by taking the front increment (a rear wheel slipped).
+    pub rejected_used_front: u64,
+    /// Rejections resolved by keeping the rear prediction (a front wheel slipped).
+    pub rejected_kept_rear: u64,
+    /// Windows not corrected because a front sample was missing.
+    pub skipped_no_front: u64,
+}
+
+/// The filter's state after a step. `Copy`, fixed-size: no allocation.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct State {
+    anchor: Vec3,
+    anchor_heading_unwrapped_rad: f64,
+    anchor_cos_sin: (f64, f64),
+    p_anchor: Mat3,
+    rear_w: Vec3,
+    p_rear_w: Mat3,
+    front_w: Vec3,
+    p_front_w: Mat3,
+    /// ∂(front window pose)/∂(steering bias).
+    front_bias_sens: Vec3,
+    /// Literal form: the front odometry integrated alone (global, unwrapped θ).
+    front_alone: Vec3,
+    centre_m: [f64; 4],
+    window_len: u32,
+    window_front_ok: bool,
+    pose: Vec3,
+    /// Counts of gate decisions.
+    pub stats: GateStats,
+    /// Per wheel: how many windows the consensus blamed on it.
+    pub slip_counts: WheelSet<u64>,
+    /// Per wheel: blamed in the most recent closed window.
+    pub slip_flags: WheelSet<bool>,
+    /// `d²` of the most recent correction (NaN-free; 0 before the first).
+    pub last_mahalanobis_sq: f64,
+}
+
+impl State {
+    /// A state at `pose` with covariance `p` (e.g. zero at a run's start).
+    ///
+    /// # Errors
+    /// [`Error::NonFiniteInput`] for a non-finite pose or covariance entry.
+    pub fn new(pose: Pose, p: Mat3) -> Result<Self> {
+        for (name, v) in [
+            ("x_m", pose.x_m),
+            ("y_m", pose.y_m),
+            ("heading_rad", pose.heading_rad),
+        ] {
+            finite(name, v)?;
+        }
+        if p.iter().any(|v| !v.is_finite()) {
+            return Err(Error::NonFiniteInput {
+                name: "initial covariance",
+                value: f64::NAN,
+            });
+        }
+        let anchor = Vec3::new(pose.x_m, pose.y_m, wrap_angle(pose.heading_rad));
+        Ok(Self {
+            anchor,
+            anchor_heading_unwrapped_rad: pose.heading_rad,
+            anchor_cos_sin: (anchor.z.cos(), anchor.z.sin()),
+            p_anchor: symmetrise(&p),
+            rear_w: Vec3::zeros(),
+            p_rear_w: Mat3::zeros(),
+            front_w: Vec3::zeros(),
+            p_front_w: Mat3::zeros(),
+            front_bias_sens: Vec3::zeros(),
+            front_alone: Vec3::new(pose.x_m, pose.y_m, pose.heading_rad),
+            centre_m: [0.0; 4],
+            window_len: 0,
+            window_front_ok: true,
+            pose: anchor,
+            stats: GateStats::default(),
+            slip_counts: WheelSet::splat(0),
+            slip_flags: WheelSet::splat(false),
+            last_mahalanobis_sq: 0.0,
+        })
+    }
+
+    /// A state at the origin with zero covariance (a run frame's start).
+    pub fn origin() -> Self {
+        Self::new(Pose::default(), Mat3::zeros())
+            .unwrap_or_else(|_| unreachable!("the origin is finite"))
+    }
+
+    /// The pose estimate, heading wrapped to (−π, π].
+    pub fn pose(&self) -> Pose {
+        Pose {
+            x_m: self.pose.x,
+            y_m: self.pose.y,
+            heading_rad: self.pose.z,
+        }
+    }
+
+    /// The pose estimate with the heading unwrapped (total turn since the start).
+    pub fn pose_unwrapped(&self) -> Pose {
+        Pose {
+            heading_rad: self.anchor_heading_unwrapped_rad + self.rear_w.z,
+            ..self.pose()
+        }
+    }
+
+    /// The covariance of [`State::pose`].
+    pub fn covariance(&self) -> Mat3 {
+        compose_covariance(
+            &self.p_anchor,
+            self.anchor_cos_sin,
+            &self.rear_w,
+            &self.p_rear_w,
+        )
+    }
+
+    /// The front odometry integrated on its own (the literal form's `z`).
+    pub fn front_alone(&self) -> Pose {
+        Pose {
+            x_m: self.front_alone.x,
+            y_m: self.front_alone.y,
+            heading_rad: self.front_alone.z,
+        }
+    }
+}
+
+/// The filter: a validated configuration and pure step functions.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Ekf {
+    cfg: EkfConfig,
+}
+
+fn finite(name: &'static str, value: f64) -> Result<f64> {
+    if value.is_finite() {
+        Ok(value)
+    } else {
+        Err(Error::NonFiniteInput { name, value })
+    }
+}
+
+fn symmetrise(p: &Mat3) -> Mat3 {
+    (p + p.transpose()) * 0.5
+}
+
+/// Propagates a pose `w` and covariance by an increment with input covariance `q`.
+fn propagate(w: &Vec3, p: &Mat3, inc: Increment, q: &Matrix2<f64>) -> (Vec3, Mat3) {
+    let d = inc.distance_m;
+    let m = w.z + 0.5 * inc.dtheta_rad;
+    let (s, c) = m.sin_cos();
+    let A = Mat3::new(1.0, 0.0, -d * s, 0.0, 1.0, d * c, 0.0, 0.0, 1.0);
+    let B = Matrix3x2::new(c, -0.5 * d * s, s, 0.5 * d * c, 0.0, 1.0);
+    let w_new = Vec3::new(w.x + d * c, w.y + d * s, w.z + inc.dtheta_rad);
+    let p_new = A * p * A.transpose() + B * q * B.transpose();
+    (w_new, p_new)
+}
+
+/// Propagates the sensitivity `v = ∂w/∂b` of a window pose `w` (before the
+/// step) to a bias `b` whose effect on the increment is `j = ∂[Δd, Δθ]/∂b`.
+fn propagate_sensitivity(w: &Vec3, v: &Vec3, inc: Increment, j: (f64, f64)) -> Vec3 {
+    let d = inc.distance_m;
+    let m = w.z + 0.5 * inc.dtheta_rad;
+    let (s, c) = m.sin_cos();
+    // v' = A v + B j with the A, B of the prediction.
+    Vec3::new(
+        v.x - d * s * v.z + c * j.0 - 0.5 * d * s * j.1,
+        v.y + d * c * v.z + s * j.0 + 0.5 * d * c * j.1,
+        v.z + j.1,
+    )
+}
+
+/// `anchor ⊕ w` for the pose.
+fn compose(anchor: &Vec3, (c, s): (f64, f64), w: &Vec3) -> Vec3 {
+    Vec3::new(
+        anchor.x + c * w.x - s * w.y,
+        anchor.y + s * w.x + c * w.y,
+        wrap_angle(anchor.z + w.z),
+    )
+}
+
+/// The covariance of `anchor ⊕ w`: `J_a P_a J_aᵀ + R P_w Rᵀ`.
+fn compose_covariance(p_a: &Mat3, (c, s): (f64, f64), w: &Vec3, p_w: &Mat3) -> Mat3 {
+    let dx = c * w.x - s * w.y;
+    let dy = s * w.x + c * w.y;
+    let Ja = Mat3::new(1.0, 0.0, -dy, 0.0, 1.0, dx, 0.0, 0.0, 1.0);
+    let R = Mat3::new(c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0);
+    symmetrise(&(Ja * p_a * Ja.transpose() + R * p_w * R.transpose()))
+}
+
+/// Joseph-form update with gain `K`, prior `P` and measurement covariance `R`.
+fn joseph(K: &Mat3, P: &Mat3, R: &Mat3) -> Mat3 {
+    let I_K = Mat3::identity() - K;
+    symmetrise(&(I_K * P * I_K.transpose() + K * R * K.transpose()))
+}
+
+/// The median of four values: the mean of the middle two.
+fn median4(v: [f64; 4]) -> f64 {
+    let mut s = v;
+    s.sort_by(f64::total_cmp);
+    0.5 * (s[1] + s[2])
+}
+
+/// Which wheel's implied centre distance is farthest from the median of the four.
+fn consensus_outlier(centre_m: [f64; 4]) -> Wheel {
+    let med = median4(centre_m);
+    let mut worst = 0;
+    for k in 1..4 {
+        if (centre_m[k] - med).abs() > (centre_m[worst] - med).abs() {
+            worst = k;
+        }
+    }
+    WHEEL_ORDER[worst]
+}
+
+/// The order of `State::centre_m`: as [`wheel_distance_factors`] returns them.
+const WHEEL_ORDER: [Wheel; 4] = [
+    Wheel::RearLeft,
+    Wheel::RearRight,
+    Wheel::FrontLeft,
+    Wheel::FrontRight,
+];
+
+impl Ekf {
+    /// A filter with a validated configuration.
+    ///
+    /// # Errors
+    /// [`Error::InvalidConfig`] for a non-positive noise, zero window, or bad `R`.
+    pub fn new(config: EkfConfig) -> Result<Self> {
+        config.validate()?;
+        Ok(Self { cfg: config })
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &EkfConfig {
+        &self.cfg
+    }
+
+    /// Rear input covariance `Q_u = J diag(k_r|d_R|, k_r|d_L|) Jᵀ`.
+    fn q_rear(&self, d_l: f64, d_r: f64) -> Matrix2<f64> {
+        let b = self.cfg.params.rear_tread_m();
+        let vr = self.cfg.k_rear_m * d_r.abs();
+        let vl = self.cfg.k_rear_m * d_l.abs();
+        Matrix2::new(
+            0.25 * (vr + vl),
+            0.5 * (vr - vl) / b,
+            0.5 * (vr - vl) / b,
+            (vr + vl) / (b * b),
+        )
+    }
+
+    /// The front increment at the rear axle and its covariance.
+    fn front(
+        &self,
+        d_fl: f64,
+        d_fr: f64,
+        phi: f64,
+        g_fl: f64,
+        g_fr: f64,
+    ) -> Result<(Increment, Matrix2<f64>, (f64, f64))> {
+        let p = &self.cfg.params;
+        let k_f = self.cfg.k_front_m;
+        let d_f = 0.5 * (d_fl + d_fr);
+        let (s, c) = phi.sin_cos();
+        match self.cfg.front_heading {
+            FrontHeading::Steering => {
+                let inc = front_increment_exact(p, d_fl, d_fr, phi)?;
+                let L = p.wheelbase_m();
+                let Jf = Matrix2::new(c, -d_f * s, s / L, d_f * c / L);
+                let D = Matrix2::new(k_f * d_f.abs(), 0.0, 0.0, self.cfg.steer_sigma_rad.powi(2));
+                Ok((inc, Jf * D * Jf.transpose(), (-d_f * s, d_f * c / L)))
+            }
+            FrontHeading::WheelDifference => {
+                let inc = front_increment_differential(p, d_fl, d_fr, phi)?;
+                let g = 0.5 * (g_fl + g_fr) / p.front_tread_m();
+                let var_theta = k_f * (d_fl.abs() + d_fr.abs()) * g * g;
+                let q = Matrix2::new(k_f * d_f.abs() * c * c, 0.0, 0.0, var_theta);
+                Ok((inc, q, (-d_f * s, inc.dtheta_rad * phi.tan())))
+            }
+        }
+    }
+
+    /// One sample: prediction from the rear wheels, the front window
+    /// integrated beside it, and a correction when the window is full.
+    ///
+    /// # Errors
+    /// [`Error::NonFiniteInput`] for a NaN or infinite input,
+    /// [`Error::SteeringOutOfRange`] for |φ| ≥ 90°, [`Error::Numerical`] if the
+    /// result is not finite. On error `prev` stays the valid state.
+    pub fn step(&self, prev: &State, input: &OdometryInput) -> Result<State> {
+        let w = &input.wheel_m;
+        finite("rear_left_m", w.rear_left)?;
+        finite("rear_right_m", w.rear_right)?;
+        let phi = finite("steer_angle_rad", input.steer_angle_rad)?;
+        if phi.abs() >= std::f64::consts::FRAC_PI_2 - 1e-6 {
+            return Err(Error::SteeringOutOfRange {
+                steer_angle_rad: phi,
+            });
+        }
+        if input.front_valid {
+            finite("front_left_m", w.front_left)?;
+            finite("front_right_m", w.front_right)?;
+        }
+        let p = &self.cfg.params;
+        let mut st = *prev;
+        let rear = rear_increment(p, w.rear_left, w.rear_right)?;
+        let q = self.q_rear(w.rear_left, w.rear_right);
+        (st.rear_w, st.p_rear_w) = propagate(&st.rear_w, &st.p_rear_w, rear, &q);
+        let [g_rl, g_rr, g_fl, g_fr] = wheel_distance_factors(p, phi);
+        st.centre_m[0] += w.rear_left / g_rl;
+        st.centre_m[1] += w.rear_right / g_rr;
+        if input.front_valid {
+            let (front, qf, j) = self.front(w.front_left, w.front_right, phi, g_fl, g_fr)?;
+            st.front_bias_sens = propagate_sensitivity(&st.front_w, &st.front_bias_sens, front, j);
+            (st.front_w, st.p_front_w) = propagate(&st.front_w, &st.p_front_w, front, &qf);
+            st.front_alone = {
+                let z = &st.front_alone;
+                let m = z.z + 0.5 * front.dtheta_rad;
+                Vec3::new(
+                    z.x + front.distance_m * m.cos(),
+                    z.y + front.distance_m * m.sin(),
+                    z.z + front.dtheta_rad,
+                )
+            };
+            st.centre_m[2] += w.front_left / g_fl;
+            st.centre_m[3] += w.front_right / g_fr;
+        } else {
+            st.window_front_ok = false;
+        }
+        st.window_len += 1;
+        if st.window_len >= self.cfg.correct_every {
+            self.close_window(&mut st)?;
+        }
+        st.pose = compose(&st.anchor, st.anchor_cos_sin, &st.rear_w);
+        if st.pose.iter().any(|v| !v.is_finite()) || st.p_rear_w.iter().any(|v| !v.is_finite()) {
+            return Err(Error::Numerical {
+                context: "EKF step",
+            });
+        }
+        Ok(st)
+    }
+
+    /// Fuses the window (per the form), composes it onto the anchor, resets it.
+    fn close_window(&self, st: &mut State) -> Result<()> {
+        st.slip_flags = WheelSet::splat(false);
+        let fuse = !matches!(self.cfg.form, CorrectionForm::RearOnly);
+        let (w, p_w) = if !fuse {
+            (st.rear_w, st.p_rear_w)
+        } else if !st.window_front_ok {
+            st.stats.skipped_no_front += 1;
+            (st.rear_w, st.p_rear_w)
+        } else {
+            st.stats.corrections += 1;
+            match self.cfg.form {
+                CorrectionForm::Anchored => self.correct_anchored(st)?,
+                CorrectionForm::Literal { r_diag } => {
+                    self.correct_literal(st, r_diag)?;
+                    (Vec3::zeros(), Mat3::zeros())
+                }
+                CorrectionForm::RearOnly => (st.rear_w, st.p_rear_w),
+            }
+        };
+        if !matches!(self.cfg.form, CorrectionForm::Literal { .. }) || !fuse || !st.window_front_ok
+        {
+            let new_anchor = compose(&st.anchor, st.anchor_cos_sin, &w);
+            st.p_anchor = compose_covariance(&st.p_anchor, st.anchor_cos_sin, &w, &p_w);
+            st.anchor_heading_unwrapped_rad += w.z;
+            st.anchor = new_anchor;
+        }
+        st.anchor_cos_sin = (st.anchor.z.cos(), st.anchor.z.sin());
+        st.rear_w = Vec3::zeros();
+        st.p_rear_w = Mat3::zeros();
+        st.front_w = Vec3::zeros();
+        st.p_front_w = Mat3::zeros();
+        st.front_bias_sens = Vec3::zeros();
+        st.centre_m = [0.0; 4];
+        st.window_len = 0;
+        st.window_front_ok = true;
+        if st.anchor.iter().any(|v| !v.is_finite()) || st.p_anchor.iter().any(|v| !v.is_finite()) {
+            return Err(Error::Numerical {
+                context: "EKF correction",
+            });
+        }
+        Ok(())
+    }
+
+    /// The anchored correction; returns the fused window increment and covariance.
+    fn correct_anchored(&self, st: &mut State) -> Result<(Vec3, Mat3)> {
+        let mut nu = st.front_w - st.rear_w;
+        nu.z = wrap_angle(nu.z);
+        // A tiny floor keeps S invertible when the car stood still all window.
+        let v = st.front_bias_sens;
+        let p_front = st.p_front_w + v * v.transpose() * self.cfg.steer_bias_sigma_rad.powi(2);
+        let S = st.p_rear_w + p_front + Mat3::identity() * 1e-15;
+        let S_inv = S.try_inverse().ok_or(Error::Numerical {
+            context: "innovation covariance",
+        })?;
+        let d2 = (nu.transpose() * S_inv * nu)[(0, 0)];
+        st.last_mahalanobis_sq = if d2.is_finite() { d2 } else { 0.0 };
+        if let Some(threshold) = self.cfg.gate_threshold
+            && d2 > threshold
+        {
+            let use_front = match self.cfg.gate_action {
+                GateAction::UseFront => true,
+                GateAction::KeepRear => false,
+                GateAction::Consensus => {
+                    let wheel = consensus_outlier(st.centre_m);
+                    st.slip_flags[wheel] = true;
+                    st.slip_counts[wheel] += 1;
+                    wheel.is_rear()
+                }
+            };
+            return Ok(if use_front {
+                st.stats.rejected_used_front += 1;
+                (st.front_w, p_front)
+            } else {
+                st.stats.rejected_kept_rear += 1;
+                (st.rear_w, st.p_rear_w)
+            });
+        }
+        st.stats.accepted += 1;
+        let K = st.p_rear_w * S_inv;
+        let w = st.rear_w + K * nu;
+        Ok((w, joseph(&K, &st.p_rear_w, &p_front)))
+    }
+
+    /// The paper's literal correction with `z` the front odometry alone.
+    fn correct_literal(&self, st: &mut State, r_diag: [f64; 3]) -> Result<()> {
+        let x_prior = compose(&st.anchor, st.anchor_cos_sin, &st.rear_w);
+        let p_prior = compose_covariance(&st.p_anchor, st.anchor_cos_sin, &st.rear_w, &st.p_rear_w);
+        let prior_unwrapped = st.anchor_heading_unwrapped_rad + st.rear_w.z;
+        let mut nu = st.front_alone - x_prior;
+        nu.z = wrap_angle(st.front_alone.z - prior_unwrapped);
+        let R = Mat3::from_diagonal(&Vec3::new(r_diag[0], r_diag[1], r_diag[2]));
+        let S = p_prior + R;
+        let S_inv = S.try_inverse().ok_or(Error::Numerical {
+            context: "innovation covariance",
+        })?;
+        let d2 = (nu.transpose() * S_inv * nu)[(0, 0)];
+        st.last_mahalanobis_sq = if d2.is_finite() { d2 } else { 0.0 };
+        let (x, p, turn) = if self.cfg.gate_threshold.is_some_and(|t| d2 > t) {
+            // Rejected: the literal z is a whole trajectory, not a window, so
+            // the only sound action is to keep the prediction.
+            st.stats.rejected_kept_rear += 1;
+            (x_prior, p_prior, st.rear_w.z)
+        } else {
+            st.stats.accepted += 1;
+            let K = p_prior * S_inv;
+            let dx = K * nu;
+            let x = Vec3::new(
+                x_prior.x + dx.x,
+                x_prior.y + dx.y,
+                wrap_angle(x_prior.z + dx.z),
+            );
+            (x, joseph(&K, &p_prior, &R), st.rear_w.z + dx.z)
+        };
+        st.anchor = x;
+        st.p_anchor = p;
+        st.anchor_heading_unwrapped_rad += turn;
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::params::SteeringMap;
+    use proptest::prelude::*;
+
+    fn car() -> VehicleParams {
+        VehicleParams::new(
+            0.25,
+            0.30,
+            0.30,
+            WheelSet::splat(0.09),
+            1000,
+            SteeringMap::IDENTITY,
+        )
+        .unwrap()
+    }
+
+    /// Wheel distances of an exact arc step of the rear-axle centre.
+    fn arc_input(p: &VehicleParams, ds: f64, phi: f64) -> OdometryInput {
+        let [g_rl, g_rr, g_fl, g_fr] = wheel_distance_factors(p, phi);
+        OdometryInput {
+            wheel_m: WheelSet {
+                rear_left: ds * g_rl,
+                rear_right: ds * g_rr,
+                front_left: ds * g_fl,
+                front_right: ds * g_fr,
+            },
+            front_valid: true,
+            steer_angle_rad: phi,
+        }
+    }
+
+    #[test]
+    fn rear_only_is_plain_rear_odometry() {
+        let p = car();
+        let ekf = Ekf::new(EkfConfig::rear_only(p)).unwrap();
+        let mut st = State::origin();
+        let mut pose = Pose::default();
+        for k in 0..1000 {
+            let phi = 0.3 * (f64::from(k) * 0.01).sin();
+            let mut inp = arc_input(&p, 0.001, phi);
+            inp.wheel_m.rear_left *= 1.01;
+            st = ekf.step(&st, &inp).unwrap();
+            pose = pose.advanced(
+                rear_increment(&p, inp.wheel_m.rear_left, inp.wheel_m.rear_right).unwrap(),
+            );
+        }
+        let e = st.pose_unwrapped();
+        assert!((e.x_m - pose.x_m).abs() < 1e-12 && (e.y_m - pose.y_m).abs() < 1e-12);
+        assert!((e.heading_rad - pose.heading_rad).abs() < 1e-12);
+        assert_eq!(st.stats.corrections, 0);
+    }
+
+    #[test]
+    fn consensus_blames_the_slipping_wheel() {
+        let p = car();
+        let ekf = Ekf::new(EkfConfig::new(p)).unwrap();
+        for (slipping, expect_front) in [(Wheel::RearLeft, true), (Wheel::FrontRight, false)] {
+            let mut st = State::origin();
+            for _ in 0..50 {
+                let mut inp = arc_input(&p, 0.001, 0.2);
+                inp.wheel_m[slipping] *= 1.5;
+                st = ekf.step(&st, &inp).unwrap();
+            }
+            assert!(st.slip_flags[slipping], "{slipping:?}: {:?}", st.stats);
+            assert_eq!(st.slip_counts[slipping], 1);
+            assert_eq!(st.stats.rejected_used_front, u64::from(expect_front));
+            assert_eq!(st.stats.rejected_kept_rear, u64::from(!expect_front));
+            // The clean axle's increment was kept: the pose is the true arc.
+            let kappa = 0.2f64.tan() / 0.25;
+            let theta = kappa * 0.05;
+            assert!(
+                (st.pose().heading_rad - theta).abs() < 1e-8,
+                "{:?}",
+                st.pose()
+            );
+            assert!((st.pose().x_m - theta.sin() / kappa).abs() < 1e-8);
+        }
+    }
+
+    #[test]
+    fn agreeing_axles_are_accepted_and_shrink_the_covariance() {
+        let p = car();
+        let ekf = Ekf::new(EkfConfig::new(p)).unwrap();
+        let rear = Ekf::new(EkfConfig::rear_only(p)).unwrap();
+        let (mut a, mut b) = (State::origin(), State::origin());
+        for _ in 0..500 {
+            let inp = arc_input(&p, 0.001, 0.1);
+            a = ekf.step(&a, &inp).unwrap();
+            b = rear.step(&b, &inp).unwrap();
+        }
+        assert_eq!((a.stats.corrections, a.stats.accepted), (10, 10));
+        assert!(a.covariance().trace() < b.covariance().trace());
+        assert!((a.pose().x_m - b.pose().x_m).abs() < 1e-9);
+    }
+
+    #[test]
+    fn non_finite_inputs_are_errors_and_leave_the_state() {
+        let p = car();
+        let ekf = Ekf::new(EkfConfig::new(p)).unwrap();
+        let st = State::origin();
+        let mut inp = arc_input(&p, 0.001, 0.1);
+        inp.wheel_m.front_left = f64::NAN;
+        assert!(matches!(
+            ekf.step(&st, &inp),
+            Err(Error::NonFiniteInput {
+                name: "front_left_m",
+                ..
+            })
+        ));
+        inp.front_valid = false;
+        assert!(
+            ekf.step(&st, &inp).is_ok(),
+            "a stale front sample is not read"
+        );
+        inp.steer_angle_rad = f64::INFINITY;
+        assert!(ekf.step(&st, &inp).is_err());
+        inp.steer_angle_rad = 1.6;
+        assert!(matches!(
+            ekf.step(&st, &inp),
+            Err(Error::SteeringOutOfRange { .. })
+        ));
+        assert!(
+            Ekf::new(EkfConfig {
+                correct_every: 0,
+                ..EkfConfig::new(p)
+            })
+            .is_err()
+        );
+        assert!(
+            Ekf::new(EkfConfig {
+                k_rear_m: f64::NAN,
+                ..EkfConfig::new(p)
+            })
+            .is_err()
+        );
+        assert!(
+            State::new(
+                Pose {
+                    x_m: f64::NAN,
+                    ..Pose::default()
+                },
+                Mat3::zeros()
+            )
+            .is_err()
+        );
+    }
+
+    #[test]
+    fn heading_stays_wrapped_and_unwrapped_counts_turns() {
+        let p = car();
+        let ekf = Ekf::new(EkfConfig::new(p)).unwrap();
+        let mut st = State::origin();
+        let kappa = 0.3f64.tan() / 0.25;
+        let n = (3.0 * std::f64::consts::TAU / kappa / 0.002).round() as usize;
+        for _ in 0..n {
+            st = ekf.step(&st, &arc_input(&p, 0.002, 0.3)).unwrap();
+            let h = st.pose().heading_rad;
+            assert!(h > -std::f64::consts::PI && h <= std::f64::consts::PI);
+        }
+        assert!((st.pose_unwrapped().heading_rad - 3.0 * std::f64::consts::TAU).abs() < 0.01);
+    }
+
+    proptest! {
+        #[test]
+        fn covariance_stays_symmetric_psd_and_finite(
+            steps in prop::collection::vec((-0.01f64..0.02, -0.5f64..0.5, -0.5f64..0.5, any::<bool>()), 1..300),
+            literal in any::<bool>(),
+        ) {
+            let p = car();
+            let cfg = if literal { EkfConfig::paper_literal(p) } else { EkfConfig::new(p) };
+            let ekf = Ekf::new(cfg).unwrap();
+            let mut st = State::origin();
+            for (ds, phi, slip, front) in steps {
+                let mut inp = arc_input(&p, ds, phi);
+                inp.wheel_m.rear_left *= 1.0 + slip;
+                inp.front_valid = front;
+                st = ekf.step(&st, &inp).unwrap();
+                let P = st.covariance();
+                prop_assert!(P.iter().all(|v| v.is_finite()));
+                prop_assert!((P - P.transpose()).abs().max() < 1e-15);
+                let eig = P.symmetric_eigenvalues();
+                prop_assert!(eig.min() > -1e-12, "{eig:?}");
+                prop_assert!(st.pose().x_m.is_finite() && st.pose().heading_rad.is_finite());
+            }
+        }
+    }
+}

@@ -1,0 +1,283 @@
+//! The fusion experiments of `calibration-math.md` §11 and §12 reproduced on
+//! the simulator with fixed seeds; every figure is printed
+//! (`cargo test -p canodom-fusion --test experiments -- --nocapture`).
+//!
+//! The same default configuration ([`EkfConfig::new`]) must pass both: the
+//! slip experiment (fused mean squared end error ≥ 90 % below rear-only) and
+//! the full-size car (end error ≤ 0.15 % of the distance).
+
+// Helpers of a test harness: a failure to set up is a test failure.
+#![allow(clippy::unwrap_used)]
+
+use canodom_fusion::ekf::{CorrectionForm, Ekf, EkfConfig, FrontHeading, OdometryInput, State};
+use canodom_fusion::sim::{
+    Direction, OuNoise, Plan, Run, SimConfig, SlipConfig, SlipWheels, SteeringSensor, simulate,
+};
+use canodom_fusion::wheel::{InputConfig, SpeedDecoder, SpeedIntegration, SpeedUnit, TickDecoder};
+use canodom_fusion::{Pose, SteeringMap, VehicleParams, Wheel, WheelSet};
+
+const DEG: f64 = std::f64::consts::PI / 180.0;
+
+/// The §9/§11 1:10 car; the truth equals the nominal parameters here, the
+/// errors come from slip and the steering sensor.
+fn rc_car() -> VehicleParams {
+    VehicleParams::nominal(0.25, 0.30, 0.09, 1000).unwrap()
+}
+
+/// The §12 full-size car: the steering signal is the steering-wheel angle in
+/// degrees with a ratio of 15.
+fn road_car() -> VehicleParams {
+    VehicleParams::new(
+        2.70,
+        1.55,
+        1.55,
+        WheelSet::splat(0.65),
+        100,
+        SteeringMap {
+            gain: DEG / 15.0,
+            offset_rad: 0.0,
+        },
+    )
+    .unwrap()
+}
+
+/// Where the wheel distances come from.
+enum Wheels {
+    Ticks(Vec<TickDecoder>),
+    Speeds(Vec<SpeedDecoder>),
+}
+
+impl Wheels {
+    fn ticks(p: &VehicleParams, bits: u32) -> Self {
+        Wheels::Ticks(
+            Wheel::ALL
+                .iter()
+                .map(|w| {
+                    TickDecoder::new(bits, p.tick_distance_m(*w, 1.0), InputConfig::RC_CAR).unwrap()
+                })
+                .collect(),
+        )
+    }
+
+    fn speeds() -> Self {
+        let cfg = InputConfig {
+            nominal_period_s: 0.01,
+            ..InputConfig::ROAD_CAR
+        };
+        Wheels::Speeds(
+            (0..4)
+                .map(|_| {
+                    SpeedDecoder::new(
+                        SpeedUnit::KilometresPerHour,
+                        SpeedIntegration::Trapezoid,
+                        cfg,
+                    )
+                    .unwrap()
+                })
+                .collect(),
+        )
+    }
+
+    fn distances(&mut self, s: &canodom_fusion::sim::Sample) -> WheelSet<f64> {
+        let mut out = WheelSet::splat(0.0);
+        for (k, w) in Wheel::ALL.iter().enumerate() {
+            let step = match self {
+                Wheels::Ticks(d) => d[k].push(s.t_s, s.ticks[*w]),
+                Wheels::Speeds(d) => d[k].push(s.t_s, s.wheel_speed[*w]),
+            };
+            assert_eq!(
+                step.fault, None,
+                "the simulator's wheels must decode cleanly"
+            );
+            out[*w] = step.distance_m;
+        }
+        out
+    }
+}
+
+/// Runs every filter over one simulated run; returns each filter's final state.
+fn replay(run: &Run, nominal: &VehicleParams, mut wheels: Wheels, filters: &[Ekf]) -> Vec<State> {
+    let mut states = vec![State::origin(); filters.len()];
+    for (k, s) in run.samples.iter().enumerate() {
+        let wheel_m = wheels.distances(s);
+        if k == 0 {
+            continue;
+        }
+        let input = OdometryInput {
+            wheel_m,
+            front_valid: true,
+            steer_angle_rad: nominal.steering().angle_rad(s.steer_signal),
+        };
+        for (st, f) in states.iter_mut().zip(filters) {
+            *st = f.step(st, &input).unwrap();
+        }
+    }
+    states
+}
+
+fn err_sq(est: Pose, truth: Pose) -> f64 {
+    (est.x_m - truth.x_m).powi(2) + (est.y_m - truth.y_m).powi(2)
+}
+
+/// The §11 set-up: two CCW laps of the 0.78 m track, 0.3° white + 0.3° per-run
+/// bias on the steering measurement, slips per `slip`.
+fn slip_experiment(
+    slip: SlipWheels,
+    seeds: &[u64],
+    runs_per_seed: u64,
+    filters: &[(&str, Ekf)],
+) -> Vec<f64> {
+    let p = rc_car();
+    let mut cfg = SimConfig::rc_car(p);
+    cfg.slip = SlipConfig::paper(slip);
+    cfg.steering_sensor = SteeringSensor {
+        white_sigma_rad: 0.3 * DEG,
+        bias_sigma_rad: 0.3 * DEG,
+        ..SteeringSensor::EXACT
+    };
+    let plan = Plan::track(0.78, Direction::Ccw, 2).unwrap();
+    let ekfs: Vec<Ekf> = filters.iter().map(|(_, f)| *f).collect();
+    let mut sums = vec![0.0; filters.len()];
+    let mut n = 0.0;
+    let mut rejections = 0;
+    for seed in seeds {
+        for r in 0..runs_per_seed {
+            let run = simulate(&cfg, &plan, seed * 1000 + r).unwrap();
+            let states = replay(&run, &p, Wheels::ticks(&p, 16), &ekfs);
+            for (sum, st) in sums.iter_mut().zip(&states) {
+                *sum += err_sq(st.pose(), run.true_end);
+            }
+            rejections += states.last().map_or(0, |s| {
+                s.stats.rejected_used_front + s.stats.rejected_kept_rear
+            });
+            n += 1.0;
+        }
+    }
+    let means: Vec<f64> = sums.iter().map(|s| s / n).collect();
+    println!("slips on {slip:?}, {n} runs (last filter's gate rejections: {rejections}):");
+    for ((name, _), m) in filters.iter().zip(&means) {
+        println!(
+            "  {name:<34} mean |e|^2 = {m:.4} m^2  ({:+.4} m^2, {:+.0} % vs rear-only)",
+            m - means[0],
+            100.0 * (m / means[0].max(1e-9) - 1.0)
+        );
+    }
+    means
+}
+
+/// The filters compared; the last is the default configuration.
+fn variants(p: VehicleParams) -> Vec<(&'static str, Ekf)> {
+    let default = EkfConfig::new(p);
+    // The anchored form with the steering model matched to §11's sensor
+    // (0.3° white, 0.3° bias per run), no gate: §11's "anchored fusion".
+    let anchored_matched = EkfConfig {
+        steer_sigma_rad: 0.3 * DEG,
+        steer_bias_sigma_rad: 0.5 * DEG,
+        gate_threshold: None,
+        ..default
+    };
+    let default_no_gate = EkfConfig {
+        gate_threshold: None,
+        ..default
+    };
+    // §12's recipe: the steering as white noise of 20° in the window model.
+    let white_20 = EkfConfig {
+        steer_sigma_rad: 20.0 * DEG,
+        steer_bias_sigma_rad: 0.0,
+        ..default
+    };
+    let wheel_diff = EkfConfig {
+        front_heading: FrontHeading::WheelDifference,
+        ..default
+    };
+    let ekf = |c| Ekf::new(c).unwrap();
+    vec![
+        ("rear only", ekf(EkfConfig::rear_only(p))),
+        (
+            "paper literal R=10,10,10 @10Hz",
+            ekf(EkfConfig::paper_literal(p)),
+        ),
+        ("anchored, sensor-matched, no gate", ekf(anchored_matched)),
+        ("default without its gate", ekf(default_no_gate)),
+        ("anchored white 20deg + gate", ekf(white_20)),
+        ("anchored wheel-diff heading + gate", ekf(wheel_diff)),
+        ("DEFAULT anchored + consensus gate", ekf(default)),
+    ]
+}
+
+#[test]
+fn section_11_slip_experiment_and_front_only_slips() {
+    let p = rc_car();
+    let filters = variants(p);
+    let m = slip_experiment(SlipWheels::All, &[11, 12, 13], 60, &filters);
+    let n = m.len();
+    let (rear, literal, anchored, default) = (m[0], m[1], m[2], m[n - 1]);
+    println!(
+        "§11 table: rear-only {rear:.4} m², literal {literal:.4} ({:+.0} %), anchored {anchored:.4} ({:+.0} %), \
+         anchored+consensus {default:.4} ({:+.0} %)",
+        100.0 * (literal / rear - 1.0),
+        100.0 * (anchored / rear - 1.0),
+        100.0 * (default / rear - 1.0)
+    );
+    assert!(literal <= 0.70 * rear, "literal {literal} vs rear {rear}");
+    assert!(
+        anchored <= 0.40 * rear,
+        "anchored {anchored} vs rear {rear}"
+    );
+    assert!(default <= 0.10 * rear, "gated {default} vs rear {rear}");
+
+    let front_only = [filters[0], filters[1], filters[2], filters[5], filters[6]];
+    let m = slip_experiment(SlipWheels::Front, &[21, 22, 23], 20, &front_only);
+    let (rear, default) = (m[0], m[m.len() - 1]);
+    println!(
+        "front-only slips: rear-only {rear:.4} m², literal {:.4} m², default {default:.4} m² (default − rear-only {:+.4} m²)",
+        m[1],
+        default - rear
+    );
+    assert!(default <= rear + 0.005, "{m:?}");
+}
+
+#[test]
+fn section_12_full_size_car_default_within_0_15_percent() {
+    let p = road_car();
+    let sensor = SteeringSensor {
+        white_sigma_rad: 0.05 * DEG,
+        bias_rad: 0.2 * DEG,
+        bias_sigma_rad: 0.1 * DEG,
+        drift_rad: OuNoise {
+            sigma: 0.1 * DEG,
+            tau_s: 30.0,
+        },
+        quantum: 1.5,
+    };
+    let cfg = SimConfig::road_car(p, sensor);
+    let filters = variants(p);
+    let ekfs: Vec<Ekf> = filters.iter().map(|(_, f)| *f).collect();
+    let mut worst_default = 0.0f64;
+    for seed in 0..3 {
+        let run = simulate(&cfg, &Plan::road_drive(seed).unwrap(), seed).unwrap();
+        let distance_m = run.samples.last().unwrap().true_distance_m;
+        let states = replay(&run, &p, Wheels::speeds(), &ekfs);
+        println!(
+            "§12 drive {seed}: {distance_m:.0} m, steering bias {:.2}° (road wheel)",
+            run.steer_bias_rad / DEG
+        );
+        for ((name, _), st) in filters.iter().zip(&states) {
+            let e = err_sq(st.pose(), run.true_end).sqrt();
+            println!(
+                "  {name:<34} end error {e:6.2} m = {:.3} % (gate rejections {} {})",
+                100.0 * e / distance_m,
+                st.stats.rejected_used_front,
+                st.stats.rejected_kept_rear
+            );
+        }
+        let e = err_sq(states[states.len() - 1].pose(), run.true_end).sqrt() / distance_m;
+        worst_default = worst_default.max(e);
+    }
+    println!(
+        "§12 default worst: {:.3} % of distance",
+        100.0 * worst_default
+    );
+    assert!(worst_default <= 0.0015, "{worst_default}");
+    assert!(matches!(EkfConfig::new(p).form, CorrectionForm::Anchored));
+}
