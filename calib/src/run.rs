@@ -258,22 +258,45 @@ pub struct Run {
     pub measured_end: Option<Pose>,
 }
 
-/// Rear odometry over the samples with the given parameters (the same step
-/// as `canodom_fusion::odometry::rear_increment` + `Pose::advanced`, inlined
-/// because calibration replays runs thousands of times).
+/// cos and sin of a small angle `h`: Taylor series where they are exact
+/// to rounding (|h| < 0.01: the first omitted terms are below 2e-15
+/// relative), `sin_cos` beyond.
+#[inline]
+fn small_sin_cos(h: f64) -> (f64, f64) {
+    if h.abs() < 0.01 {
+        let h2 = h * h;
+        let c = 1.0 - h2 * (0.5 - h2 * (1.0 / 24.0 - h2 / 720.0));
+        let s = h * (1.0 - h2 * (1.0 / 6.0 - h2 / 120.0));
+        (s, c)
+    } else {
+        h.sin_cos()
+    }
+}
+
+/// Rear odometry over the samples with the given parameters: the step of
+/// `canodom_fusion::odometry::rear_increment` + `Pose::advanced`
+/// (Δd = (d_R+d_L)/2, Δθ = (d_R−d_L)/b, x += Δd cos(θ+Δθ/2), ...), inlined
+/// because calibration replays runs thousands of times. The direction
+/// (cos, sin) is carried by rotating it by Δθ/2 twice per step instead of
+/// evaluating sin_cos; the heading itself is summed exactly. The two agree
+/// to 1e-12 m over a lap (tested).
 pub(crate) fn replay_rear(samples: &[RevSample], rear: &RearParams) -> RunOdometry {
     let kl = PI * rear.left_diameter_m;
     let kr = PI * rear.right_diameter_m;
     let inv_b = 1.0 / rear.tread_m;
     let (mut x, mut y, mut th, mut len) = (0.0_f64, 0.0_f64, 0.0_f64, 0.0_f64);
-    for s in samples {
-        let dl = kl * s.rear_left_rev;
-        let dr = kr * s.rear_right_rev;
+    let (mut c, mut s) = (1.0_f64, 0.0_f64);
+    for smp in samples {
+        let dl = kl * smp.rear_left_rev;
+        let dr = kr * smp.rear_right_rev;
         let dd = 0.5 * (dl + dr);
         let dth = (dr - dl) * inv_b;
-        let (sn, cs) = (th + 0.5 * dth).sin_cos();
-        x = dd.mul_add(cs, x);
-        y = dd.mul_add(sn, y);
+        let (sh, ch) = small_sin_cos(0.5 * dth);
+        // Direction at the middle of the step, then at its end.
+        let (cm, sm) = (c * ch - s * sh, s * ch + c * sh);
+        x = dd.mul_add(cm, x);
+        y = dd.mul_add(sm, y);
+        (c, s) = (cm * ch - sm * sh, sm * ch + cm * sh);
         th += dth;
         len += dd.abs();
     }
