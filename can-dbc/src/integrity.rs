@@ -1,0 +1,348 @@
+//! Frame validity as production cars use it: rolling counters and checksums.
+//!
+//! The DLC check is part of decoding ([`crate::Message::decode`] rejects a short frame
+//! with [`crate::Error::ShortFrame`]); this module adds the counter and checksum checks
+//! and the helpers to produce valid frames (next counter value, checksum insertion).
+
+use std::ops::RangeInclusive;
+
+use crate::error::{Error, Result};
+
+/// Outcome of one rolling-counter observation.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum CounterStatus {
+    /// First frame seen: accepted, nothing to compare against.
+    First,
+    /// The counter advanced by exactly one (modulo 2^bits).
+    InSequence,
+    /// The counter did not advance by one: frames were lost, repeated or reordered.
+    Gap {
+        /// The value that was expected.
+        expected: u64,
+        /// The value that arrived.
+        got: u64,
+    },
+}
+
+/// Tracks a rolling counter signal of `bits` bits: each frame should carry the previous
+/// value plus one, modulo 2^bits.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct CounterCheck {
+    mask: u64,
+    last: Option<u64>,
+    gaps: u64,
+}
+
+impl CounterCheck {
+    /// A checker for a counter of `bits` bits (1..=64).
+    ///
+    /// # Errors
+    /// [`Error::InvalidCheck`] if `bits` is 0 or above 64.
+    pub fn new(bits: u32) -> Result<Self> {
+        if bits == 0 || bits > 64 {
+            return Err(Error::InvalidCheck(format!(
+                "a rolling counter of {bits} bits (needs 1..=64)"
+            )));
+        }
+        Ok(Self {
+            mask: u64::MAX >> (64 - bits),
+            last: None,
+            gaps: 0,
+        })
+    }
+
+    /// Record the counter value of a new frame and say whether it follows the previous one.
+    /// The new value becomes the reference even after a gap, so one lost frame counts once.
+    pub fn observe(&mut self, counter: u64) -> CounterStatus {
+        let counter = counter & self.mask;
+        let status = match self.last {
+            None => CounterStatus::First,
+            Some(prev) => {
+                let expected = prev.wrapping_add(1) & self.mask;
+                if counter == expected {
+                    CounterStatus::InSequence
+                } else {
+                    self.gaps += 1;
+                    CounterStatus::Gap {
+                        expected,
+                        got: counter,
+                    }
+                }
+            }
+        };
+        self.last = Some(counter);
+        status
+    }
+
+    /// Number of gaps seen so far.
+    pub fn gaps(&self) -> u64 {
+        self.gaps
+    }
+
+    /// Forget the last value (e.g. after a bus-off), keeping the gap count.
+    pub fn reset(&mut self) {
+        self.last = None;
+    }
+
+    /// The value to send after `counter` (for encoding frames).
+    pub fn next_value(&self, counter: u64) -> u64 {
+        counter.wrapping_add(1) & self.mask
+    }
+}
+
+/// The checksum algorithms met on production cars.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum ChecksumAlgorithm {
+    /// CRC-8 SAE J1850: poly 0x1D, init 0xFF, xor-out 0xFF, not reflected.
+    Crc8SaeJ1850,
+    /// Any non-reflected CRC-8 (MSB first): `poly`, `init`, `xor_out`. AUTOSAR's
+    /// 0x2F/0xFF/0xFF fits; per-message "magic" bytes are the caller's (append them to
+    /// the covered bytes by computing over a copy).
+    Crc8 {
+        /// Generator polynomial without the x^8 term.
+        poly: u8,
+        /// Register value before the first byte.
+        init: u8,
+        /// Value XORed into the register at the end.
+        xor_out: u8,
+    },
+    /// Sum of the covered bytes plus `init`, modulo 256.
+    Sum {
+        /// Starting value of the sum.
+        init: u8,
+    },
+    /// XOR of the covered bytes and `init`.
+    Xor {
+        /// Starting value of the XOR.
+        init: u8,
+    },
+}
+
+/// A checksum over a byte range of the payload, stored in one byte of the payload.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Checksum {
+    algorithm: ChecksumAlgorithm,
+    covered: RangeInclusive<usize>,
+    position: usize,
+    /// 256-entry table for the configurable CRC, built once: the `crc` crate needs a
+    /// `&'static` algorithm, which a poly known only at run time (from config) cannot be
+    /// without leaking memory.
+    table: Option<Box<[u8; 256]>>,
+}
+
+const J1850: crc::Crc<u8> = crc::Crc::<u8>::new(&crc::CRC_8_SAE_J1850);
+
+impl Checksum {
+    /// A checksum of `algorithm` over payload bytes `covered`, stored in byte `position`.
+    ///
+    /// # Errors
+    /// [`Error::InvalidCheck`] if the range is empty, or contains the checksum byte.
+    pub fn new(
+        algorithm: ChecksumAlgorithm,
+        covered: RangeInclusive<usize>,
+        position: usize,
+    ) -> Result<Self> {
+        if covered.is_empty() {
+            return Err(Error::InvalidCheck(format!(
+                "checksum over the empty byte range {covered:?}"
+            )));
+        }
+        if covered.contains(&position) {
+            return Err(Error::InvalidCheck(format!(
+                "checksum byte {position} lies inside the bytes it covers {covered:?}"
+            )));
+        }
+        let table = match algorithm {
+            ChecksumAlgorithm::Crc8 { poly, .. } => Some(Box::new(crc8_table(poly))),
+            _ => None,
+        };
+        Ok(Self {
+            algorithm,
+            covered,
+            position,
+            table,
+        })
+    }
+
+    /// CRC-8 SAE J1850 over bytes `0..=6`, stored in byte 7: the layout of `rc_car.dbc`.
+    pub fn rc_car() -> Self {
+        Self {
+            algorithm: ChecksumAlgorithm::Crc8SaeJ1850,
+            covered: 0..=6,
+            position: 7,
+            table: None,
+        }
+    }
+
+    /// Smallest payload length the checksum needs.
+    pub fn needed_length(&self) -> usize {
+        (*self.covered.end()).max(self.position) + 1
+    }
+
+    /// The checksum of `data`'s covered bytes.
+    ///
+    /// # Errors
+    /// [`Error::InvalidCheck`] if `data` is too short for the covered bytes or the checksum
+    /// byte (never reads past the end).
+    pub fn compute(&self, data: &[u8]) -> Result<u8> {
+        if data.len() < self.needed_length() {
+            return Err(Error::InvalidCheck(format!(
+                "frame of {} bytes is too short for a checksum over {:?} stored in byte {}",
+                data.len(),
+                self.covered,
+                self.position
+            )));
+        }
+        let bytes = &data[self.covered.clone()];
+        Ok(match &self.algorithm {
+            ChecksumAlgorithm::Crc8SaeJ1850 => J1850.checksum(bytes),
+            ChecksumAlgorithm::Crc8 { init, xor_out, .. } => {
+                let table = self.table.as_deref().map_or(&[0u8; 256], |t| t);
+                bytes.iter().fold(*init, |r, &b| table[usize::from(r ^ b)]) ^ xor_out
+            }
+            ChecksumAlgorithm::Sum { init } => bytes.iter().fold(*init, |a, &b| a.wrapping_add(b)),
+            ChecksumAlgorithm::Xor { init } => bytes.iter().fold(*init, |a, &b| a ^ b),
+        })
+    }
+
+    /// Whether the stored checksum byte matches.
+    ///
+    /// # Errors
+    /// As [`Self::compute`].
+    pub fn verify(&self, data: &[u8]) -> Result<bool> {
+        Ok(self.compute(data)? == data[self.position])
+    }
+
+    /// Compute and store the checksum (for encoding frames).
+    ///
+    /// # Errors
+    /// As [`Self::compute`].
+    pub fn apply(&self, data: &mut [u8]) -> Result<()> {
+        data[self.position] = self.compute(data)?;
+        Ok(())
+    }
+}
+
+/// Byte-wise table of a non-reflected CRC-8.
+fn crc8_table(poly: u8) -> [u8; 256] {
+    let mut table = [0u8; 256];
+    for (i, entry) in table.iter_mut().enumerate() {
+        let mut r = i as u8;
+        for _ in 0..8 {
+            r = if r & 0x80 != 0 {
+                (r << 1) ^ poly
+            } else {
+                r << 1
+            };
+        }
+        *entry = r;
+    }
+    table
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn j1850_check_value() {
+        // The catalogue check value of CRC-8/SAE-J1850 over "123456789" is 0x4B.
+        let c = Checksum::new(ChecksumAlgorithm::Crc8SaeJ1850, 0..=8, 9).unwrap();
+        let mut d = *b"123456789\0";
+        c.apply(&mut d).unwrap();
+        assert_eq!(d[9], 0x4B);
+        assert!(c.verify(&d).unwrap());
+        d[3] ^= 0x10;
+        assert!(!c.verify(&d).unwrap());
+    }
+
+    #[test]
+    fn configurable_crc_matches_catalogue() {
+        let j = Checksum::new(
+            ChecksumAlgorithm::Crc8 {
+                poly: 0x1D,
+                init: 0xFF,
+                xor_out: 0xFF,
+            },
+            0..=8,
+            9,
+        )
+        .unwrap();
+        assert_eq!(j.compute(b"123456789\0").unwrap(), 0x4B);
+        // AUTOSAR CRC-8/H2F (poly 0x2F): check value 0xDF.
+        let a = Checksum::new(
+            ChecksumAlgorithm::Crc8 {
+                poly: 0x2F,
+                init: 0xFF,
+                xor_out: 0xFF,
+            },
+            0..=8,
+            9,
+        )
+        .unwrap();
+        assert_eq!(a.compute(b"123456789\0").unwrap(), 0xDF);
+        // Same bytes, different layout: checksum first, data after.
+        let first = Checksum::new(ChecksumAlgorithm::Crc8SaeJ1850, 1..=9, 0).unwrap();
+        assert_eq!(first.compute(b"\x00123456789").unwrap(), 0x4B);
+    }
+
+    #[test]
+    fn sum_and_xor() {
+        let s = Checksum::new(ChecksumAlgorithm::Sum { init: 0 }, 0..=2, 3).unwrap();
+        assert_eq!(s.compute(&[0xF0, 0x20, 0x01, 0]).unwrap(), 0x11);
+        let x = Checksum::new(ChecksumAlgorithm::Xor { init: 0xFF }, 0..=2, 3).unwrap();
+        assert_eq!(
+            x.compute(&[0xF0, 0x20, 0x01, 0]).unwrap(),
+            0xFF ^ 0xF0 ^ 0x20 ^ 0x01
+        );
+    }
+
+    #[test]
+    fn short_frames_and_bad_layouts_are_errors() {
+        let c = Checksum::rc_car();
+        let e = c.compute(&[0; 7]).unwrap_err().to_string();
+        assert!(e.contains("7 bytes is too short"), "{e}");
+        let e = Checksum::new(ChecksumAlgorithm::Xor { init: 0 }, 0..=7, 7)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("byte 7 lies inside"), "{e}");
+        #[allow(clippy::reversed_empty_ranges)]
+        let e = Checksum::new(ChecksumAlgorithm::Xor { init: 0 }, 5..=2, 7)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("empty byte range"), "{e}");
+    }
+
+    #[test]
+    fn counter_wraps_and_counts_gaps() {
+        let mut c = CounterCheck::new(4).unwrap();
+        assert_eq!(c.observe(14), CounterStatus::First);
+        assert_eq!(c.observe(15), CounterStatus::InSequence);
+        assert_eq!(c.observe(0), CounterStatus::InSequence);
+        assert_eq!(
+            c.observe(2),
+            CounterStatus::Gap {
+                expected: 1,
+                got: 2
+            }
+        );
+        assert_eq!(c.observe(3), CounterStatus::InSequence);
+        assert_eq!(
+            c.observe(3),
+            CounterStatus::Gap {
+                expected: 4,
+                got: 3
+            }
+        );
+        assert_eq!(c.gaps(), 2);
+        assert_eq!(c.next_value(15), 0);
+        c.reset();
+        assert_eq!(c.observe(9), CounterStatus::First);
+        let e = CounterCheck::new(0).unwrap_err().to_string();
+        assert!(e.contains("0 bits"), "{e}");
+        assert!(CounterCheck::new(65).is_err());
+        let mut wide = CounterCheck::new(64).unwrap();
+        wide.observe(u64::MAX);
+        assert_eq!(wide.observe(0), CounterStatus::InSequence);
+    }
+}

@@ -1,0 +1,261 @@
+//! A compiled message: its signals, decoding a payload into physical values (honouring
+//! multiplexing) without allocating, and encoding physical values into a payload.
+
+use std::collections::HashMap;
+
+use crate::error::{Error, Result};
+use crate::frame_id::FrameId;
+use crate::signal::{MuxCondition, Signal};
+
+/// Most multiplexor signals (`M` or `m<n>M`) one message may have; the per-frame
+/// multiplexor state is a fixed array of this size so decoding never allocates.
+pub const MAX_MULTIPLEXORS: usize = 16;
+
+/// One message (`BO_`) of the database, compiled.
+#[derive(Clone, Debug)]
+pub struct Message {
+    pub(crate) name: String,
+    pub(crate) id: FrameId,
+    pub(crate) length: usize,
+    pub(crate) cycle_time_ms: Option<u64>,
+    pub(crate) comment: Option<String>,
+    pub(crate) transmitter: Option<String>,
+    pub(crate) signals: Vec<Signal>,
+    /// Multiplexor signal indices in dependency order: a nested multiplexor comes after the
+    /// one that selects it, so one pass computes every multiplexor's state.
+    pub(crate) multiplexors: Vec<usize>,
+    pub(crate) by_name: HashMap<String, usize>,
+}
+
+/// Raw values and validity of a frame's multiplexors, computed once per decoded frame.
+#[derive(Clone, Copy, Debug, Default)]
+struct MuxState {
+    raw: [u64; MAX_MULTIPLEXORS],
+    /// Bit `slot` set if that multiplexor is itself present in this frame.
+    present: u16,
+}
+
+impl MuxState {
+    #[inline]
+    fn selects(&self, cond: &MuxCondition) -> bool {
+        let slot = usize::from(cond.slot);
+        self.present & (1 << slot) != 0 && cond.selects(self.raw[slot])
+    }
+}
+
+impl Message {
+    /// Message name as in the DBC.
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+    /// Frame ID (standard or extended).
+    pub fn id(&self) -> FrameId {
+        self.id
+    }
+    /// Payload length in bytes from the DBC (up to 64 for CAN FD).
+    pub fn length(&self) -> usize {
+        self.length
+    }
+    /// `GenMsgCycleTime` attribute (or its default) in milliseconds; `None` if absent or 0.
+    pub fn cycle_time_ms(&self) -> Option<u64> {
+        self.cycle_time_ms
+    }
+    /// `CM_ BO_` comment.
+    pub fn comment(&self) -> Option<&str> {
+        self.comment.as_deref()
+    }
+    /// Transmitting node, if named.
+    pub fn transmitter(&self) -> Option<&str> {
+        self.transmitter.as_deref()
+    }
+    /// Signals in DBC order.
+    pub fn signals(&self) -> &[Signal] {
+        &self.signals
+    }
+    /// A signal by name.
+    pub fn signal(&self, name: &str) -> Option<&Signal> {
+        self.by_name.get(name).map(|&i| &self.signals[i])
+    }
+
+    fn check_length(&self, got: usize) -> Result<()> {
+        if got < self.length {
+            return Err(Error::ShortFrame {
+                message: self.name.clone(),
+                expected: self.length,
+                got,
+            });
+        }
+        Ok(())
+    }
+
+    fn mux_state(&self, data: &[u8]) -> MuxState {
+        let mut st = MuxState::default();
+        for (slot, &i) in self.multiplexors.iter().enumerate() {
+            let s = &self.signals[i];
+            let raw = s
+                .codec
+                .raw_bits(data)
+                .filter(|_| s.mux.as_ref().is_none_or(|c| st.selects(c)));
+            if let Some(raw) = raw {
+                st.raw[slot] = raw;
+                st.present |= 1 << slot;
+            }
+        }
+        st
+    }
+
+    /// Whether `signal` is present in a frame with payload `data` (always true for signals
+    /// that are not multiplexed).
+    pub fn is_present(&self, signal: &Signal, data: &[u8]) -> bool {
+        signal
+            .mux
+            .as_ref()
+            .is_none_or(|c| self.mux_state(data).selects(c))
+    }
+
+    /// Decode a payload into `(signal, physical value)` pairs, in DBC order, skipping
+    /// multiplexed signals the frame's multiplexor value does not select. Nothing is
+    /// allocated; bytes beyond the message's length are ignored (as cantools does).
+    ///
+    /// # Errors
+    /// [`Error::ShortFrame`] if `data` is shorter than the message's length.
+    pub fn decode<'m, 'd>(&'m self, data: &'d [u8]) -> Result<Decoded<'m, 'd>> {
+        self.check_length(data.len())?;
+        Ok(Decoded {
+            message: self,
+            data,
+            mux: self.mux_state(data),
+            next: 0,
+        })
+    }
+
+    /// Encode physical values given by signal name into a new payload of the message's
+    /// length. Like cantools, every signal present for the chosen multiplexor value needs a
+    /// value, and no value may be given for an absent one. Unused bits are 0.
+    ///
+    /// # Errors
+    /// [`Error::UnknownSignal`], [`Error::OutOfRange`], [`Error::MissingSignal`],
+    /// [`Error::InactiveSignal`], each naming message and signal.
+    pub fn encode(&self, values: &[(&str, f64)]) -> Result<Vec<u8>> {
+        let mut data = vec![0u8; self.length];
+        let mut given = vec![false; self.signals.len()];
+        for &(name, value) in values {
+            let i = *self.by_name.get(name).ok_or_else(|| Error::UnknownSignal {
+                looked_for: format!("{}.{name}", self.name),
+                reason: format!("message {} has no signal {name}", self.name),
+            })?;
+            self.encode_one(i, value, &mut data)?;
+            given[i] = true;
+        }
+        let st = self.mux_state(&data);
+        for (s, &g) in self.signals.iter().zip(&given) {
+            let present = s.mux.as_ref().is_none_or(|c| st.selects(c));
+            if present && !g {
+                return Err(Error::MissingSignal {
+                    message: self.name.clone(),
+                    signal: s.name.clone(),
+                });
+            }
+            if !present && g {
+                return Err(Error::InactiveSignal {
+                    message: self.name.clone(),
+                    signal: s.name.clone(),
+                });
+            }
+        }
+        Ok(data)
+    }
+
+    fn encode_one(&self, index: usize, value: f64, data: &mut [u8]) -> Result<()> {
+        let s = &self.signals[index];
+        let raw = s.scaled_to_raw(value, &self.name)?;
+        // Length was checked by every caller, so the insert cannot fall short.
+        s.codec.layout.insert(data, raw);
+        Ok(())
+    }
+
+    /// Encode `(signal index, physical value)` pairs into `data` in place, leaving all other
+    /// bits as they are; no allocation and no completeness check (the caller chooses which
+    /// signals to write, e.g. the ones [`Self::decode`] produced).
+    ///
+    /// # Errors
+    /// [`Error::ShortFrame`], [`Error::OutOfRange`], or [`Error::UnknownSignal`] for an index
+    /// past the message's signals.
+    pub fn encode_into(
+        &self,
+        values: impl IntoIterator<Item = (usize, f64)>,
+        data: &mut [u8],
+    ) -> Result<()> {
+        self.check_length(data.len())?;
+        for (i, value) in values {
+            if i >= self.signals.len() {
+                return Err(Error::UnknownSignal {
+                    looked_for: format!("{}[{i}]", self.name),
+                    reason: format!("message {} has {} signals", self.name, self.signals.len()),
+                });
+            }
+            self.encode_one(i, value, data)?;
+        }
+        Ok(())
+    }
+
+    /// Mask of the payload bits occupied by the signals present in `data` (multiplexing
+    /// honoured); the bits `encode_into(decode(data))` reproduces.
+    ///
+    /// # Errors
+    /// [`Error::ShortFrame`] if `data` is shorter than the message's length.
+    pub fn signal_bits(&self, data: &[u8]) -> Result<Vec<u8>> {
+        self.check_length(data.len())?;
+        let st = self.mux_state(data);
+        let mut mask = vec![0u8; self.length];
+        for s in &self.signals {
+            if s.mux.as_ref().is_none_or(|c| st.selects(c)) {
+                s.or_bit_mask(&mut mask);
+            }
+        }
+        Ok(mask)
+    }
+}
+
+/// Iterator over the decoded signals of one frame; see [`Message::decode`].
+#[derive(Clone, Debug)]
+pub struct Decoded<'m, 'd> {
+    message: &'m Message,
+    data: &'d [u8],
+    mux: MuxState,
+    next: usize,
+}
+
+impl<'m> Iterator for Decoded<'m, '_> {
+    type Item = (&'m Signal, f64);
+
+    #[inline]
+    fn next(&mut self) -> Option<Self::Item> {
+        let signals = &self.message.signals;
+        while let Some(s) = signals.get(self.next) {
+            self.next += 1;
+            if s.mux.as_ref().is_some_and(|c| !self.mux.selects(c)) {
+                continue;
+            }
+            if let Some(bits) = s.codec.raw_bits(self.data) {
+                return Some((s, s.codec.raw_to_scaled(bits)));
+            }
+        }
+        None
+    }
+
+    fn size_hint(&self) -> (usize, Option<usize>) {
+        (0, Some(self.message.signals.len() - self.next))
+    }
+}
+
+impl Decoded<'_, '_> {
+    /// Raw bits of the current frame's signal `signal` if it is present (for signals wider
+    /// than 53 bits, whose physical `f64` cannot carry every raw value).
+    pub fn raw(&self, signal: &Signal) -> Option<u64> {
+        if signal.mux.as_ref().is_some_and(|c| !self.mux.selects(c)) {
+            return None;
+        }
+        signal.codec.raw_bits(self.data)
+    }
+}

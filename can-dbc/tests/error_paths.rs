@@ -1,0 +1,238 @@
+//! Every error path, each checked to name its fault (file and line, message, signal).
+
+use canodom_dbc::{Database, Error, FrameId};
+
+fn dbc(messages: &str) -> String {
+    format!("VERSION \"\"\n\nBS_:\n\nBU_: ECU\n\n{messages}\n")
+}
+
+fn load_err(messages: &str) -> String {
+    Database::parse(&dbc(messages), "test.dbc")
+        .unwrap_err()
+        .to_string()
+}
+
+#[test]
+fn syntax_error_names_file_line_and_column() {
+    let text = dbc(
+        "BO_ 256 MSG: 8 ECU\n SG_ A : 0|8@1+ (1,0) [0|255] \"\" ECU\n SG_ B 8|8@1+ (1,0) [0|255] \"\" ECU",
+    );
+    let err = Database::parse(&text, "broken.dbc").unwrap_err();
+    let Error::Parse { line, column, .. } = &err else {
+        panic!("expected a parse error, got {err}");
+    };
+    let msg = err.to_string();
+    assert!(msg.starts_with("broken.dbc:"), "{msg}");
+    assert!(line.is_some() && column.is_some(), "{msg}");
+    // The fault is on the line of signal B: the error quotes it.
+    assert!(msg.contains("SG_ B 8|8"), "{msg}");
+}
+
+#[test]
+fn missing_file_names_the_path() {
+    let err = Database::from_file("/nonexistent/car.dbc")
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("/nonexistent/car.dbc"), "{err}");
+}
+
+#[test]
+fn zero_size_signal_names_message_and_signal() {
+    let e = load_err("BO_ 256 MSG: 8 ECU\n SG_ EMPTY : 0|0@1+ (1,0) [0|0] \"\" ECU");
+    assert!(
+        e.contains("message MSG, signal EMPTY") && e.contains("size 0"),
+        "{e}"
+    );
+}
+
+#[test]
+fn oversized_signal_names_message_and_signal() {
+    let e = load_err("BO_ 256 MSG: 16 ECU\n SG_ HUGE : 0|65@1+ (1,0) [0|0] \"\" ECU");
+    assert!(
+        e.contains("message MSG, signal HUGE") && e.contains("size 65"),
+        "{e}"
+    );
+}
+
+#[test]
+fn signal_past_frame_end_names_message_and_signal() {
+    let e = load_err("BO_ 256 MSG: 2 ECU\n SG_ FAR : 12|8@1+ (1,0) [0|0] \"\" ECU");
+    assert!(
+        e.contains("message MSG, signal FAR") && e.contains("only 2 bytes"),
+        "{e}"
+    );
+    // Motorola: MSB at bit 7 of byte 1, 16 bits, needs byte 2.
+    let e = load_err("BO_ 256 MSG: 2 ECU\n SG_ MOTO : 15|16@0+ (1,0) [0|0] \"\" ECU");
+    assert!(
+        e.contains("signal MOTO") && e.contains("reaches byte 2"),
+        "{e}"
+    );
+}
+
+#[test]
+fn float_of_wrong_size_names_signal() {
+    let e = load_err(
+        "BO_ 256 MSG: 8 ECU\n SG_ F : 0|16@1- (1,0) [0|0] \"\" ECU\n\nSIG_VALTYPE_ 256 F : 1;",
+    );
+    assert!(e.contains("signal F") && e.contains("needs 32"), "{e}");
+}
+
+#[test]
+fn zero_factor_names_signal() {
+    let e = load_err("BO_ 256 MSG: 8 ECU\n SG_ Z : 0|8@1+ (0,0) [0|0] \"\" ECU");
+    assert!(
+        e.contains("signal Z") && e.contains("cannot be inverted"),
+        "{e}"
+    );
+}
+
+#[test]
+fn standard_id_above_11_bits_is_rejected_not_truncated() {
+    let e = load_err("BO_ 2048 WIDE: 8 ECU");
+    assert!(e.contains("message WIDE") && e.contains("0x800"), "{e}");
+    // 70000 would be truncated to 70000 & 0xFFFF = 4464 by the parser alone.
+    let e = load_err("BO_ 70000 TRUNC: 8 ECU");
+    assert!(e.contains("message TRUNC") && e.contains("70000"), "{e}");
+}
+
+#[test]
+fn too_long_message_is_rejected() {
+    let e = load_err("BO_ 256 FD: 65 ECU");
+    assert!(e.contains("message FD") && e.contains("65 bytes"), "{e}");
+}
+
+#[test]
+fn duplicate_ids_and_names_are_rejected() {
+    let e = load_err("BO_ 256 A: 8 ECU\n\nBO_ 256 B: 8 ECU");
+    assert!(
+        e.contains("message B") && e.contains("also used by A"),
+        "{e}"
+    );
+    let e = load_err(
+        "BO_ 256 A: 8 ECU\n SG_ S : 0|8@1+ (1,0) [0|0] \"\" ECU\n SG_ S : 8|8@1+ (1,0) [0|0] \"\" ECU",
+    );
+    assert!(
+        e.contains("message A, signal S") && e.contains("twice"),
+        "{e}"
+    );
+}
+
+#[test]
+fn multiplexed_signal_without_multiplexor_is_rejected() {
+    let e = load_err("BO_ 256 MUX: 8 ECU\n SG_ ORPHAN m3 : 8|8@1+ (1,0) [0|0] \"\" ECU");
+    assert!(
+        e.contains("message MUX, signal ORPHAN") && e.contains("no multiplexor"),
+        "{e}"
+    );
+}
+
+#[test]
+fn unknown_signal_names_what_was_looked_for() {
+    let db = Database::parse(
+        &dbc("BO_ 256 MSG: 8 ECU\n SG_ A : 0|8@1+ (1,0) [0|0] \"\" ECU"),
+        "t.dbc",
+    )
+    .unwrap();
+    for (path, part) in [
+        ("MSG.B", "has no signal B"),
+        ("NOPE.A", "no message NOPE"),
+        ("MSGA", "expected MESSAGE.SIGNAL"),
+    ] {
+        let e = db.signal(path).unwrap_err().to_string();
+        assert!(e.contains(path) && e.contains(part), "{e}");
+    }
+    let m = db.message_by_name("MSG").unwrap();
+    let e = m.encode(&[("B", 1.0)]).unwrap_err().to_string();
+    assert!(e.contains("MSG.B"), "{e}");
+    let e = m
+        .encode_into([(5, 1.0)], &mut [0; 8])
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("MSG[5]"), "{e}");
+}
+
+#[test]
+fn short_frame_is_rejected_with_lengths() {
+    let db = Database::from_file(crate::util::shared_dbc("rc_car.dbc")).unwrap();
+    let m = db.message_by_id(FrameId::standard(256).unwrap()).unwrap();
+    let e = m.decode(&[0; 7]).unwrap_err().to_string();
+    assert!(
+        e.contains("WHEEL_ENC_REAR") && e.contains("7 data bytes") && e.contains("needs 8"),
+        "{e}"
+    );
+    let h = db.signal("WHEEL_ENC_REAR.RL_TICKS").unwrap();
+    // RL_TICKS sits in bytes 0..2, but the frame is malformed: no value.
+    assert_eq!(h.decode(&[1, 2, 3]), None);
+    let e = h.decode_checked(&db, &[1, 2, 3]).unwrap_err().to_string();
+    assert!(
+        e.contains("WHEEL_ENC_REAR") && e.contains("3 data bytes"),
+        "{e}"
+    );
+    let e = m
+        .encode_into([(0, 1.0)], &mut [0; 4])
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("4 data bytes"), "{e}");
+    assert!(!h.encode(1.0, &mut [0; 4]));
+}
+
+#[test]
+fn out_of_range_encode_names_signal_and_range() {
+    let db = Database::from_file(crate::util::shared_dbc("rc_car.dbc")).unwrap();
+    let m = db.message_by_name("STEERING").unwrap();
+    // STEER_ANGLE: 16-bit signed, factor 0.01 -> [-327.68, 327.67].
+    let e = m
+        .encode(&[
+            ("STEER_ANGLE", 400.0),
+            ("STEER_CMD", 0.0),
+            ("COUNTER", 0.0),
+            ("CHECKSUM", 0.0),
+        ])
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("message STEERING, signal STEER_ANGLE")
+            && e.contains("400")
+            && e.contains("327.67"),
+        "{e}"
+    );
+    let e = m
+        .encode(&[
+            ("STEER_ANGLE", f64::NAN),
+            ("STEER_CMD", 0.0),
+            ("COUNTER", 0.0),
+            ("CHECKSUM", 0.0),
+        ])
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("STEER_ANGLE") && e.contains("NaN"), "{e}");
+    let h = db.signal("STEERING.COUNTER").unwrap();
+    let mut frame = [0xAAu8; 8];
+    assert!(
+        !h.encode(16.0, &mut frame),
+        "16 does not fit 4 bits and must not wrap to 0"
+    );
+    assert_eq!(frame, [0xAA; 8]);
+}
+
+#[test]
+fn missing_and_inactive_signals_are_named() {
+    let db = Database::from_file(crate::util::shared_dbc("rc_car.dbc")).unwrap();
+    let m = db.message_by_name("VEHICLE_STATE").unwrap();
+    let e = m.encode(&[("DRIVE_MODE", 1.0)]).unwrap_err().to_string();
+    assert!(
+        e.contains("VEHICLE_STATE") && e.contains("signal SPEED_CMD"),
+        "{e}"
+    );
+
+    let db = Database::from_file(crate::util::shared_dbc("cantools_multiplex.dbc")).unwrap();
+    let m = db.message_by_name("Message1").unwrap();
+    let e = m
+        .encode(&[("Multiplexor", 8.0), ("BIT_K", 1.0)])
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("Message1") && e.contains("BIT_K") && e.contains("not selected"),
+        "{e}"
+    );
+}

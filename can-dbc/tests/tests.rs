@@ -1,0 +1,16 @@
+//! Integration tests of canodom-dbc, one binary with a module per topic.
+
+// Test helpers outside `#[test]` functions unwrap too: a broken fixture must fail loudly.
+#![allow(
+    clippy::unwrap_used,
+    clippy::too_many_lines,
+    clippy::missing_panics_doc,
+    clippy::case_sensitive_file_extension_comparisons
+)]
+
+mod cantools_diff;
+mod error_paths;
+mod fuzz_regressions;
+mod properties;
+mod rc_car;
+pub mod util;
