@@ -126,6 +126,16 @@ impl<T> std::ops::IndexMut<Wheel> for WheelSet<T> {
 /// Wraps an angle to (−π, π].
 pub fn wrap_angle(angle_rad: f64) -> f64 {
     use std::f64::consts::{PI, TAU};
+    // Fast paths: the filter wraps sums of two wrapped angles on every step.
+    if angle_rad > -PI && angle_rad <= PI {
+        return angle_rad;
+    }
+    if angle_rad > PI && angle_rad <= 3.0 * PI {
+        return angle_rad - TAU;
+    }
+    if angle_rad > -3.0 * PI && angle_rad <= -PI {
+        return angle_rad + TAU;
+    }
     let wrapped = (angle_rad + PI).rem_euclid(TAU) - PI;
     if wrapped <= -PI {
         wrapped + TAU

@@ -1,0 +1,85 @@
+//! Criterion benchmarks: one EKF predict + correct step, and 1,000,000 steps
+//! of the simulator.
+//!
+//! `cargo bench -p canodom-fusion -- --warm-up-time 1 --measurement-time 3`
+
+use canodom_fusion::ekf::{Ekf, EkfConfig, OdometryInput, State};
+use canodom_fusion::odometry::wheel_distance_factors;
+use canodom_fusion::sim::{Plan, SimConfig, Simulator, SlipConfig, SlipWheels};
+use canodom_fusion::{VehicleParams, WheelSet};
+use criterion::{BatchSize, Criterion, criterion_group, criterion_main};
+use std::hint::black_box;
+
+fn params() -> VehicleParams {
+    VehicleParams::nominal(0.25, 0.30, 0.09, 1000).unwrap_or_else(|e| panic!("{e}"))
+}
+
+fn input(p: &VehicleParams, slip: f64) -> OdometryInput {
+    let phi = 0.2;
+    let [g_rl, g_rr, g_fl, g_fr] = wheel_distance_factors(p, phi);
+    let ds = 0.001;
+    OdometryInput {
+        wheel_m: WheelSet {
+            rear_left: ds * g_rl * (1.0 + slip),
+            rear_right: ds * g_rr,
+            front_left: ds * g_fl,
+            front_right: ds * g_fr,
+        },
+        front_valid: true,
+        steer_angle_rad: phi,
+    }
+}
+
+fn ekf_step(c: &mut Criterion) {
+    let p = params();
+    let ekf = Ekf::new(EkfConfig {
+        correct_every: 1,
+        ..EkfConfig::new(p)
+    })
+    .unwrap_or_else(|e| panic!("{e}"));
+    let mut g = c.benchmark_group("ekf");
+    // A correction on every step: the cost of one predict + correct.
+    g.bench_function("predict+correct (anchored, gate)", |b| {
+        let inp = input(&p, 0.0);
+        b.iter_batched(
+            State::origin,
+            |st| ekf.step(black_box(&st), black_box(&inp)),
+            BatchSize::SmallInput,
+        );
+    });
+    // The default cadence: 49 predictions and one correction per 50 samples.
+    let default = Ekf::new(EkfConfig::new(p)).unwrap_or_else(|e| panic!("{e}"));
+    g.bench_function("step, default cadence (per sample)", |b| {
+        let inp = input(&p, 0.0);
+        let mut st = State::origin();
+        b.iter(|| {
+            st = default
+                .step(black_box(&st), black_box(&inp))
+                .unwrap_or_else(|e| panic!("{e}"));
+        });
+    });
+    g.finish();
+}
+
+fn sim_steps(c: &mut Criterion) {
+    let mut cfg = SimConfig::rc_car(params());
+    cfg.slip = SlipConfig::paper(SlipWheels::All);
+    // Long enough for a million samples at 100 Hz (10,000 s at 0.1 m/s).
+    let plan = Plan::random_drive(1, 1100.0, 1.0).unwrap_or_else(|e| panic!("{e}"));
+    let mut g = c.benchmark_group("sim");
+    g.sample_size(10);
+    g.bench_function("1,000,000 steps", |b| {
+        b.iter(|| {
+            let sim = Simulator::new(&cfg, &plan, 7).unwrap_or_else(|e| panic!("{e}"));
+            let mut acc = 0u64;
+            for s in sim.take(1_000_000) {
+                acc = acc.wrapping_add(s.ticks.rear_left);
+            }
+            black_box(acc)
+        });
+    });
+    g.finish();
+}
+
+criterion_group!(benches, ekf_step, sim_steps);
+criterion_main!(benches);
