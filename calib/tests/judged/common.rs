@@ -62,9 +62,20 @@ pub fn sim_direction(d: Direction) -> sim::Direction {
 /// Decodes a simulated run's wheel counters with `params` as the daemon
 /// would and records it; `measured` attaches the true end pose as the
 /// operator's measurement.
-pub fn record(run: &sim::Run, dir: Direction, params: &VehicleParams, measured: bool) -> Run {
+pub fn record(
+    run: &sim::Run,
+    dir: Direction,
+    params: &VehicleParams,
+    measured: bool,
+    counter_bits: u32,
+) -> Run {
     let mut decoders = Wheel::ALL.map(|w| {
-        TickDecoder::new(16, params.tick_distance_m(w, 1.0), InputConfig::RC_CAR).unwrap()
+        TickDecoder::new(
+            counter_bits,
+            params.tick_distance_m(w, 1.0),
+            InputConfig::RC_CAR,
+        )
+        .unwrap()
     });
     let mut rec = RunRecorder::new(dir, Tolerances::default().max_gap_s);
     for (k, s) in run.samples.iter().enumerate() {
@@ -106,7 +117,13 @@ pub fn laps(
             let plan = Plan::track(RHO_M, sim_direction(*dir), 1).unwrap();
             let seed = seed0 + (j * per_dir + k) as u64;
             let run = sim::simulate(cfg, &plan, seed).unwrap();
-            out.push(record(&run, *dir, params, measured));
+            out.push(record(
+                &run,
+                *dir,
+                params,
+                measured,
+                cfg.wheel_output.counter_bits,
+            ));
         }
     }
     out

@@ -7,6 +7,7 @@
 
 mod common;
 mod grid;
+mod noise_free;
 mod sim_session;
 mod steering_sim;
 mod table2;

@@ -19,7 +19,13 @@ fn arcs(cfg: &SimConfig, rear: &RearParams, seed0: u64) -> Vec<ArcEstimate> {
         .map(|(k, u)| {
             let plan = Plan::constant_command(f64::from(u), 2.2).unwrap();
             let run = sim::simulate(cfg, &plan, seed0 + k as u64).unwrap();
-            let mut rec = record(&run, Direction::Ccw, &params, false);
+            let mut rec = record(
+                &run,
+                Direction::Ccw,
+                &params,
+                false,
+                cfg.wheel_output.counter_bits,
+            );
             for (s, raw) in rec.samples.iter_mut().zip(&run.samples[1..]) {
                 s.steer_signal = raw.steer_command;
             }
