@@ -7,7 +7,7 @@
 //! gives its odometry, so every calibration method is a pure function of
 //! (accepted runs, parameters used while recording).
 
-use std::f64::consts::{FRAC_PI_2, PI};
+use std::f64::consts::PI;
 
 use canodom_fusion::{Pose, VehicleParams, Wheel, odometry, params::rear_diameters_for_ratio};
 
@@ -483,8 +483,10 @@ pub struct Tolerances {
     /// Allowed relative error of the odometry length against (4+2π)ρ (0.10).
     pub length_rel: f64,
     /// Allowed error of the odometry total turn against ±2π, in radians
-    /// (π/2: uncalibrated odometry can be off by a radian on a lap, while a
-    /// wrong number of turns is off by 2π).
+    /// (default 3π/4). Uncalibrated odometry is off by about 1.4 rad on a
+    /// lap with §9's right-wheel tape (E 4 % off) and more with worse
+    /// wheels, while a lap in the wrong direction is off by 4π and a missed
+    /// semicircle by π (and 20 % in length).
     pub turn_rad: f64,
     /// Allowed error of a segment's mean steering angle, as a fraction of the
     /// semicircles' angle atan(L/ρ) (0.5).
@@ -497,7 +499,7 @@ impl Default for Tolerances {
     fn default() -> Self {
         Self {
             length_rel: 0.10,
-            turn_rad: FRAC_PI_2,
+            turn_rad: 0.75 * PI,
             steer_rel: 0.5,
             max_gap_s: 0.25,
         }

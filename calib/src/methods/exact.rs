@@ -20,7 +20,8 @@ use crate::track::Track;
 /// Where the refinement starts.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum ExactStart {
-    /// From the heading law's one-shot solution (recommended, §7).
+    /// From the heading law's one-shot solution (recommended, §7); from the
+    /// used parameters if the heading law fails.
     HeadingLaw,
     /// From the parameters used while recording.
     Used,

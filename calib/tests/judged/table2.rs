@@ -9,6 +9,7 @@ use crate::common::{RHO_M, effective, laps, median, nominal, truth};
 use canodom_calib::methods::{
     ExactOptions, PaperOptions, PaperVariant, e_max_m, exact, heading, paper,
 };
+use canodom_calib::run::Tolerances;
 use canodom_calib::{RearParams, Track};
 use canodom_fusion::sim::{SimConfig, SlipConfig, SlipWheels};
 
@@ -49,6 +50,11 @@ fn one_rep(case_index: usize, tl: bool, tr: bool, slip: bool, rep: u64) -> Rep {
     let base = 10_000 * case_index as u64 + 1_000 * u64::from(slip) + 20 * rep;
     let cal = laps(&cfg, &used_params, 5, base, true);
     let val = laps(&cfg, &used_params, 5, base + 10, true);
+    // Every simulated lap passes validation with the uncalibrated parameters.
+    for run in cal.iter().chain(&val) {
+        let reasons = run.validate(track, &used_params, &Tolerances::default());
+        assert!(reasons.is_empty(), "case {case_index}: {reasons:?}");
+    }
     let p = paper(&cal, &used, track, PaperOptions::default()).unwrap();
     let iterated = PaperOptions {
         variant: PaperVariant::X,
