@@ -181,8 +181,9 @@ fn table2_analogue_exact_method_meets_the_reference_figures() {
         worst[3] = worst[3].max(cm(&slip, |r| r.ratio_err));
     }
     println!(
-        "paper1 = paper's closed form (x, sign-consistent) one shot; paperN = iterated; floor = validation E_max with the true\n\
-         effective parameters. §9 reference (median of 20): before 54.0/193.8/154.4/76.6, paper eqs 1.6/8.5/1.3/3.8,\n\
+        "paper1 = the paper's closed form, sign-consistent, least squares over x and y, one shot; paperN = its x form\n\
+         iterated; floor = validation E_max with the true effective parameters.\n\
+         §9 reference (median of 20): before 54.0/193.8/154.4/76.6, paper eqs 1.6/8.5/1.3/3.8,\n\
          exact clean 0.0/0.0/0.0/0.1, exact slip 4.6/4.3/4.5/3.4, paper eqs slip 5.2/9.4/3.9/5.6 cm;\n\
          LM under slip b_eff 0.14-0.24 %, E 0.03-0.05 %; ends assumed: LM 2.1-2.6 cm, heading law b 0.3-0.4 % low."
     );
