@@ -49,7 +49,7 @@ use crate::odometry::wheel_distance_factors;
 use crate::odometry::{Increment, Pose, rear_increment};
 use crate::params::VehicleParams;
 use crate::{Wheel, WheelSet, wrap_angle};
-use nalgebra::{Matrix2, Matrix3, Matrix3x2, Vector3};
+use nalgebra::{Matrix2, Matrix3, Vector3};
 
 /// 3-vector of the state `[x, y, θ]`.
 pub type Vec3 = Vector3<f64>;
@@ -256,6 +256,10 @@ pub struct State {
     p_front_w: Mat3,
     /// ∂(front window pose)/∂(steering bias).
     front_bias_sens: Vec3,
+    /// (cos, sin) of the rear and front window headings, rotated along with
+    /// them so that a step needs no trigonometric call (see [`advance_heading`]).
+    rear_cs: (f64, f64),
+    front_cs: (f64, f64),
     /// Literal form: the front odometry integrated alone (global, unwrapped θ).
     front_alone: Vec3,
     centre_m: [f64; 4],
@@ -302,6 +306,8 @@ impl State {
             front_w: Vec3::zeros(),
             p_front_w: Mat3::zeros(),
             front_bias_sens: Vec3::zeros(),
+            rear_cs: (1.0, 0.0),
+            front_cs: (1.0, 0.0),
             front_alone: Vec3::new(pose.x_m, pose.y_m, pose.heading_rad),
             centre_m: [0.0; 4],
             window_len: 0,
@@ -376,12 +382,17 @@ fn symmetrise(p: &Mat3) -> Mat3 {
 }
 
 /// Propagates a pose `w` and covariance by an increment with input covariance `q`.
+#[cfg(test)]
 fn propagate(w: &Vec3, p: &Mat3, inc: Increment, q: &Matrix2<f64>) -> (Vec3, Mat3) {
     let (s, c) = (w.z + 0.5 * inc.dtheta_rad).sin_cos();
     propagate_with(w, p, inc, q, s, c)
 }
 
 /// [`propagate`] with `sin m`, `cos m` of the mid heading already computed.
+///
+/// `A = I + a e₃ᵀ` with `a = (−Δd sin m, Δd cos m, 0)`, so
+/// `A P Aᵀ = P + a cᵀ + c aᵀ + P₃₃ a aᵀ` with `c = P e₃`: a dozen products
+/// instead of two general 3×3 multiplications (this runs every sample).
 fn propagate_with(
     w: &Vec3,
     p: &Mat3,
@@ -391,11 +402,48 @@ fn propagate_with(
     c: f64,
 ) -> (Vec3, Mat3) {
     let d = inc.distance_m;
-    let A = Mat3::new(1.0, 0.0, -d * s, 0.0, 1.0, d * c, 0.0, 0.0, 1.0);
-    let B = Matrix3x2::new(c, -0.5 * d * s, s, 0.5 * d * c, 0.0, 1.0);
+    let (ax, ay) = (-d * s, d * c);
+    let (cx, cy, cz) = (p[(0, 2)], p[(1, 2)], p[(2, 2)]);
+    // B = [[c, −(Δd/2) s], [s, (Δd/2) c], [0, 1]]; B Q Bᵀ entry by entry.
+    let (q11, q12, q22) = (q[(0, 0)], 0.5 * (q[(0, 1)] + q[(1, 0)]), q[(1, 1)]);
+    let (b11, b12, b21, b22) = (c, 0.5 * ax, s, 0.5 * ay);
+    let bq = |r1: f64, r2: f64, t1: f64, t2: f64| {
+        r1 * (q11 * t1 + q12 * t2) + r2 * (q12 * t1 + q22 * t2)
+    };
+    let m00 = p[(0, 0)] + 2.0 * ax * cx + cz * ax * ax + bq(b11, b12, b11, b12);
+    let m01 = p[(0, 1)] + ax * cy + ay * cx + cz * ax * ay + bq(b11, b12, b21, b22);
+    let m11 = p[(1, 1)] + 2.0 * ay * cy + cz * ay * ay + bq(b21, b22, b21, b22);
+    let m02 = cx + ax * cz + b12 * q22 + b11 * q12;
+    let m12 = cy + ay * cz + b22 * q22 + b21 * q12;
+    let m22 = cz + q22;
+    let p_new = Mat3::new(m00, m01, m02, m01, m11, m12, m02, m12, m22);
     let w_new = Vec3::new(w.x + d * c, w.y + d * s, w.z + inc.dtheta_rad);
-    let p_new = A * p * A.transpose() + B * q * B.transpose();
     (w_new, p_new)
+}
+
+/// `(sin, cos)` of a small angle by its Taylor series (exact to rounding for
+/// |x| ≤ 0.01), falling back to the library call for larger ones.
+fn small_sin_cos(x: f64) -> (f64, f64) {
+    if x.abs() > 0.01 {
+        return x.sin_cos();
+    }
+    let x2 = x * x;
+    let sin = x * (1.0 - x2 / 6.0 * (1.0 - x2 / 20.0 * (1.0 - x2 / 42.0)));
+    let cos = 1.0 - x2 / 2.0 * (1.0 - x2 / 12.0 * (1.0 - x2 / 30.0 * (1.0 - x2 / 56.0)));
+    (sin, cos)
+}
+
+/// Given `(cos θ, sin θ)` of a window heading and a step turning `Δθ`,
+/// returns `(sin m, cos m)` of the mid heading `m = θ + Δθ/2` and
+/// `(cos, sin)` of `θ + Δθ`, by rotation instead of trigonometric calls
+/// (they dominate a step's cost). One Newton step keeps the pair on the
+/// unit circle however long the window.
+fn advance_heading((c, s): (f64, f64), dtheta_rad: f64) -> ((f64, f64), (f64, f64)) {
+    let (sh, ch) = small_sin_cos(0.5 * dtheta_rad);
+    let (s_m, c_m) = (s * ch + c * sh, c * ch - s * sh);
+    let (s_full, c_full) = (s_m * ch + c_m * sh, c_m * ch - s_m * sh);
+    let norm = 1.5 - 0.5 * (c_full * c_full + s_full * s_full);
+    ((s_m, c_m), (c_full * norm, s_full * norm))
 }
 
 /// Propagates the sensitivity `v = ∂w/∂b` of a window pose to a bias `b`
@@ -573,14 +621,17 @@ impl Ekf {
         let mut st = *prev;
         let rear = rear_increment(p, w.rear_left, w.rear_right)?;
         let q = self.q_rear(w.rear_left, w.rear_right);
-        (st.rear_w, st.p_rear_w) = propagate(&st.rear_w, &st.p_rear_w, rear, &q);
+        let (sin_m, cos_m);
+        ((sin_m, cos_m), st.rear_cs) = advance_heading(st.rear_cs, rear.dtheta_rad);
+        (st.rear_w, st.p_rear_w) = propagate_with(&st.rear_w, &st.p_rear_w, rear, &q, sin_m, cos_m);
         let tan_phi = phi.tan();
         let [g_rl, g_rr, g_fl, g_fr] = distance_factors(p, tan_phi);
         st.centre_m[0] += w.rear_left / g_rl;
         st.centre_m[1] += w.rear_right / g_rr;
         if input.front_valid {
             let (front, qf, j) = self.front(w.front_left, w.front_right, tan_phi, g_fl, g_fr);
-            let (sin_m, cos_m) = (st.front_w.z + 0.5 * front.dtheta_rad).sin_cos();
+            let ((sin_m, cos_m), cs) = advance_heading(st.front_cs, front.dtheta_rad);
+            st.front_cs = cs;
             st.front_bias_sens = propagate_sensitivity(&st.front_bias_sens, front, j, sin_m, cos_m);
             (st.front_w, st.p_front_w) =
                 propagate_with(&st.front_w, &st.p_front_w, front, &qf, sin_m, cos_m);
@@ -646,6 +697,8 @@ impl Ekf {
         st.front_w = Vec3::zeros();
         st.p_front_w = Mat3::zeros();
         st.front_bias_sens = Vec3::zeros();
+        st.rear_cs = (1.0, 0.0);
+        st.front_cs = (1.0, 0.0);
         st.centre_m = [0.0; 4];
         st.window_len = 0;
         st.window_front_ok = true;
@@ -738,6 +791,7 @@ impl Ekf {
 mod tests {
     use super::*;
     use crate::params::SteeringMap;
+    use nalgebra::Matrix3x2;
     use proptest::prelude::*;
 
     fn car() -> VehicleParams {
@@ -805,6 +859,41 @@ mod tests {
                 assert!((inc.distance_m - reference.distance_m).abs() < 1e-15);
                 assert!((inc.dtheta_rad - reference.dtheta_rad).abs() < 1e-14);
             }
+        }
+    }
+
+    proptest! {
+        #[test]
+        fn rotated_headings_match_trigonometry(steps in prop::collection::vec(-0.05f64..0.05, 1..500)) {
+            let mut cs = (1.0, 0.0);
+            let mut theta = 0.0f64;
+            for dth in steps {
+                let ((s_m, c_m), next) = advance_heading(cs, dth);
+                let (es, ec) = (theta + 0.5 * dth).sin_cos();
+                prop_assert!((s_m - es).abs() < 1e-12 && (c_m - ec).abs() < 1e-12);
+                theta += dth;
+                cs = next;
+            }
+            prop_assert!((cs.0 - theta.cos()).abs() < 1e-12 && (cs.1 - theta.sin()).abs() < 1e-12);
+        }
+
+        #[test]
+        fn structured_propagation_equals_the_general_form(
+            d in -0.1f64..0.1, dth in -0.2f64..0.2, h in -3.0f64..3.0,
+            l in prop::collection::vec(-1.0f64..1.0, 6), q in prop::collection::vec(0.0f64..1.0, 3),
+        ) {
+            let L = nalgebra::Matrix3::new(l[0], 0.0, 0.0, l[1], l[2], 0.0, l[3], l[4], l[5]);
+            let P = L * L.transpose();
+            let Q = Matrix2::new(q[0], 0.1 * q[1], 0.1 * q[1], q[2]);
+            let w = Vec3::new(0.3, -0.2, h);
+            let inc = Increment { distance_m: d, dtheta_rad: dth };
+            let (w1, p1) = propagate(&w, &P, inc, &Q);
+            let (s, c) = (h + 0.5 * dth).sin_cos();
+            let A = Mat3::new(1.0, 0.0, -d * s, 0.0, 1.0, d * c, 0.0, 0.0, 1.0);
+            let B = Matrix3x2::new(c, -0.5 * d * s, s, 0.5 * d * c, 0.0, 1.0);
+            let p2 = A * P * A.transpose() + B * Q * B.transpose();
+            prop_assert!((p1 - p2).abs().max() < 1e-12, "{p1} vs {p2}");
+            prop_assert!((w1 - Vec3::new(0.3 + d * c, -0.2 + d * s, h + dth)).abs().max() < 1e-15);
         }
     }
 
