@@ -14,6 +14,54 @@
 //! - [`steering`]: the steering map φ = k·u + c from constant-command arcs (§10).
 //! - [`session`]: the guided-session state machine the daemon drives.
 //! - [`synth`]: a noise-free run generator for tests and benchmarks.
+//!
+//! # Example: a guided session as the daemon drives it
+//!
+//! ```
+//! use canodom_calib::session::{Action, Event, Phase, Session, SessionConfig};
+//! use canodom_calib::steering::SteeringProvenance;
+//! use canodom_calib::{Direction, RevSample, Track, synth};
+//! use canodom_fusion::VehicleParams;
+//!
+//! # fn main() -> Result<(), Box<dyn std::error::Error>> {
+//! let truth = VehicleParams::nominal(0.25, 0.285, 0.09, 1000)?;
+//! let in_use = VehicleParams::nominal(0.25, 0.30, 0.09, 1000)?;
+//! let mut session = Session::new(in_use, SteeringProvenance::Independent, SessionConfig::default());
+//! let mut t_s = 0.0;
+//! let mut feed = |session: Session, event: Event| {
+//!     let (next, actions) = session.on_event(event);
+//!     // The daemon sends instructions and refusals as status frames here,
+//!     // and runs the job when asked to compute.
+//!     let computed = actions
+//!         .contains(&Action::Compute)
+//!         .then(|| next.calibration_job().map(|job| job.run()))
+//!         .flatten();
+//!     match computed {
+//!         Some(outcome) => next.on_event(Event::Computed(outcome)).0,
+//!         None => next,
+//!     }
+//! };
+//! session = feed(session, Event::StartSession { radius_m: 0.78, runs_per_direction: 1 });
+//! let track = Track::new(0.78)?;
+//! for dir in Direction::BOTH {
+//!     let still = RevSample { t_s: 0.0, rear_left_rev: 0.0, rear_right_rev: 0.0, front_rev: None, steer_signal: 0.0 };
+//!     let lap = synth::lap(&truth, track, dir, 0.1, 5.0)?;
+//!     // Stand still, drive the lap, stand still: the run starts and ends by itself.
+//!     for s in std::iter::repeat_n(still, 8).chain(lap).chain(std::iter::repeat_n(still, 8)) {
+//!         t_s += 0.2;
+//!         session = feed(session, Event::Sample(RevSample { t_s, ..s }));
+//!     }
+//! }
+//! assert_eq!(session.phase(), Phase::Ready);
+//! session = feed(session, Event::Compute);
+//! let tread_m = session.result().map(|r| r.tread_m()).unwrap_or_default();
+//! assert!((tread_m - 0.285).abs() < 1e-5);
+//! let (session, actions) = session.on_event(Event::Commit);
+//! assert!(matches!(actions[0], Action::ApplyParams(_)));
+//! assert!((session.params().rear_tread_m() - 0.285).abs() < 1e-5);
+//! # Ok(())
+//! # }
+//! ```
 
 pub mod error;
 pub mod methods;

@@ -420,6 +420,16 @@ impl Session {
         self.result.as_ref()
     }
 
+    /// Calibration rounds committed (and not rolled back) so far.
+    pub fn round(&self) -> u32 {
+        self.round
+    }
+
+    /// Where the steering map in use came from.
+    pub fn steering_provenance(&self) -> SteeringProvenance {
+        self.steering
+    }
+
     /// Whether this session's runs need measured end poses (§10).
     pub fn end_poses_required(&self) -> bool {
         self.plan.is_some_and(|p| p.end_poses_required)
@@ -583,6 +593,9 @@ impl Session {
                     let rear = RearParams::of(&previous);
                     self.params = previous;
                     self.previous = None;
+                    // The old parameters are back, and with them the
+                    // round they belonged to (§10: the trap applies again).
+                    self.round = self.round.saturating_sub(1);
                     actions.push(Action::ApplyParams(rear));
                     actions.push(Action::PersistParams(rear));
                     Ok(())
@@ -1083,8 +1096,21 @@ mod tests {
             Some(Refusal::SessionActive)
         );
         h.send(Event::Abort);
+        // Rolling back restores the uncalibrated odometry, and the trap.
+        h.send(Event::Rollback);
+        assert_eq!(h.s().round(), 0);
+        h.send(Event::StartSession {
+            radius_m: 0.78,
+            runs_per_direction: 1,
+        });
+        assert!(h.s().end_poses_required());
+        h.send(Event::Abort);
         h.send(Event::SteeringRefitted);
         assert_eq!(h.s().instruction(), Instruction::Idle);
+        assert_eq!(
+            h.s().steering_provenance(),
+            SteeringProvenance::CalibratedOdometry
+        );
     }
 
     #[test]
