@@ -312,15 +312,23 @@ pub struct CalibrationJob {
     pub used: RearParams,
     /// The track.
     pub track: Track,
+    /// A run of known length (in metres) to fix the scale (§4); the session
+    /// leaves it `None`, the daemon may set it when the operator drove one.
+    pub known_length: Option<(Run, f64)>,
 }
 
 impl CalibrationJob {
-    /// Runs the exact method (§7).
+    /// Runs the exact method (§7), then fixes the scale when a known-length
+    /// run is given.
     ///
     /// # Errors
-    /// As [`exact`].
+    /// As [`exact`] and [`CalibrationResult::with_known_length`].
     pub fn run(&self) -> Result<CalibrationResult> {
-        exact(&self.runs, &self.used, self.track, ExactOptions::default())
+        let result = exact(&self.runs, &self.used, self.track, ExactOptions::default())?;
+        match &self.known_length {
+            Some((run, length_m)) => result.with_known_length(run, *length_m),
+            None => Ok(result),
+        }
     }
 }
 
@@ -442,6 +450,7 @@ impl Session {
             runs: self.accepted.clone(),
             used: RearParams::of(&self.params),
             track: plan.track,
+            known_length: None,
         })
     }
 
@@ -1037,6 +1046,15 @@ mod tests {
         }
         assert_eq!(h.s().phase(), Phase::Ready);
         assert_eq!(h.s().instruction(), Instruction::ReadyToCompute);
+        let mut job = {
+            let mut probe = h.s().clone();
+            probe = probe.on_event(Event::Compute).0;
+            probe.calibration_job().unwrap()
+        };
+        // A known-length run (here: a lap of the true 8.02 m) fixes the scale.
+        job.known_length = Some((job.runs[0].clone(), Track::new(0.78).unwrap().length_m()));
+        let scaled = job.run().unwrap();
+        assert!(scaled.scale_fixed && (scaled.tread_m() - 0.285).abs() < 1e-5);
         let a = h.compute();
         let Some(Action::ResultReady(r)) = a.first() else {
             panic!("{a:?}")
