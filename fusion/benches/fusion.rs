@@ -38,6 +38,15 @@ fn ekf_step(c: &mut Criterion) {
     })
     .unwrap_or_else(|e| panic!("{e}"));
     let mut g = c.benchmark_group("ekf");
+    // A yardstick measured in the same run: on a shared or emulated machine
+    // the ratio to it says more than the absolute time.
+    g.bench_function("reference: one sin_cos + one tan", |b| {
+        let x = 0.123_f64;
+        b.iter(|| {
+            let (s, c) = black_box(x).sin_cos();
+            s + c + black_box(x).tan()
+        });
+    });
     // A correction on every step: the cost of one predict + correct.
     g.bench_function("predict+correct (anchored, gate)", |b| {
         let inp = input(&p, 0.0);

@@ -15,6 +15,11 @@
 //!   odometry converted to the rear axle (eqs. 21–26).
 //! - [`ekf`]: the extended Kalman filter fusing rear and front odometry.
 //! - [`sim`]: the deterministic ground-truth vehicle simulator.
+//!
+//! `examples/demo.rs` puts them together: a simulated car drives, and
+//! rear-only and fused odometry are compared with the ground truth
+//! (`cargo run --release -p canodom-fusion --example demo`).
+//! `tests/experiments.rs` reproduces §11 and §12 of the maths document.
 
 pub mod ekf;
 pub mod error;
