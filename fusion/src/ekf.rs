@@ -265,7 +265,6 @@ pub struct State {
     centre_m: [f64; 4],
     window_len: u32,
     window_front_ok: bool,
-    pose: Vec3,
     /// Counts of gate decisions.
     pub stats: GateStats,
     /// Per wheel: how many windows the consensus blamed on it.
@@ -312,7 +311,6 @@ impl State {
             centre_m: [0.0; 4],
             window_len: 0,
             window_front_ok: true,
-            pose: anchor,
             stats: GateStats::default(),
             slip_counts: WheelSet::splat(0),
             slip_flags: WheelSet::splat(false),
@@ -328,10 +326,11 @@ impl State {
 
     /// The pose estimate, heading wrapped to (−π, π].
     pub fn pose(&self) -> Pose {
+        let pose = compose(&self.anchor, self.anchor_cos_sin, &self.rear_w);
         Pose {
-            x_m: self.pose.x,
-            y_m: self.pose.y,
-            heading_rad: self.pose.z,
+            x_m: pose.x,
+            y_m: pose.y,
+            heading_rad: pose.z,
         }
     }
 
@@ -367,6 +366,8 @@ impl State {
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Ekf {
     cfg: EkfConfig,
+    /// 1/b, precomputed: a division costs as much as the rest of a product chain.
+    inv_rear_tread: f64,
 }
 
 fn finite(name: &'static str, value: f64) -> Result<f64> {
@@ -532,7 +533,10 @@ impl Ekf {
     /// [`Error::InvalidConfig`] for a non-positive noise, zero window, or bad `R`.
     pub fn new(config: EkfConfig) -> Result<Self> {
         config.validate()?;
-        Ok(Self { cfg: config })
+        Ok(Self {
+            inv_rear_tread: 1.0 / config.params.rear_tread_m(),
+            cfg: config,
+        })
     }
 
     /// The configuration.
@@ -542,15 +546,11 @@ impl Ekf {
 
     /// Rear input covariance `Q_u = J diag(k_r|d_R|, k_r|d_L|) Jᵀ`.
     fn q_rear(&self, d_l: f64, d_r: f64) -> Matrix2<f64> {
-        let b = self.cfg.params.rear_tread_m();
+        let ib = self.inv_rear_tread;
         let vr = self.cfg.k_rear_m * d_r.abs();
         let vl = self.cfg.k_rear_m * d_l.abs();
-        Matrix2::new(
-            0.25 * (vr + vl),
-            0.5 * (vr - vl) / b,
-            0.5 * (vr - vl) / b,
-            (vr + vl) / (b * b),
-        )
+        let q12 = 0.5 * (vr - vl) * ib;
+        Matrix2::new(0.25 * (vr + vl), q12, q12, (vr + vl) * ib * ib)
     }
 
     /// The front increment at the rear axle, its input covariance and its
@@ -626,8 +626,14 @@ impl Ekf {
         (st.rear_w, st.p_rear_w) = propagate_with(&st.rear_w, &st.p_rear_w, rear, &q, sin_m, cos_m);
         let tan_phi = phi.tan();
         let [g_rl, g_rr, g_fl, g_fr] = distance_factors(p, tan_phi);
-        st.centre_m[0] += w.rear_left / g_rl;
-        st.centre_m[1] += w.rear_right / g_rr;
+        // Four reciprocals from one division.
+        let (g01, g23) = (g_rl * g_rr, g_fl * g_fr);
+        // A pivot turn tighter than half the tread makes a g_i zero: that
+        // sample then says nothing about slip, rather than poisoning the window.
+        let inv = 1.0 / (g01 * g23);
+        let inv = if inv.is_finite() { inv } else { 0.0 };
+        st.centre_m[0] += w.rear_left * g_rr * g23 * inv;
+        st.centre_m[1] += w.rear_right * g_rl * g23 * inv;
         if input.front_valid {
             let (front, qf, j) = self.front(w.front_left, w.front_right, tan_phi, g_fl, g_fr);
             let ((sin_m, cos_m), cs) = advance_heading(st.front_cs, front.dtheta_rad);
@@ -644,8 +650,8 @@ impl Ekf {
                     z.z + front.dtheta_rad,
                 );
             }
-            st.centre_m[2] += w.front_left / g_fl;
-            st.centre_m[3] += w.front_right / g_fr;
+            st.centre_m[2] += w.front_left * g_fr * g01 * inv;
+            st.centre_m[3] += w.front_right * g_fl * g01 * inv;
         } else {
             st.window_front_ok = false;
         }
@@ -653,9 +659,13 @@ impl Ekf {
         if st.window_len >= self.cfg.correct_every {
             self.close_window(&mut st)?;
         }
-        st.pose = compose(&st.anchor, st.anchor_cos_sin, &st.rear_w);
         // A NaN or infinity anywhere makes the sum non-finite: one check, not nine.
-        if !(st.pose.sum() + st.p_rear_w.sum() + st.front_w.sum() + st.p_front_w.sum()).is_finite()
+        if !(st.anchor.sum()
+            + st.rear_w.sum()
+            + st.p_rear_w.sum()
+            + st.front_w.sum()
+            + st.p_front_w.sum())
+        .is_finite()
         {
             return Err(Error::Numerical {
                 context: "EKF step",
