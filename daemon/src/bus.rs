@@ -69,7 +69,15 @@ pub enum BusError {
         /// Interface name.
         iface: String,
     },
-    /// The in-process bus was dropped.
+    /// The kernel's transmit queue is full (`ENOBUFS`): typically nobody
+    /// acknowledges our frames (alone on the bus) or the controller is
+    /// bus-off. The frame is dropped; later sends may succeed.
+    #[error("CAN interface {iface}: transmit queue full")]
+    TxQueueFull {
+        /// Interface name.
+        iface: String,
+    },
+    /// Every handle and sender of the in-process bus was dropped.
     #[error("in-process bus closed")]
     Closed,
     /// Error frames cannot be sent.
@@ -94,7 +102,10 @@ impl BusError {
         !matches!(self, Self::Unsendable)
     }
 
-    /// Maps an OS error on `iface` to the typed variants.
+    /// Maps an OS error on `iface` to the typed variants. A raw CAN socket
+    /// reports `ENETDOWN` once when its interface goes down and `ENODEV`
+    /// when it is unregistered; the socket stays usable after the former,
+    /// so the caller may keep it or reopen after a backoff.
     pub fn from_io(iface: &str, source: io::Error) -> Self {
         let iface = iface.to_owned();
         match source.raw_os_error() {
@@ -102,6 +113,7 @@ impl BusError {
             Some(code) if code == libc_errno::ENODEV || code == libc_errno::ENXIO => {
                 Self::NoSuchInterface { iface }
             }
+            Some(code) if code == libc_errno::ENOBUFS => Self::TxQueueFull { iface },
             _ => Self::Io { iface, source },
         }
     }
@@ -113,6 +125,7 @@ mod libc_errno {
     pub const ENXIO: i32 = 6;
     pub const ENODEV: i32 = 19;
     pub const ENETDOWN: i32 = 100;
+    pub const ENOBUFS: i32 = 105;
 }
 
 /// A receive filter with `CAN_RAW_FILTER` semantics: a data frame passes
@@ -278,10 +291,11 @@ impl InProcessBus {
         self.link_error()?;
         let id = self.inner.next_endpoint.fetch_add(1, Ordering::Relaxed);
         let rx = InProcessRx {
-            bus: self.clone(),
+            name: self.inner.name.clone(),
             id,
             frames: self.inner.frames.subscribe(),
             link: self.inner.link.subscribe(),
+            link_alive: true,
             filters: vec![IdFilter::accept_all()],
         };
         let tx = InProcessTx {
@@ -332,10 +346,13 @@ fn link_result(state: LinkState, name: &str) -> Result<(), BusError> {
 /// Receiving half of an in-process endpoint.
 #[derive(Debug)]
 pub struct InProcessRx {
-    bus: InProcessBus,
+    /// Only the name: holding the bus would keep it open forever, and a
+    /// receiver must see [`BusError::Closed`] once every sender is gone.
+    name: String,
     id: u64,
     frames: broadcast::Receiver<Envelope>,
     link: watch::Receiver<LinkState>,
+    link_alive: bool,
     filters: Vec<IdFilter>,
 }
 
@@ -345,13 +362,13 @@ impl FrameSource for InProcessRx {
             // A link change wins over queued frames: a socket on a downed
             // interface reports ENETDOWN even with data in its queue.
             let state = *self.link.borrow_and_update();
-            link_result(state, &self.bus.inner.name)?;
+            link_result(state, &self.name)?;
             let envelope = tokio::select! {
                 biased;
-                changed = self.link.changed() => {
-                    if changed.is_err() {
-                        return Err(BusError::Closed);
-                    }
+                changed = self.link.changed(), if self.link_alive => {
+                    // The bus is being dropped: deliver what is queued, then
+                    // the frame channel reports the close.
+                    self.link_alive = changed.is_ok();
                     continue;
                 }
                 received = self.frames.recv() => match received {
@@ -705,6 +722,18 @@ mod tests {
     }
 
     #[tokio::test(start_paused = true)]
+    async fn receivers_see_the_bus_close() {
+        let bus = InProcessBus::new("sim0", 8);
+        let (mut rx, _) = bus.open().unwrap();
+        let (_, tx) = bus.open().unwrap();
+        tx.send(&data(1, &[1])).await.unwrap();
+        drop((bus, tx));
+        // Queued frames are still delivered, then the end is reported.
+        assert_eq!(next_frame(&mut rx).await.frame, data(1, &[1]));
+        assert!(matches!(rx.recv().await, Err(BusError::Closed)));
+    }
+
+    #[tokio::test(start_paused = true)]
     async fn recv_is_cancel_safe() {
         let bus = InProcessBus::new("sim0", 8);
         let (mut rx, _) = bus.open().unwrap();
@@ -725,6 +754,8 @@ mod tests {
         assert!(matches!(e, BusError::NoSuchInterface { .. }));
         let e = BusError::from_io("can0", io::Error::from_raw_os_error(libc_errno::ENXIO));
         assert!(matches!(e, BusError::NoSuchInterface { .. }));
+        let e = BusError::from_io("can0", io::Error::from_raw_os_error(libc_errno::ENOBUFS));
+        assert!(matches!(e, BusError::TxQueueFull { .. }) && e.is_transient());
         let e = BusError::from_io("can0", io::Error::from_raw_os_error(13));
         assert!(matches!(e, BusError::Io { .. }));
         assert_eq!(

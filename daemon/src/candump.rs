@@ -196,12 +196,26 @@ pub enum ReadError {
     Malformed(#[from] Malformed),
 }
 
-/// Streaming candump log reader over any `BufRead`, reusing one line buffer.
+/// Streaming candump log reader over any `BufRead`.
+///
+/// A line that lies whole in the reader's buffer is parsed in place (the
+/// record borrows the buffer until the next call); only a line straddling a
+/// buffer refill is copied, into one reused line buffer.
 #[derive(Debug)]
 pub struct LogReader<R> {
     inner: R,
     line: Vec<u8>,
     line_no: u64,
+    /// Bytes of the line parsed in place, consumed at the next call.
+    pending_consume: usize,
+}
+
+/// Where the next line lies.
+enum LineAt {
+    /// In the reader's buffer, this many bytes (newline excluded).
+    Buffer(usize),
+    /// Copied into `line`, this many bytes.
+    Copied(usize),
 }
 
 impl<R: BufRead> LogReader<R> {
@@ -211,6 +225,7 @@ impl<R: BufRead> LogReader<R> {
             inner,
             line: Vec::with_capacity(256),
             line_no: 0,
+            pending_consume: 0,
         }
     }
 
@@ -225,34 +240,53 @@ impl<R: BufRead> LogReader<R> {
     /// [`ReadError::Malformed`] for a bad line, after which the reader is
     /// positioned on the next line; [`ReadError::Io`] when reading fails.
     pub fn next_record(&mut self) -> Result<Option<Record<'_>>, ReadError> {
-        loop {
-            self.line.clear();
-            let limit = MAX_LINE_BYTES as u64 + 1;
-            let n = (&mut self.inner)
-                .take(limit)
-                .read_until(b'\n', &mut self.line)?;
-            if n == 0 {
+        let at = loop {
+            if self.pending_consume > 0 {
+                self.inner.consume(self.pending_consume);
+                self.pending_consume = 0;
+            }
+            let buf = self.inner.fill_buf()?;
+            if buf.is_empty() {
                 return Ok(None);
             }
-            self.line_no += 1;
-            if self.line.last() != Some(&b'\n') && n as u64 == limit {
-                self.skip_rest_of_line()?;
-                return Err(Malformed {
-                    line_no: self.line_no,
-                    reason: Reason::LineTooLong,
+            let window = &buf[..buf.len().min(MAX_LINE_BYTES + 1)];
+            let newline = memchr::memchr(b'\n', window);
+            let at = if let Some(pos) = newline {
+                let len = trim_end(&buf[..pos]).len();
+                self.pending_consume = pos + 1;
+                self.line_no += 1;
+                LineAt::Buffer(len)
+            } else {
+                self.line.clear();
+                let limit = MAX_LINE_BYTES as u64 + 1;
+                let n = (&mut self.inner)
+                    .take(limit)
+                    .read_until(b'\n', &mut self.line)?;
+                self.line_no += 1;
+                if self.line.last() != Some(&b'\n') && n as u64 == limit {
+                    self.skip_rest_of_line()?;
+                    return Err(Malformed {
+                        line_no: self.line_no,
+                        reason: Reason::LineTooLong,
+                    }
+                    .into());
                 }
-                .into());
-            }
-            let len = trim_end(&self.line).len();
-            if len == 0 {
-                continue;
-            }
-            let line_no = self.line_no;
-            let line = &self.line[..len];
-            return match parse_line(line) {
-                Ok(record) => Ok(Some(record)),
-                Err(reason) => Err(Malformed { line_no, reason }.into()),
+                LineAt::Copied(trim_end(&self.line).len())
             };
+            match at {
+                LineAt::Buffer(0) | LineAt::Copied(0) => {}
+                at => break at,
+            }
+        };
+        let line_no = self.line_no;
+        let line = match at {
+            // `fill_buf` returns the same, unconsumed buffer without I/O.
+            LineAt::Buffer(len) => &self.inner.fill_buf()?[..len],
+            LineAt::Copied(len) => &self.line[..len],
+        };
+        match parse_line(line) {
+            Ok(record) => Ok(Some(record)),
+            Err(reason) => Err(Malformed { line_no, reason }.into()),
         }
     }
 
@@ -329,16 +363,22 @@ impl Cursor<'_> {
         }
     }
 
-    /// Decimal digits as u64; returns (value, digit count).
+    /// Decimal digits as u64; returns (value, digit count), `None` beyond
+    /// 19 digits (which is where u64 could overflow).
     #[inline]
     fn decimal(&mut self) -> Option<(u64, usize)> {
         let start = self.pos;
         let mut value: u64 = 0;
-        while let Some(b @ b'0'..=b'9') = self.peek() {
-            value = value.checked_mul(10)?.checked_add(u64::from(b - b'0'))?;
+        while let Some(&b) = self.s.get(self.pos) {
+            let digit = b.wrapping_sub(b'0');
+            if digit > 9 {
+                break;
+            }
+            value = value.wrapping_mul(10).wrapping_add(u64::from(digit));
             self.pos += 1;
         }
-        Some((value, self.pos - start))
+        let n = self.pos - start;
+        (n <= 19).then_some((value, n))
     }
 }
 
@@ -346,6 +386,7 @@ impl Cursor<'_> {
 ///
 /// # Errors
 /// The [`Reason`] the line is not a valid candump record.
+#[inline]
 pub fn parse_line(line: &[u8]) -> Result<Record<'_>, Reason> {
     let mut c = Cursor { s: line, pos: 0 };
     let timestamp = parse_timestamp(&mut c).ok_or(Reason::BadTimestamp)?;
@@ -371,6 +412,7 @@ pub fn parse_line(line: &[u8]) -> Result<Record<'_>, Reason> {
     })
 }
 
+#[inline]
 fn parse_timestamp(c: &mut Cursor<'_>) -> Option<Timestamp> {
     if !c.eat(b'(') {
         return None;
@@ -386,6 +428,7 @@ fn parse_timestamp(c: &mut Cursor<'_>) -> Option<Timestamp> {
     Timestamp::from_parts(secs, micros as u32)
 }
 
+#[inline]
 fn parse_iface<'a>(c: &mut Cursor<'a>) -> Result<&'a str, Reason> {
     let start = c.pos;
     while let Some(b) = c.peek() {
@@ -412,6 +455,7 @@ enum Target {
     Error(u32),
 }
 
+#[inline]
 fn parse_frame(c: &mut Cursor<'_>) -> Result<CanFrame, Reason> {
     let start = c.pos;
     let mut raw: u32 = 0;
@@ -523,6 +567,7 @@ fn parse_payload(
     }
 }
 
+#[inline]
 fn parse_len8_dlc(c: &mut Cursor<'_>, len: usize) -> Result<Option<u8>, Reason> {
     if !c.eat(b'_') {
         return Ok(None);
@@ -963,6 +1008,61 @@ mod tests {
             let parsed = parse_line(&out[..out.len() - 1]).map_err(|r| TestCaseError::fail(format!("{text}: {r}")))?;
             prop_assert_eq!(parsed, rec);
             prop_assert_eq!(format!("{parsed}\n"), text);
+        }
+
+        /// socketcan's `dump` reader (an independent implementation of the
+        /// format) reads our output as we do, and writes the same text.
+        /// Excluded: the `_` raw DLC, which it does not support, and FD
+        /// frames without the FDF flag, which it always sets.
+        #[test]
+        fn socketcan_dump_agrees(
+            // 10-digit seconds: candump zero-pads to 10, socketcan does not pad.
+            micros in 1_000_000_000_000_000u64..=9_999_999_999_999_999,
+            frame in arb_frame(),
+            dir in proptest::option::of(prop_oneof![Just(Direction::Rx), Just(Direction::Tx)]),
+        ) {
+            use socketcan::{CanAnyFrame, EmbeddedFrame, Frame as _};
+            let frame = match frame.kind() {
+                FrameKind::Data { len8_dlc: Some(_) } => CanFrame::new_data(frame.id(), frame.data()).unwrap(),
+                FrameKind::Remote { len8_dlc: Some(_) } => CanFrame::new_remote(frame.id(), frame.len(), None).unwrap(),
+                FrameKind::Fd { flags } => CanFrame::new_fd(frame.id(), flags | 0x4, frame.data()).unwrap(),
+                _ => frame,
+            };
+            let rec = Record { timestamp: Timestamp::from_micros(micros), iface: "can0", frame, direction: dir };
+            let mut out = Vec::new();
+            format_record(&mut out, &rec);
+            let mut theirs = socketcan::dump::Reader::from_reader(&out[..]);
+            let other = theirs.next_record().unwrap().unwrap();
+            prop_assert_eq!(other.t_us, micros);
+            prop_assert_eq!(&other.device, "can0");
+            prop_assert_eq!(other.direction.is_some(), dir.is_some());
+            let expected_id = frame.id().raw() | match frame.kind() {
+                FrameKind::Error => CAN_ERR_FLAG,
+                _ if frame.id().is_extended() => 0x8000_0000,
+                _ => 0,
+            };
+            match (&other.frame, frame.kind()) {
+                (CanAnyFrame::Normal(f), FrameKind::Data { .. }) => {
+                    prop_assert_eq!(f.data(), frame.data());
+                    prop_assert_eq!(f.id_word(), expected_id);
+                }
+                (CanAnyFrame::Remote(f), FrameKind::Remote { .. }) => {
+                    prop_assert_eq!(f.dlc(), frame.len());
+                    prop_assert_eq!(f.id_word() & !0x4000_0000, expected_id);
+                }
+                (CanAnyFrame::Fd(f), FrameKind::Fd { flags }) => {
+                    prop_assert_eq!(f.data(), frame.data());
+                    // Its `flags()` truncates to the named bits; the text keeps all four.
+                    prop_assert_eq!(f.flags().bits(), flags & 0x7);
+                    prop_assert_eq!(f.id_word(), expected_id);
+                }
+                (CanAnyFrame::Error(f), FrameKind::Error) => {
+                    prop_assert_eq!(f.data(), frame.data());
+                    prop_assert_eq!(f.id_word(), expected_id);
+                }
+                (theirs, ours) => prop_assert!(false, "kind mismatch: {:?} vs {:?}", theirs, ours),
+            }
+            prop_assert_eq!(format!("{other}\n"), String::from_utf8(out).unwrap());
         }
 
         #[test]

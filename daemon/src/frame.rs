@@ -136,6 +136,7 @@ pub fn is_fd_len(len: usize) -> bool {
     matches!(len, 0..=8 | 12 | 16 | 20 | 24 | 32 | 48 | 64)
 }
 
+#[inline]
 fn check_len8_dlc(len: usize, len8_dlc: Option<u8>) -> Result<(), FrameError> {
     match len8_dlc {
         None => Ok(()),
@@ -144,6 +145,7 @@ fn check_len8_dlc(len: usize, len8_dlc: Option<u8>) -> Result<(), FrameError> {
     }
 }
 
+#[inline]
 fn payload(bytes: &[u8]) -> [u8; FD_MAX_LEN] {
     let mut data = [0; FD_MAX_LEN];
     data[..bytes.len()].copy_from_slice(bytes);
@@ -163,6 +165,7 @@ impl CanFrame {
     ///
     /// # Errors
     /// [`FrameError`] when the arguments break the kind's limits.
+    #[inline]
     pub fn new_data_with_dlc(
         id: CanId,
         bytes: &[u8],
@@ -207,6 +210,7 @@ impl CanFrame {
     ///
     /// # Errors
     /// [`FrameError`] when the arguments break the kind's limits.
+    #[inline]
     pub fn new_fd(id: CanId, flags: u8, bytes: &[u8]) -> Result<Self, FrameError> {
         if bytes.len() > FD_MAX_LEN {
             return Err(FrameError::TooLong {
