@@ -96,10 +96,10 @@ pub enum BusError {
 
 impl BusError {
     /// Whether reopening the interface later may succeed (the caller retries
-    /// with backoff); `false` for programming errors such as sending an
-    /// error frame.
+    /// with backoff); `false` when the in-process bus is gone for good or
+    /// for programming errors such as sending an error frame.
     pub fn is_transient(&self) -> bool {
-        !matches!(self, Self::Unsendable)
+        !matches!(self, Self::Unsendable | Self::Closed)
     }
 
     /// Maps an OS error on `iface` to the typed variants. A raw CAN socket
@@ -730,7 +730,8 @@ mod tests {
         drop((bus, tx));
         // Queued frames are still delivered, then the end is reported.
         assert_eq!(next_frame(&mut rx).await.frame, data(1, &[1]));
-        assert!(matches!(rx.recv().await, Err(BusError::Closed)));
+        let closed = rx.recv().await.unwrap_err();
+        assert!(matches!(closed, BusError::Closed) && !closed.is_transient());
     }
 
     #[tokio::test(start_paused = true)]

@@ -149,6 +149,23 @@ pub enum Reason {
 }
 
 impl Reason {
+    /// Every reason, for statistics tables that list zero counts too.
+    pub const ALL: [Self; 13] = [
+        Self::BadTimestamp,
+        Self::BadInterface,
+        Self::BadId,
+        Self::IdOutOfRange,
+        Self::BadHex,
+        Self::TooLong,
+        Self::BadFdFlags,
+        Self::BadFdLength,
+        Self::BadRemoteLength,
+        Self::BadLen8Dlc,
+        Self::BadErrorFrame,
+        Self::TrailingGarbage,
+        Self::LineTooLong,
+    ];
+
     /// Stable snake_case name, used as a statistics key.
     pub fn as_str(self) -> &'static str {
         match self {
@@ -951,6 +968,10 @@ mod tests {
         assert!(matches!(r.next_record(), Err(ReadError::Io(_))));
     }
 
+    fn r_line(rec: &Record<'_>) -> String {
+        rec.to_string()
+    }
+
     fn arb_id() -> impl Strategy<Value = CanId> {
         prop_oneof![
             (0..=MAX_STANDARD_ID).prop_map(|v| CanId::Standard(v as u16)),
@@ -1063,6 +1084,48 @@ mod tests {
                 (theirs, ours) => prop_assert!(false, "kind mismatch: {:?} vs {:?}", theirs, ours),
             }
             prop_assert_eq!(format!("{other}\n"), String::from_utf8(out).unwrap());
+        }
+
+        /// Lines parsed in place and lines copied across a buffer refill
+        /// give the same records, errors and line numbers.
+        #[test]
+        fn buffer_size_does_not_change_results(
+            lines in proptest::collection::vec(prop_oneof![
+                4 => (arb_frame(), 0u64..=99_999_999_999_999).prop_map(|(frame, t)| {
+                    let mut out = Vec::new();
+                    format_record(&mut out, &Record { timestamp: Timestamp::from_micros(t), iface: "vcan0", frame, direction: None });
+                    out.pop();
+                    String::from_utf8(out).unwrap()
+                }),
+                1 => "[ -~]{0,80}",
+                1 => Just(String::new()),
+                1 => Just("x".repeat(MAX_LINE_BYTES + 3)),
+            ], 0..40),
+            crlf in any::<bool>(),
+            final_newline in any::<bool>(),
+        ) {
+            let sep = if crlf { "\r\n" } else { "\n" };
+            let mut log = lines.join(sep);
+            if final_newline {
+                log.push_str(sep);
+            }
+            let read_all = |capacity: usize| {
+                let mut r = LogReader::new(io::BufReader::with_capacity(capacity, log.as_bytes()));
+                let mut out = Vec::new();
+                loop {
+                    match r.next_record() {
+                        Ok(Some(rec)) => out.push(Ok((r_line(&rec), rec.frame))),
+                        Ok(None) => break,
+                        Err(ReadError::Malformed(m)) => out.push(Err(m)),
+                        Err(ReadError::Io(e)) => panic!("{e}"),
+                    }
+                }
+                (out, r.line_no())
+            };
+            let reference = read_all(1 << 16);
+            for capacity in [1, 7, 64, 300] {
+                prop_assert_eq!(&read_all(capacity), &reference, "capacity {}", capacity);
+            }
         }
 
         #[test]
