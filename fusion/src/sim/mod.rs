@@ -354,7 +354,9 @@ pub struct Sample {
     pub t_s: f64,
     /// The four cumulative tick counters, wrapped to `counter_bits`.
     pub ticks: WheelSet<u64>,
-    /// The four wheel speeds in the configured unit, quantised, signed.
+    /// The four wheel speeds in the configured unit, quantised, signed: the
+    /// wheel's rotation rate times the circumference of the mean of the four
+    /// true diameters (an ECU uses one tyre size), so unequal tyres show.
     pub wheel_speed: WheelSet<f64>,
     /// The measured steering signal (noise, bias, drift, quantisation).
     pub steer_signal: f64,
@@ -743,7 +745,11 @@ impl Simulator {
             front_right: g_fr,
         };
         let ratio = self.slip_ratio;
-        self.wheel_speed_mps = g.map(|w, gi| v_true * gi * (1.0 + ratio[w]));
+        // An ECU turns rotation into speed with one tyre size for all wheels:
+        // take the four wheels' mean, so a tyre larger than the others reads fast.
+        let d = self.cfg.true_params.wheel_diameters_m();
+        let mean_d = 0.25 * (d.rear_left + d.rear_right + d.front_left + d.front_right);
+        self.wheel_speed_mps = g.map(|w, gi| v_true * gi * (1.0 + ratio[w]) * mean_d / d[w]);
         if last_step {
             self.phase = Phase::After(0);
         }
