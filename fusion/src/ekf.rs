@@ -32,6 +32,10 @@
 //! (`steer_bias_sigma_rad`), whose effect is propagated as the sensitivity
 //! `v = ∂w_front/∂b` and added as `σ_b² v vᵀ` to the front window covariance.
 //!
+//! **Steering offset**: optionally (on by default) a scalar Kalman filter
+//! learns the sensor's offset from each accepted window's heading innovation
+//! `ν_θ ≈ (b − b̂)·v_θ` and subtracts it from the measured angle.
+//!
 //! **Gate**: the squared Mahalanobis distance `d² = νᵀS⁻¹ν` against a
 //! threshold (χ²₃(0.99) = 11.34). On rejection the [`GateAction::Consensus`]
 //! compares each wheel's implied centre distance `s_i = Σ d_i/g_i(φ)` over the
