@@ -521,12 +521,35 @@ fn compose(anchor: &Vec3, (c, s): (f64, f64), w: &Vec3) -> Vec3 {
 }
 
 /// The covariance of `anchor ⊕ w`: `J_a P_a J_aᵀ + R P_w Rᵀ`.
+///
+/// Written out: `J_a = I + a e₃ᵀ` with `a = (−Δy, Δx, 0)` (as the prediction's
+/// `A`) and `R` a rotation of the x-y block, so both terms are a few products.
 fn compose_covariance(p_a: &Mat3, (c, s): (f64, f64), w: &Vec3, p_w: &Mat3) -> Mat3 {
     let dx = c * w.x - s * w.y;
     let dy = s * w.x + c * w.y;
-    let Ja = Mat3::new(1.0, 0.0, -dy, 0.0, 1.0, dx, 0.0, 0.0, 1.0);
-    let R = Mat3::new(c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0);
-    symmetrise(&(Ja * p_a * Ja.transpose() + R * p_w * R.transpose()))
+    let (ax, ay) = (-dy, dx);
+    let (cx, cy, cz) = (
+        0.5 * (p_a[(0, 2)] + p_a[(2, 0)]),
+        0.5 * (p_a[(1, 2)] + p_a[(2, 1)]),
+        p_a[(2, 2)],
+    );
+    let (a11, a22, a33) = (p_w[(0, 0)], p_w[(1, 1)], p_w[(2, 2)]);
+    let a12 = 0.5 * (p_w[(0, 1)] + p_w[(1, 0)]);
+    let a13 = 0.5 * (p_w[(0, 2)] + p_w[(2, 0)]);
+    let a23 = 0.5 * (p_w[(1, 2)] + p_w[(2, 1)]);
+    let (cc, ss, cs) = (c * c, s * s, c * s);
+    let xx = p_a[(0, 0)] + 2.0 * ax * cx + cz * ax * ax + cc * a11 - 2.0 * cs * a12 + ss * a22;
+    let xy = 0.5 * (p_a[(0, 1)] + p_a[(1, 0)])
+        + ax * cy
+        + ay * cx
+        + cz * ax * ay
+        + cs * (a11 - a22)
+        + (cc - ss) * a12;
+    let yy = p_a[(1, 1)] + 2.0 * ay * cy + cz * ay * ay + ss * a11 + 2.0 * cs * a12 + cc * a22;
+    let xz = cx + ax * cz + c * a13 - s * a23;
+    let yz = cy + ay * cz + s * a13 + c * a23;
+    let zz = cz + a33;
+    Mat3::new(xx, xy, xz, xy, yy, yz, xz, yz, zz)
 }
 
 /// Joseph-form update with gain `K`, prior `P` and measurement covariance `R`.
@@ -737,7 +760,8 @@ impl Ekf {
             st.anchor_heading_unwrapped_rad += w.z;
             st.anchor = new_anchor;
         }
-        st.anchor_cos_sin = (st.anchor.z.cos(), st.anchor.z.sin());
+        let (sin_a, cos_a) = st.anchor.z.sin_cos();
+        st.anchor_cos_sin = (cos_a, sin_a);
         st.rear_w = Vec3::zeros();
         st.p_rear_w = Mat3::zeros();
         st.front_w = Vec3::zeros();
@@ -935,6 +959,24 @@ mod tests {
                 cs = next;
             }
             prop_assert!((cs.0 - theta.cos()).abs() < 1e-12 && (cs.1 - theta.sin()).abs() < 1e-12);
+        }
+
+        #[test]
+        fn structured_composition_equals_the_general_form(
+            la in prop::collection::vec(-1.0f64..1.0, 6), lw in prop::collection::vec(-1.0f64..1.0, 6),
+            h in -3.0f64..3.0, wx in -2.0f64..2.0, wy in -2.0f64..2.0,
+        ) {
+            let tri = |l: &[f64]| nalgebra::Matrix3::new(l[0], 0.0, 0.0, l[1], l[2], 0.0, l[3], l[4], l[5]);
+            let (La, Lw) = (tri(&la), tri(&lw));
+            let (Pa, Pw) = (La * La.transpose(), Lw * Lw.transpose());
+            let w = Vec3::new(wx, wy, 0.1);
+            let (s, c) = h.sin_cos();
+            let fast = compose_covariance(&Pa, (c, s), &w, &Pw);
+            let (dx, dy) = (c * wx - s * wy, s * wx + c * wy);
+            let Ja = Mat3::new(1.0, 0.0, -dy, 0.0, 1.0, dx, 0.0, 0.0, 1.0);
+            let R = Mat3::new(c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0);
+            let general = Ja * Pa * Ja.transpose() + R * Pw * R.transpose();
+            prop_assert!((fast - general).abs().max() < 1e-12, "{fast} vs {general}");
         }
 
         #[test]
