@@ -109,23 +109,14 @@ impl BusError {
     pub fn from_io(iface: &str, source: io::Error) -> Self {
         let iface = iface.to_owned();
         match source.raw_os_error() {
-            Some(code) if code == libc_errno::ENETDOWN => Self::InterfaceDown { iface },
-            Some(code) if code == libc_errno::ENODEV || code == libc_errno::ENXIO => {
+            Some(code) if code == libc::ENETDOWN => Self::InterfaceDown { iface },
+            Some(code) if code == libc::ENODEV || code == libc::ENXIO => {
                 Self::NoSuchInterface { iface }
             }
-            Some(code) if code == libc_errno::ENOBUFS => Self::TxQueueFull { iface },
+            Some(code) if code == libc::ENOBUFS => Self::TxQueueFull { iface },
             _ => Self::Io { iface, source },
         }
     }
-}
-
-/// Linux errno values the daemon distinguishes (stable kernel ABI; the
-/// daemon only runs on Linux, where SocketCAN exists).
-mod libc_errno {
-    pub const ENXIO: i32 = 6;
-    pub const ENODEV: i32 = 19;
-    pub const ENETDOWN: i32 = 100;
-    pub const ENOBUFS: i32 = 105;
 }
 
 /// A receive filter with `CAN_RAW_FILTER` semantics: a data frame passes
@@ -433,8 +424,9 @@ mod socketcan_bus {
         CanAnyFrame, CanDataFrame, CanFdFrame, CanFilter, CanRemoteFrame, EmbeddedFrame, Id,
         SocketOptions, id::FdFlags, tokio::CanFdSocket,
     };
+    use std::io;
     use std::sync::Arc;
-    use std::time::{SystemTime, UNIX_EPOCH};
+    use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
     const CAN_EFF_FLAG: u32 = 0x8000_0000;
     const CAN_RTR_FLAG: u32 = 0x4000_0000;
@@ -505,14 +497,42 @@ mod socketcan_bus {
         Timestamp::from_micros(us)
     }
 
+    /// How long a receive waits before checking the socket for an error.
+    const SOCKET_ERROR_POLL: Duration = Duration::from_millis(250);
+
+    impl SocketCanRx {
+        /// Takes (and clears) a pending socket error: `ENETDOWN` after the
+        /// interface went down, `ENODEV` after it was deleted.
+        fn check_socket_error(&self) -> Result<(), BusError> {
+            let code = self
+                .socket
+                .get_socket_option_int(libc::SOL_SOCKET, libc::SO_ERROR)
+                .map_err(|e| BusError::from_io(&self.iface, e))?;
+            if code == 0 {
+                Ok(())
+            } else {
+                Err(BusError::from_io(
+                    &self.iface,
+                    io::Error::from_raw_os_error(code),
+                ))
+            }
+        }
+    }
+
     impl FrameSource for SocketCanRx {
         async fn recv(&mut self) -> Result<BusEvent, BusError> {
             loop {
-                let (frame, time) = self
-                    .socket
-                    .read_frame_with_timestamp()
-                    .await
-                    .map_err(|e| BusError::from_io(&self.iface, e))?;
+                // The kernel reports an interface going down or away through
+                // the socket error (EPOLLERR), which tokio does not treat as
+                // read readiness: while no frame arrives, poll SO_ERROR.
+                let read = tokio::select! {
+                    read = self.socket.read_frame_with_timestamp() => read,
+                    () = tokio::time::sleep(SOCKET_ERROR_POLL) => {
+                        self.check_socket_error()?;
+                        continue;
+                    }
+                };
+                let (frame, time) = read.map_err(|e| BusError::from_io(&self.iface, e))?;
                 let timestamp = to_micros(time);
                 // A frame the kernel hands over that our type rejects (e.g.
                 // a bad FD length from a broken driver) is skipped, not fatal.
@@ -749,18 +769,18 @@ mod tests {
 
     #[test]
     fn os_errors_map_to_typed_variants() {
-        let e = BusError::from_io("can0", io::Error::from_raw_os_error(libc_errno::ENETDOWN));
+        let e = BusError::from_io("can0", io::Error::from_raw_os_error(libc::ENETDOWN));
         assert!(matches!(e, BusError::InterfaceDown { .. }));
-        let e = BusError::from_io("can0", io::Error::from_raw_os_error(libc_errno::ENODEV));
+        let e = BusError::from_io("can0", io::Error::from_raw_os_error(libc::ENODEV));
         assert!(matches!(e, BusError::NoSuchInterface { .. }));
-        let e = BusError::from_io("can0", io::Error::from_raw_os_error(libc_errno::ENXIO));
+        let e = BusError::from_io("can0", io::Error::from_raw_os_error(libc::ENXIO));
         assert!(matches!(e, BusError::NoSuchInterface { .. }));
-        let e = BusError::from_io("can0", io::Error::from_raw_os_error(libc_errno::ENOBUFS));
+        let e = BusError::from_io("can0", io::Error::from_raw_os_error(libc::ENOBUFS));
         assert!(matches!(e, BusError::TxQueueFull { .. }) && e.is_transient());
         let e = BusError::from_io("can0", io::Error::from_raw_os_error(13));
         assert!(matches!(e, BusError::Io { .. }));
         assert_eq!(
-            io::Error::from_raw_os_error(libc_errno::ENETDOWN).kind(),
+            io::Error::from_raw_os_error(libc::ENETDOWN).kind(),
             io::ErrorKind::NetworkDown
         );
     }
