@@ -20,7 +20,10 @@ rows = [
     ("wheel_speeds: 4 handles", ours("wheel_speeds_4_signals", "handles"), py["wheel_speeds"]),
     ("wheel_speeds: whole message (%d signals)" % py["wheel_speeds"]["signals_decoded"],
      ours("wheel_speeds_4_signals", "message_decode"), py["wheel_speeds"]),
-    ("lookup + decode among 500", ours("lookup_decode_500_messages", "database_decode"), py["lookup_500"]),
+    ("wheel_speeds: whole message, decode_each",
+     ours("wheel_speeds_4_signals", "message_decode_each"), py["wheel_speeds"]),
+    ("lookup + decode among 500 (iterator)", ours("lookup_decode_500_messages", "database_decode"), py["lookup_500"]),
+    ("lookup + decode among 500 (decode_each)", ours("lookup_decode_500_messages", "database_decode_each"), py["lookup_500"]),
 ]
 for name, ns, ref in rows:
     c = ref["cantools_ns_per_frame"]

@@ -93,6 +93,15 @@ fn toyota_wheel_speeds(c: &mut Criterion) {
             sum
         });
     });
+    g.bench_function("message_decode_each", |b| {
+        b.iter(|| {
+            let mut sum = 0.0;
+            for f in &frames {
+                msg.decode_each(black_box(f), |_, v| sum += v).unwrap();
+            }
+            sum
+        });
+    });
     g.finish();
 }
 
@@ -117,6 +126,15 @@ fn lookup_among_500(c: &mut Criterion) {
                         sum += v;
                     }
                 }
+            }
+            sum
+        });
+    });
+    g.bench_function("database_decode_each", |b| {
+        b.iter(|| {
+            let mut sum = 0.0;
+            for (id, f) in &frames {
+                let _ = db.decode_each(black_box(*id), black_box(f), |_, v| sum += v);
             }
             sum
         });

@@ -129,6 +129,18 @@ impl Database {
         self.message_by_id(id).map(|m| m.decode(data))
     }
 
+    /// Look up the frame's message and call `f(signal, physical value)` for each present
+    /// signal ([`Message::decode_each`]); `None` for an unknown ID.
+    #[inline]
+    pub fn decode_each(
+        &self,
+        id: FrameId,
+        data: &[u8],
+        f: impl FnMut(&Signal, f64),
+    ) -> Option<Result<()>> {
+        self.message_by_id(id).map(|m| m.decode_each(data, f))
+    }
+
     /// A fast handle on one signal, named `MESSAGE.SIGNAL`.
     ///
     /// # Errors
@@ -543,7 +555,9 @@ fn compile_message(
         }
     }
 
+    let hot = signals.iter().map(|s| (s.codec, s.mux.is_some())).collect();
     Ok(Message {
+        hot,
         name: m.name.clone(),
         id,
         length,

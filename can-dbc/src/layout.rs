@@ -30,6 +30,12 @@ pub(crate) struct BitLayout {
     size: u8,
     /// Byte order of the run integer.
     big_endian: bool,
+    /// Fast path: the run lies inside the 8-byte window starting at `window`, which lies
+    /// inside the message, so one unaligned 64-bit load plus shift and mask extracts it.
+    fast: bool,
+    window: u8,
+    /// Right shift of the signal's LSB within the 64-bit window.
+    window_shift: u8,
 }
 
 /// Why a layout cannot be built; the caller adds message and signal names.
@@ -83,6 +89,20 @@ impl BitLayout {
         } else {
             first % 8
         };
+        // A window of 8 bytes holding the run: it starts at the run's first byte, or as
+        // late as the message allows.
+        let hi = byte_hi + 1;
+        let (fast, window, window_shift) = if n_bytes <= 8 && length >= 8 {
+            let w = byte_lo.min(length - 8);
+            let ws = if big_endian {
+                8 * (w + 8 - hi) + shift
+            } else {
+                8 * (byte_lo - w) + shift
+            };
+            (true, w, ws)
+        } else {
+            (false, 0, 0)
+        };
         // length <= 64 is checked by the caller, so every field fits a u8.
         Ok(Self {
             byte_lo: byte_lo as u8,
@@ -90,6 +110,9 @@ impl BitLayout {
             shift: shift as u8,
             size: size as u8,
             big_endian,
+            fast,
+            window: window as u8,
+            window_shift: window_shift as u8,
         })
     }
 
@@ -105,6 +128,21 @@ impl BitLayout {
     /// The signal's raw bits, zero-extended; `None` if `data` is too short to hold them.
     #[inline]
     pub(crate) fn extract(self, data: &[u8]) -> Option<u64> {
+        if self.fast {
+            let w = usize::from(self.window);
+            let bytes: [u8; 8] = data.get(w..w + 8)?.try_into().ok()?;
+            let x = if self.big_endian {
+                u64::from_be_bytes(bytes)
+            } else {
+                u64::from_le_bytes(bytes)
+            };
+            return Some((x >> self.window_shift) & (u64::MAX >> (64 - u32::from(self.size))));
+        }
+        self.extract_slow(data)
+    }
+
+    /// Any run, through a 128-bit accumulator (runs of 9 bytes, messages under 8 bytes).
+    fn extract_slow(self, data: &[u8]) -> Option<u64> {
         let lo = usize::from(self.byte_lo);
         let run = data.get(lo..lo + usize::from(self.n_bytes))?;
         let acc = if self.big_endian {
@@ -208,6 +246,33 @@ mod tests {
             BitLayout::new(63, 9, ByteOrder::BigEndian, 8),
             Err(LayoutError::PastEnd { .. })
         ));
+    }
+
+    #[test]
+    fn fast_window_agrees_with_the_byte_loop() {
+        let mut x = 0x1234_5678_9ABC_DEF0_u64;
+        let mut data = [0u8; 64];
+        for b in &mut data {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            *b = x as u8;
+        }
+        let mut checked = 0;
+        for length in [8u64, 12, 64] {
+            for size in 1..=64 {
+                for start in 0..length * 8 {
+                    for order in [ByteOrder::LittleEndian, ByteOrder::BigEndian] {
+                        if let Ok(l) = BitLayout::new(start, size, order, length) {
+                            let d = &data[..length as usize];
+                            assert_eq!(l.extract(d), l.extract_slow(d), "{start}|{size} {order:?}");
+                            checked += u32::from(l.fast);
+                        }
+                    }
+                }
+            }
+        }
+        assert!(checked > 10_000);
     }
 
     #[test]

@@ -36,11 +36,27 @@ pub(crate) enum Scaling {
     Integer { factor: i64, offset: i64 },
 }
 
+/// The decode path, flattened so `raw_to_scaled` is a single match: integer signals with
+/// identity scaling use `raw * 1.0 + 0.0`, which is exact for every integer `f64` holds.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum DecodeKind {
+    Unsigned,
+    Signed,
+    UnsignedExact,
+    SignedExact,
+    Float32,
+    Float64,
+}
+
 /// Everything needed to go between bits and physical values; `Copy` so handles can hold it.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub(crate) struct Codec {
     pub(crate) layout: BitLayout,
     pub(crate) value_type: ValueType,
+    kind: DecodeKind,
+    /// Factor and offset of the `f64` path (1 and 0 for identity).
+    mul: f64,
+    add: f64,
     pub(crate) scaling: Scaling,
     pub(crate) factor: f64,
     pub(crate) offset: f64,
@@ -70,9 +86,24 @@ impl Codec {
         } else {
             Scaling::Linear { factor, offset }
         };
+        let kind = match (value_type, scaling) {
+            (ValueType::Unsigned, Scaling::Integer { .. }) => DecodeKind::UnsignedExact,
+            (ValueType::Signed, Scaling::Integer { .. }) => DecodeKind::SignedExact,
+            (ValueType::Unsigned, _) => DecodeKind::Unsigned,
+            (ValueType::Signed, _) => DecodeKind::Signed,
+            (ValueType::Float32, _) => DecodeKind::Float32,
+            (ValueType::Float64, _) => DecodeKind::Float64,
+        };
+        let (mul, add) = match scaling {
+            Scaling::Linear { factor, offset } => (factor, offset),
+            _ => (1.0, 0.0),
+        };
         Self {
             layout,
             value_type,
+            kind,
+            mul,
+            add,
             scaling,
             factor,
             offset,
@@ -95,26 +126,31 @@ impl Codec {
     /// The physical value of raw `bits` (cantools `raw_to_scaled`).
     #[inline]
     pub(crate) fn raw_to_scaled(&self, bits: u64) -> f64 {
-        let raw_f = match self.value_type {
-            ValueType::Unsigned => {
-                if let Scaling::Integer { factor, offset } = self.scaling {
-                    return (i128::from(bits) * i128::from(factor) + i128::from(offset)) as f64;
-                }
-                bits as f64
+        match self.kind {
+            DecodeKind::Unsigned => bits as f64 * self.mul + self.add,
+            DecodeKind::Signed => self.signed(bits) as f64 * self.mul + self.add,
+            DecodeKind::UnsignedExact | DecodeKind::SignedExact => {
+                let Scaling::Integer { factor, offset } = self.scaling else {
+                    return f64::NAN; // unreachable: kind follows scaling
+                };
+                let raw = if self.kind == DecodeKind::SignedExact {
+                    i128::from(self.signed(bits))
+                } else {
+                    i128::from(bits)
+                };
+                (raw * i128::from(factor) + i128::from(offset)) as f64
             }
-            ValueType::Signed => {
-                let r = self.signed(bits);
-                if let Scaling::Integer { factor, offset } = self.scaling {
-                    return (i128::from(r) * i128::from(factor) + i128::from(offset)) as f64;
-                }
-                r as f64
-            }
-            ValueType::Float32 => f64::from(f32::from_bits(bits as u32)),
-            ValueType::Float64 => f64::from_bits(bits),
-        };
+            // Floats keep identity exact: x * 1.0 + 0.0 would turn -0.0 into +0.0.
+            DecodeKind::Float32 => self.scale_float(f64::from(f32::from_bits(bits as u32))),
+            DecodeKind::Float64 => self.scale_float(f64::from_bits(bits)),
+        }
+    }
+
+    #[inline]
+    fn scale_float(&self, x: f64) -> f64 {
         match self.scaling {
-            Scaling::Linear { factor, offset } => raw_f * factor + offset,
-            _ => raw_f,
+            Scaling::Identity => x,
+            _ => x * self.mul + self.add,
         }
     }
 

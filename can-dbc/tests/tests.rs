@@ -10,7 +10,6 @@
 
 mod cantools_diff;
 mod error_paths;
-mod fuzz_regressions;
 mod properties;
 mod rc_car;
 pub mod util;

@@ -2,8 +2,8 @@
 //! byte 0 picks the database, bytes 1..3 the message (or, with the top bit set, a raw frame
 //! ID that is probably unknown), the rest is the payload (any length, up to 64 bytes).
 //! Checks: no panic; a short frame is an error; encode(decode(frame)) restores the bits of
-//! the present signals (values wider than 53 bits excepted); handles agree with the
-//! message decoder; checksums over arbitrary ranges never read past the end.
+//! the present signals (values wider than 53 bits excepted); handles and `decode_each`
+//! agree with the message iterator; checksums over arbitrary ranges never read past the end.
 #![no_main]
 
 use std::sync::OnceLock;
@@ -75,6 +75,16 @@ fuzz_target!(|input: &[u8]| {
             values.push((s.index(), v));
         }
     }
+    // The callback decoder yields exactly what the iterator does.
+    let mut k = 0;
+    let all: Vec<(usize, f64)> = decoded.clone().map(|(s, v)| (s.index(), v)).collect();
+    msg.decode_each(payload, |s, v| {
+        assert_eq!(all[k].0, s.index());
+        assert!(all[k].1.to_bits() == v.to_bits() || (v.is_nan() && all[k].1.is_nan()));
+        k += 1;
+    })
+    .unwrap();
+    assert_eq!(k, all.len());
     let mut rebuilt = vec![0u8; msg.length()];
     msg.encode_into(values, &mut rebuilt)
         .expect("decoded values re-encode");

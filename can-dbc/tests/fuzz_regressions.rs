@@ -1,1 +1,0 @@
-//! Inputs found by the fuzz targets in can-dbc/fuzz/ (filled as findings arrive).
