@@ -487,12 +487,15 @@ mod tests {
     use std::process::{Command, Stdio};
     use std::time::{Duration, Instant};
 
+    /// A distinct, in-bounds set per version `k` (the crash test commits
+    /// tens of thousands).
     fn values(k: u32) -> ParamValues {
+        let wave = f64::from(k % 1000);
         let k = f64::from(k);
         ParamValues {
-            rear_tread_m: 0.30 + 1e-4 * k,
-            rear_left_diameter_m: 0.09 - 1e-6 * k,
-            rear_right_diameter_m: 0.09 + 1e-6 * k,
+            rear_tread_m: 0.30 + 1e-5 * wave,
+            rear_left_diameter_m: 0.09 - 1e-6 * wave,
+            rear_right_diameter_m: 0.09 + 1e-6 * wave,
             steering_gain: 1.0 + 1e-3 * (k / 7.0).sin(),
             steering_offset_rad: 0.01 * (k / 3.0).cos() / 3.0,
         }
@@ -787,6 +790,13 @@ mod tests {
             }
             assert_is_set(&loaded, v);
             file = loaded;
+            // Stay clear of the u16 version wrap, which assert_is_set's
+            // history arithmetic does not model.
+            if file.last_version > 50_000 {
+                file = ParamFile::default();
+                file.commit(values(1), "exact", 1, 4);
+                store(&path, &file).unwrap();
+            }
         }
         println!(
             "persist crash test: {ITERATIONS} SIGKILLs (seed {seed:#x}), {commits} commits completed, \
