@@ -215,6 +215,13 @@ fn variants(p: VehicleParams) -> Vec<(&'static str, Ekf)> {
                 ..default
             }),
         ),
+        (
+            "default + front scale learning",
+            ekf(EkfConfig {
+                front_scale_drift: Some(1e-5),
+                ..default
+            }),
+        ),
         ("DEFAULT anchored + consensus gate", ekf(default)),
     ]
 }
@@ -241,7 +248,7 @@ fn section_11_slip_experiment_and_front_only_slips() {
     assert!(default <= 0.10 * rear, "gated {default} vs rear {rear}");
 
     let front_only = [
-        filters[0], filters[1], filters[2], filters[5], filters[6], filters[7],
+        filters[0], filters[1], filters[2], filters[5], filters[6], filters[7], filters[8],
     ];
     let m = slip_experiment(SlipWheels::Front, &[21, 22, 23], 20, &front_only);
     let (rear, default) = (m[0], m[m.len() - 1]);
@@ -328,6 +335,16 @@ fn beyond_the_bar(p: VehicleParams, sensor: SteeringSensor) {
             ..EkfConfig::new(p)
         })
         .unwrap(),
+        Ekf::new(EkfConfig {
+            front_scale_drift: Some(1e-5),
+            ..EkfConfig::new(p)
+        })
+        .unwrap(),
+        Ekf::new(EkfConfig {
+            front_scale_drift: Some(1e-4),
+            ..EkfConfig::new(p)
+        })
+        .unwrap(),
     ];
     for (case, cfg) in [
         ("front-right tyre +0.3 %", &tyre_cfg),
@@ -354,6 +371,12 @@ fn beyond_the_bar(p: VehicleParams, sensor: SteeringSensor) {
                 e[3],
                 st[2].steer_offset_rad() / DEG,
                 run.steer_bias_rad / DEG
+            );
+            println!(
+                "   with front scale learning: {:.2} m (1e-5/window, learnt scale {:.5}), {:.2} m (1e-4/window)",
+                e[4],
+                st[4].front_scale(),
+                e[5]
             );
             if case.starts_with("front") {
                 // The reason the default takes its heading from the steering.
