@@ -192,6 +192,41 @@ impl fmt::Display for Reason {
     }
 }
 
+/// Malformed lines counted by reason, for the skip-and-count policy of
+/// `decode` and `replay` (`--strict` stops at the first instead).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct MalformedCounts([u64; Reason::ALL.len()]);
+
+impl MalformedCounts {
+    fn slot(reason: Reason) -> usize {
+        Reason::ALL.iter().position(|&r| r == reason).unwrap_or(0)
+    }
+
+    /// Counts one malformed line.
+    pub fn add(&mut self, reason: Reason) {
+        self.0[Self::slot(reason)] += 1;
+    }
+
+    /// Lines counted under `reason`.
+    pub fn get(&self, reason: Reason) -> u64 {
+        self.0[Self::slot(reason)]
+    }
+
+    /// All malformed lines.
+    pub fn total(&self) -> u64 {
+        self.0.iter().sum()
+    }
+
+    /// Non-zero counts by reason, in [`Reason::ALL`] order.
+    pub fn nonzero(&self) -> impl Iterator<Item = (Reason, u64)> + '_ {
+        Reason::ALL
+            .iter()
+            .zip(self.0)
+            .filter(|(_, n)| *n > 0)
+            .map(|(&r, n)| (r, n))
+    }
+}
+
 /// A malformed line: where and why.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
 #[error("line {line_no}: malformed candump record ({reason})")]
@@ -954,6 +989,41 @@ mod tests {
         assert_eq!(r.line_no(), 6);
         assert!(r.next_record().unwrap().is_none());
         assert!(r.next_record().unwrap().is_none());
+    }
+
+    #[test]
+    fn malformed_lines_are_counted_by_reason() {
+        let log = "(1.000000) can0 123#01\nnot a record\n(1.000000) can0 800#00\n\
+                   (2.000000) can0 124#0G\n(3.000000) can0 125#\njunk\n";
+        let mut r = LogReader::new(log.as_bytes());
+        let (mut counts, mut frames) = (MalformedCounts::default(), 0);
+        loop {
+            match r.next_record() {
+                Ok(Some(_)) => frames += 1,
+                Ok(None) => break,
+                Err(ReadError::Malformed(m)) => counts.add(m.reason),
+                Err(ReadError::Io(e)) => panic!("{e}"),
+            }
+        }
+        assert_eq!(frames, 2);
+        assert_eq!(counts.total(), 4);
+        assert_eq!(counts.get(Reason::BadTimestamp), 2);
+        assert_eq!(
+            counts.nonzero().collect::<Vec<_>>(),
+            [
+                (Reason::BadTimestamp, 2),
+                (Reason::IdOutOfRange, 1),
+                (Reason::BadHex, 1)
+            ]
+        );
+        // Every reason has its own slot and a distinct statistics name.
+        let names: std::collections::HashSet<_> = Reason::ALL.iter().map(|r| r.as_str()).collect();
+        assert_eq!(names.len(), Reason::ALL.len());
+        let mut all = MalformedCounts::default();
+        for r in Reason::ALL {
+            all.add(r);
+        }
+        assert!(Reason::ALL.iter().all(|&r| all.get(r) == 1));
     }
 
     #[test]
