@@ -130,10 +130,9 @@ impl Message {
     pub fn decode<'m, 'd>(&'m self, data: &'d [u8]) -> Result<Decoded<'m, 'd>> {
         self.check_length(data.len())?;
         Ok(Decoded {
-            message: self,
+            items: self.signals.iter().zip(self.hot.iter()),
             data,
             mux: self.mux_state(data),
-            next: 0,
         })
     }
 
@@ -251,10 +250,9 @@ impl Message {
 /// Iterator over the decoded signals of one frame; see [`Message::decode`].
 #[derive(Clone, Debug)]
 pub struct Decoded<'m, 'd> {
-    message: &'m Message,
+    items: std::iter::Zip<std::slice::Iter<'m, Signal>, std::slice::Iter<'m, (Codec, bool)>>,
     data: &'d [u8],
     mux: MuxState,
-    next: usize,
 }
 
 impl<'m> Iterator for Decoded<'m, '_> {
@@ -262,27 +260,19 @@ impl<'m> Iterator for Decoded<'m, '_> {
 
     #[inline]
     fn next(&mut self) -> Option<Self::Item> {
-        let m = self.message;
-        while let Some((codec, muxed)) = m.hot.get(self.next) {
-            let i = self.next;
-            self.next += 1;
-            if *muxed
-                && m.signals[i]
-                    .mux
-                    .as_ref()
-                    .is_some_and(|c| !self.mux.selects(c))
-            {
+        for (s, (codec, muxed)) in self.items.by_ref() {
+            if *muxed && s.mux.as_ref().is_some_and(|c| !self.mux.selects(c)) {
                 continue;
             }
             if let Some(bits) = codec.raw_bits(self.data) {
-                return Some((&m.signals[i], codec.raw_to_scaled(bits)));
+                return Some((s, codec.raw_to_scaled(bits)));
             }
         }
         None
     }
 
     fn size_hint(&self) -> (usize, Option<usize>) {
-        (0, Some(self.message.signals.len() - self.next))
+        (0, Some(self.items.len()))
     }
 }
 
