@@ -236,3 +236,41 @@ fn missing_and_inactive_signals_are_named() {
         "{e}"
     );
 }
+
+#[test]
+fn unresolvable_multiplexing_names_the_signal() {
+    let e = load_err(
+        "BO_ 256 MUX: 8 ECU\n SG_ A M : 0|4@1+ (1,0) [0|0] \"\" ECU\n SG_ B M : 4|4@1+ (1,0) [0|0] \"\" ECU\n SG_ C m1 : 8|8@1+ (1,0) [0|0] \"\" ECU",
+    );
+    assert!(
+        e.contains("message MUX, signal C") && e.contains("several multiplexors"),
+        "{e}"
+    );
+    let e = load_err(
+        "BO_ 256 MUX: 8 ECU\n SG_ A M : 0|4@1+ (1,0) [0|0] \"\" ECU\n SG_ C m1 : 8|8@1+ (1,0) [0|0] \"\" ECU\n\nSG_MUL_VAL_ 256 C NOPE 1-1;",
+    );
+    assert!(
+        e.contains("signal C") && e.contains("unknown multiplexor NOPE"),
+        "{e}"
+    );
+    let e = load_err(
+        "BO_ 256 MUX: 8 ECU\n SG_ A m1M : 0|4@1+ (1,0) [0|0] \"\" ECU\n SG_ B m1M : 4|4@1+ (1,0) [0|0] \"\" ECU\n\nSG_MUL_VAL_ 256 A B 1-1;\nSG_MUL_VAL_ 256 B A 1-1;",
+    );
+    assert!(e.contains("message MUX") && e.contains("cycle"), "{e}");
+}
+
+#[test]
+fn too_many_multiplexors_is_rejected() {
+    use std::fmt::Write as _;
+    let mut text = String::from("BO_ 256 MANY: 8 ECU\n SG_ M0 M : 0|1@1+ (1,0) [0|0] \"\" ECU\n");
+    let mut mul = String::new();
+    for k in 1..10 {
+        writeln!(text, " SG_ M{k} m1M : {k}|1@1+ (1,0) [0|0] \"\" ECU").unwrap();
+        writeln!(mul, "SG_MUL_VAL_ 256 M{k} M{} 1-1;", k - 1).unwrap();
+    }
+    let e = load_err(&format!("{text}\n{mul}"));
+    assert!(
+        e.contains("message MANY, signal M8") && e.contains("more than 8"),
+        "{e}"
+    );
+}

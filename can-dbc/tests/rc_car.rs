@@ -224,3 +224,52 @@ fn multiplexed_signals_follow_the_multiplexor() {
         .unwrap();
     assert_eq!(built, [8 << 2, 0, 1 << 3, 1, 0, 0, 0, 0]);
 }
+
+/// Nested multiplexing (`m1M` plus SG_MUL_VAL_), checked against what cantools 45.1
+/// decodes for the same two frames.
+#[test]
+fn nested_multiplexing_matches_cantools() {
+    let text = r#"VERSION ""
+
+BS_:
+
+BU_: ECU
+
+BO_ 300 NEST: 8 ECU
+ SG_ TOP M : 0|4@1+ (1,0) [0|0] "" ECU
+ SG_ SUB m1M : 4|4@1+ (1,0) [0|0] "" ECU
+ SG_ LEAF m2 : 8|8@1+ (1,0) [0|0] "" ECU
+ SG_ OTHER m2 : 16|8@1+ (1,0) [0|0] "" ECU
+
+SG_MUL_VAL_ 300 SUB TOP 1-1;
+SG_MUL_VAL_ 300 LEAF SUB 2-2;
+SG_MUL_VAL_ 300 OTHER TOP 2-2;
+"#;
+    let db = Database::parse(text, "nest.dbc").unwrap();
+    let m = db.message_by_name("NEST").unwrap();
+    let decode = |frame: [u8; 8]| -> Vec<(String, f64)> {
+        m.decode(&frame)
+            .unwrap()
+            .map(|(s, v)| (s.name().to_owned(), v))
+            .collect()
+    };
+    // cantools: {'TOP': 1, 'SUB': 2, 'LEAF': 5} and {'TOP': 2, 'OTHER': 6}
+    assert_eq!(
+        decode([0x21, 5, 6, 0, 0, 0, 0, 0]),
+        [
+            ("TOP".to_owned(), 1.0),
+            ("SUB".to_owned(), 2.0),
+            ("LEAF".to_owned(), 5.0)
+        ]
+    );
+    assert_eq!(
+        decode([0x22, 5, 6, 0, 0, 0, 0, 0]),
+        [("TOP".to_owned(), 2.0), ("OTHER".to_owned(), 6.0)]
+    );
+    // A handle cannot check two levels of multiplexors: refused, with the reason.
+    let e = db.signal("NEST.LEAF").unwrap_err().to_string();
+    assert!(e.contains("NEST.LEAF") && e.contains("nested"), "{e}");
+    let sub = db.signal("NEST.SUB").unwrap();
+    assert_eq!(sub.decode(&[0x21, 0, 0, 0, 0, 0, 0, 0]), Some(2.0));
+    assert_eq!(sub.decode(&[0x22, 0, 0, 0, 0, 0, 0, 0]), None);
+}
