@@ -130,6 +130,17 @@ fn lookup_among_500(c: &mut Criterion) {
             sum
         });
     });
+    g.bench_function("lookup_only", |b| {
+        b.iter(|| {
+            let mut n = 0;
+            for (id, _) in &frames {
+                n += db
+                    .message_by_id(black_box(*id))
+                    .map_or(0, canodom_dbc::Message::length);
+            }
+            n
+        });
+    });
     g.bench_function("database_decode_each", |b| {
         b.iter(|| {
             let mut sum = 0.0;

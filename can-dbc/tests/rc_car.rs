@@ -273,3 +273,40 @@ SG_MUL_VAL_ 300 OTHER TOP 2-2;
     assert_eq!(sub.decode(&[0x21, 0, 0, 0, 0, 0, 0, 0]), Some(2.0));
     assert_eq!(sub.decode(&[0x22, 0, 0, 0, 0, 0, 0, 0]), None);
 }
+
+#[test]
+fn ieee_float_and_double_signals_in_a_can_fd_frame() {
+    let text = r#"VERSION ""
+
+BS_:
+
+BU_: ECU
+
+BO_ 2147483906 FD_FLOATS: 64 ECU
+ SG_ F32 : 0|32@1- (1,0) [0|0] "" ECU
+ SG_ F64 : 39|64@0- (2,1) [0|0] "m" ECU
+ SG_ TAIL : 504|8@1+ (1,0) [0|0] "" ECU
+
+SIG_VALTYPE_ 2147483906 F32 : 1;
+SIG_VALTYPE_ 2147483906 F64 : 2;
+"#;
+    let db = Database::parse(text, "floats.dbc").unwrap();
+    let m = db.message_by_id(FrameId::extended(0x102).unwrap()).unwrap();
+    assert_eq!(m.length(), 64);
+    let frame = m
+        .encode(&[("F32", -1.5), ("F64", 7.0), ("TAIL", 255.0)])
+        .unwrap();
+    assert_eq!(&frame[..4], &(-1.5f32).to_le_bytes());
+    // Motorola double, MSB at bit 39 (byte 4): bytes 4..12 big-endian; raw = (7 - 1) / 2.
+    assert_eq!(&frame[4..12], &3.0f64.to_be_bytes());
+    assert_eq!(frame[63], 255);
+    let got: Vec<f64> = m.decode(&frame).unwrap().map(|(_, v)| v).collect();
+    assert_eq!(got, [-1.5, 7.0, 255.0]);
+    let f32_handle = db.signal("FD_FLOATS.F32").unwrap();
+    assert_eq!(f32_handle.decode(&frame), Some(-1.5));
+    // 1e39 does not fit an f32: an error, not infinity.
+    let e = m
+        .encode(&[("F32", 1e39), ("F64", 0.0), ("TAIL", 0.0)])
+        .unwrap_err();
+    assert!(e.to_string().contains("signal F32"), "{e}");
+}
