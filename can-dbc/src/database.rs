@@ -191,10 +191,16 @@ fn parse_error(e: &ast::DbcError, source_name: &str) -> Error {
 /// The numbers written after `BO_` in the text, in order. The crates.io parser truncates
 /// IDs above 0xFFFF that lack the extended flag to 16 bits; reading the numbers here lets
 /// such an ID be reported instead of silently decoding another frame.
-fn written_message_ids(text: &str) -> Vec<Option<u64>> {
+fn written_message_ids(text: &str) -> Vec<(Option<u64>, &str)> {
     text.lines()
-        .filter_map(|l| l.trim_start().strip_prefix("BO_ "))
-        .map(|rest| rest.split_whitespace().next().and_then(|t| t.parse().ok()))
+        .filter_map(|l| l.trim_start().strip_prefix("BO_"))
+        .filter(|rest| rest.starts_with([' ', '\t']))
+        .map(|rest| {
+            let mut tokens = rest.split_whitespace();
+            let id = tokens.next().and_then(|t| t.parse().ok());
+            let name = tokens.next().unwrap_or("").trim_end_matches(':');
+            (id, name)
+        })
         .collect()
 }
 
@@ -304,9 +310,10 @@ fn compile(dbc: &ast::Dbc, text: &str, source_name: &str) -> Result<Database> {
             message: m.name.clone(),
             reason,
         };
+        // The scanned number is used only if the scan lines up on this very message.
         let dbc_id = written
             .as_ref()
-            .and_then(|w| w[k])
+            .and_then(|w| w[k].0.filter(|_| w[k].1 == m.name))
             .unwrap_or(u64::from(m.id.raw()));
         let id = u32::try_from(dbc_id)
             .ok()

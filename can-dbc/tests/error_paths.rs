@@ -93,6 +93,15 @@ fn standard_id_above_11_bits_is_rejected_not_truncated() {
     // 70000 would be truncated to 70000 & 0xFFFF = 4464 by the parser alone.
     let e = load_err("BO_ 70000 TRUNC: 8 ECU");
     assert!(e.contains("message TRUNC") && e.contains("70000"), "{e}");
+    // Still caught among other BO_-prefixed keywords and tab-separated definitions.
+    let e = load_err(
+        "BO_ 256 OK: 8 ECU
+
+BO_	70001	TABS: 8 ECU
+
+BO_TX_BU_ 256 : ECU;",
+    );
+    assert!(e.contains("message TABS") && e.contains("70001"), "{e}");
 }
 
 #[test]
