@@ -4,11 +4,14 @@ mode and that every message, for every multiplexer value, round-trips example
 values through encode/decode within one LSB, with a valid CRC-8 in byte 7.
 
     python3 -m venv /tmp/venv && /tmp/venv/bin/pip install cantools
-    /tmp/venv/bin/python daemon/dbc/check_cantools.py [daemon/dbc/canodom.dbc]
+    /tmp/venv/bin/python daemon/dbc/check_cantools.py [DBC] [--write-vectors JSON]
 
 Prints one line per checked frame (id, name, mux, hex payload) and a final
-"N passed, 0 failed" line; exits non-zero on any failure.
+"N passed, 0 failed" line; exits non-zero on any failure. With
+--write-vectors it also writes the frames and cantools' decoded values as
+JSON (committed as canodom_vectors.json, read by the Rust tests).
 """
+import json
 import os
 import sys
 
@@ -33,7 +36,14 @@ def example(signal, k):
 
 
 def main():
-    path = sys.argv[1] if len(sys.argv) > 1 else os.path.join(os.path.dirname(__file__), "canodom.dbc")
+    args = sys.argv[1:]
+    vectors_path = None
+    if "--write-vectors" in args:
+        i = args.index("--write-vectors")
+        vectors_path = args[i + 1]
+        del args[i : i + 2]
+    path = args[0] if args else os.path.join(os.path.dirname(__file__), "canodom.dbc")
+    vectors = []
     db = cantools.database.load_file(path, strict=True)
     passed = failed = 0
     for msg in db.messages:
@@ -60,9 +70,19 @@ def main():
                     continue
                 sig = msg.get_signal_by_name(name)
                 ok &= abs(decoded[name] - v) <= abs(sig.scale) / 2 + 1e-12
+            vectors.append({
+                "name": msg.name,
+                "id": msg.frame_id,
+                "data": data.hex(),
+                "signals": {k: float(v) for k, v in decoded.items()},
+            })
             print(f"{'ok  ' if ok else 'FAIL'} {msg.frame_id:#05x} {msg.name:<14} mux={case} {data.hex()}")
             passed += ok
             failed += not ok
+    if vectors_path:
+        with open(vectors_path, "w") as f:
+            json.dump({"generator": "cantools " + cantools.__version__, "frames": vectors}, f, indent=1)
+            f.write("\n")
     print(f"{passed} passed, {failed} failed")
     return 0 if failed == 0 else 1
 
