@@ -50,7 +50,7 @@
 use crate::error::{Error, Result};
 #[cfg(test)]
 use crate::odometry::wheel_distance_factors;
-use crate::odometry::{Increment, Pose, rear_increment};
+use crate::odometry::{Increment, Pose};
 use crate::params::VehicleParams;
 use crate::{Wheel, WheelSet, wrap_angle};
 use nalgebra::{Matrix2, Matrix3, Vector3};
@@ -435,8 +435,42 @@ impl State {
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Ekf {
     cfg: EkfConfig,
-    /// 1/b, precomputed: a division costs as much as the rest of a product chain.
+    /// Constants of the configuration a step would otherwise recompute.
+    k: Derived,
+}
+
+/// Reciprocals and products of the configuration, computed once: a division
+/// costs as much as the rest of a product chain, and a step had twenty.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Derived {
+    /// 1/b.
     inv_rear_tread: f64,
+    /// 1/L.
+    inv_wheelbase: f64,
+    /// b/(2L) and b_f/(2L): `g_i` needs `κ b/2` with `κ = tan φ / L`.
+    half_rear_tread_per_wheelbase: f64,
+    half_front_tread_per_wheelbase: f64,
+    /// 1/(2 b_f).
+    inv_two_front_tread: f64,
+    /// σ_φ² and σ_b².
+    steer_var: f64,
+    steer_bias_var: f64,
+}
+
+impl Derived {
+    fn new(cfg: &EkfConfig) -> Self {
+        let p = &cfg.params;
+        let inv_wheelbase = 1.0 / p.wheelbase_m();
+        Self {
+            inv_rear_tread: 1.0 / p.rear_tread_m(),
+            inv_wheelbase,
+            half_rear_tread_per_wheelbase: 0.5 * p.rear_tread_m() * inv_wheelbase,
+            half_front_tread_per_wheelbase: 0.5 * p.front_tread_m() * inv_wheelbase,
+            inv_two_front_tread: 0.5 / p.front_tread_m(),
+            steer_var: cfg.steer_sigma_rad * cfg.steer_sigma_rad,
+            steer_bias_var: cfg.steer_bias_sigma_rad * cfg.steer_bias_sigma_rad,
+        }
+    }
 }
 
 fn finite(name: &'static str, value: f64) -> Result<f64> {
@@ -491,15 +525,22 @@ fn propagate_with(
     (w_new, p_new)
 }
 
+/// Below this an angle's sine and cosine come from [`small_sin_cos`]'s series.
+const SMALL_ANGLE_RAD: f64 = 0.01;
+
 /// `(sin, cos)` of a small angle by its Taylor series (exact to rounding for
 /// |x| ≤ 0.01), falling back to the library call for larger ones.
 fn small_sin_cos(x: f64) -> (f64, f64) {
-    if x.abs() > 0.01 {
+    if x.abs() > SMALL_ANGLE_RAD {
         return x.sin_cos();
     }
+    // Products by constant reciprocals: the divisions by 6, 20, … were
+    // fourteen divisions a step (the compiler may not turn them into products).
     let x2 = x * x;
-    let sin = x * (1.0 - x2 / 6.0 * (1.0 - x2 / 20.0 * (1.0 - x2 / 42.0)));
-    let cos = 1.0 - x2 / 2.0 * (1.0 - x2 / 12.0 * (1.0 - x2 / 30.0 * (1.0 - x2 / 56.0)));
+    let sin = x * (1.0 - x2 * (1.0 / 6.0) * (1.0 - x2 * (1.0 / 20.0) * (1.0 - x2 * (1.0 / 42.0))));
+    let cos = 1.0
+        - x2 * 0.5
+            * (1.0 - x2 * (1.0 / 12.0) * (1.0 - x2 * (1.0 / 30.0) * (1.0 - x2 * (1.0 / 56.0))));
     (sin, cos)
 }
 
@@ -516,6 +557,26 @@ fn advance_heading((c, s): (f64, f64), dtheta_rad: f64) -> ((f64, f64), (f64, f6
     ((s_m, c_m), (c_full * norm, s_full * norm))
 }
 
+/// `(cos, sin)` of the anchor heading after it turned by `turn_rad` from the
+/// heading whose `(cos, sin)` is `(c, s)`; `heading_rad` is the new heading.
+///
+/// A library `sin_cos` per correction was a tenth of a step: a small turn
+/// (every window at 100 Hz on a slow car) rotates the pair by the series
+/// instead, renormalised by one Newton step; its rounding random-walks at
+/// ~1e-16 rad per window, far below anything the filter resolves. A large
+/// turn would cost a library call anyway, so it recomputes from the heading
+/// itself, which also clears what the rotations accumulated.
+fn turned_cos_sin((c, s): (f64, f64), turn_rad: f64, heading_rad: f64) -> (f64, f64) {
+    if turn_rad.abs() > SMALL_ANGLE_RAD {
+        let (s, c) = heading_rad.sin_cos();
+        return (c, s);
+    }
+    let (st, ct) = small_sin_cos(turn_rad);
+    let (c1, s1) = (c * ct - s * st, s * ct + c * st);
+    let norm = 1.5 - 0.5 * (c1 * c1 + s1 * s1);
+    (c1 * norm, s1 * norm)
+}
+
 /// Propagates the sensitivity `v = ∂w/∂b` of a window pose to a bias `b`
 /// whose effect on the increment is `j = ∂[Δd, Δθ]/∂b` (`v' = A v + B j`,
 /// with the A, B of the prediction at mid heading `m`).
@@ -530,12 +591,10 @@ fn propagate_sensitivity(v: &Vec3, inc: Increment, j: (f64, f64), s: f64, c: f64
 
 /// The wheel distance factors `g_i` of §3 (as [`crate::odometry::wheel_distance_factors`])
 /// from `tan φ`, without a second tangent.
-fn distance_factors(p: &VehicleParams, tan_phi: f64) -> [f64; 4] {
-    let L = p.wheelbase_m();
-    let kappa = tan_phi / L;
+fn distance_factors(k: &Derived, tan_phi: f64) -> [f64; 4] {
     let lk2 = tan_phi * tan_phi;
-    let half_b = 0.5 * p.rear_tread_m() * kappa;
-    let half_bf = 0.5 * p.front_tread_m() * kappa;
+    let half_b = k.half_rear_tread_per_wheelbase * tan_phi;
+    let half_bf = k.half_front_tread_per_wheelbase * tan_phi;
     [
         1.0 - half_b,
         1.0 + half_b,
@@ -585,10 +644,42 @@ fn compose_covariance(p_a: &Mat3, (c, s): (f64, f64), w: &Vec3, p_w: &Mat3) -> M
     Mat3::new(xx, xy, xz, xy, yy, yz, xz, yz, zz)
 }
 
-/// Joseph-form update with gain `K`, prior `P` and measurement covariance `R`.
+/// Joseph-form update `(I−K) P (I−K)ᵀ + K R Kᵀ` with gain `K`, prior `P` and
+/// measurement covariance `R`, both symmetric.
+///
+/// Written out because it ran on every correction as four general 3×3
+/// products and a symmetrisation (a fifth of a step's instructions): the
+/// result is symmetric, so only its six distinct entries are formed from
+/// `(I−K)P` and `KR`, and it is symmetric by construction.
 fn joseph(K: &Mat3, P: &Mat3, R: &Mat3) -> Mat3 {
     let I_K = Mat3::identity() - K;
-    symmetrise(&(I_K * P * I_K.transpose() + K * R * K.transpose()))
+    let (MP, KR) = (I_K * P, K * R);
+    let entry = |i: usize, j: usize| {
+        MP[(i, 0)] * I_K[(j, 0)]
+            + MP[(i, 1)] * I_K[(j, 1)]
+            + MP[(i, 2)] * I_K[(j, 2)]
+            + (KR[(i, 0)] * K[(j, 0)] + KR[(i, 1)] * K[(j, 1)] + KR[(i, 2)] * K[(j, 2)])
+    };
+    let (xx, xy, xz) = (entry(0, 0), entry(0, 1), entry(0, 2));
+    let (yy, yz, zz) = (entry(1, 1), entry(1, 2), entry(2, 2));
+    Mat3::new(xx, xy, xz, xy, yy, yz, xz, yz, zz)
+}
+
+/// The inverse of a symmetric 3×3 matrix by its six distinct cofactors
+/// (nalgebra's general inverse forms nine); `None` if singular.
+fn symmetric_inverse(S: &Mat3) -> Option<Mat3> {
+    let (a, b, c) = (S[(0, 0)], S[(1, 1)], S[(2, 2)]);
+    let (d, e, f) = (S[(0, 1)], S[(0, 2)], S[(1, 2)]);
+    let (c00, c01, c02) = (b * c - f * f, e * f - d * c, d * f - e * b);
+    let (c11, c12, c22) = (a * c - e * e, d * e - a * f, a * b - d * d);
+    let det = a * c00 + d * c01 + e * c02;
+    if det == 0.0 || !det.is_finite() {
+        return None;
+    }
+    let inv_det = 1.0 / det;
+    let (i00, i01, i02) = (c00 * inv_det, c01 * inv_det, c02 * inv_det);
+    let (i11, i12, i22) = (c11 * inv_det, c12 * inv_det, c22 * inv_det);
+    Some(Mat3::new(i00, i01, i02, i01, i11, i12, i02, i12, i22))
 }
 
 /// The median of four values: the mean of the middle two.
@@ -626,7 +717,7 @@ impl Ekf {
     pub fn new(config: EkfConfig) -> Result<Self> {
         config.validate()?;
         Ok(Self {
-            inv_rear_tread: 1.0 / config.params.rear_tread_m(),
+            k: Derived::new(&config),
             cfg: config,
         })
     }
@@ -638,7 +729,7 @@ impl Ekf {
 
     /// Rear input covariance `Q_u = J diag(k_r|d_R|, k_r|d_L|) Jᵀ`.
     fn q_rear(&self, d_l: f64, d_r: f64) -> Matrix2<f64> {
-        let ib = self.inv_rear_tread;
+        let ib = self.k.inv_rear_tread;
         let vr = self.cfg.k_rear_m * d_r.abs();
         let vl = self.cfg.k_rear_m * d_l.abs();
         let q12 = 0.5 * (vr - vl) * ib;
@@ -656,9 +747,8 @@ impl Ekf {
         g_fl: f64,
         g_fr: f64,
     ) -> (Increment, Matrix2<f64>, (f64, f64)) {
-        let p = &self.cfg.params;
         let k_f = self.cfg.k_front_m;
-        let L = p.wheelbase_m();
+        let inv_L = self.k.inv_wheelbase;
         let d_f = 0.5 * (d_fl + d_fr);
         let c = 1.0 / tan_phi.mul_add(tan_phi, 1.0).sqrt();
         let s = tan_phi * c;
@@ -668,19 +758,19 @@ impl Ekf {
             FrontHeading::Steering => {
                 let inc = Increment {
                     distance_m,
-                    dtheta_rad: distance_m * tan_phi / L,
+                    dtheta_rad: distance_m * tan_phi * inv_L,
                 };
-                let Jf = Matrix2::new(c, -d_f * s, s / L, d_f * c / L);
-                let D = Matrix2::new(k_f * d_f.abs(), 0.0, 0.0, self.cfg.steer_sigma_rad.powi(2));
-                (inc, Jf * D * Jf.transpose(), (-d_f * s, d_f * c / L))
+                let Jf = Matrix2::new(c, -d_f * s, s * inv_L, d_f * c * inv_L);
+                let D = Matrix2::new(k_f * d_f.abs(), 0.0, 0.0, self.k.steer_var);
+                (inc, Jf * D * Jf.transpose(), (-d_f * s, d_f * c * inv_L))
             }
             FrontHeading::WheelDifference => {
                 // As front_increment_differential.
                 let inc = Increment {
                     distance_m,
-                    dtheta_rad: (d_fr - d_fl) * (g_fl + g_fr) / (2.0 * p.front_tread_m()),
+                    dtheta_rad: (d_fr - d_fl) * (g_fl + g_fr) * self.k.inv_two_front_tread,
                 };
-                let g = 0.5 * (g_fl + g_fr) / p.front_tread_m();
+                let g = (g_fl + g_fr) * self.k.inv_two_front_tread;
                 let var_theta = k_f * (d_fl.abs() + d_fr.abs()) * g * g;
                 let q = Matrix2::new(k_f * d_f.abs() * c * c, 0.0, 0.0, var_theta);
                 (inc, q, (-d_f * s, inc.dtheta_rad * tan_phi))
@@ -709,15 +799,18 @@ impl Ekf {
             finite("front_left_m", w.front_left)?;
             finite("front_right_m", w.front_right)?;
         }
-        let p = &self.cfg.params;
         let mut st = *prev;
-        let rear = rear_increment(p, w.rear_left, w.rear_right)?;
+        // As odometry::rear_increment, with 1/b precomputed (inputs checked above).
+        let rear = Increment {
+            distance_m: 0.5 * (w.rear_right + w.rear_left),
+            dtheta_rad: (w.rear_right - w.rear_left) * self.k.inv_rear_tread,
+        };
         let q = self.q_rear(w.rear_left, w.rear_right);
         let (sin_m, cos_m);
         ((sin_m, cos_m), st.rear_cs) = advance_heading(st.rear_cs, rear.dtheta_rad);
         (st.rear_w, st.p_rear_w) = propagate_with(&st.rear_w, &st.p_rear_w, rear, &q, sin_m, cos_m);
         let tan_phi = (phi - st.steer_offset_rad).tan();
-        let [g_rl, g_rr, g_fl, g_fr] = distance_factors(p, tan_phi);
+        let [g_rl, g_rr, g_fl, g_fr] = distance_factors(&self.k, tan_phi);
         // Four reciprocals from one division.
         let (g01, g23) = (g_rl * g_rr, g_fl * g_fr);
         // A pivot turn tighter than half the tread makes a g_i zero: that
@@ -775,32 +868,30 @@ impl Ekf {
     /// Fuses the window (per the form), composes it onto the anchor, resets it.
     fn close_window(&self, st: &mut State) -> Result<()> {
         st.slip_flags = WheelSet::splat(false);
-        let fuse = !matches!(self.cfg.form, CorrectionForm::RearOnly);
-        let (w, p_w) = if !fuse {
-            (st.rear_w, st.p_rear_w)
-        } else if !st.window_front_ok {
-            st.stats.skipped_no_front += 1;
-            (st.rear_w, st.p_rear_w)
-        } else {
-            st.stats.corrections += 1;
-            match self.cfg.form {
-                CorrectionForm::Anchored => self.correct_anchored(st)?,
-                CorrectionForm::Literal { r_diag } => {
-                    self.correct_literal(st, r_diag)?;
-                    (Vec3::zeros(), Mat3::zeros())
-                }
-                CorrectionForm::RearOnly => (st.rear_w, st.p_rear_w),
+        let turn_rad = match self.cfg.form {
+            // The literal correction composes the anchor itself.
+            CorrectionForm::Literal { r_diag } if st.window_front_ok => {
+                st.stats.corrections += 1;
+                self.correct_literal(st, r_diag)?
+            }
+            form => {
+                let (w, p_w) = if matches!(form, CorrectionForm::RearOnly) {
+                    (st.rear_w, st.p_rear_w)
+                } else if !st.window_front_ok {
+                    st.stats.skipped_no_front += 1;
+                    (st.rear_w, st.p_rear_w)
+                } else {
+                    st.stats.corrections += 1;
+                    self.correct_anchored(st)?
+                };
+                let new_anchor = compose(&st.anchor, st.anchor_cos_sin, &w);
+                st.p_anchor = compose_covariance(&st.p_anchor, st.anchor_cos_sin, &w, &p_w);
+                st.anchor_heading_unwrapped_rad += w.z;
+                st.anchor = new_anchor;
+                w.z
             }
         };
-        if !matches!(self.cfg.form, CorrectionForm::Literal { .. }) || !fuse || !st.window_front_ok
-        {
-            let new_anchor = compose(&st.anchor, st.anchor_cos_sin, &w);
-            st.p_anchor = compose_covariance(&st.p_anchor, st.anchor_cos_sin, &w, &p_w);
-            st.anchor_heading_unwrapped_rad += w.z;
-            st.anchor = new_anchor;
-        }
-        let (sin_a, cos_a) = st.anchor.z.sin_cos();
-        st.anchor_cos_sin = (cos_a, sin_a);
+        st.anchor_cos_sin = turned_cos_sin(st.anchor_cos_sin, turn_rad, st.anchor.z);
         st.rear_w = Vec3::zeros();
         st.p_rear_w = Mat3::zeros();
         st.front_w = Vec3::zeros();
@@ -827,9 +918,9 @@ impl Ekf {
         nu.z = wrap_angle(nu.z);
         // A tiny floor keeps S invertible when the car stood still all window.
         let v = st.front_bias_sens;
-        let p_front = st.p_front_w + v * v.transpose() * self.cfg.steer_bias_sigma_rad.powi(2);
+        let p_front = st.p_front_w + v * v.transpose() * self.k.steer_bias_var;
         let S = st.p_rear_w + p_front + Mat3::identity() * 1e-15;
-        let S_inv = S.try_inverse().ok_or(Error::Numerical {
+        let S_inv = symmetric_inverse(&S).ok_or(Error::Numerical {
             context: "innovation covariance",
         })?;
         let d2 = (nu.transpose() * S_inv * nu)[(0, 0)];
@@ -863,7 +954,7 @@ impl Ekf {
             let prior = if st.steer_offset_var > 0.0 {
                 st.steer_offset_var
             } else {
-                self.cfg.steer_bias_sigma_rad.powi(2)
+                self.k.steer_bias_var
             } + drift * drift;
             let r = st.p_rear_w[(2, 2)] + st.p_front_w[(2, 2)] + 1e-15;
             let k = prior * v_theta / (v_theta * v_theta * prior + r);
@@ -891,8 +982,9 @@ impl Ekf {
         Ok((w, joseph(&K, &st.p_rear_w, &p_front)))
     }
 
-    /// The paper's literal correction with `z` the front odometry alone.
-    fn correct_literal(&self, st: &mut State, r_diag: [f64; 3]) -> Result<()> {
+    /// The paper's literal correction with `z` the front odometry alone; moves
+    /// the anchor and returns its heading change.
+    fn correct_literal(&self, st: &mut State, r_diag: [f64; 3]) -> Result<f64> {
         let x_prior = compose(&st.anchor, st.anchor_cos_sin, &st.rear_w);
         let p_prior = compose_covariance(&st.p_anchor, st.anchor_cos_sin, &st.rear_w, &st.p_rear_w);
         let prior_unwrapped = st.anchor_heading_unwrapped_rad + st.rear_w.z;
@@ -900,7 +992,7 @@ impl Ekf {
         nu.z = wrap_angle(st.front_alone.z - prior_unwrapped);
         let R = Mat3::from_diagonal(&Vec3::new(r_diag[0], r_diag[1], r_diag[2]));
         let S = p_prior + R;
-        let S_inv = S.try_inverse().ok_or(Error::Numerical {
+        let S_inv = symmetric_inverse(&S).ok_or(Error::Numerical {
             context: "innovation covariance",
         })?;
         let d2 = (nu.transpose() * S_inv * nu)[(0, 0)];
@@ -924,13 +1016,14 @@ impl Ekf {
         st.anchor = x;
         st.p_anchor = p;
         st.anchor_heading_unwrapped_rad += turn;
-        Ok(())
+        Ok(turn)
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::odometry::rear_increment;
     use crate::params::SteeringMap;
     use nalgebra::Matrix3x2;
     use proptest::prelude::*;
@@ -976,7 +1069,7 @@ mod tests {
         .unwrap();
         for phi in [-0.5f64, -0.1, 0.0, 0.3] {
             let t = phi.tan();
-            let g = distance_factors(&p, t);
+            let g = distance_factors(&Derived::new(&EkfConfig::new(p)), t);
             let r = wheel_distance_factors(&p, phi);
             for k in 0..4 {
                 assert!((g[k] - r[k]).abs() < 1e-14);
