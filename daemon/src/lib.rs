@@ -7,11 +7,25 @@
 //! - [`bus`]: the transport trait, with the in-process bus and SocketCAN.
 //! - [`own_dbc`]: canodom's own frames (`dbc/canodom.dbc`), id map and base id.
 //! - [`persist`]: the calibrated-parameter file, atomic and durable.
+//! - [`cmd`]: the subcommands (run, decode, replay, simulate, demo).
+//! - [`config`]: the TOML configuration, validated once into typed values.
+//! - [`pipeline`]: the pure frame → EKF core shared by run, replay and demo.
+//! - [`pose_frames`]: pose samples encoded into canodom's own frames.
+//! - [`vehicle`]: the simulator encoded with the configured DBC (simulate, demo, tests).
+//! - [`stats`]: reject reasons and counters.
+//! - [`server`]: the async daemon (link and pipeline tasks), generic over the transport.
 //! - [`sd_notify`]: systemd readiness and watchdog notifications.
 
 pub mod bus;
 pub mod candump;
+pub mod cmd;
+pub mod config;
 pub mod frame;
 pub mod own_dbc;
 pub mod persist;
+pub mod pipeline;
+pub mod pose_frames;
 pub mod sd_notify;
+pub mod server;
+pub mod stats;
+pub mod vehicle;

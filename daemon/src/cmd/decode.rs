@@ -1,0 +1,206 @@
+//! `canodom decode`: a candump log to JSON lines, one object per decoded
+//! frame, hand-written into one reused buffer (no per-frame allocation).
+
+use crate::candump::{LogReader, ReadError};
+use crate::frame::{CanId, FrameKind};
+use anyhow::Context as _;
+use canodom_dbc::{Database, FrameId};
+use std::io::Write;
+use std::path::PathBuf;
+
+/// Arguments of `decode`.
+#[derive(Debug, clap::Args)]
+#[command(
+    after_help = "Example:\n  canodom decode --dbc rc_car.dbc drive.log | head\n  \
+candump -L can0 | canodom decode --dbc car.dbc - --all\n\n\
+Output, one line per frame:\n  {\"t\": 1700000000.123456, \"iface\": \"vcan0\", \"id\": 256, \"extended\": false, \
+\"name\": \"WHEEL_ENC_REAR\", \"signals\": {\"RL_TICKS\": 1200, ...}}\n\
+Only the signals present for a multiplexed frame's mux value are printed; NaN and infinite values are null."
+)]
+pub struct DecodeArgs {
+    /// The DBC file.
+    #[arg(long)]
+    pub dbc: PathBuf,
+    /// The candump -L log; `-` or nothing reads standard input.
+    #[arg(default_value = "-")]
+    pub log: PathBuf,
+    /// Also print frames of ids the DBC does not know, with "name": null.
+    #[arg(long)]
+    pub all: bool,
+    /// A malformed log line is fatal instead of reported and skipped.
+    #[arg(long)]
+    pub strict: bool,
+}
+
+/// Counts of what `decode` did.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct DecodeCounts {
+    /// Frames printed.
+    pub printed: u64,
+    /// Frames of unknown ids skipped.
+    pub unknown: u64,
+    /// Frames too short for their message, or remote/error frames, skipped.
+    pub undecodable: u64,
+    /// Malformed lines skipped.
+    pub malformed: u64,
+}
+
+/// Runs `decode` with standard output.
+///
+/// # Errors
+/// Unreadable DBC or log, a malformed line under `--strict`, a write error.
+pub fn execute(args: &DecodeArgs) -> anyhow::Result<()> {
+    let db = Database::from_file(&args.dbc)?;
+    let input = super::open_input(&args.log).with_context(|| format!("{}", args.log.display()))?;
+    let stdout = std::io::stdout().lock();
+    let mut out = std::io::BufWriter::with_capacity(1 << 16, stdout);
+    let counts = decode(&db, input, &mut out, args, &mut std::io::stderr())?;
+    out.flush()?;
+    eprintln!(
+        "decode: {} frames printed, {} of unknown ids skipped, {} undecodable, {} malformed lines",
+        counts.printed, counts.unknown, counts.undecodable, counts.malformed
+    );
+    Ok(())
+}
+
+/// Decodes `input` into `out`; reports malformed lines on `diag`.
+///
+/// # Errors
+/// I/O, or a malformed line under `--strict`.
+pub fn decode(
+    db: &Database,
+    input: impl std::io::BufRead,
+    out: &mut impl Write,
+    args: &DecodeArgs,
+    diag: &mut impl Write,
+) -> anyhow::Result<DecodeCounts> {
+    let mut reader = LogReader::new(input);
+    let mut counts = DecodeCounts::default();
+    let mut line = Vec::with_capacity(512);
+    loop {
+        let record = match reader.next_record() {
+            Ok(Some(r)) => r,
+            Ok(None) => break,
+            Err(ReadError::Malformed(m)) => {
+                if args.strict {
+                    anyhow::bail!("{}: {m}", args.log.display());
+                }
+                counts.malformed += 1;
+                writeln!(diag, "{}: {m}; skipped", args.log.display())?;
+                continue;
+            }
+            Err(e @ ReadError::Io(_)) => return Err(e.into()),
+        };
+        let frame = record.frame;
+        let (raw, extended) = match frame.id() {
+            CanId::Standard(s) => (u32::from(s), false),
+            CanId::Extended(e) => (e, true),
+        };
+        let id = if extended {
+            FrameId::extended(raw)
+        } else {
+            FrameId::standard(raw as u16)
+        };
+        let message = id.ok().and_then(|id| db.message_by_id(id));
+        if message.is_none() && !args.all {
+            counts.unknown += 1;
+            continue;
+        }
+        if !matches!(frame.kind(), FrameKind::Data { .. } | FrameKind::Fd { .. }) {
+            counts.undecodable += 1;
+            continue;
+        }
+        line.clear();
+        line.extend_from_slice(b"{\"t\": ");
+        super::write_timestamp(&mut line, record.timestamp);
+        line.extend_from_slice(b", \"iface\": ");
+        write_json_str(&mut line, record.iface);
+        let _ = write!(
+            line,
+            ", \"id\": {raw}, \"extended\": {extended}, \"name\": "
+        );
+        match message {
+            None => {
+                counts.unknown += 1;
+                line.extend_from_slice(b"null, \"signals\": {}}\n");
+            }
+            Some(m) => {
+                write_json_str(&mut line, m.name());
+                line.extend_from_slice(b", \"signals\": {");
+                let mut first = true;
+                let decoded = m.decode_each(frame.data(), |s, v| {
+                    if !first {
+                        line.extend_from_slice(b", ");
+                    }
+                    first = false;
+                    write_json_str(&mut line, s.name());
+                    line.extend_from_slice(b": ");
+                    write_json_number(&mut line, v);
+                });
+                if decoded.is_err() {
+                    counts.undecodable += 1;
+                    continue;
+                }
+                line.extend_from_slice(b"}}\n");
+            }
+        }
+        out.write_all(&line)?;
+        counts.printed += 1;
+    }
+    Ok(counts)
+}
+
+/// A JSON number; NaN and infinities (not representable) as `null`.
+pub fn write_json_number(out: &mut Vec<u8>, v: f64) {
+    if v.is_finite() {
+        let _ = write!(out, "{v}");
+    } else {
+        out.extend_from_slice(b"null");
+    }
+}
+
+/// A JSON string with the escapes RFC 8259 requires.
+pub fn write_json_str(out: &mut Vec<u8>, s: &str) {
+    out.push(b'"');
+    for &b in s.as_bytes() {
+        match b {
+            b'"' => out.extend_from_slice(b"\\\""),
+            b'\\' => out.extend_from_slice(b"\\\\"),
+            b'\n' => out.extend_from_slice(b"\\n"),
+            b'\r' => out.extend_from_slice(b"\\r"),
+            b'\t' => out.extend_from_slice(b"\\t"),
+            0..=0x1F => {
+                let _ = write!(out, "\\u{b:04x}");
+            }
+            _ => out.push(b),
+        }
+    }
+    out.push(b'"');
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn json_strings_are_escaped_and_parse_back() {
+        let mut out = Vec::new();
+        write_json_str(&mut out, "a\"b\\c\n\u{1}é");
+        let s = String::from_utf8(out).unwrap();
+        let back: String = serde_json::from_str(&s).unwrap();
+        assert_eq!(back, "a\"b\\c\n\u{1}é");
+    }
+
+    #[test]
+    fn numbers_are_json() {
+        for v in [1.5, -0.0, 100.0, 1e-7, 1e21, -67.67] {
+            let mut out = Vec::new();
+            write_json_number(&mut out, v);
+            let back: f64 = serde_json::from_slice(&out).unwrap();
+            assert_eq!(back, v);
+        }
+        let mut out = Vec::new();
+        write_json_number(&mut out, f64::NAN);
+        assert_eq!(out, b"null");
+    }
+}

@@ -1,0 +1,66 @@
+//! The subcommands, one file each (mini-redis `cmd/`): their clap arguments
+//! and the code they run. `main.rs` only parses, sets up logging and calls
+//! [`Command::execute`].
+
+pub mod decode;
+pub mod demo;
+pub mod replay;
+pub mod run;
+pub mod simulate;
+
+use std::path::Path;
+
+/// Every subcommand.
+#[derive(Debug, clap::Subcommand)]
+pub enum Command {
+    /// The daemon: fused odometry from SocketCAN, published on CAN.
+    Run(run::RunArgs),
+    /// Decode a candump log with a DBC into JSON lines.
+    Decode(decode::DecodeArgs),
+    /// Run the daemon's pipeline over a candump log, as fast as it can; pose CSV.
+    Replay(replay::ReplayArgs),
+    /// The simulated vehicle, onto an interface or into a candump log.
+    Simulate(simulate::SimulateArgs),
+    /// The whole system without CAN hardware: a simulated vehicle and the daemon on an in-process bus.
+    Demo(demo::DemoArgs),
+}
+
+impl Command {
+    /// Runs the command.
+    ///
+    /// # Errors
+    /// Whatever the command reports (already in words for the user).
+    pub fn execute(self) -> anyhow::Result<()> {
+        match self {
+            Self::Run(a) => run::execute(&a),
+            Self::Decode(a) => decode::execute(&a),
+            Self::Replay(a) => replay::execute(&a),
+            Self::Simulate(a) => simulate::execute(&a),
+            Self::Demo(a) => demo::execute(&a),
+        }
+    }
+}
+
+/// Opens a log path, `-` meaning standard input, buffered.
+///
+/// # Errors
+/// The file cannot be opened.
+pub fn open_input(path: &Path) -> std::io::Result<Box<dyn std::io::BufRead>> {
+    if path == Path::new("-") {
+        Ok(Box::new(std::io::BufReader::with_capacity(
+            1 << 16,
+            std::io::stdin().lock(),
+        )))
+    } else {
+        Ok(Box::new(std::io::BufReader::with_capacity(
+            1 << 16,
+            std::fs::File::open(path)?,
+        )))
+    }
+}
+
+/// `secs.micros` without padding: a valid JSON number and CSV field.
+pub fn write_timestamp(out: &mut Vec<u8>, t: crate::candump::Timestamp) {
+    use std::io::Write as _;
+    let _ = write!(out, "{}.{:06}", t.secs(), t.subsec_micros());
+}

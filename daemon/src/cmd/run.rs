@@ -1,0 +1,62 @@
+//! `canodom run`: loads the configuration and runs [`crate::server::run`] on
+//! SocketCAN until SIGINT or SIGTERM.
+
+use crate::config::Config;
+use crate::server::{Observers, SocketCan};
+use std::path::PathBuf;
+use std::sync::Arc;
+use tracing::info;
+
+/// Arguments of `run`.
+#[derive(Debug, clap::Args)]
+#[command(
+    after_help = "Example:\n  canodom run --config /etc/canodom/rc_car.toml\n  \
+canodom --log-format json run --config car.toml\n\n\
+Reads the configured wheel and steering messages (kernel filters, kernel timestamps), checks \
+DLC, rolling counters, checksums and timeouts, runs the EKF, and publishes ODOM_POSITION, \
+ODOM_MOTION and ODOM_QUALITY (dbc/canodom.dbc, at output.base_id) at output.pose_rate_hz. \
+An ODOM_CMD frame with ODOM_REQUEST=1 publishes at once. The interface going down, away or \
+bus-off is retried with backoff. SIGINT/SIGTERM stop it cleanly; under systemd it sends \
+READY, WATCHDOG and STOPPING (see dist/canodom.service)."
+)]
+pub struct RunArgs {
+    /// The configuration file.
+    #[arg(long)]
+    pub config: PathBuf,
+}
+
+/// Runs the daemon.
+///
+/// # Errors
+/// Configuration, or the transport failing for good.
+pub fn execute(args: &RunArgs) -> anyhow::Result<()> {
+    let config = Arc::new(Config::load(&args.config)?);
+    let connector = SocketCan {
+        iface: config.interface.clone(),
+    };
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()?;
+    let summary = rt.block_on(crate::server::run(
+        Arc::clone(&config),
+        connector,
+        shutdown_signal(),
+        Observers::default(),
+    ))?;
+    info!(stats = %summary.stats, poses = summary.poses_published, "canodom stopped");
+    Ok(())
+}
+
+/// Completes on SIGINT or SIGTERM.
+pub async fn shutdown_signal() {
+    let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()).ok();
+    tokio::select! {
+        _ = tokio::signal::ctrl_c() => {}
+        () = async {
+            match term.as_mut() {
+                Some(t) => { t.recv().await; }
+                None => std::future::pending::<()>().await,
+            }
+        } => {}
+    }
+}

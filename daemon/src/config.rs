@@ -1,0 +1,854 @@
+//! The configuration file: raw TOML structs (serde, unknown keys refused)
+//! validated once into a typed [`Config`] (ripgrep's `LowArgs` → `HiArgs`).
+//!
+//! After [`Config::load`] nothing re-reads a file: the DBC is parsed, every
+//! configured signal and check is resolved to a codec handle, units are
+//! converted, and the tasks receive only checked values. Every error names the
+//! file, the key and what was expected.
+//!
+//! Sections: `[can]`, `[vehicle]`, `[signals]`, `[checks.MESSAGE]` (as issue 5
+//! writes them), and with defaults `[inputs]` (timeouts, hysteresis),
+//! `[ekf]` (noise and gate; defaults are `canodom_fusion`'s `EkfConfig::new`)
+//! and `[output]` (own frames' base id, pose rate). The calibration issue adds
+//! a `[calibration]` section beside them: `RawConfig` gets one more optional
+//! field and `Config` one more typed member; no existing key changes.
+
+use crate::own_dbc::BaseId;
+use canodom_dbc::{Checksum, ChecksumAlgorithm, Database, SignalHandle};
+use canodom_fusion::ekf::EkfConfig;
+use canodom_fusion::wheel::{InputConfig, SpeedUnit};
+use canodom_fusion::{SteeringMap, VehicleParams, WheelSet};
+use serde::Deserialize;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+/// A configuration that cannot be used: which file, which key, what was expected.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    /// The file cannot be read.
+    #[error("{file}: cannot read: {source}")]
+    Io {
+        /// The configuration file.
+        file: PathBuf,
+        /// The OS error.
+        source: std::io::Error,
+    },
+    /// TOML syntax, a wrong type or an unknown key (toml names the key and the expected keys).
+    #[error("{file}: {message}")]
+    Toml {
+        /// The configuration file.
+        file: PathBuf,
+        /// toml's message with line, column, key and expectation.
+        message: String,
+    },
+    /// A value that parses but cannot be used.
+    #[error("{file}: key `{key}`: expected {expected}, got {got}")]
+    Invalid {
+        /// The configuration file.
+        file: PathBuf,
+        /// Dotted key, e.g. `signals.rear_left`.
+        key: String,
+        /// What would have been accepted.
+        expected: String,
+        /// What the file says.
+        got: String,
+    },
+}
+
+// ---------------------------------------------------------------- raw (serde)
+
+/// The file as written; every table refuses unknown keys.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawConfig {
+    can: RawCan,
+    vehicle: RawVehicle,
+    signals: RawSignals,
+    #[serde(default)]
+    checks: BTreeMap<String, RawCheck>,
+    #[serde(default)]
+    inputs: RawInputs,
+    #[serde(default)]
+    ekf: RawEkf,
+    #[serde(default)]
+    output: RawOutput,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawCan {
+    interface: String,
+    dbc: PathBuf,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawVehicle {
+    wheelbase_m: f64,
+    rear_tread_m: f64,
+    front_tread_m: f64,
+    wheel_diameter_m: f64,
+    rear_left_diameter_m: Option<f64>,
+    rear_right_diameter_m: Option<f64>,
+    front_left_diameter_m: Option<f64>,
+    front_right_diameter_m: Option<f64>,
+    encoder_ticks_per_rev: Option<u32>,
+    steering_ratio: Option<f64>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawSignals {
+    rear_left: String,
+    rear_right: String,
+    front_left: String,
+    front_right: String,
+    steering: String,
+    /// A second, finer steering signal added to `steering` (Toyota's `STEER_FRACTION`).
+    steering_fine: Option<String>,
+    wheel_kind: String,
+    steering_kind: String,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawCheck {
+    counter: Option<String>,
+    checksum: Option<String>,
+    algorithm: Option<String>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+struct RawInputs {
+    timeout_factor: f64,
+    default_period_ms: f64,
+    invalid_after_faults: u32,
+    trusted_after_frames: u32,
+    max_wheel_speed_mps: Option<f64>,
+}
+
+impl Default for RawInputs {
+    fn default() -> Self {
+        Self {
+            timeout_factor: 3.0,
+            default_period_ms: 10.0,
+            invalid_after_faults: 3,
+            trusted_after_frames: 5,
+            max_wheel_speed_mps: None,
+        }
+    }
+}
+
+#[derive(Debug, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+struct RawEkf {
+    k_rear_m: Option<f64>,
+    k_front_m: Option<f64>,
+    steer_sigma_deg: Option<f64>,
+    steer_bias_sigma_deg: Option<f64>,
+    correct_every: Option<u32>,
+    gate_threshold: Option<f64>,
+    gate_enabled: Option<bool>,
+    learn_steer_offset: Option<bool>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+struct RawOutput {
+    base_id: u32,
+    extended: bool,
+    pose_rate_hz: f64,
+    publish_on_update: bool,
+    stats_interval_s: f64,
+}
+
+impl Default for RawOutput {
+    fn default() -> Self {
+        Self {
+            base_id: crate::own_dbc::DEFAULT_BASE_ID,
+            extended: false,
+            pose_rate_hz: 50.0,
+            publish_on_update: false,
+            stats_interval_s: 10.0,
+        }
+    }
+}
+
+// ---------------------------------------------------------------- typed
+
+/// How wheels are reported.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum WheelKind {
+    /// Cumulative wrapping tick counters of the signal's width.
+    Ticks,
+    /// Signed speeds in the unit the DBC gives.
+    Speed(SpeedUnit),
+}
+
+/// What the steering signal measures.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SteeringKind {
+    /// The road-wheel angle itself.
+    RoadWheel,
+    /// The steering-wheel angle, divided by `steering_ratio`.
+    SteeringWheel,
+}
+
+/// A resolved input signal.
+#[derive(Clone, Copy, Debug)]
+pub struct InputSignal {
+    /// The codec handle.
+    pub handle: SignalHandle,
+    /// Index of its message in the database.
+    pub message_index: usize,
+}
+
+/// The four wheel signals and the steering.
+#[derive(Clone, Copy, Debug)]
+pub struct Signals {
+    /// Wheel signals.
+    pub wheels: WheelSet<InputSignal>,
+    /// Steering signal (in its DBC unit; converted by `steering_map`).
+    pub steering: InputSignal,
+    /// Optional finer part added to the steering signal (same message).
+    pub steering_fine: Option<SignalHandle>,
+    /// Ticks or speeds.
+    pub wheel_kind: WheelKind,
+    /// Road-wheel or steering-wheel angle.
+    pub steering_kind: SteeringKind,
+    /// Counter width of tick signals (the signal's size in bits).
+    pub tick_bits: u32,
+}
+
+/// Integrity checks of one input message.
+#[derive(Clone, Debug)]
+pub struct MessageCheck {
+    /// Index of the message in the database.
+    pub message_index: usize,
+    /// Rolling counter signal.
+    pub counter: Option<SignalHandle>,
+    /// Checksum (algorithm, covered bytes, position).
+    pub checksum: Option<Checksum>,
+}
+
+/// Timeouts and hysteresis of the inputs.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct InputsConfig {
+    /// A message is stale after `timeout_factor` × its period without a good frame.
+    pub timeout_factor: f64,
+    /// Period of a message without `GenMsgCycleTime`, until one is learnt.
+    pub default_period_s: f64,
+    /// Consecutive bad frames (counter, checksum, DLC, non-finite) before an input is invalid.
+    pub invalid_after_faults: u32,
+    /// Consecutive good frames before a stale or new input is trusted.
+    pub trusted_after_frames: u32,
+    /// Fastest plausible wheel; larger increments are wheel faults.
+    pub max_wheel_speed_mps: f64,
+}
+
+/// What canodom sends.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct OutputConfig {
+    /// Base id of canodom's own frames.
+    pub base_id: BaseId,
+    /// Pose frames per second.
+    pub pose_rate_hz: f64,
+    /// Also publish after every filter step.
+    pub publish_on_update: bool,
+    /// Period of the one-line statistics log.
+    pub stats_interval_s: f64,
+}
+
+/// The validated configuration.
+#[derive(Debug)]
+pub struct Config {
+    /// The file it came from (for messages).
+    pub file: PathBuf,
+    /// CAN interface name.
+    pub interface: String,
+    /// Resolved DBC path.
+    pub dbc_path: PathBuf,
+    /// The vehicle's database.
+    pub db: Database,
+    /// Nominal vehicle parameters, steering map included.
+    pub params: VehicleParams,
+    /// Input signals.
+    pub signals: Signals,
+    /// Per-message checks.
+    pub checks: Vec<MessageCheck>,
+    /// Timeouts, hysteresis.
+    pub inputs: InputsConfig,
+    /// The filter's configuration.
+    pub ekf: EkfConfig,
+    /// Output.
+    pub output: OutputConfig,
+}
+
+impl Config {
+    /// Reads and validates `path`.
+    ///
+    /// # Errors
+    /// [`ConfigError`] naming the file, key and expectation.
+    pub fn load(path: &Path) -> Result<Self, ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Io {
+            file: path.to_owned(),
+            source,
+        })?;
+        Self::from_toml(&text, path)
+    }
+
+    /// Validates `text` as if read from `path` (relative paths resolve from its folder).
+    ///
+    /// # Errors
+    /// [`ConfigError`] naming the file, key and expectation.
+    pub fn from_toml(text: &str, path: &Path) -> Result<Self, ConfigError> {
+        let raw: RawConfig = toml::from_str(text).map_err(|e| ConfigError::Toml {
+            file: path.to_owned(),
+            message: e.to_string().trim_end().to_owned(),
+        })?;
+        Validator { file: path }.validate(raw)
+    }
+
+    /// Ids of every input message, for kernel filters.
+    pub fn input_ids(&self) -> Vec<canodom_dbc::FrameId> {
+        let mut idx: Vec<usize> = [
+            self.signals.wheels.rear_left.message_index,
+            self.signals.wheels.rear_right.message_index,
+            self.signals.wheels.front_left.message_index,
+            self.signals.wheels.front_right.message_index,
+            self.signals.steering.message_index,
+        ]
+        .to_vec();
+        idx.sort_unstable();
+        idx.dedup();
+        idx.iter().map(|&i| self.db.messages()[i].id()).collect()
+    }
+}
+
+struct Validator<'a> {
+    file: &'a Path,
+}
+
+impl Validator<'_> {
+    fn err(&self, key: &str, expected: &str, got: impl std::fmt::Display) -> ConfigError {
+        ConfigError::Invalid {
+            file: self.file.to_owned(),
+            key: key.to_owned(),
+            expected: expected.to_owned(),
+            got: got.to_string(),
+        }
+    }
+
+    fn positive(&self, key: &str, v: f64) -> Result<f64, ConfigError> {
+        if v.is_finite() && v > 0.0 {
+            Ok(v)
+        } else {
+            Err(self.err(key, "a finite number > 0", v))
+        }
+    }
+
+    fn signal(&self, db: &Database, key: &str, path: &str) -> Result<InputSignal, ConfigError> {
+        let handle = db.signal(path).map_err(|e| {
+            self.err(
+                key,
+                &format!("\"MESSAGE.SIGNAL\" present in {}", db.source_name()),
+                format!("{path:?} ({e})"),
+            )
+        })?;
+        Ok(InputSignal {
+            handle,
+            message_index: handle.message_index(),
+        })
+    }
+
+    #[allow(clippy::too_many_lines)]
+    fn validate(&self, raw: RawConfig) -> Result<Config, ConfigError> {
+        let iface = raw.can.interface;
+        if iface.is_empty()
+            || iface.len() > 15
+            || iface.chars().any(|c| c.is_whitespace() || c == '/')
+        {
+            return Err(self.err(
+                "can.interface",
+                "a network interface name (1 to 15 characters, no '/' or spaces)",
+                format!("{iface:?}"),
+            ));
+        }
+        let dbc_path = self
+            .file
+            .parent()
+            .unwrap_or(Path::new("."))
+            .join(&raw.can.dbc);
+        let db = Database::from_file(&dbc_path).map_err(|e| {
+            self.err(
+                "can.dbc",
+                "a readable DBC file (relative to the configuration file)",
+                format!("{} ({e})", dbc_path.display()),
+            )
+        })?;
+
+        // Signals.
+        let s = &raw.signals;
+        let wheels = WheelSet {
+            rear_left: self.signal(&db, "signals.rear_left", &s.rear_left)?,
+            rear_right: self.signal(&db, "signals.rear_right", &s.rear_right)?,
+            front_left: self.signal(&db, "signals.front_left", &s.front_left)?,
+            front_right: self.signal(&db, "signals.front_right", &s.front_right)?,
+        };
+        // One step per rear frame needs both rear wheels in one frame.
+        if wheels.rear_left.message_index != wheels.rear_right.message_index {
+            return Err(self.err(
+                "signals.rear_right",
+                "a signal in the same message as signals.rear_left",
+                &s.rear_right,
+            ));
+        }
+        if wheels.front_left.message_index != wheels.front_right.message_index {
+            return Err(self.err(
+                "signals.front_right",
+                "a signal in the same message as signals.front_left",
+                &s.front_right,
+            ));
+        }
+        let steering = self.signal(&db, "signals.steering", &s.steering)?;
+        let steering_fine = match &s.steering_fine {
+            None => None,
+            Some(p) => {
+                let fine = self.signal(&db, "signals.steering_fine", p)?;
+                if fine.message_index != steering.message_index {
+                    return Err(self.err(
+                        "signals.steering_fine",
+                        "a signal in the same message as signals.steering",
+                        p,
+                    ));
+                }
+                Some(fine.handle)
+            }
+        };
+        let unit_of = |sig: &InputSignal| {
+            let m = &db.messages()[sig.message_index];
+            m.signals()[sig.handle.signal_index()].unit().to_owned()
+        };
+        let wheel_kind = match s.wheel_kind.as_str() {
+            "ticks" => WheelKind::Ticks,
+            "speed" => {
+                let unit = unit_of(&wheels.rear_left);
+                let speed_unit = match unit.to_ascii_lowercase().as_str() {
+                    "km/h" | "kph" | "kmh" => SpeedUnit::KilometresPerHour,
+                    "m/s" | "mps" => SpeedUnit::MetresPerSecond,
+                    _ => {
+                        return Err(self.err(
+                            "signals.rear_left",
+                            "a speed signal whose DBC unit is km/h, kph or m/s",
+                            format!("{} with unit {unit:?}", s.rear_left),
+                        ));
+                    }
+                };
+                for (key, sig) in [
+                    ("signals.rear_right", &wheels.rear_right),
+                    ("signals.front_left", &wheels.front_left),
+                    ("signals.front_right", &wheels.front_right),
+                ] {
+                    if unit_of(sig) != unit {
+                        return Err(self.err(
+                            key,
+                            &format!("the same unit as signals.rear_left ({unit})"),
+                            unit_of(sig),
+                        ));
+                    }
+                }
+                WheelKind::Speed(speed_unit)
+            }
+            other => return Err(self.err("signals.wheel_kind", "\"ticks\" or \"speed\"", other)),
+        };
+        let tick_bits = wheels.rear_left.handle.size();
+        let steering_kind = match s.steering_kind.as_str() {
+            "road_wheel" => SteeringKind::RoadWheel,
+            "steering_wheel" => SteeringKind::SteeringWheel,
+            other => {
+                return Err(self.err(
+                    "signals.steering_kind",
+                    "\"road_wheel\" or \"steering_wheel\"",
+                    other,
+                ));
+            }
+        };
+        let steer_unit = unit_of(&steering);
+        let rad_per_unit = match steer_unit.to_ascii_lowercase().as_str() {
+            "deg" | "degree" | "degrees" | "°" => std::f64::consts::PI / 180.0,
+            "rad" | "radian" | "radians" => 1.0,
+            _ => {
+                return Err(self.err(
+                    "signals.steering",
+                    "an angle signal whose DBC unit is deg or rad",
+                    format!("{} with unit {steer_unit:?}", s.steering),
+                ));
+            }
+        };
+
+        // Vehicle.
+        let v = &raw.vehicle;
+        let wheelbase_m = self.positive("vehicle.wheelbase_m", v.wheelbase_m)?;
+        let rear_tread_m = self.positive("vehicle.rear_tread_m", v.rear_tread_m)?;
+        let front_tread_m = self.positive("vehicle.front_tread_m", v.front_tread_m)?;
+        let nominal = self.positive("vehicle.wheel_diameter_m", v.wheel_diameter_m)?;
+        let diameter = |key: &str, o: Option<f64>| match o {
+            Some(d) => self.positive(key, d),
+            None => Ok(nominal),
+        };
+        let diameters = WheelSet {
+            rear_left: diameter("vehicle.rear_left_diameter_m", v.rear_left_diameter_m)?,
+            rear_right: diameter("vehicle.rear_right_diameter_m", v.rear_right_diameter_m)?,
+            front_left: diameter("vehicle.front_left_diameter_m", v.front_left_diameter_m)?,
+            front_right: diameter("vehicle.front_right_diameter_m", v.front_right_diameter_m)?,
+        };
+        let ticks = match (wheel_kind, v.encoder_ticks_per_rev) {
+            (WheelKind::Ticks, None) => {
+                return Err(self.err(
+                    "vehicle.encoder_ticks_per_rev",
+                    "a tick count per wheel revolution (signals.wheel_kind = \"ticks\")",
+                    "nothing",
+                ));
+            }
+            (WheelKind::Ticks, Some(0)) => {
+                return Err(self.err("vehicle.encoder_ticks_per_rev", "an integer >= 1", 0));
+            }
+            (_, t) => t.unwrap_or(1),
+        };
+        let gain = match (steering_kind, v.steering_ratio) {
+            (SteeringKind::RoadWheel, None) => rad_per_unit,
+            (SteeringKind::RoadWheel, Some(r)) => {
+                return Err(self.err(
+                    "vehicle.steering_ratio",
+                    "no steering_ratio with signals.steering_kind = \"road_wheel\"",
+                    r,
+                ));
+            }
+            (SteeringKind::SteeringWheel, None) => {
+                return Err(self.err(
+                    "vehicle.steering_ratio",
+                    "a steering ratio (signals.steering_kind = \"steering_wheel\")",
+                    "nothing",
+                ));
+            }
+            (SteeringKind::SteeringWheel, Some(r)) => {
+                rad_per_unit / self.positive("vehicle.steering_ratio", r)?
+            }
+        };
+        let params = VehicleParams::new(
+            wheelbase_m,
+            rear_tread_m,
+            front_tread_m,
+            diameters,
+            ticks,
+            SteeringMap {
+                gain,
+                offset_rad: 0.0,
+            },
+        )
+        .map_err(|e| self.err("vehicle", "a valid parameter set", e))?;
+
+        // Checks.
+        let mut checks = Vec::new();
+        for (name, c) in &raw.checks {
+            let key = format!("checks.{name}");
+            let m = db.message_by_name(name).ok_or_else(|| {
+                self.err(
+                    &key,
+                    &format!("a message name of {}", db.source_name()),
+                    name,
+                )
+            })?;
+            let message_index = db
+                .messages()
+                .iter()
+                .position(|x| x.name() == name)
+                .unwrap_or_default();
+            let counter = match &c.counter {
+                None => None,
+                Some(sig) => Some(
+                    self.signal(&db, &format!("{key}.counter"), &format!("{name}.{sig}"))?
+                        .handle,
+                ),
+            };
+            let checksum = match (&c.checksum, &c.algorithm) {
+                (None, None) => None,
+                (None, Some(_)) => {
+                    return Err(self.err(
+                        &format!("{key}.checksum"),
+                        "the checksum signal's name when an algorithm is given",
+                        "nothing",
+                    ));
+                }
+                (Some(sig), alg) => {
+                    let h = self
+                        .signal(&db, &format!("{key}.checksum"), &format!("{name}.{sig}"))?
+                        .handle;
+                    let algorithm = match alg.as_deref().unwrap_or("crc8_sae_j1850") {
+                        "crc8_sae_j1850" => ChecksumAlgorithm::Crc8SaeJ1850,
+                        "sum" => ChecksumAlgorithm::Sum { init: 0 },
+                        "xor" => ChecksumAlgorithm::Xor { init: 0 },
+                        other => {
+                            return Err(self.err(
+                                &format!("{key}.algorithm"),
+                                "\"crc8_sae_j1850\", \"sum\" or \"xor\"",
+                                other,
+                            ));
+                        }
+                    };
+                    let len = m.length();
+                    let position = checksum_byte(m, h).ok_or_else(|| {
+                        self.err(
+                            &format!("{key}.checksum"),
+                            "an 8-bit, byte-aligned signal in the first or last byte",
+                            sig,
+                        )
+                    })?;
+                    let covered = if position + 1 == len {
+                        0..=len.saturating_sub(2)
+                    } else {
+                        1..=len - 1
+                    };
+                    Some(Checksum::new(algorithm, covered, position).map_err(|e| {
+                        self.err(&format!("{key}.checksum"), "a usable checksum", e)
+                    })?)
+                }
+            };
+            checks.push(MessageCheck {
+                message_index,
+                counter,
+                checksum,
+            });
+        }
+
+        // Inputs.
+        let i = &raw.inputs;
+        let timeout_factor = self.positive("inputs.timeout_factor", i.timeout_factor)?;
+        if timeout_factor < 1.0 {
+            return Err(self.err("inputs.timeout_factor", "a factor >= 1", timeout_factor));
+        }
+        let default_period_s =
+            self.positive("inputs.default_period_ms", i.default_period_ms)? / 1000.0;
+        let max_wheel_speed_mps = match i.max_wheel_speed_mps {
+            Some(v) => self.positive("inputs.max_wheel_speed_mps", v)?,
+            None => match wheel_kind {
+                WheelKind::Ticks => InputConfig::RC_CAR.max_wheel_speed_mps,
+                WheelKind::Speed(_) => InputConfig::ROAD_CAR.max_wheel_speed_mps,
+            },
+        };
+        if i.trusted_after_frames == 0 || i.invalid_after_faults == 0 {
+            return Err(self.err(
+                "inputs.trusted_after_frames / inputs.invalid_after_faults",
+                "integers >= 1",
+                format!("{} / {}", i.trusted_after_frames, i.invalid_after_faults),
+            ));
+        }
+        let inputs = InputsConfig {
+            timeout_factor,
+            default_period_s,
+            invalid_after_faults: i.invalid_after_faults,
+            trusted_after_frames: i.trusted_after_frames,
+            max_wheel_speed_mps,
+        };
+
+        // EKF.
+        let e = &raw.ekf;
+        let mut ekf = EkfConfig::new(params);
+        if let Some(k) = e.k_rear_m {
+            ekf.k_rear_m = self.positive("ekf.k_rear_m", k)?;
+        }
+        if let Some(k) = e.k_front_m {
+            ekf.k_front_m = self.positive("ekf.k_front_m", k)?;
+        }
+        if let Some(d) = e.steer_sigma_deg {
+            ekf.steer_sigma_rad = self.positive("ekf.steer_sigma_deg", d)?.to_radians();
+        }
+        if let Some(d) = e.steer_bias_sigma_deg {
+            if !(d.is_finite() && d >= 0.0) {
+                return Err(self.err("ekf.steer_bias_sigma_deg", "a finite number >= 0", d));
+            }
+            ekf.steer_bias_sigma_rad = d.to_radians();
+        }
+        if let Some(n) = e.correct_every {
+            if n == 0 {
+                return Err(self.err("ekf.correct_every", "an integer >= 1", n));
+            }
+            ekf.correct_every = n;
+        }
+        if let Some(g) = e.gate_threshold {
+            ekf.gate_threshold = Some(self.positive("ekf.gate_threshold", g)?);
+        }
+        if e.gate_enabled == Some(false) {
+            ekf.gate_threshold = None;
+        }
+        if e.learn_steer_offset == Some(false) {
+            ekf.steer_offset_drift_rad = None;
+        }
+        canodom_fusion::ekf::Ekf::new(ekf)
+            .map_err(|err| self.err("ekf", "a valid filter configuration", err))?;
+
+        // Output.
+        let o = &raw.output;
+        let base_id = BaseId::new(o.base_id, o.extended).map_err(|err| {
+            self.err(
+                "output.base_id",
+                "a base id whose frames (base + 0x13) fit the id format",
+                err,
+            )
+        })?;
+        let output = OutputConfig {
+            base_id,
+            pose_rate_hz: self.positive("output.pose_rate_hz", o.pose_rate_hz)?,
+            publish_on_update: o.publish_on_update,
+            stats_interval_s: self.positive("output.stats_interval_s", o.stats_interval_s)?,
+        };
+        for w in [wheels.rear_left, wheels.front_left, steering] {
+            let id = db.messages()[w.message_index].id();
+            let own = (0..=crate::own_dbc::MAX_OFFSET).any(|off| {
+                base_id.id().raw() + off == id.raw()
+                    && base_id.id().is_extended() == id.is_extended()
+            });
+            if own {
+                return Err(self.err(
+                    "output.base_id",
+                    "own frame ids (base .. base + 0x13) clear of the input messages",
+                    format!("{:#x}", o.base_id),
+                ));
+            }
+        }
+
+        Ok(Config {
+            file: self.file.to_owned(),
+            interface: iface,
+            dbc_path,
+            db,
+            params,
+            signals: Signals {
+                wheels,
+                steering,
+                steering_fine,
+                wheel_kind,
+                steering_kind,
+                tick_bits,
+            },
+            checks,
+            inputs,
+            ekf,
+            output,
+        })
+    }
+}
+
+/// The byte a checksum signal occupies, if it is a whole byte.
+fn checksum_byte(m: &canodom_dbc::Message, h: SignalHandle) -> Option<usize> {
+    if h.size() != 8 {
+        return None;
+    }
+    let mut probe = vec![0u8; m.length()];
+    if !h.encode_raw(0xFF, &mut probe) {
+        return None;
+    }
+    let set: Vec<usize> = (0..probe.len()).filter(|&b| probe[b] != 0).collect();
+    match set.as_slice() {
+        [b] if probe[*b] == 0xFF && (*b == 0 || *b + 1 == probe.len()) => Some(*b),
+        _ => None,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    pub(crate) const RC_CAR: &str = r#"
+[can]
+interface = "vcan0"
+dbc = "rc_car.dbc"
+
+[vehicle]
+wheelbase_m = 0.26
+rear_tread_m = 0.30
+front_tread_m = 0.30
+wheel_diameter_m = 0.09
+encoder_ticks_per_rev = 1024
+
+[signals]
+rear_left = "WHEEL_ENC_REAR.RL_TICKS"
+rear_right = "WHEEL_ENC_REAR.RR_TICKS"
+front_left = "WHEEL_ENC_FRONT.FL_TICKS"
+front_right = "WHEEL_ENC_FRONT.FR_TICKS"
+steering = "STEERING.STEER_ANGLE"
+wheel_kind = "ticks"
+steering_kind = "road_wheel"
+
+[checks.WHEEL_ENC_REAR]
+counter = "COUNTER"
+checksum = "CHECKSUM"
+algorithm = "crc8_sae_j1850"
+"#;
+
+    fn path() -> PathBuf {
+        PathBuf::from(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../shared/dbc/x.toml"
+        ))
+    }
+
+    #[test]
+    fn issue_example_loads() {
+        let c = Config::from_toml(RC_CAR, &path()).unwrap();
+        assert_eq!(c.interface, "vcan0");
+        assert_eq!(c.signals.wheel_kind, WheelKind::Ticks);
+        assert_eq!(c.signals.tick_bits, 16);
+        assert_eq!(c.checks.len(), 1);
+        let crc = c.checks[0].checksum.as_ref().unwrap();
+        assert_eq!(crc, &Checksum::rc_car());
+        assert!((c.params.steering().gain - 1f64.to_radians()).abs() < 1e-15);
+        assert_eq!(c.output.pose_rate_hz, 50.0);
+        assert_eq!(c.ekf, EkfConfig::new(c.params));
+        assert_eq!(c.input_ids().len(), 3);
+    }
+
+    fn invalid(text: &str) -> String {
+        let e = Config::from_toml(text, &path()).unwrap_err();
+        let s = e.to_string();
+        assert!(s.contains("x.toml"), "{s}");
+        s
+    }
+
+    #[test]
+    fn unknown_key_is_named() {
+        let s = invalid(&RC_CAR.replace("wheelbase_m", "wheelbase_mm"));
+        assert!(s.contains("wheelbase_mm"), "{s}");
+        let s = invalid(&format!("{RC_CAR}\n[output]\npose_rate = 5\n"));
+        assert!(s.contains("pose_rate"), "{s}");
+    }
+
+    #[test]
+    fn missing_signal_is_named() {
+        let s = invalid(&RC_CAR.replace("RR_TICKS", "RR_TICK"));
+        assert!(
+            s.contains("signals.rear_right") && s.contains("RR_TICK"),
+            "{s}"
+        );
+    }
+
+    #[test]
+    fn bad_values_are_named() {
+        let s = invalid(&RC_CAR.replace("0.26", "-1.0"));
+        assert!(
+            s.contains("vehicle.wheelbase_m") && s.contains("> 0"),
+            "{s}"
+        );
+        let s = invalid(&RC_CAR.replace("\"ticks\"", "\"pulses\""));
+        assert!(s.contains("signals.wheel_kind"), "{s}");
+        let s = invalid(&RC_CAR.replace("crc8_sae_j1850", "crc32"));
+        assert!(s.contains("checks.WHEEL_ENC_REAR.algorithm"), "{s}");
+        let s = invalid(&RC_CAR.replace("rc_car.dbc", "nope.dbc"));
+        assert!(s.contains("can.dbc"), "{s}");
+        let s = invalid(&RC_CAR.replace("road_wheel", "steering_wheel"));
+        assert!(s.contains("vehicle.steering_ratio"), "{s}");
+        let s = invalid(&format!("{RC_CAR}\n[output]\nbase_id = 0x100\n"));
+        assert!(s.contains("output.base_id"), "{s}");
+    }
+}

@@ -1,0 +1,43 @@
+//! The `canodom` binary: parse the command line, set up logging, run the
+//! command (everything else lives in the library, where tests reach it).
+
+use clap::Parser;
+
+/// canodom: fused wheel/steering odometry for car-like vehicles over CAN.
+#[derive(Debug, Parser)]
+#[command(version, about, long_about = None, after_help = "Start with `canodom demo` (no CAN hardware needed), \
+then `canodom <COMMAND> --help`.")]
+struct Cli {
+    /// Log format on stderr.
+    #[arg(long, value_enum, default_value = "text", global = true)]
+    log_format: LogFormat,
+    #[command(subcommand)]
+    command: canodom::cmd::Command,
+}
+
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+enum LogFormat {
+    /// Human-readable lines.
+    Text,
+    /// One JSON object per event.
+    Json,
+}
+
+fn main() -> anyhow::Result<()> {
+    let cli = Cli::parse();
+    // The demo prints its own table; the daemon's periodic log would bury it.
+    let default_level = match cli.command {
+        canodom::cmd::Command::Demo(_) => "warn",
+        _ => "info",
+    };
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default_level));
+    let builder = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr);
+    match cli.log_format {
+        LogFormat::Text => builder.init(),
+        LogFormat::Json => builder.json().init(),
+    }
+    cli.command.execute()
+}

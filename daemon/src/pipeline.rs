@@ -1,0 +1,565 @@
+//! The pure, synchronous core shared by `run`, `replay` and `demo`: frames
+//! in, filter steps and pose samples out. No clock, no I/O: time comes from
+//! the frames' timestamps, so the same frames give the same poses bit for bit
+//! whichever command feeds them.
+//!
+//! # How separate frames are combined
+//! The rear wheels drive the filter: **every accepted rear-wheel frame is one
+//! EKF step**. Front-wheel distances are accumulated between steps (a front
+//! frame adds to the sum, the step consumes it), and the step uses the latest
+//! steering angle. Within one frame, steering is read first, then the front
+//! wheels, then the rear, so a vehicle that packs all wheels in one message
+//! (the Toyota file) steps with that same frame's front distances. Front
+//! distance is conserved across steps, so a front frame arriving just after
+//! its rear frame only shifts one sample between adjacent windows.
+//!
+//! # Integrity and staleness
+//! Each input message has a health record: its checks (DLC, rolling counter,
+//! checksum, finite values) and its period (`GenMsgCycleTime`, or learnt from
+//! good frames when the DBC gives none). A message is *stale* when no good
+//! frame came for `timeout_factor` periods, or after `invalid_after_faults`
+//! bad frames in a row, and is trusted again only after
+//! `trusted_after_frames` good frames in a row (hysteresis both ways).
+//! Staleness that influences the filter is judged at each rear frame's own
+//! timestamp, never at the reader's clock; the pose flags judged at publish
+//! time are output only. While the front wheels or steering are stale the
+//! step runs with `front_valid = false` (prediction from the rear alone);
+//! while the rear is stale the pose says `POSE_VALID = 0`.
+
+use crate::candump::Timestamp;
+use crate::config::{Config, InputsConfig, WheelKind};
+use crate::frame::{CanFrame, FrameKind};
+use crate::stats::{Reject, Stats};
+use canodom_dbc::{Checksum, CounterCheck, CounterStatus, FrameId, SignalHandle};
+use canodom_fusion::ekf::{Ekf, OdometryInput, State};
+use canodom_fusion::odometry::rear_increment;
+use canodom_fusion::wheel::{
+    InputConfig, InputFault, SpeedDecoder, SpeedIntegration, TickDecoder, WheelStep,
+};
+use canodom_fusion::{Pose, SteeringMap, VehicleParams, Wheel, WheelSet};
+
+/// One filter step: the row `replay` writes.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Step {
+    /// Seconds since the first input frame.
+    pub t_s: f64,
+    /// The fused pose (heading unwrapped: total turn).
+    pub fused: Pose,
+    /// Rear-wheel-only odometry (heading unwrapped).
+    pub odometry: Pose,
+}
+
+/// Validity flags of a pose sample.
+// Each is one bit of ODOM_QUALITY: independent flags, not a state machine.
+#[allow(clippy::struct_excessive_bools)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct PoseFlags {
+    /// Rear wheels fresh and trusted: the pose may be used.
+    pub pose_valid: bool,
+    /// A rear wheel input is stale or not yet trusted.
+    pub rear_stale: bool,
+    /// The front wheel input is stale: no front corrections.
+    pub front_stale: bool,
+    /// The steering input is stale.
+    pub steer_stale: bool,
+    /// A counter fault since the previous pose sample.
+    pub counter_fault: bool,
+    /// A checksum fault since the previous pose sample.
+    pub checksum_fault: bool,
+    /// A gate rejection since the previous pose sample.
+    pub gate_reject: bool,
+    /// The nominal parameters from the configuration are in use.
+    pub nominal_params: bool,
+}
+
+/// What a pose frame carries.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PoseOutput {
+    /// Time of the newest frame the pose includes.
+    pub timestamp: Timestamp,
+    /// Position x, metres.
+    pub x_m: f64,
+    /// Position y, metres.
+    pub y_m: f64,
+    /// Heading wrapped to (−π, π], radians.
+    pub heading_rad: f64,
+    /// Speed of the rear-axle centre, m/s.
+    pub speed_mps: f64,
+    /// Yaw rate, rad/s.
+    pub yaw_rate_radps: f64,
+    /// Square root of the largest eigenvalue of the x-y covariance, metres.
+    pub pos_std_m: f64,
+    /// Heading standard deviation, radians.
+    pub heading_std_rad: f64,
+    /// Validity flags.
+    pub flags: PoseFlags,
+    /// Version of the parameter set in use; 0 for nominal.
+    pub param_version: u16,
+}
+
+/// Health of one input message (see the module doc).
+#[derive(Clone, Debug)]
+struct Health {
+    /// From the DBC; `None` means the period is learnt.
+    fixed_period_s: Option<f64>,
+    period_s: f64,
+    last_good_us: Option<u64>,
+    good_run: u32,
+    bad_run: u32,
+    trusted: bool,
+}
+
+impl Health {
+    fn new(cycle_ms: Option<u64>, default_period_s: f64) -> Self {
+        let fixed = cycle_ms.filter(|&ms| ms > 0).map(|ms| ms as f64 / 1000.0);
+        Self {
+            fixed_period_s: fixed,
+            period_s: fixed.unwrap_or(default_period_s),
+            last_good_us: None,
+            good_run: 0,
+            bad_run: 0,
+            trusted: false,
+        }
+    }
+
+    fn timeout_us(&self, inputs: &InputsConfig) -> u64 {
+        (self.period_s * inputs.timeout_factor * 1e6) as u64
+    }
+
+    fn fresh(&self, now_us: u64, inputs: &InputsConfig) -> bool {
+        self.trusted
+            && self
+                .last_good_us
+                .is_some_and(|t| now_us.saturating_sub(t) <= self.timeout_us(inputs))
+    }
+
+    fn good(&mut self, t_us: u64, inputs: &InputsConfig) {
+        if let Some(prev) = self.last_good_us {
+            let gap = t_us.saturating_sub(prev);
+            if gap > self.timeout_us(inputs) {
+                // A timeout: trust is earned again from this frame on.
+                self.trusted = false;
+                self.good_run = 0;
+            } else if self.fixed_period_s.is_none() && gap > 0 {
+                self.period_s += 0.05 * (gap as f64 * 1e-6 - self.period_s);
+            }
+        }
+        self.last_good_us = Some(t_us);
+        self.bad_run = 0;
+        self.good_run = self.good_run.saturating_add(1);
+        if self.good_run >= inputs.trusted_after_frames {
+            self.trusted = true;
+        }
+    }
+
+    fn bad(&mut self, inputs: &InputsConfig) {
+        self.good_run = 0;
+        self.bad_run = self.bad_run.saturating_add(1);
+        if self.bad_run >= inputs.invalid_after_faults {
+            self.trusted = false;
+        }
+    }
+}
+
+/// Per-message state: checks and which roles it carries.
+#[derive(Clone, Debug)]
+struct Input {
+    id: FrameId,
+    length: usize,
+    rear: bool,
+    front: bool,
+    steering: bool,
+    counter: Option<(SignalHandle, CounterCheck)>,
+    checksum: Option<Checksum>,
+    health: Health,
+}
+
+#[derive(Clone, Debug)]
+enum Decoders {
+    Ticks(Box<WheelSet<TickDecoder>>),
+    Speed(Box<WheelSet<SpeedDecoder>>),
+}
+
+/// The pipeline: decode, check, decode wheels, step the EKF.
+#[derive(Clone, Debug)]
+pub struct Pipeline {
+    inputs_cfg: InputsConfig,
+    wheels: WheelSet<SignalHandle>,
+    steering: SignalHandle,
+    steering_fine: Option<SignalHandle>,
+    steer_map: SteeringMap,
+    params: VehicleParams,
+    inputs: Vec<Input>,
+    decoders: Decoders,
+    ekf: Ekf,
+    state: State,
+    odometry: Pose,
+    t0_us: Option<u64>,
+    last_t_us: u64,
+    front_acc_m: (f64, f64),
+    steer_rad: Option<f64>,
+    last_step: Option<Step>,
+    speed_mps: f64,
+    yaw_rate_radps: f64,
+    latched: PoseFlags,
+    stats: Stats,
+}
+
+/// Index of a message within `inputs`, by role.
+fn find(inputs: &[Input], id: FrameId) -> Option<usize> {
+    inputs.iter().position(|i| i.id == id)
+}
+
+impl Pipeline {
+    /// Builds the pipeline for a validated configuration.
+    ///
+    /// # Errors
+    /// The fusion crate refused a decoder or filter configuration (e.g. a tick
+    /// counter too narrow for `inputs.max_wheel_speed_mps`).
+    pub fn new(config: &Config) -> Result<Self, canodom_fusion::Error> {
+        let s = &config.signals;
+        let db = &config.db;
+        let mut inputs: Vec<Input> = Vec::new();
+        let mut role = |idx: usize, rear: bool, front: bool, steering: bool| {
+            let m = &db.messages()[idx];
+            let pos = if let Some(p) = find(&inputs, m.id()) {
+                p
+            } else {
+                let check = config.checks.iter().find(|c| c.message_index == idx);
+                inputs.push(Input {
+                    id: m.id(),
+                    length: m.length(),
+                    rear: false,
+                    front: false,
+                    steering: false,
+                    counter: check
+                        .and_then(|c| c.counter)
+                        .and_then(|h| CounterCheck::new(h.size()).ok().map(|cc| (h, cc))),
+                    checksum: check.and_then(|c| c.checksum.clone()),
+                    health: Health::new(m.cycle_time_ms(), config.inputs.default_period_s),
+                });
+                inputs.len() - 1
+            };
+            let i = &mut inputs[pos];
+            i.rear |= rear;
+            i.front |= front;
+            i.steering |= steering;
+        };
+        role(s.wheels.rear_left.message_index, true, false, false);
+        role(s.wheels.front_left.message_index, false, true, false);
+        role(s.steering.message_index, false, false, true);
+        let period = |idx: usize| {
+            db.messages()[idx]
+                .cycle_time_ms()
+                .filter(|&ms| ms > 0)
+                .map_or(config.inputs.default_period_s, |ms| ms as f64 / 1000.0)
+        };
+        let input_cfg = |idx: usize| InputConfig {
+            nominal_period_s: period(idx),
+            gap_factor: 1.5,
+            max_wheel_speed_mps: config.inputs.max_wheel_speed_mps,
+        };
+        let rear_cfg = input_cfg(s.wheels.rear_left.message_index);
+        let front_cfg = input_cfg(s.wheels.front_left.message_index);
+        let params = config.params;
+        let cfg_of = |w: Wheel| if w.is_rear() { rear_cfg } else { front_cfg };
+        let decoders = match s.wheel_kind {
+            WheelKind::Ticks => {
+                let mk = |w: Wheel| {
+                    TickDecoder::new(s.tick_bits, params.tick_distance_m(w, 1.0), cfg_of(w))
+                };
+                Decoders::Ticks(Box::new(WheelSet {
+                    rear_left: mk(Wheel::RearLeft)?,
+                    rear_right: mk(Wheel::RearRight)?,
+                    front_left: mk(Wheel::FrontLeft)?,
+                    front_right: mk(Wheel::FrontRight)?,
+                }))
+            }
+            WheelKind::Speed(unit) => {
+                let mk = |w: Wheel| SpeedDecoder::new(unit, SpeedIntegration::Trapezoid, cfg_of(w));
+                Decoders::Speed(Box::new(WheelSet {
+                    rear_left: mk(Wheel::RearLeft)?,
+                    rear_right: mk(Wheel::RearRight)?,
+                    front_left: mk(Wheel::FrontLeft)?,
+                    front_right: mk(Wheel::FrontRight)?,
+                }))
+            }
+        };
+        Ok(Self {
+            inputs_cfg: config.inputs,
+            wheels: s.wheels.map(|_, w| w.handle),
+            steering: s.steering.handle,
+            steering_fine: s.steering_fine,
+            steer_map: params.steering(),
+            params,
+            inputs,
+            decoders,
+            ekf: Ekf::new(config.ekf)?,
+            state: State::origin(),
+            odometry: Pose::default(),
+            t0_us: None,
+            last_t_us: 0,
+            front_acc_m: (0.0, 0.0),
+            steer_rad: None,
+            last_step: None,
+            speed_mps: 0.0,
+            yaw_rate_radps: 0.0,
+            latched: PoseFlags::default(),
+            stats: Stats::default(),
+        })
+    }
+
+    /// The statistics so far.
+    pub fn stats(&self) -> &Stats {
+        &self.stats
+    }
+
+    /// The filter state (bit-for-bit comparisons between commands).
+    pub fn state(&self) -> &State {
+        &self.state
+    }
+
+    /// The last filter step, if any.
+    pub fn last_step(&self) -> Option<Step> {
+        self.last_step
+    }
+
+    /// Offers one frame received at `t`; returns the filter step it caused.
+    /// Never panics, whatever the frame holds.
+    pub fn push(&mut self, t: Timestamp, frame: &CanFrame) -> Option<Step> {
+        self.stats.frames += 1;
+        let kind = frame.kind();
+        let id = match frame.id() {
+            crate::frame::CanId::Standard(s) => FrameId::standard(s).ok(),
+            crate::frame::CanId::Extended(e) => FrameId::extended(e).ok(),
+        };
+        let Some(idx) = id.and_then(|id| find(&self.inputs, id)) else {
+            self.stats.add(Reject::UnknownId);
+            return None;
+        };
+        if !matches!(kind, FrameKind::Data { .. } | FrameKind::Fd { .. }) {
+            self.stats.add(Reject::NotData);
+            return None;
+        }
+        let data = frame.data();
+        let t_us = t.as_micros();
+        let input = &mut self.inputs[idx];
+        if let Some(reason) = Self::check(input, data) {
+            input.health.bad(&self.inputs_cfg);
+            match reason {
+                Reject::BadCounter => self.latched.counter_fault = true,
+                Reject::BadChecksum => self.latched.checksum_fault = true,
+                _ => {}
+            }
+            self.stats.add(reason);
+            return None;
+        }
+        // Every configured signal of this message must be finite before any is used.
+        let (rear, front, steering) = (input.rear, input.front, input.steering);
+        let val = |h: &SignalHandle| h.decode(data).unwrap_or(f64::NAN);
+        let mut steer_signal = None;
+        if steering {
+            let u = val(&self.steering) + self.steering_fine.as_ref().map_or(0.0, val);
+            steer_signal = Some(u);
+        }
+        let speeds = WheelSet {
+            rear_left: if rear {
+                val(&self.wheels.rear_left)
+            } else {
+                0.0
+            },
+            rear_right: if rear {
+                val(&self.wheels.rear_right)
+            } else {
+                0.0
+            },
+            front_left: if front {
+                val(&self.wheels.front_left)
+            } else {
+                0.0
+            },
+            front_right: if front {
+                val(&self.wheels.front_right)
+            } else {
+                0.0
+            },
+        };
+        if steer_signal.is_some_and(|u| !u.is_finite())
+            || !(speeds.rear_left.is_finite()
+                && speeds.rear_right.is_finite()
+                && speeds.front_left.is_finite()
+                && speeds.front_right.is_finite())
+        {
+            self.inputs[idx].health.bad(&self.inputs_cfg);
+            self.stats.add(Reject::NonFinite);
+            return None;
+        }
+        let steer_rad = steer_signal.map(|u| self.steer_map.angle_rad(u));
+        if steer_rad.is_some_and(|phi| phi.abs() >= std::f64::consts::FRAC_PI_2) {
+            self.inputs[idx].health.bad(&self.inputs_cfg);
+            self.stats.add(Reject::SteerRange);
+            return None;
+        }
+        self.inputs[idx].health.good(t_us, &self.inputs_cfg);
+        self.stats.used += 1;
+        let t0 = *self.t0_us.get_or_insert(t_us);
+        // Signed: a log's timestamps may go backwards; the decoders judge that.
+        let t_s = (t_us as i64 - t0 as i64) as f64 * 1e-6;
+        self.last_t_us = self.last_t_us.max(t_us);
+        if let Some(phi) = steer_rad {
+            self.steer_rad = Some(phi);
+        }
+        if front {
+            let fl = self.wheel(Wheel::FrontLeft, t_s, data, speeds.front_left);
+            let fr = self.wheel(Wheel::FrontRight, t_s, data, speeds.front_right);
+            self.front_acc_m.0 += fl;
+            self.front_acc_m.1 += fr;
+        }
+        if rear {
+            let rl = self.wheel(Wheel::RearLeft, t_s, data, speeds.rear_left);
+            let rr = self.wheel(Wheel::RearRight, t_s, data, speeds.rear_right);
+            return self.step(t_s, t_us, rl, rr);
+        }
+        None
+    }
+
+    /// DLC, checksum and counter checks; `Some(reason)` rejects the frame.
+    fn check(input: &mut Input, data: &[u8]) -> Option<Reject> {
+        if data.len() < input.length {
+            return Some(Reject::Truncated);
+        }
+        if data.len() > input.length {
+            return Some(Reject::WrongDlc);
+        }
+        if let Some(c) = &input.checksum
+            && !c.verify(data).unwrap_or(false)
+        {
+            return Some(Reject::BadChecksum);
+        }
+        if let Some((h, cc)) = &mut input.counter {
+            let raw = h.raw(data)?;
+            if let CounterStatus::Gap { .. } = cc.observe(raw) {
+                return Some(Reject::BadCounter);
+            }
+        }
+        None
+    }
+
+    /// Feeds one wheel decoder; the distance it integrated (0 on a fault).
+    fn wheel(&mut self, w: Wheel, t_s: f64, data: &[u8], value: f64) -> f64 {
+        let step: WheelStep = match &mut self.decoders {
+            Decoders::Ticks(d) => {
+                let raw = self.wheels[w].raw(data).unwrap_or(0);
+                wheel_mut(d, w).push(t_s, raw)
+            }
+            Decoders::Speed(d) => wheel_mut(d, w).push(t_s, value),
+        };
+        match step.fault {
+            None => {}
+            Some(InputFault::MissedSamples { .. }) => self.stats.add(Reject::WheelGap),
+            Some(_) => self.stats.add(Reject::WheelFault),
+        }
+        step.distance_m
+    }
+
+    fn step(&mut self, t_s: f64, t_us: u64, rl: f64, rr: f64) -> Option<Step> {
+        let front_fresh = self.role_fresh(t_us, |i| i.front);
+        let steer_fresh = self.role_fresh(t_us, |i| i.steering);
+        let input = OdometryInput {
+            wheel_m: WheelSet {
+                rear_left: rl,
+                rear_right: rr,
+                front_left: self.front_acc_m.0,
+                front_right: self.front_acc_m.1,
+            },
+            front_valid: front_fresh && steer_fresh && self.steer_rad.is_some(),
+            steer_angle_rad: self.steer_rad.unwrap_or(0.0),
+        };
+        self.front_acc_m = (0.0, 0.0);
+        let before = self.state.stats;
+        let Ok(next) = self.ekf.step(&self.state, &input) else {
+            self.stats.add(Reject::FilterError);
+            return None;
+        };
+        self.state = next;
+        let after = self.state.stats;
+        let rejected = (after.rejected_used_front + after.rejected_kept_rear)
+            - (before.rejected_used_front + before.rejected_kept_rear);
+        if rejected > 0 {
+            self.latched.gate_reject = true;
+            self.stats.add_n(Reject::GateReject, rejected);
+        }
+        if !input.front_valid {
+            self.stats.steps_without_front += 1;
+        }
+        if let Ok(inc) = rear_increment(&self.params, rl, rr) {
+            self.odometry = self.odometry.advanced(inc);
+        }
+        self.stats.steps += 1;
+        let fused = self.state.pose_unwrapped();
+        if let Some(prev) = self.last_step {
+            let dt = t_s - prev.t_s;
+            if dt > 0.0 {
+                self.speed_mps = 0.5 * (rl + rr) / dt;
+                self.yaw_rate_radps = (fused.heading_rad - prev.fused.heading_rad) / dt;
+            }
+        }
+        let step = Step {
+            t_s,
+            fused,
+            odometry: self.odometry,
+        };
+        self.last_step = Some(step);
+        Some(step)
+    }
+
+    fn role_fresh(&self, now_us: u64, role: impl Fn(&Input) -> bool) -> bool {
+        self.inputs
+            .iter()
+            .filter(|i| role(i))
+            .all(|i| i.health.fresh(now_us, &self.inputs_cfg))
+    }
+
+    /// The pose sample at `now` (the reader's clock: only the flags depend on
+    /// it). Clears the "since the previous sample" fault latches.
+    pub fn pose_output(&mut self, now: Timestamp) -> PoseOutput {
+        let now_us = now.as_micros();
+        let rear_fresh = self.role_fresh(now_us, |i| i.rear);
+        let flags = PoseFlags {
+            pose_valid: rear_fresh,
+            rear_stale: !rear_fresh,
+            front_stale: !self.role_fresh(now_us, |i| i.front),
+            steer_stale: !self.role_fresh(now_us, |i| i.steering),
+            counter_fault: self.latched.counter_fault,
+            checksum_fault: self.latched.checksum_fault,
+            gate_reject: self.latched.gate_reject,
+            nominal_params: true,
+        };
+        self.latched = PoseFlags::default();
+        let pose = self.state.pose();
+        let p = self.state.covariance();
+        let (a, b, c) = (p[(0, 0)], p[(0, 1)], p[(1, 1)]);
+        let lambda_max = 0.5 * (a + c) + (0.25 * (a - c) * (a - c) + b * b).sqrt();
+        PoseOutput {
+            timestamp: Timestamp::from_micros(self.last_t_us),
+            x_m: pose.x_m,
+            y_m: pose.y_m,
+            heading_rad: pose.heading_rad,
+            speed_mps: self.speed_mps,
+            yaw_rate_radps: self.yaw_rate_radps,
+            pos_std_m: lambda_max.max(0.0).sqrt(),
+            heading_std_rad: p[(2, 2)].max(0.0).sqrt(),
+            flags,
+            param_version: 0,
+        }
+    }
+}
+
+fn wheel_mut<T>(set: &mut WheelSet<T>, w: Wheel) -> &mut T {
+    match w {
+        Wheel::RearLeft => &mut set.rear_left,
+        Wheel::RearRight => &mut set.rear_right,
+        Wheel::FrontLeft => &mut set.front_left,
+        Wheel::FrontRight => &mut set.front_right,
+    }
+}

@@ -1,0 +1,220 @@
+//! Encoding a pose sample into canodom's own frames (`ODOM_POSITION`,
+//! `ODOM_MOTION`, `ODOM_QUALITY` of `dbc/canodom.dbc`) at the configured base
+//! id, with the shared rolling counter and CRC-8 SAE J1850, through the same
+//! DBC codec users decode them with.
+
+use crate::frame::{CanFrame, FrameError};
+use crate::own_dbc::{BaseId, OwnFrame, dbc_for_base};
+use crate::pipeline::PoseOutput;
+use canodom_dbc::{Checksum, Database, SignalHandle};
+
+/// Encodes pose samples; owns the rolling counter.
+#[derive(Debug)]
+pub struct PoseEncoder {
+    ids: [crate::frame::CanId; 3],
+    db: Database,
+    x: SignalHandle,
+    y: SignalHandle,
+    heading: SignalHandle,
+    speed: SignalHandle,
+    yaw_rate: SignalHandle,
+    pos_std: SignalHandle,
+    heading_std: SignalHandle,
+    flags: [SignalHandle; 8],
+    version: SignalHandle,
+    counters: [SignalHandle; 3],
+    crc: Checksum,
+    counter: u8,
+}
+
+/// Why a pose could not be encoded (only a broken shipped DBC can cause it).
+#[derive(Debug, thiserror::Error)]
+pub enum PoseEncodeError {
+    /// The shipped DBC lacks a signal or does not parse.
+    #[error("canodom.dbc: {0}")]
+    Dbc(#[from] canodom_dbc::Error),
+    /// The frame type refused the payload.
+    #[error("pose frame: {0}")]
+    Frame(#[from] FrameError),
+}
+
+impl PoseEncoder {
+    /// An encoder for frames at `base`.
+    ///
+    /// # Errors
+    /// Only if the shipped DBC is broken (a unit test proves it is not).
+    pub fn new(base: BaseId) -> Result<Self, PoseEncodeError> {
+        let db = Database::parse(&dbc_for_base(base), "canodom.dbc")?;
+        let s = |p: &str| db.signal(p);
+        Ok(Self {
+            ids: [
+                OwnFrame::OdomPosition.id(base),
+                OwnFrame::OdomMotion.id(base),
+                OwnFrame::OdomQuality.id(base),
+            ],
+            x: s("ODOM_POSITION.POS_X")?,
+            y: s("ODOM_POSITION.POS_Y")?,
+            heading: s("ODOM_MOTION.HEADING")?,
+            speed: s("ODOM_MOTION.SPEED")?,
+            yaw_rate: s("ODOM_MOTION.YAW_RATE")?,
+            pos_std: s("ODOM_QUALITY.POS_STD")?,
+            heading_std: s("ODOM_QUALITY.HEADING_STD")?,
+            flags: [
+                s("ODOM_QUALITY.POSE_VALID")?,
+                s("ODOM_QUALITY.REAR_STALE")?,
+                s("ODOM_QUALITY.FRONT_STALE")?,
+                s("ODOM_QUALITY.STEER_STALE")?,
+                s("ODOM_QUALITY.COUNTER_FAULT")?,
+                s("ODOM_QUALITY.CHECKSUM_FAULT")?,
+                s("ODOM_QUALITY.GATE_REJECT")?,
+                s("ODOM_QUALITY.NOMINAL_PARAMS")?,
+            ],
+            version: s("ODOM_QUALITY.PARAM_VERSION")?,
+            counters: [
+                s("ODOM_POSITION.COUNTER")?,
+                s("ODOM_MOTION.COUNTER")?,
+                s("ODOM_QUALITY.COUNTER")?,
+            ],
+            crc: Checksum::rc_car(),
+            counter: 0,
+            db,
+        })
+    }
+
+    /// The database the frames are encoded with (for decoding them back).
+    pub fn database(&self) -> &Database {
+        &self.db
+    }
+
+    /// The three frames of one pose sample, sharing one counter value.
+    ///
+    /// # Errors
+    /// Never for the shipped DBC; see [`PoseEncodeError`].
+    pub fn encode(&mut self, pose: &PoseOutput) -> Result<[CanFrame; 3], PoseEncodeError> {
+        let mut bufs = [[0u8; 8]; 3];
+        // Position wraps beyond ±33.5 km (the DBC says so): raw two's complement.
+        put_wrapped(&self.x, pose.x_m / 0.001, &mut bufs[0]);
+        put_wrapped(&self.y, pose.y_m / 0.001, &mut bufs[0]);
+        put_clamped(&self.heading, pose.heading_rad, &mut bufs[1]);
+        put_clamped(&self.speed, pose.speed_mps, &mut bufs[1]);
+        put_clamped(&self.yaw_rate, pose.yaw_rate_radps, &mut bufs[1]);
+        put_clamped(&self.pos_std, pose.pos_std_m, &mut bufs[2]);
+        put_clamped(&self.heading_std, pose.heading_std_rad, &mut bufs[2]);
+        let f = pose.flags;
+        for (h, on) in self.flags.iter().zip([
+            f.pose_valid,
+            f.rear_stale,
+            f.front_stale,
+            f.steer_stale,
+            f.counter_fault,
+            f.checksum_fault,
+            f.gate_reject,
+            f.nominal_params,
+        ]) {
+            h.encode_raw(u64::from(on), &mut bufs[2]);
+        }
+        self.version
+            .encode_raw(u64::from(pose.param_version), &mut bufs[2]);
+        for (h, buf) in self.counters.iter().zip(bufs.iter_mut()) {
+            h.encode_raw(u64::from(self.counter), buf);
+            self.crc.apply(buf)?;
+        }
+        self.counter = (self.counter + 1) & 0x0F;
+        Ok([
+            CanFrame::new_data(self.ids[0], &bufs[0])?,
+            CanFrame::new_data(self.ids[1], &bufs[1])?,
+            CanFrame::new_data(self.ids[2], &bufs[2])?,
+        ])
+    }
+}
+
+fn put_wrapped(h: &SignalHandle, raw_scaled: f64, buf: &mut [u8]) {
+    let raw = if raw_scaled.is_finite() {
+        raw_scaled.round() as i64
+    } else {
+        0
+    };
+    h.encode_raw(raw as u64, buf);
+}
+
+fn put_clamped(h: &SignalHandle, value: f64, buf: &mut [u8]) {
+    let v = if value.is_finite() { value } else { 0.0 };
+    if !h.encode(v, buf) {
+        // Out of range: the nearest end of the signal's raw range.
+        let bits = h.size();
+        let signed = h.raw_to_scaled(1u64 << (bits - 1)) < 0.0;
+        let raw = match (signed, v > 0.0) {
+            (true, true) => (1u64 << (bits - 1)) - 1,
+            (true, false) => 1u64 << (bits - 1),
+            (false, true) => (1u64 << bits) - 1,
+            (false, false) => 0,
+        };
+        h.encode_raw(raw, buf);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::candump::Timestamp;
+    use crate::pipeline::PoseFlags;
+    use canodom_dbc::FrameId;
+
+    fn pose(x: f64) -> PoseOutput {
+        PoseOutput {
+            timestamp: Timestamp::from_micros(0),
+            x_m: x,
+            y_m: -2.5,
+            heading_rad: 1.0,
+            speed_mps: 0.1,
+            yaw_rate_radps: -0.2,
+            pos_std_m: 100.0,
+            heading_std_rad: 0.01,
+            flags: PoseFlags {
+                pose_valid: true,
+                gate_reject: true,
+                nominal_params: true,
+                ..PoseFlags::default()
+            },
+            param_version: 7,
+        }
+    }
+
+    #[test]
+    fn frames_decode_back_with_valid_counter_and_crc() {
+        let base = BaseId::new(0x700, false).unwrap();
+        let mut enc = PoseEncoder::new(base).unwrap();
+        let db = Database::parse(&dbc_for_base(base), "x").unwrap();
+        for k in 0..17u64 {
+            let frames = enc.encode(&pose(12.345)).unwrap();
+            for f in &frames {
+                assert!(Checksum::rc_car().verify(f.data()).unwrap());
+                let m = db
+                    .message_by_id(FrameId::standard(f.id().raw() as u16).unwrap())
+                    .unwrap();
+                let counter = m
+                    .decode(f.data())
+                    .unwrap()
+                    .find(|(s, _)| s.name() == "COUNTER");
+                assert_eq!(counter.unwrap().1, (k % 16) as f64);
+            }
+            assert_eq!(frames[0].id().raw(), 0x700);
+            let x = db.signal("ODOM_POSITION.POS_X").unwrap();
+            assert!((x.decode(frames[0].data()).unwrap() - 12.345).abs() < 1e-9);
+            let std = db.signal("ODOM_QUALITY.POS_STD").unwrap();
+            assert!((std.decode(frames[2].data()).unwrap() - 65.535).abs() < 1e-9);
+            let v = db.signal("ODOM_QUALITY.PARAM_VERSION").unwrap();
+            assert_eq!(v.decode(frames[2].data()), Some(7.0));
+            let g = db.signal("ODOM_QUALITY.GATE_REJECT").unwrap();
+            assert_eq!(g.decode(frames[2].data()), Some(1.0));
+        }
+    }
+
+    #[test]
+    fn position_wraps_beyond_its_range() {
+        let mut enc = PoseEncoder::new(BaseId::DEFAULT).unwrap();
+        let f = enc.encode(&pose(33_554.432 + 1.0)).unwrap();
+        let x = enc.database().signal("ODOM_POSITION.POS_X").unwrap();
+        assert!((x.decode(f[0].data()).unwrap() - (-33_554.432 + 1.0)).abs() < 1e-6);
+    }
+}

@@ -1,0 +1,458 @@
+//! The daemon proper (`canodom run`, and the far end of `canodom demo`):
+//! two tasks joined by a bounded channel, generic over the transport so the
+//! tests and the demo run this very code on the in-process bus.
+//!
+//! - [`LinkTask`] owns the connection: opens it with kernel filters for the
+//!   configured ids, forwards frames, and on an interface going down or away,
+//!   or a bus-off, logs, waits with exponential backoff (watching the
+//!   shutdown token) and reopens. It hands each new sending half to the
+//!   pipeline task through a `watch` channel (`None` while disconnected).
+//! - [`PipelineTask`] owns the [`Pipeline`]: feeds it every frame, publishes
+//!   the pose at the configured rate (and after each step with
+//!   `publish_on_update`, and on an `ODOM_CMD` PUBLISH_NOW request), logs one
+//!   line of statistics periodically, and pets the systemd watchdog.
+//!
+//! Shutdown (tokio's guide): one `CancellationToken` cloned into each task,
+//! watched at every await, tasks spawned on a `TaskTracker` that `run` closes
+//! and waits for under a timeout. On cancel the link task stops reading and
+//! drops its sender; the pipeline task drains every frame already queued
+//! before it returns, so nothing received is lost.
+
+use crate::bus::{BusError, BusEvent, FrameSink, FrameSource, IdFilter, InProcessBus, Received};
+use crate::candump::Timestamp;
+use crate::config::Config;
+use crate::frame::{CanFrame, CanId, ErrorSeverity};
+use crate::own_dbc::{OwnFrame, dbc_for_base};
+use crate::pipeline::{Pipeline, Step};
+use crate::pose_frames::PoseEncoder;
+use crate::sd_notify::Notifier;
+use crate::stats::Stats;
+use canodom_dbc::{Checksum, Database, SignalHandle};
+use canodom_fusion::ekf::State;
+use std::future::Future;
+use std::sync::Arc;
+use std::time::Duration;
+use tokio::sync::{mpsc, watch};
+use tokio::time::{Instant, MissedTickBehavior};
+use tokio_util::sync::CancellationToken;
+use tokio_util::task::TaskTracker;
+use tracing::{debug, error, info, instrument, warn};
+
+/// Opens the transport (SocketCAN on a vehicle, the in-process bus in tests).
+pub trait Connector: Send + Sync + 'static {
+    /// Receiving half.
+    type Rx: FrameSource + 'static;
+    /// Sending half.
+    type Tx: FrameSink + Clone + 'static;
+    /// Opens an endpoint with these receive filters.
+    ///
+    /// # Errors
+    /// The interface is missing, down, or refused an option.
+    fn connect(&self, filters: &[IdFilter]) -> Result<(Self::Rx, Self::Tx), BusError>;
+    /// Interface name for logs.
+    fn name(&self) -> String;
+}
+
+impl Connector for InProcessBus {
+    type Rx = crate::bus::InProcessRx;
+    type Tx = crate::bus::InProcessTx;
+    fn connect(&self, filters: &[IdFilter]) -> Result<(Self::Rx, Self::Tx), BusError> {
+        let (mut rx, tx) = self.open()?;
+        rx.set_filters(filters)?;
+        Ok((rx, tx))
+    }
+    fn name(&self) -> String {
+        "in-process".to_owned()
+    }
+}
+
+/// SocketCAN on a named interface.
+#[derive(Clone, Debug)]
+pub struct SocketCan {
+    /// Interface name, e.g. `can0`.
+    pub iface: String,
+}
+
+impl Connector for SocketCan {
+    type Rx = crate::bus::SocketCanRx;
+    type Tx = crate::bus::SocketCanTx;
+    fn connect(&self, filters: &[IdFilter]) -> Result<(Self::Rx, Self::Tx), BusError> {
+        crate::bus::open_socketcan(&self.iface, filters)
+    }
+    fn name(&self) -> String {
+        self.iface.clone()
+    }
+}
+
+/// What `run` hands back when it stops.
+#[derive(Clone, Debug)]
+pub struct Summary {
+    /// Pipeline statistics.
+    pub stats: Stats,
+    /// The filter's final state (bit-for-bit comparison with replay).
+    pub state: State,
+    /// The last filter step.
+    pub last_step: Option<Step>,
+    /// Pose samples published.
+    pub poses_published: u64,
+    /// Frames the transport reported lost.
+    pub frames_lost: u64,
+    /// Connections opened (1 + reconnects).
+    pub connections: u64,
+}
+
+/// Why the daemon stopped abnormally.
+#[derive(Debug, thiserror::Error)]
+pub enum RunError {
+    /// The pipeline could not be built.
+    #[error("pipeline: {0}")]
+    Pipeline(#[from] canodom_fusion::Error),
+    /// The pose encoder could not be built.
+    #[error("{0}")]
+    Encoder(#[from] crate::pose_frames::PoseEncodeError),
+    /// The transport failed for good.
+    #[error("{0}")]
+    Bus(#[from] BusError),
+    /// A task panicked or did not stop in time.
+    #[error("task: {0}")]
+    Task(String),
+}
+
+/// Optional observers (the demo's display, tests).
+#[derive(Clone, Debug, Default)]
+pub struct Observers {
+    /// Receives every filter step (latest value only).
+    pub steps: Option<watch::Sender<Option<Step>>>,
+    /// Receives the pipeline statistics after every frame batch.
+    pub stats: Option<watch::Sender<Stats>>,
+}
+
+enum LinkEvent {
+    Frame(Received),
+    Lost(u64),
+}
+
+/// Backoff bounds for reopening the interface.
+const BACKOFF_MIN: Duration = Duration::from_millis(100);
+const BACKOFF_MAX: Duration = Duration::from_secs(5);
+
+/// Runs the daemon until `shutdown` completes or the transport fails for good.
+///
+/// # Errors
+/// [`RunError`].
+pub async fn run<C: Connector>(
+    config: Arc<Config>,
+    connector: C,
+    shutdown: impl Future<Output = ()>,
+    observers: Observers,
+) -> Result<Summary, RunError> {
+    let token = CancellationToken::new();
+    let tracker = TaskTracker::new();
+    let pipeline = Pipeline::new(&config)?;
+    let encoder = PoseEncoder::new(config.output.base_id)?;
+    let cmd_id = OwnFrame::OdomCmd.id(config.output.base_id);
+    let mut filters: Vec<IdFilter> = config
+        .input_ids()
+        .into_iter()
+        .map(|id| {
+            IdFilter::exact(if id.is_extended() {
+                CanId::Extended(id.raw())
+            } else {
+                CanId::Standard(id.raw() as u16)
+            })
+        })
+        .collect();
+    filters.push(IdFilter::exact(cmd_id));
+    let notifier = match Notifier::from_env() {
+        Ok(n) => n,
+        Err(e) => {
+            warn!(cause = %e, "sd_notify socket unusable; running without systemd notifications");
+            None
+        }
+    };
+
+    let (frames_tx, frames_rx) = mpsc::channel(1024);
+    let (sink_tx, sink_rx) = watch::channel(None);
+    let link = LinkTask {
+        connector,
+        filters,
+        frames: frames_tx,
+        sink: sink_tx,
+        token: token.clone(),
+    };
+    let link_handle = tracker.spawn(link.run());
+    let own_db = Database::parse(&dbc_for_base(config.output.base_id), "canodom.dbc")
+        .map_err(crate::pose_frames::PoseEncodeError::from)?;
+    let request = own_db
+        .signal("ODOM_CMD.ODOM_REQUEST")
+        .map_err(crate::pose_frames::PoseEncodeError::from)?;
+    let task = PipelineTask {
+        pipeline,
+        encoder,
+        frames: frames_rx,
+        sink: sink_rx,
+        token: token.clone(),
+        pose_period: Duration::from_secs_f64(1.0 / config.output.pose_rate_hz),
+        stats_period: Duration::from_secs_f64(config.output.stats_interval_s),
+        publish_on_update: config.output.publish_on_update,
+        cmd_id,
+        request,
+        notifier,
+        observers,
+        clock: None,
+        published: 0,
+        lost: 0,
+    };
+    let pipeline_handle = tracker.spawn(task.run());
+    tracker.close();
+
+    tokio::select! {
+        () = shutdown => info!("shutdown requested"),
+        () = token.cancelled() => {}
+    }
+    token.cancel();
+    if tokio::time::timeout(Duration::from_secs(5), tracker.wait())
+        .await
+        .is_err()
+    {
+        return Err(RunError::Task("tasks did not stop within 5 s".into()));
+    }
+    let connections = link_handle
+        .await
+        .map_err(|e| RunError::Task(e.to_string()))??;
+    let mut summary = pipeline_handle
+        .await
+        .map_err(|e| RunError::Task(e.to_string()))?;
+    summary.connections = connections;
+    Ok(summary)
+}
+
+/// Owns the connection (see the module doc).
+struct LinkTask<C: Connector> {
+    connector: C,
+    filters: Vec<IdFilter>,
+    /// Bounded: a slow pipeline slows the reader, and the kernel queue (or
+    /// the in-process bus) counts what overflows as lost.
+    frames: mpsc::Sender<LinkEvent>,
+    sink: watch::Sender<Option<C::Tx>>,
+    token: CancellationToken,
+}
+
+impl<C: Connector> LinkTask<C> {
+    #[instrument(skip(self), fields(iface = %self.connector.name()))]
+    async fn run(self) -> Result<u64, BusError> {
+        let mut backoff = BACKOFF_MIN;
+        let mut connections = 0u64;
+        loop {
+            if self.token.is_cancelled() {
+                return Ok(connections);
+            }
+            match self.connector.connect(&self.filters) {
+                Ok((mut rx, tx)) => {
+                    connections += 1;
+                    info!(connections, "CAN interface open");
+                    self.sink.send_replace(Some(tx));
+                    let outcome = self.pump(&mut rx).await;
+                    self.sink.send_replace(None);
+                    match outcome {
+                        Ok(true) => return Ok(connections),
+                        Ok(false) => backoff = BACKOFF_MIN,
+                        Err(e) if e.is_transient() => {
+                            warn!(cause = %e, "CAN interface lost; reopening");
+                            backoff = BACKOFF_MIN;
+                        }
+                        Err(e) => {
+                            error!(cause = %e, "CAN transport failed for good");
+                            self.token.cancel();
+                            return Err(e);
+                        }
+                    }
+                }
+                Err(e) if e.is_transient() => {
+                    warn!(cause = %e, retry_in_ms = backoff.as_millis() as u64, "cannot open CAN interface");
+                }
+                Err(e) => {
+                    error!(cause = %e, "cannot open CAN interface");
+                    self.token.cancel();
+                    return Err(e);
+                }
+            }
+            // The token is watched during the backoff too: SIGTERM is never
+            // held up by a missing interface.
+            tokio::select! {
+                () = self.token.cancelled() => return Ok(connections),
+                () = tokio::time::sleep(backoff) => {}
+            }
+            backoff = (backoff * 2).min(BACKOFF_MAX);
+        }
+    }
+
+    /// Forwards events; `Ok(true)` on shutdown, `Ok(false)` on bus-off (reopen).
+    async fn pump(&self, rx: &mut C::Rx) -> Result<bool, BusError> {
+        loop {
+            let event = tokio::select! {
+                () = self.token.cancelled() => return Ok(true),
+                event = rx.recv() => event?,
+            };
+            let out = match event {
+                BusEvent::Frame(r) => LinkEvent::Frame(r),
+                BusEvent::Lost { count } => {
+                    warn!(count, "frames lost: the pipeline fell behind");
+                    LinkEvent::Lost(count)
+                }
+                BusEvent::Error { error, .. } => {
+                    let severity = error.severity();
+                    if severity == ErrorSeverity::BusOff {
+                        warn!("CAN controller bus-off; reopening after a backoff");
+                        return Ok(false);
+                    }
+                    debug!(error = severity.as_str(), "CAN error frame");
+                    continue;
+                }
+            };
+            tokio::select! {
+                () = self.token.cancelled() => return Ok(true),
+                sent = self.frames.send(out) => if sent.is_err() { return Ok(true) },
+            }
+        }
+    }
+}
+
+/// Owns the pipeline (see the module doc).
+struct PipelineTask<Tx> {
+    pipeline: Pipeline,
+    encoder: PoseEncoder,
+    frames: mpsc::Receiver<LinkEvent>,
+    sink: watch::Receiver<Option<Tx>>,
+    token: CancellationToken,
+    pose_period: Duration,
+    stats_period: Duration,
+    publish_on_update: bool,
+    cmd_id: CanId,
+    request: SignalHandle,
+    notifier: Option<Notifier>,
+    observers: Observers,
+    /// Last frame's bus timestamp and when it arrived: the pose flags are
+    /// judged on the bus clock, whatever clock this process runs on.
+    clock: Option<(Timestamp, Instant)>,
+    published: u64,
+    lost: u64,
+}
+
+impl<Tx: FrameSink + Clone> PipelineTask<Tx> {
+    #[instrument(skip(self))]
+    async fn run(mut self) -> Summary {
+        let mut pose_tick = tokio::time::interval(self.pose_period);
+        pose_tick.set_missed_tick_behavior(MissedTickBehavior::Delay);
+        let mut stats_tick = tokio::time::interval(self.stats_period);
+        stats_tick.set_missed_tick_behavior(MissedTickBehavior::Delay);
+        stats_tick.tick().await;
+        let watchdog = self.notifier.as_ref().and_then(Notifier::watchdog_interval);
+        let mut watchdog_tick =
+            tokio::time::interval(watchdog.unwrap_or(Duration::from_secs(3600)));
+        if let Some(n) = &self.notifier
+            && let Err(e) = n.ready("canodom running")
+        {
+            warn!(cause = %e, "sd_notify READY failed");
+        }
+        let mut last_stats = *self.pipeline.stats();
+        let mut last_stats_at = Instant::now();
+        loop {
+            tokio::select! {
+                biased;
+                event = self.frames.recv() => match event {
+                    Some(event) => self.handle(event).await,
+                    None => break,
+                },
+                _ = pose_tick.tick() => self.publish().await,
+                _ = stats_tick.tick() => {
+                    let s = *self.pipeline.stats();
+                    let secs = last_stats_at.elapsed().as_secs_f64().max(1e-9);
+                    info!(
+                        fps = format!("{:.1}", (s.frames - last_stats.frames) as f64 / secs),
+                        stats = %s, lost = self.lost, poses = self.published,
+                        "statistics"
+                    );
+                    last_stats = s;
+                    last_stats_at = Instant::now();
+                }
+                _ = watchdog_tick.tick(), if watchdog.is_some() => {
+                    if let Some(n) = &self.notifier { let _ = n.watchdog(); }
+                }
+                () = self.token.cancelled() => {
+                    // Drain what the link task already queued: nothing received is lost.
+                    while let Ok(event) = self.frames.try_recv() {
+                        self.handle(event).await;
+                    }
+                    break;
+                }
+            }
+        }
+        if let Some(n) = &self.notifier {
+            let _ = n.stopping();
+        }
+        info!(stats = %self.pipeline.stats(), "pipeline stopped");
+        Summary {
+            stats: *self.pipeline.stats(),
+            state: *self.pipeline.state(),
+            last_step: self.pipeline.last_step(),
+            poses_published: self.published,
+            frames_lost: self.lost,
+            connections: 0,
+        }
+    }
+
+    async fn handle(&mut self, event: LinkEvent) {
+        match event {
+            LinkEvent::Lost(n) => self.lost += n,
+            LinkEvent::Frame(r) => {
+                self.clock = Some((r.timestamp, Instant::now()));
+                if r.frame.id() == self.cmd_id {
+                    self.command(&r.frame).await;
+                    return;
+                }
+                let step = self.pipeline.push(r.timestamp, &r.frame);
+                if let Some(step) = step {
+                    if let Some(w) = &self.observers.steps {
+                        w.send_replace(Some(step));
+                    }
+                    if self.publish_on_update {
+                        self.publish().await;
+                    }
+                }
+                if let Some(w) = &self.observers.stats {
+                    w.send_replace(*self.pipeline.stats());
+                }
+            }
+        }
+    }
+
+    /// `ODOM_CMD`: PUBLISH_NOW (1) publishes at once; frames failing the CRC are ignored.
+    async fn command(&mut self, frame: &CanFrame) {
+        if !Checksum::rc_car().verify(frame.data()).unwrap_or(false) {
+            warn!("ODOM_CMD with a bad checksum ignored");
+            return;
+        }
+        if self.request.decode(frame.data()) == Some(1.0) {
+            self.publish().await;
+        }
+    }
+
+    async fn publish(&mut self) {
+        let Some((t, at)) = self.clock else { return };
+        let now = Timestamp::from_micros(t.as_micros() + at.elapsed().as_micros() as u64);
+        let pose = self.pipeline.pose_output(now);
+        let Ok(frames) = self.encoder.encode(&pose) else {
+            return;
+        };
+        let tx = self.sink.borrow().clone();
+        let Some(tx) = tx else { return };
+        for f in &frames {
+            if let Err(e) = tx.send(f).await {
+                debug!(cause = %e, "pose frame not sent");
+                return;
+            }
+        }
+        self.published += 1;
+    }
+}

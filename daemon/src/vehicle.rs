@@ -1,0 +1,265 @@
+//! A simulated vehicle on the bus: the fusion crate's simulator, its samples
+//! encoded with the configured DBC into the configured input messages, with
+//! valid rolling counters and checksums. Used by `simulate`, `demo` and the
+//! tests, so every frame the daemon reads in a test is one a real ECU with
+//! that DBC could have sent.
+
+use crate::config::{Config, SteeringKind, WheelKind};
+use crate::frame::{CanFrame, CanId};
+use canodom_dbc::{Checksum, SignalHandle};
+use canodom_fusion::sim::{Direction, Plan, SimConfig, SteeringSensor, WheelOutput};
+use canodom_fusion::{SteeringMap, VehicleParams, Wheel};
+use serde::Deserialize;
+use std::path::Path;
+
+/// The drives `simulate --path` offers.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum PathKind {
+    /// The calibration track, clockwise.
+    TrackCw,
+    /// The calibration track, counter-clockwise.
+    TrackCcw,
+    /// One circle to the left.
+    Circle,
+    /// A left circle then a right circle.
+    FigureEight,
+    /// A random smooth drive (seeded).
+    Random,
+}
+
+impl PathKind {
+    /// The plan, sized for the vehicle: metres for a 1:10 car (ticks), tens of
+    /// metres for a road car (speeds).
+    ///
+    /// # Errors
+    /// The fusion crate refused the plan.
+    pub fn plan(self, road_scale: bool, seed: u64) -> canodom_fusion::Result<Plan> {
+        let k = if road_scale { 20.0 } else { 1.0 };
+        match self {
+            Self::TrackCw => Plan::track(0.78 * k, Direction::Cw, 1),
+            Self::TrackCcw => Plan::track(0.78 * k, Direction::Ccw, 1),
+            Self::Circle => Plan::circle(1.0 * k, Direction::Ccw, 1.0),
+            Self::FigureEight => Plan::figure_eight(1.0 * k),
+            Self::Random if road_scale => Plan::road_drive(seed),
+            Self::Random => Plan::random_drive(seed, 20.0, 0.5),
+        }
+    }
+}
+
+/// The true vehicle as `--true-params FILE` gives it (TOML); keys left out
+/// take the configuration's nominal values.
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TrueParamsFile {
+    wheelbase_m: Option<f64>,
+    rear_tread_m: Option<f64>,
+    front_tread_m: Option<f64>,
+    rear_left_diameter_m: Option<f64>,
+    rear_right_diameter_m: Option<f64>,
+    front_left_diameter_m: Option<f64>,
+    front_right_diameter_m: Option<f64>,
+    /// Multiplies the configured steering map's gain.
+    steering_gain_factor: Option<f64>,
+    /// Road-wheel angle at a zero steering signal, degrees.
+    steering_offset_deg: Option<f64>,
+}
+
+/// A `--true-params` file that cannot be used.
+#[derive(Debug, thiserror::Error)]
+#[error("{file}: {message}")]
+pub struct TrueParamsError {
+    file: String,
+    message: String,
+}
+
+impl TrueParamsFile {
+    /// Reads and parses `path`.
+    ///
+    /// # Errors
+    /// Unreadable file, bad TOML or unknown key.
+    pub fn load(path: &Path) -> Result<Self, TrueParamsError> {
+        let err = |message: String| TrueParamsError {
+            file: path.display().to_string(),
+            message,
+        };
+        let text = std::fs::read_to_string(path).map_err(|e| err(e.to_string()))?;
+        toml::from_str(&text).map_err(|e| err(e.to_string()))
+    }
+
+    /// The true parameters: these values over the configuration's nominal ones.
+    ///
+    /// # Errors
+    /// A value the fusion crate refuses (names the parameter).
+    pub fn apply(&self, nominal: &VehicleParams) -> canodom_fusion::Result<VehicleParams> {
+        let d = nominal.wheel_diameters_m();
+        let map = nominal.steering();
+        VehicleParams::new(
+            self.wheelbase_m.unwrap_or(nominal.wheelbase_m()),
+            self.rear_tread_m.unwrap_or(nominal.rear_tread_m()),
+            self.front_tread_m.unwrap_or(nominal.front_tread_m()),
+            canodom_fusion::WheelSet {
+                rear_left: self.rear_left_diameter_m.unwrap_or(d.rear_left),
+                rear_right: self.rear_right_diameter_m.unwrap_or(d.rear_right),
+                front_left: self.front_left_diameter_m.unwrap_or(d.front_left),
+                front_right: self.front_right_diameter_m.unwrap_or(d.front_right),
+            },
+            nominal.encoder_ticks_per_rev(),
+            SteeringMap {
+                gain: map.gain * self.steering_gain_factor.unwrap_or(1.0),
+                offset_rad: self
+                    .steering_offset_deg
+                    .map_or(map.offset_rad, f64::to_radians),
+            },
+        )
+    }
+}
+
+/// The simulator configuration matching the configured inputs: counter width,
+/// speed unit and quantum, steering quantum taken from the DBC.
+pub fn sim_config(config: &Config, true_params: VehicleParams) -> SimConfig {
+    let s = &config.signals;
+    let steer_quantum = s
+        .steering_fine
+        .map_or_else(
+            || s.steering.handle.raw_to_scaled(1) - s.steering.handle.raw_to_scaled(0),
+            |f| f.raw_to_scaled(1) - f.raw_to_scaled(0),
+        )
+        .abs();
+    match s.wheel_kind {
+        WheelKind::Ticks => {
+            let mut c = SimConfig::rc_car(true_params);
+            c.wheel_output.counter_bits = s.tick_bits;
+            c.steering_sensor.quantum = steer_quantum;
+            c
+        }
+        WheelKind::Speed(unit) => {
+            let sensor = SteeringSensor {
+                quantum: steer_quantum,
+                ..SteeringSensor::EXACT
+            };
+            let mut c = SimConfig::road_car(true_params, sensor);
+            let h = s.wheels.rear_left.handle;
+            c.wheel_output = WheelOutput {
+                speed_unit: unit,
+                speed_quantum: (h.raw_to_scaled(1) - h.raw_to_scaled(0)).abs(),
+                ..c.wheel_output
+            };
+            if s.steering_kind == SteeringKind::RoadWheel {
+                c.speed_mps = c.speed_mps.min(3.0);
+            }
+            c
+        }
+    }
+}
+
+struct OutMessage {
+    id: CanId,
+    length: usize,
+    wheels: Vec<(Wheel, SignalHandle)>,
+    steering: bool,
+    counter: Option<SignalHandle>,
+    counter_value: u64,
+    checksum: Option<Checksum>,
+}
+
+/// Encodes simulator samples into the configured input frames.
+pub struct SampleEncoder {
+    messages: Vec<OutMessage>,
+    steering: SignalHandle,
+    steering_fine: Option<SignalHandle>,
+    ticks: bool,
+}
+
+impl SampleEncoder {
+    /// An encoder for `config`'s input messages, in the order steering,
+    /// front, rear (a reader then steps with this sample's front and steering).
+    pub fn new(config: &Config) -> Self {
+        let s = &config.signals;
+        let db = &config.db;
+        let mut order = vec![
+            s.steering.message_index,
+            s.wheels.front_left.message_index,
+            s.wheels.rear_left.message_index,
+        ];
+        order.dedup();
+        let mut seen = Vec::new();
+        order.retain(|i| {
+            let new = !seen.contains(i);
+            seen.push(*i);
+            new
+        });
+        let messages = order
+            .into_iter()
+            .map(|idx| {
+                let m = &db.messages()[idx];
+                let check = config.checks.iter().find(|c| c.message_index == idx);
+                let wheels = Wheel::ALL
+                    .iter()
+                    .filter(|&&w| s.wheels[w].message_index == idx)
+                    .map(|&w| (w, s.wheels[w].handle))
+                    .collect();
+                let id = m.id();
+                OutMessage {
+                    id: if id.is_extended() {
+                        CanId::Extended(id.raw())
+                    } else {
+                        CanId::Standard(id.raw() as u16)
+                    },
+                    length: m.length(),
+                    wheels,
+                    steering: s.steering.message_index == idx,
+                    counter: check.and_then(|c| c.counter),
+                    counter_value: 0,
+                    checksum: check.and_then(|c| c.checksum.clone()),
+                }
+            })
+            .collect();
+        Self {
+            messages,
+            steering: s.steering.handle,
+            steering_fine: s.steering_fine,
+            ticks: s.wheel_kind == WheelKind::Ticks,
+        }
+    }
+
+    /// The frames of one sample, appended to `out`.
+    pub fn encode(&mut self, sample: &canodom_fusion::sim::Sample, out: &mut Vec<CanFrame>) {
+        for m in &mut self.messages {
+            let mut buf = [0u8; 64];
+            let data = &mut buf[..m.length];
+            for &(w, h) in &m.wheels {
+                if self.ticks {
+                    h.encode_raw(sample.ticks[w], data);
+                } else if !h.encode(sample.wheel_speed[w], data) {
+                    // Beyond the signal's range: send its largest magnitude.
+                    h.encode(sample.wheel_speed[w].clamp(-300.0, 300.0), data);
+                }
+            }
+            if m.steering {
+                let u = sample.steer_signal;
+                match self.steering_fine {
+                    None => {
+                        self.steering.encode(u, data);
+                    }
+                    Some(fine) => {
+                        let step = self.steering.raw_to_scaled(1) - self.steering.raw_to_scaled(0);
+                        let coarse = (u / step).round() * step;
+                        self.steering.encode(coarse, data);
+                        fine.encode(u - coarse, data);
+                    }
+                }
+            }
+            if let Some(c) = m.counter {
+                c.encode_raw(m.counter_value, data);
+                m.counter_value = m.counter_value.wrapping_add(1);
+            }
+            if let Some(crc) = &m.checksum {
+                // The configured layout fits the message (checked at load).
+                let _ = crc.apply(data);
+            }
+            if let Ok(f) = CanFrame::new_data(m.id, data) {
+                out.push(f);
+            }
+        }
+    }
+}
