@@ -511,12 +511,12 @@ fn propagate_with(
     // B = [[c, −(Δd/2) s], [s, (Δd/2) c], [0, 1]]; B Q Bᵀ entry by entry.
     let (q11, q12, q22) = (q[(0, 0)], 0.5 * (q[(0, 1)] + q[(1, 0)]), q[(1, 1)]);
     let (b11, b12, b21, b22) = (c, 0.5 * ax, s, 0.5 * ay);
-    let bq = |r1: f64, r2: f64, t1: f64, t2: f64| {
-        r1 * (q11 * t1 + q12 * t2) + r2 * (q12 * t1 + q22 * t2)
-    };
-    let m00 = p[(0, 0)] + 2.0 * ax * cx + cz * ax * ax + bq(b11, b12, b11, b12);
-    let m01 = p[(0, 1)] + ax * cy + ay * cx + cz * ax * ay + bq(b11, b12, b21, b22);
-    let m11 = p[(1, 1)] + 2.0 * ay * cy + cz * ay * ay + bq(b21, b22, b21, b22);
+    // Q times B's first two rows, shared by the three x-y entries of B Q Bᵀ.
+    let (t11, t12) = (q11 * b11 + q12 * b12, q12 * b11 + q22 * b12);
+    let (t21, t22) = (q11 * b21 + q12 * b22, q12 * b21 + q22 * b22);
+    let m00 = p[(0, 0)] + 2.0 * ax * cx + cz * ax * ax + (b11 * t11 + b12 * t12);
+    let m01 = p[(0, 1)] + ax * cy + ay * cx + cz * ax * ay + (b11 * t21 + b12 * t22);
+    let m11 = p[(1, 1)] + 2.0 * ay * cy + cz * ay * ay + (b21 * t21 + b22 * t22);
     let m02 = cx + ax * cz + b12 * q22 + b11 * q12;
     let m12 = cy + ay * cz + b22 * q22 + b21 * q12;
     let m22 = cz + q22;
@@ -616,27 +616,18 @@ fn compose(anchor: &Vec3, (c, s): (f64, f64), w: &Vec3) -> Vec3 {
 ///
 /// Written out: `J_a = I + a e₃ᵀ` with `a = (−Δy, Δx, 0)` (as the prediction's
 /// `A`) and `R` a rotation of the x-y block, so both terms are a few products.
+/// Only the upper triangles are read: every covariance here is built
+/// symmetric entry by entry (`State::new` symmetrises the caller's).
 fn compose_covariance(p_a: &Mat3, (c, s): (f64, f64), w: &Vec3, p_w: &Mat3) -> Mat3 {
     let dx = c * w.x - s * w.y;
     let dy = s * w.x + c * w.y;
     let (ax, ay) = (-dy, dx);
-    let (cx, cy, cz) = (
-        0.5 * (p_a[(0, 2)] + p_a[(2, 0)]),
-        0.5 * (p_a[(1, 2)] + p_a[(2, 1)]),
-        p_a[(2, 2)],
-    );
+    let (cx, cy, cz) = (p_a[(0, 2)], p_a[(1, 2)], p_a[(2, 2)]);
     let (a11, a22, a33) = (p_w[(0, 0)], p_w[(1, 1)], p_w[(2, 2)]);
-    let a12 = 0.5 * (p_w[(0, 1)] + p_w[(1, 0)]);
-    let a13 = 0.5 * (p_w[(0, 2)] + p_w[(2, 0)]);
-    let a23 = 0.5 * (p_w[(1, 2)] + p_w[(2, 1)]);
+    let (a12, a13, a23) = (p_w[(0, 1)], p_w[(0, 2)], p_w[(1, 2)]);
     let (cc, ss, cs) = (c * c, s * s, c * s);
     let xx = p_a[(0, 0)] + 2.0 * ax * cx + cz * ax * ax + cc * a11 - 2.0 * cs * a12 + ss * a22;
-    let xy = 0.5 * (p_a[(0, 1)] + p_a[(1, 0)])
-        + ax * cy
-        + ay * cx
-        + cz * ax * ay
-        + cs * (a11 - a22)
-        + (cc - ss) * a12;
+    let xy = p_a[(0, 1)] + ax * cy + ay * cx + cz * ax * ay + cs * (a11 - a22) + (cc - ss) * a12;
     let yy = p_a[(1, 1)] + 2.0 * ay * cy + cz * ay * ay + ss * a11 + 2.0 * cs * a12 + cc * a22;
     let xz = cx + ax * cz + c * a13 - s * a23;
     let yz = cy + ay * cz + s * a13 + c * a23;
@@ -652,16 +643,30 @@ fn compose_covariance(p_a: &Mat3, (c, s): (f64, f64), w: &Vec3, p_w: &Mat3) -> M
 /// result is symmetric, so only its six distinct entries are formed from
 /// `(I−K)P` and `KR`, and it is symmetric by construction.
 fn joseph(K: &Mat3, P: &Mat3, R: &Mat3) -> Mat3 {
-    let I_K = Mat3::identity() - K;
-    let (MP, KR) = (I_K * P, K * R);
+    // Plain arrays (row-major here): nalgebra's operators copied whole
+    // matrices between the products.
+    let k = |i: usize, j: usize| K[(i, j)];
+    let m = |i: usize, j: usize| if i == j { 1.0 - k(i, j) } else { -k(i, j) };
+    let (mut mp, mut kr) = ([[0.0; 3]; 3], [[0.0; 3]; 3]);
+    for i in 0..3 {
+        for j in 0..3 {
+            mp[i][j] = m(i, 0) * P[(0, j)] + m(i, 1) * P[(1, j)] + m(i, 2) * P[(2, j)];
+            kr[i][j] = k(i, 0) * R[(0, j)] + k(i, 1) * R[(1, j)] + k(i, 2) * R[(2, j)];
+        }
+    }
     let entry = |i: usize, j: usize| {
-        MP[(i, 0)] * I_K[(j, 0)]
-            + MP[(i, 1)] * I_K[(j, 1)]
-            + MP[(i, 2)] * I_K[(j, 2)]
-            + (KR[(i, 0)] * K[(j, 0)] + KR[(i, 1)] * K[(j, 1)] + KR[(i, 2)] * K[(j, 2)])
+        mp[i][0] * m(j, 0)
+            + mp[i][1] * m(j, 1)
+            + mp[i][2] * m(j, 2)
+            + (kr[i][0] * k(j, 0) + kr[i][1] * k(j, 1) + kr[i][2] * k(j, 2))
     };
     let (xx, xy, xz) = (entry(0, 0), entry(0, 1), entry(0, 2));
     let (yy, yz, zz) = (entry(1, 1), entry(1, 2), entry(2, 2));
+    Mat3::new(xx, xy, xz, xy, yy, yz, xz, yz, zz)
+}
+
+/// The symmetric matrix with this upper triangle.
+fn symmetric(xx: f64, xy: f64, xz: f64, yy: f64, yz: f64, zz: f64) -> Mat3 {
     Mat3::new(xx, xy, xz, xy, yy, yz, xz, yz, zz)
 }
 
@@ -904,7 +909,8 @@ impl Ekf {
         st.window_front_m = 0.0;
         st.window_len = 0;
         st.window_front_ok = true;
-        if st.anchor.iter().any(|v| !v.is_finite()) || st.p_anchor.iter().any(|v| !v.is_finite()) {
+        // A NaN or infinity anywhere makes the sum non-finite: one check, not twelve.
+        if !(st.anchor.sum() + st.p_anchor.sum()).is_finite() {
             return Err(Error::Numerical {
                 context: "EKF correction",
             });
@@ -918,12 +924,31 @@ impl Ekf {
         nu.z = wrap_angle(nu.z);
         // A tiny floor keeps S invertible when the car stood still all window.
         let v = st.front_bias_sens;
-        let p_front = st.p_front_w + v * v.transpose() * self.k.steer_bias_var;
-        let S = st.p_rear_w + p_front + Mat3::identity() * 1e-15;
+        // P_front + σ_b² v vᵀ and S, entry by entry on the upper triangle
+        // (nalgebra's operators form all nine entries of each term).
+        let u = v * self.k.steer_bias_var;
+        let (pf, pr) = (&st.p_front_w, &st.p_rear_w);
+        let pf_xy = pf[(0, 1)] + u.x * v.y;
+        let pf_xz = pf[(0, 2)] + u.x * v.z;
+        let pf_yz = pf[(1, 2)] + u.y * v.z;
+        let (pf_xx, pf_yy, pf_zz) = (
+            pf[(0, 0)] + u.x * v.x,
+            pf[(1, 1)] + u.y * v.y,
+            pf[(2, 2)] + u.z * v.z,
+        );
+        let p_front = symmetric(pf_xx, pf_xy, pf_xz, pf_yy, pf_yz, pf_zz);
+        let S = symmetric(
+            pr[(0, 0)] + pf_xx + 1e-15,
+            pr[(0, 1)] + pf_xy,
+            pr[(0, 2)] + pf_xz,
+            pr[(1, 1)] + pf_yy + 1e-15,
+            pr[(1, 2)] + pf_yz,
+            pr[(2, 2)] + pf_zz + 1e-15,
+        );
         let S_inv = symmetric_inverse(&S).ok_or(Error::Numerical {
             context: "innovation covariance",
         })?;
-        let d2 = (nu.transpose() * S_inv * nu)[(0, 0)];
+        let d2 = nu.dot(&(S_inv * nu));
         st.last_mahalanobis_sq = if d2.is_finite() { d2 } else { 0.0 };
         if let Some(threshold) = self.cfg.gate_threshold
             && d2 > threshold
