@@ -109,7 +109,6 @@ pub fn write_log(
                     direction: None,
                 },
             );
-            line.push(b'\n');
             out.write_all(&line)?;
             n += 1;
         }

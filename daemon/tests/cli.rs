@@ -1,0 +1,197 @@
+//! Every command through the real binary.
+
+use crate::util::{csv_rows, manifest, rc_car_toml, tmp_dir};
+use std::io::Write as _;
+use std::process::{Command, Output};
+
+fn canodom(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_canodom"))
+        .args(args)
+        .current_dir(manifest())
+        .output()
+        .unwrap()
+}
+
+fn ok(args: &[&str]) -> (String, String) {
+    let out = canodom(args);
+    let (so, se) = (
+        String::from_utf8(out.stdout).unwrap(),
+        String::from_utf8(out.stderr).unwrap(),
+    );
+    assert!(out.status.success(), "{args:?} failed:\n{se}");
+    (so, se)
+}
+
+#[test]
+fn every_command_has_help_with_an_example() {
+    for cmd in ["run", "decode", "replay", "simulate", "demo"] {
+        let (help, _) = ok(&[cmd, "--help"]);
+        assert!(help.contains("Example"), "{cmd} --help:\n{help}");
+        assert!(
+            help.contains(&format!("canodom {cmd}")) || cmd == "demo",
+            "{help}"
+        );
+    }
+}
+
+#[test]
+fn simulate_decode_replay_round_trip() {
+    let dir = tmp_dir("cli");
+    let log = dir.join("drive.log");
+    let truth = dir.join("truth.csv");
+    let pose = dir.join("pose.csv");
+    let cfg = rc_car_toml();
+    let cfg = cfg.to_str().unwrap();
+    let (_, se) = ok(&[
+        "simulate",
+        "--config",
+        cfg,
+        "--log",
+        log.to_str().unwrap(),
+        "--path",
+        "figure-eight",
+        "--seed",
+        "4",
+        "--truth",
+        truth.to_str().unwrap(),
+    ]);
+    assert!(se.contains("true end pose"), "{se}");
+
+    // decode: one JSON object per frame, the issue's shape.
+    let (json, se) = ok(&[
+        "decode",
+        "--dbc",
+        "../../shared/dbc/rc_car.dbc",
+        log.to_str().unwrap(),
+    ]);
+    let lines: Vec<&str> = json.lines().collect();
+    let log_lines = std::fs::read_to_string(&log).unwrap().lines().count();
+    assert_eq!(lines.len(), log_lines, "{se}");
+    let first: serde_json::Value = serde_json::from_str(lines[0]).unwrap();
+    assert_eq!(first["t"], serde_json::json!(1_700_000_000.0));
+    assert_eq!(first["iface"], "vcan0");
+    assert_eq!(first["extended"], false);
+    assert!(first["id"].is_u64() && first["name"].is_string());
+    let rear = lines
+        .iter()
+        .map(|l| serde_json::from_str::<serde_json::Value>(l).unwrap())
+        .find(|v| v["name"] == "WHEEL_ENC_REAR")
+        .unwrap();
+    assert_eq!(rear["id"], 256);
+    assert!(rear["signals"]["RL_TICKS"].is_number() && rear["signals"]["COUNTER"] == 0);
+    assert!(lines[0].starts_with("{\"t\": 1700000000.000000, \"iface\": \"vcan0\", \"id\": "));
+
+    // replay: the CSV of the issue, ending near the truth.
+    let (_, se) = ok(&[
+        "replay",
+        "--config",
+        cfg,
+        log.to_str().unwrap(),
+        "--out",
+        pose.to_str().unwrap(),
+    ]);
+    assert!(se.contains("steps="), "{se}");
+    let csv = std::fs::read_to_string(&pose).unwrap();
+    assert_eq!(
+        csv.lines().next().unwrap(),
+        "t_s,x_m,y_m,heading_rad,odo_x_m,odo_y_m,odo_heading_rad"
+    );
+    let rows = csv_rows(&csv);
+    let t = csv_rows(&std::fs::read_to_string(&truth).unwrap());
+    let (a, b) = (rows.last().unwrap(), t.last().unwrap());
+    assert!((a[1] - b[1]).hypot(a[2] - b[2]) < 0.02, "{a:?} vs {b:?}");
+}
+
+#[test]
+fn decode_reports_malformed_lines_and_strict_fails() {
+    let dir = tmp_dir("decode");
+    let log = dir.join("bad.log");
+    std::fs::write(
+        &log,
+        "(1700000000.000100) vcan0 100#0102030405060708\n\
+         garbage here\n\
+         (1700000000.000200) can1 7FF#00\n\
+         (1700000000.000300) vcan0 12345678#01\n",
+    )
+    .unwrap();
+    let l = log.to_str().unwrap();
+    let dbc = "../../shared/dbc/rc_car.dbc";
+    let (json, se) = ok(&["decode", "--dbc", dbc, l]);
+    assert_eq!(json.lines().count(), 1);
+    assert!(se.contains("line 2"), "{se}");
+    let (json, _) = ok(&["decode", "--dbc", dbc, l, "--all"]);
+    let all: Vec<serde_json::Value> = json
+        .lines()
+        .map(|x| serde_json::from_str(x).unwrap())
+        .collect();
+    assert_eq!(all.len(), 3);
+    assert_eq!(all[1]["name"], serde_json::Value::Null);
+    assert_eq!(all[2]["extended"], true);
+    assert_eq!(all[2]["id"], 0x1234_5678);
+    let out = canodom(&["decode", "--dbc", dbc, l, "--strict"]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8(out.stderr).unwrap().contains("line 2"));
+}
+
+#[test]
+fn decode_reads_stdin() {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_canodom"))
+        .args(["decode", "--dbc", "../../shared/dbc/rc_car.dbc", "-"])
+        .current_dir(manifest())
+        .stdin(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    child
+        .stdin
+        .take()
+        .unwrap()
+        .write_all(b"(1.000001) vcan0 110#0064000000000000\n")
+        .unwrap();
+    let out = child.wait_with_output().unwrap();
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["name"], "STEERING");
+    assert_eq!(v["t"], serde_json::json!(1.000_001));
+    // 0x0064 big-endian at 0.01 deg.
+    assert_eq!(v["signals"]["STEER_ANGLE"].as_f64(), Some(1.0));
+}
+
+#[test]
+fn simulate_needs_a_target() {
+    let cfg = rc_car_toml();
+    let out = canodom(&["simulate", "--config", cfg.to_str().unwrap()]);
+    assert!(!out.status.success());
+}
+
+#[test]
+fn run_refuses_a_bad_config_naming_the_key() {
+    let dir = tmp_dir("run");
+    let cfg = dir.join("bad.toml");
+    let text = std::fs::read_to_string(rc_car_toml())
+        .unwrap()
+        .replace(
+            "../../../shared/dbc/rc_car.dbc",
+            &manifest()
+                .join("../../shared/dbc/rc_car.dbc")
+                .display()
+                .to_string(),
+        )
+        .replace("pose_rate_hz = 50.0", "pose_rate_hz = -1.0");
+    std::fs::write(&cfg, text).unwrap();
+    let out = canodom(&["run", "--config", cfg.to_str().unwrap()]);
+    assert!(!out.status.success());
+    let err = String::from_utf8(out.stderr).unwrap();
+    assert!(
+        err.contains("bad.toml") && err.contains("output.pose_rate_hz"),
+        "{err}"
+    );
+}
+
+#[test]
+fn demo_prints_the_table_and_end_errors() {
+    let (so, _) = ok(&["demo", "--path", "track-ccw", "--every", "30"]);
+    println!("{so}");
+    assert!(so.contains("fused") && so.contains("rear-only"));
+    assert!(so.contains("end after"));
+    assert!(so.lines().count() >= 5);
+}

@@ -1,0 +1,77 @@
+//! Configuration errors name the file, the key and what was expected.
+
+use canodom::config::Config;
+
+fn error_for(edit: impl Fn(String) -> String) -> String {
+    let path = crate::util::rc_car_toml();
+    let text = edit(std::fs::read_to_string(&path).unwrap());
+    let err = Config::from_toml(&text, &path).unwrap_err().to_string();
+    assert!(err.contains("rc_car.toml"), "names the file: {err}");
+    err
+}
+
+#[test]
+fn both_shipped_examples_load() {
+    let rc = crate::util::rc_car();
+    assert_eq!(rc.checks.len(), 3);
+    let toyota = Config::load(&crate::util::toyota_toml()).unwrap();
+    assert!(toyota.signals.steering_fine.is_some());
+    assert_eq!(toyota.output.base_id.id().raw(), 0x6A0);
+    // Steering-wheel degrees through a ratio of 15.
+    let gain = toyota.params.steering().gain;
+    assert!((gain - 1f64.to_radians() / 15.0).abs() < 1e-15);
+}
+
+#[test]
+fn unknown_key_names_key_and_expected_keys() {
+    let e = error_for(|t| t.replace("pose_rate_hz", "pose_rate"));
+    assert!(e.contains("pose_rate") && e.contains("pose_rate_hz"), "{e}");
+}
+
+#[test]
+fn unknown_section_is_refused() {
+    let e = error_for(|t| format!("{t}\n[calibrate]\nx = 1\n"));
+    assert!(e.contains("calibrate"), "{e}");
+}
+
+#[test]
+fn wrong_type_names_the_key() {
+    let e = error_for(|t| t.replace("wheelbase_m = 0.26", "wheelbase_m = \"long\""));
+    assert!(e.contains("wheelbase_m"), "{e}");
+}
+
+#[test]
+fn signal_missing_from_the_dbc() {
+    let e = error_for(|t| t.replace("STEERING.STEER_ANGLE", "STEERING.ANGLE"));
+    assert!(
+        e.contains("signals.steering") && e.contains("STEERING.ANGLE"),
+        "{e}"
+    );
+}
+
+#[test]
+fn check_on_a_missing_message_or_signal() {
+    let e = error_for(|t| t.replace("[checks.STEERING]", "[checks.STEERIN]"));
+    assert!(e.contains("checks.STEERIN"), "{e}");
+    let e = error_for(|t| t.replacen("counter = \"COUNTER\"", "counter = \"CTR\"", 1));
+    assert!(e.contains("checks.WHEEL_ENC_REAR.counter"), "{e}");
+}
+
+#[test]
+fn speed_kind_on_tick_signals_needs_a_speed_unit() {
+    let e = error_for(|t| t.replace("wheel_kind = \"ticks\"", "wheel_kind = \"speed\""));
+    assert!(e.contains("signals.rear_left") && e.contains("km/h"), "{e}");
+}
+
+#[test]
+fn out_of_range_values() {
+    let e = error_for(|t| t.replace("pose_rate_hz = 50.0", "pose_rate_hz = 0.0"));
+    assert!(
+        e.contains("output.pose_rate_hz") && e.contains("> 0"),
+        "{e}"
+    );
+    let e = error_for(|t| t.replace("timeout_factor = 3.0", "timeout_factor = 0.5"));
+    assert!(e.contains("inputs.timeout_factor"), "{e}");
+    let e = error_for(|t| t.replace("interface = \"vcan0\"", "interface = \"a/b\""));
+    assert!(e.contains("can.interface"), "{e}");
+}

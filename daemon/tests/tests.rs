@@ -1,0 +1,12 @@
+//! Integration tests of the canodom daemon, one binary with topic modules
+//! (ripgrep's layout).
+
+// Test helpers outside #[test] functions unwrap too: a failure is a test failure.
+#![allow(clippy::unwrap_used)]
+
+mod bad_input;
+mod cli;
+mod config_errors;
+mod run_loop;
+mod trajectory;
+mod util;

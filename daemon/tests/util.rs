@@ -1,0 +1,57 @@
+//! Shared helpers: configurations, simulated logs, pipelines.
+
+use canodom::candump::{LogReader, Timestamp};
+use canodom::cmd::simulate::{simulator, write_log};
+use canodom::config::Config;
+use canodom::frame::CanFrame;
+use canodom::vehicle::PathKind;
+use std::path::PathBuf;
+
+pub fn manifest() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+pub fn rc_car_toml() -> PathBuf {
+    manifest().join("examples/rc_car.toml")
+}
+
+pub fn toyota_toml() -> PathBuf {
+    manifest().join("examples/toyota.toml")
+}
+
+pub fn rc_car() -> Config {
+    Config::load(&rc_car_toml()).unwrap()
+}
+
+/// A simulated drive as a candump log (bytes) and its truth CSV.
+pub fn simulated_log(config: &Config, path: PathKind, seed: u64) -> (Vec<u8>, String) {
+    let mut sim = simulator(config, path, None, seed).unwrap();
+    let mut log = Vec::new();
+    let mut truth = Vec::new();
+    write_log(config, &mut sim, &mut log, Some(&mut truth)).unwrap();
+    (log, String::from_utf8(truth).unwrap())
+}
+
+/// The records of a log as (timestamp, frame).
+pub fn frames_of(log: &[u8]) -> Vec<(Timestamp, CanFrame)> {
+    let mut r = LogReader::new(log);
+    let mut out = Vec::new();
+    while let Some(rec) = r.next_record().unwrap() {
+        out.push((rec.timestamp, rec.frame));
+    }
+    out
+}
+
+/// Parses a CSV with a header into rows of floats.
+pub fn csv_rows(text: &str) -> Vec<Vec<f64>> {
+    text.lines()
+        .skip(1)
+        .map(|l| l.split(',').map(|v| v.parse().unwrap()).collect())
+        .collect()
+}
+
+pub fn tmp_dir(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("canodom-test-{}-{name}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
