@@ -800,17 +800,26 @@ impl Ekf {
     /// result is not finite. On error `prev` stays the valid state.
     pub fn step(&self, prev: &State, input: &OdometryInput) -> Result<State> {
         let w = &input.wheel_m;
-        finite("rear_left_m", w.rear_left)?;
-        finite("rear_right_m", w.rear_right)?;
-        let phi = finite("steer_angle_rad", input.steer_angle_rad)?;
+        let phi = input.steer_angle_rad;
+        // One test on the sum in the common case; the slow path names the culprit.
+        let front_sum = if input.front_valid {
+            w.front_left + w.front_right
+        } else {
+            0.0
+        };
+        if !(w.rear_left + w.rear_right + phi + front_sum).is_finite() {
+            finite("rear_left_m", w.rear_left)?;
+            finite("rear_right_m", w.rear_right)?;
+            finite("steer_angle_rad", phi)?;
+            if input.front_valid {
+                finite("front_left_m", w.front_left)?;
+                finite("front_right_m", w.front_right)?;
+            }
+        }
         if phi.abs() >= std::f64::consts::FRAC_PI_2 - 1e-6 {
             return Err(Error::SteeringOutOfRange {
                 steer_angle_rad: phi,
             });
-        }
-        if input.front_valid {
-            finite("front_left_m", w.front_left)?;
-            finite("front_right_m", w.front_right)?;
         }
         let mut st = *prev;
         // As odometry::rear_increment, with 1/b precomputed (inputs checked above).
@@ -1352,6 +1361,23 @@ mod tests {
             ekf.step(&st, &inp).is_ok(),
             "a stale front sample is not read"
         );
+        // The sum test's slow path names the culprit, and finite inputs whose
+        // sum overflows are not reported as non-finite.
+        let mut rear = inp;
+        rear.wheel_m.rear_right = f64::NAN;
+        assert!(matches!(
+            ekf.step(&st, &rear),
+            Err(Error::NonFiniteInput {
+                name: "rear_right_m",
+                ..
+            })
+        ));
+        rear.wheel_m.rear_right = f64::MAX;
+        rear.wheel_m.rear_left = f64::MAX;
+        assert!(!matches!(
+            ekf.step(&st, &rear),
+            Err(Error::NonFiniteInput { .. })
+        ));
         inp.steer_angle_rad = f64::INFINITY;
         assert!(ekf.step(&st, &inp).is_err());
         inp.steer_angle_rad = 1.6;
