@@ -344,7 +344,7 @@ impl Pipeline {
         let data = frame.data();
         let t_us = t.as_micros();
         let input = &mut self.inputs[idx];
-        if let Some(reason) = Self::check(input, data) {
+        if let Some(reason) = Self::check(input, data, t_us, &self.inputs_cfg) {
             input.health.bad(&self.inputs_cfg);
             match reason {
                 Reject::BadCounter => self.latched.counter_fault = true,
@@ -424,7 +424,7 @@ impl Pipeline {
     }
 
     /// DLC, checksum and counter checks; `Some(reason)` rejects the frame.
-    fn check(input: &mut Input, data: &[u8]) -> Option<Reject> {
+    fn check(input: &mut Input, data: &[u8], t_us: u64, cfg: &InputsConfig) -> Option<Reject> {
         if data.len() < input.length {
             return Some(Reject::Truncated);
         }
@@ -437,6 +437,15 @@ impl Pipeline {
             return Some(Reject::BadChecksum);
         }
         if let Some((h, cc)) = &mut input.counter {
+            // After a timeout the counter has moved on by the frames lost: that
+            // gap is the timeout's (already flagged), not this frame's fault.
+            if input
+                .health
+                .last_good_us
+                .is_some_and(|last| t_us.saturating_sub(last) > input.health.timeout_us(cfg))
+            {
+                cc.reset();
+            }
             let raw = h.raw(data)?;
             if let CounterStatus::Gap { .. } = cc.observe(raw) {
                 return Some(Reject::BadCounter);
@@ -561,5 +570,130 @@ fn wheel_mut<T>(set: &mut WheelSet<T>, w: Wheel) -> &mut T {
         Wheel::RearRight => &mut set.rear_right,
         Wheel::FrontLeft => &mut set.front_left,
         Wheel::FrontRight => &mut set.front_right,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::vehicle::{PathKind, SampleEncoder, sim_config};
+    use canodom_fusion::sim::Simulator;
+    use std::path::PathBuf;
+
+    fn config() -> Config {
+        let p = PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/examples/rc_car.toml"));
+        Config::load(&p).unwrap()
+    }
+
+    /// `(timestamp, frame)` of a simulated circle drive, steering/front/rear per sample.
+    fn frames(config: &Config, seconds: f64) -> Vec<(Timestamp, CanFrame)> {
+        let plan = PathKind::Circle.plan(false, 1).unwrap();
+        let sim = Simulator::new(&sim_config(config, config.params), &plan, 1).unwrap();
+        let mut enc = SampleEncoder::new(config);
+        let mut out = Vec::new();
+        let mut buf = Vec::new();
+        for s in sim.take_while(|s| s.t_s <= seconds) {
+            buf.clear();
+            enc.encode(&s, &mut buf);
+            let t = Timestamp::from_micros(1_000_000 + (s.t_s * 1e6).round() as u64);
+            out.extend(buf.iter().map(|f| (t, *f)));
+        }
+        out
+    }
+
+    const REAR: u32 = 0x100;
+    const FRONT: u32 = 0x101;
+
+    #[test]
+    fn stale_front_runs_on_prediction_and_says_so() {
+        let c = config();
+        let mut p = Pipeline::new(&c).unwrap();
+        let mut last = Timestamp::from_micros(0);
+        for (t, f) in frames(&c, 20.0) {
+            // The front ECU falls silent after 10 s.
+            if f.id().raw() == FRONT && t.as_micros() > 11_000_000 {
+                continue;
+            }
+            p.push(t, &f);
+            last = t;
+        }
+        let s = *p.stats();
+        // Steps after the timeout (3 × 10 ms) ran without the front.
+        assert!(s.steps_without_front > 900, "{s}");
+        let out = p.pose_output(last);
+        assert!(out.flags.front_stale && !out.flags.rear_stale && out.flags.pose_valid);
+        assert!(out.x_m.is_finite());
+    }
+
+    #[test]
+    fn stale_rear_invalidates_the_pose() {
+        let c = config();
+        let mut p = Pipeline::new(&c).unwrap();
+        let fr = frames(&c, 5.0);
+        let last = fr.last().unwrap().0;
+        for (t, f) in &fr {
+            p.push(*t, f);
+        }
+        assert!(p.pose_output(last).flags.pose_valid);
+        // 30 ms later (3 periods) it is still fresh; 31 ms later it is stale.
+        let later = |us| Timestamp::from_micros(last.as_micros() + us);
+        assert!(p.pose_output(later(30_000)).flags.pose_valid);
+        let o = p.pose_output(later(31_000));
+        assert!(!o.flags.pose_valid && o.flags.rear_stale && o.flags.front_stale);
+    }
+
+    #[test]
+    fn trust_returns_only_after_enough_good_frames() {
+        let c = config();
+        let mut p = Pipeline::new(&c).unwrap();
+        let fr = frames(&c, 6.0);
+        let mut rear_after_gap = 0;
+        for (t, f) in &fr {
+            let us = t.as_micros();
+            // A 100 ms rear outage at 4 s.
+            if f.id().raw() == REAR && (5_000_000..5_100_000).contains(&us) {
+                continue;
+            }
+            p.push(*t, f);
+            if f.id().raw() == REAR && us >= 5_100_000 {
+                rear_after_gap += 1;
+                let valid = p.pose_output(*t).flags.pose_valid;
+                // trusted_after_frames = 5 good frames in a row.
+                assert_eq!(
+                    valid,
+                    rear_after_gap >= 5,
+                    "frame {rear_after_gap} after the gap"
+                );
+            }
+        }
+        assert!(rear_after_gap > 50);
+    }
+
+    #[test]
+    fn consecutive_bad_frames_invalidate_the_input() {
+        let c = config();
+        let mut p = Pipeline::new(&c).unwrap();
+        let mut bad_run = 0;
+        for (t, f) in frames(&c, 6.0) {
+            let us = t.as_micros();
+            if f.id().raw() == REAR && (5_000_000..5_040_000).contains(&us) {
+                // Four rear frames in a row with a broken checksum.
+                let mut d = [0u8; 8];
+                d.copy_from_slice(f.data());
+                d[7] ^= 0xFF;
+                p.push(t, &CanFrame::new_data(f.id(), &d).unwrap());
+                bad_run += 1;
+                let o = p.pose_output(t);
+                // invalid_after_faults = 3; the flag latches the fault either way.
+                assert_eq!(o.flags.pose_valid, bad_run < 3, "bad frame {bad_run}");
+                assert!(o.flags.checksum_fault);
+                continue;
+            }
+            p.push(t, &f);
+        }
+        assert_eq!(p.stats().get(Reject::BadChecksum), 4);
+        // Latches clear once reported.
+        let o = p.pose_output(Timestamp::from_micros(7_000_000));
+        assert!(!o.flags.checksum_fault);
     }
 }

@@ -75,7 +75,7 @@ async fn drive_against_daemon(
         });
     }
     let (_vrx, vtx) = bus.open().unwrap();
-    let sim = simulator(&config, path, None, 5).unwrap();
+    let sim = simulator(&config, path, None, 5, false).unwrap();
     drive(&config, sim, &vtx, 100.0, CancellationToken::new(), |_| {})
         .await
         .unwrap();

@@ -25,7 +25,7 @@ pub fn rc_car() -> Config {
 
 /// A simulated drive as a candump log (bytes) and its truth CSV.
 pub fn simulated_log(config: &Config, path: PathKind, seed: u64) -> (Vec<u8>, String) {
-    let mut sim = simulator(config, path, None, seed).unwrap();
+    let mut sim = simulator(config, path, None, seed, false).unwrap();
     let mut log = Vec::new();
     let mut truth = Vec::new();
     write_log(config, &mut sim, &mut log, Some(&mut truth)).unwrap();

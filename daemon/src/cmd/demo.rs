@@ -38,6 +38,10 @@ pub struct DemoArgs {
     /// Seed of the simulated drive.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Wheels that never slip (by default they slip now and then, as in §11,
+    /// which is where fusing the front wheels beats rear-only odometry).
+    #[arg(long)]
+    pub no_slip: bool,
     /// Seconds of simulated time between table rows.
     #[arg(long, default_value_t = 20.0)]
     pub every: f64,
@@ -77,12 +81,18 @@ pub fn load_config(path: Option<&std::path::Path>) -> anyhow::Result<Config> {
 ///
 /// # Errors
 /// Configuration, simulator or daemon failure.
-pub fn demo(config: Config, path: PathKind, seed: u64, every_s: f64) -> anyhow::Result<DemoReport> {
+pub fn demo(
+    config: Config,
+    path: PathKind,
+    seed: u64,
+    slip: bool,
+    every_s: f64,
+) -> anyhow::Result<DemoReport> {
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .start_paused(true)
         .build()?;
-    rt.block_on(demo_async(Arc::new(config), path, seed, every_s))
+    rt.block_on(demo_async(Arc::new(config), path, seed, slip, every_s))
 }
 
 fn row(out: &mut String, t: f64, truth: Pose, fused: Pose, odo: Pose, rejects: u64) {
@@ -108,6 +118,7 @@ async fn demo_async(
     config: Arc<Config>,
     path: PathKind,
     seed: u64,
+    slip: bool,
     every_s: f64,
 ) -> anyhow::Result<DemoReport> {
     let bus = InProcessBus::with_epoch(
@@ -115,7 +126,7 @@ async fn demo_async(
         4096,
         Timestamp::from_micros(super::simulate::LOG_EPOCH_US),
     );
-    let sim = super::simulate::simulator(&config, path, None, seed)?;
+    let sim = super::simulate::simulator(&config, path, None, seed, slip)?;
     let (steps_tx, steps_rx) = watch::channel(None);
     let (stats_tx, stats_rx) = watch::channel(crate::stats::Stats::default());
     let stop = tokio_util::sync::CancellationToken::new();
@@ -201,7 +212,7 @@ async fn demo_async(
 /// As [`demo`].
 pub fn execute(args: &DemoArgs) -> anyhow::Result<()> {
     let config = load_config(args.config.as_deref())?;
-    let report = demo(config, args.path, args.seed, args.every)?;
+    let report = demo(config, args.path, args.seed, !args.no_slip, args.every)?;
     print!("{}", report.text);
     Ok(())
 }

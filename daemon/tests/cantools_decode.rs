@@ -1,0 +1,67 @@
+//! `canodom decode` agrees with cantools on every message of every DBC in
+//! ../shared/dbc (vectors from fixtures/cantools/gen_decode_vectors.py).
+
+use canodom::cmd::decode::{DecodeArgs, decode};
+use canodom_dbc::Database;
+use serde_json::Value;
+
+#[test]
+fn decode_agrees_with_cantools_on_every_shared_dbc() {
+    let fixtures = crate::util::manifest().join("tests/fixtures/cantools");
+    let dbc_dir = crate::util::manifest().join("../../shared/dbc");
+    let mut files = 0;
+    let mut compared = 0;
+    for entry in std::fs::read_dir(&dbc_dir).unwrap() {
+        let path = entry.unwrap().path();
+        if path.extension().is_none_or(|e| e != "dbc") {
+            continue;
+        }
+        let name = path.file_stem().unwrap().to_str().unwrap().to_owned();
+        let log = fixtures.join(format!("{name}.log"));
+        let expected = std::fs::read_to_string(fixtures.join(format!("{name}.expected.jsonl")))
+            .unwrap_or_else(|_| panic!("no vectors for {name}: run gen_decode_vectors.py"));
+        let db = Database::from_file(&path).unwrap();
+        let args = DecodeArgs {
+            dbc: path.clone(),
+            log: log.clone(),
+            all: true,
+            strict: true,
+        };
+        let mut out = Vec::new();
+        let input = std::io::BufReader::new(std::fs::File::open(&log).unwrap());
+        let counts = decode(&db, input, &mut out, &args, &mut std::io::sink()).unwrap();
+        let ours: Vec<Value> = String::from_utf8(out)
+            .unwrap()
+            .lines()
+            .map(|l| serde_json::from_str(l).unwrap())
+            .collect();
+        let theirs: Vec<Value> = expected
+            .lines()
+            .map(|l| serde_json::from_str(l).unwrap())
+            .collect();
+        assert_eq!(ours.len(), theirs.len(), "{name}: {counts:?}");
+        for (i, (o, t)) in ours.iter().zip(&theirs).enumerate() {
+            assert_eq!(o["id"], t["id"], "{name} line {}", i + 1);
+            assert_eq!(o["extended"], t["extended"], "{name} line {}", i + 1);
+            if t.get("skip").is_some() {
+                continue;
+            }
+            assert_eq!(o["name"], t["name"], "{name} line {}", i + 1);
+            let (os, ts) = (
+                o["signals"].as_object().unwrap(),
+                t["signals"].as_object().unwrap(),
+            );
+            let okeys: Vec<_> = os.keys().collect();
+            let tkeys: Vec<_> = ts.keys().collect();
+            assert_eq!(okeys, tkeys, "{name} line {}: signals present", i + 1);
+            for (k, tv) in ts {
+                assert_eq!(os[k].as_f64(), tv.as_f64(), "{name} line {}: {k}", i + 1);
+            }
+            compared += 1;
+        }
+        files += 1;
+    }
+    println!("{files} DBC files, {compared} frames identical to cantools");
+    assert_eq!(files, 10);
+    assert!(compared > 2000);
+}
