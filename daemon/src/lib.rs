@@ -12,6 +12,7 @@
 //! - [`pipeline`]: the pure frame → EKF core shared by run, replay and demo.
 //! - [`pose_frames`]: pose samples encoded into canodom's own frames.
 //! - [`vehicle`]: the simulator encoded with the configured DBC (simulate, demo, tests).
+//! - [`progress`]: a progress line on terminals for long offline work.
 //! - [`stats`]: reject reasons and counters.
 //! - [`server`]: the async daemon (link and pipeline tasks), generic over the transport.
 //! - [`sd_notify`]: systemd readiness and watchdog notifications.
@@ -25,6 +26,7 @@ pub mod own_dbc;
 pub mod persist;
 pub mod pipeline;
 pub mod pose_frames;
+pub mod progress;
 pub mod sd_notify;
 pub mod server;
 pub mod stats;

@@ -51,11 +51,13 @@ pub struct DecodeCounts {
 /// Unreadable DBC or log, a malformed line under `--strict`, a write error.
 pub fn execute(args: &DecodeArgs) -> anyhow::Result<()> {
     let db = Database::from_file(&args.dbc)?;
-    let input = super::open_input(&args.log).with_context(|| format!("{}", args.log.display()))?;
+    let mut input = super::open_input(&args.log, "decode")
+        .with_context(|| format!("{}", args.log.display()))?;
     let stdout = std::io::stdout().lock();
     let mut out = std::io::BufWriter::with_capacity(1 << 16, stdout);
-    let counts = decode(&db, input, &mut out, args, &mut std::io::stderr())?;
+    let counts = decode(&db, &mut input, &mut out, args, &mut std::io::stderr())?;
     out.flush()?;
+    input.finish();
     eprintln!(
         "decode: {} frames printed, {} of unknown ids skipped, {} undecodable, {} malformed lines",
         counts.printed, counts.unknown, counts.undecodable, counts.malformed

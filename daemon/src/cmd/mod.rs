@@ -45,18 +45,28 @@ impl Command {
 ///
 /// # Errors
 /// The file cannot be opened.
-pub fn open_input(path: &Path) -> std::io::Result<Box<dyn std::io::BufRead>> {
-    if path == Path::new("-") {
-        Ok(Box::new(std::io::BufReader::with_capacity(
-            1 << 16,
-            std::io::stdin().lock(),
-        )))
+/// A progress line is drawn on stderr when it is a terminal.
+pub fn open_input(
+    path: &Path,
+    label: &'static str,
+) -> std::io::Result<crate::progress::Progress<Box<dyn std::io::BufRead>>> {
+    let (reader, total): (Box<dyn std::io::BufRead>, _) = if path == Path::new("-") {
+        (
+            Box::new(std::io::BufReader::with_capacity(
+                1 << 16,
+                std::io::stdin().lock(),
+            )),
+            None,
+        )
     } else {
-        Ok(Box::new(std::io::BufReader::with_capacity(
-            1 << 16,
-            std::fs::File::open(path)?,
-        )))
-    }
+        let file = std::fs::File::open(path)?;
+        let len = file.metadata().ok().map(|m| m.len());
+        (
+            Box::new(std::io::BufReader::with_capacity(1 << 16, file)),
+            len,
+        )
+    };
+    Ok(crate::progress::Progress::new(reader, label, total))
 }
 
 /// `secs.micros` without padding: a valid JSON number and CSV field.

@@ -51,21 +51,23 @@ pub struct ReplaySummary {
 /// Configuration, unreadable log, write failure.
 pub fn execute(args: &ReplayArgs) -> anyhow::Result<()> {
     let config = Config::load(&args.config)?;
-    let input = super::open_input(&args.log).with_context(|| format!("{}", args.log.display()))?;
+    let mut input = super::open_input(&args.log, "replay")
+        .with_context(|| format!("{}", args.log.display()))?;
     let started = std::time::Instant::now();
     let summary = if let Some(path) = &args.out {
         let file = std::fs::File::create(path)
             .with_context(|| format!("cannot create {}", path.display()))?;
         let mut w = std::io::BufWriter::with_capacity(1 << 16, file);
-        let s = replay(&config, input, &mut w, &mut std::io::stderr())?;
+        let s = replay(&config, &mut input, &mut w, &mut std::io::stderr())?;
         w.flush()?;
         s
     } else {
         let mut w = std::io::BufWriter::with_capacity(1 << 16, std::io::stdout().lock());
-        let s = replay(&config, input, &mut w, &mut std::io::stderr())?;
+        let s = replay(&config, &mut input, &mut w, &mut std::io::stderr())?;
         w.flush()?;
         s
     };
+    input.finish();
     let secs = started.elapsed().as_secs_f64();
     eprintln!(
         "replay: {} ({:.0} frames/s), malformed lines {}",
