@@ -2,10 +2,11 @@
 //! published pose frames, reconnection after the interface goes away.
 
 use crate::util::rc_car;
-use canodom::bus::{BusEvent, FrameSource, InProcessBus, LinkState, Received};
+use canodom::bus::{BusEvent, FrameSink, FrameSource, InProcessBus, LinkState, Received};
 use canodom::candump::Timestamp;
 use canodom::cmd::simulate::{LOG_EPOCH_US, drive, simulator};
 use canodom::config::Config;
+use canodom::frame::{CanFrame, ErrorFrame};
 use canodom::own_dbc::{OwnFrame, dbc_for_base};
 use canodom::pipeline::Pipeline;
 use canodom::server::{Observers, run};
@@ -14,6 +15,21 @@ use canodom_dbc::{Checksum, Database, FrameId};
 use std::sync::Arc;
 use std::time::Duration;
 use tokio_util::sync::CancellationToken;
+
+#[derive(Clone, Copy)]
+enum Disturb {
+    Gone {
+        at: Duration,
+        outage: Duration,
+    },
+    BusOff {
+        at: Duration,
+    },
+    PublishNow {
+        at: Duration,
+        base: canodom::own_dbc::BaseId,
+    },
+}
 
 struct Outcome {
     summary: canodom::server::Summary,
@@ -27,7 +43,7 @@ struct Outcome {
 async fn drive_against_daemon(
     config: Arc<Config>,
     path: PathKind,
-    disturb: Option<(Duration, Duration)>,
+    disturb: Option<Disturb>,
 ) -> Outcome {
     let bus = InProcessBus::with_epoch("vcan0", 8192, Timestamp::from_micros(LOG_EPOCH_US));
     let stop = CancellationToken::new();
@@ -65,13 +81,33 @@ async fn drive_against_daemon(
         (inputs, poses)
     });
     tokio::time::sleep(Duration::from_millis(10)).await;
-    if let Some((at, outage)) = disturb {
+    if let Some(disturb) = disturb {
         let b = bus.clone();
         tokio::spawn(async move {
-            tokio::time::sleep(at).await;
-            b.set_link(LinkState::Gone);
-            tokio::time::sleep(outage).await;
-            b.set_link(LinkState::Up);
+            match disturb {
+                Disturb::Gone { at, outage } => {
+                    tokio::time::sleep(at).await;
+                    b.set_link(LinkState::Gone);
+                    tokio::time::sleep(outage).await;
+                    b.set_link(LinkState::Up);
+                }
+                Disturb::BusOff { at } => {
+                    tokio::time::sleep(at).await;
+                    b.inject_error(ErrorFrame {
+                        class: canodom::frame::err_class::BUS_OFF,
+                        detail: [0; 8],
+                    });
+                }
+                Disturb::PublishNow { at, base } => {
+                    tokio::time::sleep(at).await;
+                    let (_rx, tx) = b.open().unwrap();
+                    let mut d = [0u8; 8];
+                    d[0] = 1; // ODOM_REQUEST = PUBLISH_NOW
+                    Checksum::rc_car().apply(&mut d).unwrap();
+                    let f = CanFrame::new_data(OwnFrame::OdomCmd.id(base), &d).unwrap();
+                    tx.send(&f).await.unwrap();
+                }
+            }
         });
     }
     let (_vrx, vtx) = bus.open().unwrap();
@@ -166,7 +202,10 @@ async fn interface_gone_then_back_is_survived() {
     let out = drive_against_daemon(
         Arc::clone(&config),
         PathKind::TrackCcw,
-        Some((Duration::from_secs(10), Duration::from_secs(2))),
+        Some(Disturb::Gone {
+            at: Duration::from_secs(10),
+            outage: Duration::from_secs(2),
+        }),
     )
     .await;
     let s = out.summary;
@@ -179,4 +218,49 @@ async fn interface_gone_then_back_is_survived() {
     assert!(s.last_step.unwrap().t_s > 60.0);
     // The filter ran on across the gap: wheel decoders saw it as missed samples.
     assert!(s.stats.get(canodom::stats::Reject::WheelGap) >= 1);
+}
+
+#[tokio::test(start_paused = true)]
+async fn bus_off_reopens_the_interface() {
+    let config = Arc::new(rc_car());
+    let out = drive_against_daemon(
+        Arc::clone(&config),
+        PathKind::Circle,
+        Some(Disturb::BusOff {
+            at: Duration::from_secs(5),
+        }),
+    )
+    .await;
+    let s = out.summary;
+    assert_eq!(s.connections, 2, "one reopen after the bus-off");
+    assert!(s.stats.steps > 3000, "{}", s.stats);
+}
+
+#[tokio::test(start_paused = true)]
+async fn odom_cmd_publishes_on_demand() {
+    let path = crate::util::rc_car_toml();
+    let text = std::fs::read_to_string(&path)
+        .unwrap()
+        .replace("pose_rate_hz = 50.0", "pose_rate_hz = 0.01");
+    let config = Arc::new(Config::from_toml(&text, &path).unwrap());
+    let base = config.output.base_id;
+    let out = drive_against_daemon(
+        Arc::clone(&config),
+        PathKind::Circle,
+        Some(Disturb::PublishNow {
+            at: Duration::from_secs(5),
+            base,
+        }),
+    )
+    .await;
+    let positions: Vec<_> = out
+        .pose_frames
+        .iter()
+        .filter(|r| r.frame.id() == OwnFrame::OdomPosition.id(base))
+        .collect();
+    // The interval's first tick (before any frame, so nothing to send) and
+    // one every 100 s: all a 0.01 Hz rate sends in this drive is the requested one.
+    assert_eq!(positions.len(), 1, "{}", positions.len());
+    let t = positions[0].timestamp.as_micros() - LOG_EPOCH_US;
+    assert!((5_000_000..5_100_000).contains(&t), "published at {t} µs");
 }
