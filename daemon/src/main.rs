@@ -2,6 +2,7 @@
 //! command (everything else lives in the library, where tests reach it).
 
 use clap::Parser;
+use std::io::IsTerminal as _;
 
 /// canodom: fused wheel/steering odometry for car-like vehicles over CAN.
 #[derive(Debug, Parser)]
@@ -34,7 +35,8 @@ fn main() -> anyhow::Result<()> {
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default_level));
     let builder = tracing_subscriber::fmt()
         .with_env_filter(filter)
-        .with_writer(std::io::stderr);
+        .with_writer(std::io::stderr)
+        .with_ansi(std::io::stderr().is_terminal());
     match cli.log_format {
         LogFormat::Text => builder.init(),
         LogFormat::Json => builder.json().init(),

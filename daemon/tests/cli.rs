@@ -195,3 +195,42 @@ fn demo_prints_the_table_and_end_errors() {
     assert!(so.contains("end after"));
     assert!(so.lines().count() >= 5);
 }
+
+#[test]
+fn run_stops_cleanly_on_sigterm_even_while_retrying() {
+    // No CAN interface exists on the test host: the daemon retries with
+    // backoff, and SIGTERM must still stop it at once (the backoff watches
+    // the shutdown token).
+    let cfg = rc_car_toml();
+    let child = Command::new(env!("CARGO_BIN_EXE_canodom"))
+        .args([
+            "--log-format",
+            "json",
+            "run",
+            "--config",
+            cfg.to_str().unwrap(),
+        ])
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(std::time::Duration::from_millis(700));
+    let killed = Command::new("kill")
+        .args(["-TERM", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(killed.success());
+    let started = std::time::Instant::now();
+    let out = child.wait_with_output().unwrap();
+    assert!(started.elapsed() < std::time::Duration::from_secs(5));
+    assert!(out.status.success(), "{:?}", out.status);
+    let log = String::from_utf8(out.stderr).unwrap();
+    // --log-format json: every line is a JSON object.
+    for line in log.lines() {
+        let v: serde_json::Value = serde_json::from_str(line).unwrap();
+        assert!(v["level"].is_string());
+    }
+    assert!(
+        log.contains("shutdown requested") && log.contains("pipeline stopped"),
+        "{log}"
+    );
+}
