@@ -234,3 +234,65 @@ fn run_stops_cleanly_on_sigterm_even_while_retrying() {
         "{log}"
     );
 }
+
+#[test]
+fn simulate_true_params_differ_from_the_nominal_vehicle() {
+    // A true rear-right wheel 0.5 % larger than the configuration says: the
+    // replay (nominal parameters) then drifts off the truth, as an
+    // uncalibrated car does; unknown keys in the file are refused.
+    let dir = tmp_dir("true-params");
+    let cfg = rc_car_toml();
+    let cfg = cfg.to_str().unwrap();
+    let params = dir.join("true.toml");
+    std::fs::write(&params, "rear_right_diameter_m = 0.09045\n").unwrap();
+    let end_error = |extra: &[&str]| {
+        let log = dir.join("d.log");
+        let truth = dir.join("t.csv");
+        let pose = dir.join("p.csv");
+        let mut args = vec![
+            "simulate",
+            "--config",
+            cfg,
+            "--log",
+            log.to_str().unwrap(),
+            "--path",
+            "track-ccw",
+            "--truth",
+            truth.to_str().unwrap(),
+        ];
+        args.extend_from_slice(extra);
+        ok(&args);
+        ok(&[
+            "replay",
+            "--config",
+            cfg,
+            log.to_str().unwrap(),
+            "--out",
+            pose.to_str().unwrap(),
+        ]);
+        let a = csv_rows(&std::fs::read_to_string(&pose).unwrap());
+        let b = csv_rows(&std::fs::read_to_string(&truth).unwrap());
+        let (a, b) = (a.last().unwrap(), b.last().unwrap());
+        (a[4] - b[1]).hypot(a[5] - b[2]) // rear-only odometry vs truth
+    };
+    let exact = end_error(&[]);
+    let wrong = end_error(&["--true-params", params.to_str().unwrap()]);
+    println!("rear-only end error: nominal = truth {exact:.4} m, 0.5 % tyre {wrong:.4} m");
+    assert!(exact < 0.02 && wrong > 0.1, "{exact} {wrong}");
+    std::fs::write(&params, "rear_right_diameter = 0.09\n").unwrap();
+    let out = canodom(&[
+        "simulate",
+        "--config",
+        cfg,
+        "--log",
+        "/dev/null",
+        "--true-params",
+        params.to_str().unwrap(),
+    ]);
+    assert!(!out.status.success());
+    assert!(
+        String::from_utf8(out.stderr)
+            .unwrap()
+            .contains("rear_right_diameter")
+    );
+}
