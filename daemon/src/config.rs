@@ -809,6 +809,30 @@ algorithm = "crc8_sae_j1850"
         assert_eq!(c.input_ids().len(), 3);
     }
 
+    #[test]
+    fn ekf_and_output_keys_reach_the_typed_config() {
+        let text = format!(
+            "{RC_CAR}\n[ekf]\nk_rear_m = 2e-5\nsteer_sigma_deg = 1.0\ncorrect_every = 20\n\
+             gate_enabled = false\nlearn_steer_offset = false\n\
+             [output]\nbase_id = 0x18FF0000\nextended = true\npose_rate_hz = 10.0\n\
+             [inputs]\ntimeout_factor = 5.0\ntrusted_after_frames = 2\n"
+        );
+        let c = Config::from_toml(&text, &path()).unwrap();
+        assert_eq!(c.ekf.k_rear_m, 2e-5);
+        assert!((c.ekf.steer_sigma_rad - 1f64.to_radians()).abs() < 1e-15);
+        assert_eq!(c.ekf.correct_every, 20);
+        assert_eq!(c.ekf.gate_threshold, None);
+        assert_eq!(c.ekf.steer_offset_drift_rad, None);
+        assert_eq!(
+            c.output.base_id.id(),
+            crate::frame::CanId::Extended(0x18FF_0000)
+        );
+        assert_eq!(c.output.pose_rate_hz, 10.0);
+        assert_eq!(c.inputs.timeout_factor, 5.0);
+        assert_eq!(c.inputs.trusted_after_frames, 2);
+        assert_eq!(c.inputs.max_wheel_speed_mps, 5.0);
+    }
+
     fn invalid(text: &str) -> String {
         let e = Config::from_toml(text, &path()).unwrap_err();
         let s = e.to_string();
