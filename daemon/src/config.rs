@@ -307,7 +307,29 @@ impl Config {
             file: path.to_owned(),
             message: e.to_string().trim_end().to_owned(),
         })?;
-        Validator { file: path }.validate(raw)
+        Validator { file: path }.validate(raw, None)
+    }
+
+    /// As [`Config::from_toml`], with the DBC given as text instead of read
+    /// from `can.dbc` (the built-in demo configuration, which must run
+    /// wherever the binary is installed).
+    ///
+    /// # Errors
+    /// [`ConfigError`] naming the file, key and expectation.
+    pub fn from_toml_with_dbc(
+        text: &str,
+        path: &Path,
+        dbc_text: &str,
+    ) -> Result<Self, ConfigError> {
+        let raw: RawConfig = toml::from_str(text).map_err(|e| ConfigError::Toml {
+            file: path.to_owned(),
+            message: e.to_string().trim_end().to_owned(),
+        })?;
+        let v = Validator { file: path };
+        let name = raw.can.dbc.display().to_string();
+        let db = Database::parse(dbc_text, &name)
+            .map_err(|e| v.err("can.dbc", "a DBC that parses", e))?;
+        v.validate(raw, Some(db))
     }
 
     /// Ids of every input message, for kernel filters.
@@ -363,7 +385,7 @@ impl Validator<'_> {
     }
 
     #[allow(clippy::too_many_lines)]
-    fn validate(&self, raw: RawConfig) -> Result<Config, ConfigError> {
+    fn validate(&self, raw: RawConfig, db: Option<Database>) -> Result<Config, ConfigError> {
         let iface = raw.can.interface;
         if iface.is_empty()
             || iface.len() > 15
@@ -380,13 +402,16 @@ impl Validator<'_> {
             .parent()
             .unwrap_or(Path::new("."))
             .join(&raw.can.dbc);
-        let db = Database::from_file(&dbc_path).map_err(|e| {
-            self.err(
-                "can.dbc",
-                "a readable DBC file (relative to the configuration file)",
-                format!("{} ({e})", dbc_path.display()),
-            )
-        })?;
+        let db = match db {
+            Some(db) => db,
+            None => Database::from_file(&dbc_path).map_err(|e| {
+                self.err(
+                    "can.dbc",
+                    "a readable DBC file (relative to the configuration file)",
+                    format!("{} ({e})", dbc_path.display()),
+                )
+            })?,
+        };
 
         // Signals.
         let s = &raw.signals;

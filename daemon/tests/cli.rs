@@ -189,7 +189,18 @@ fn run_refuses_a_bad_config_naming_the_key() {
 
 #[test]
 fn demo_prints_the_table_and_end_errors() {
-    let (so, _) = ok(&["demo", "--path", "track-ccw", "--every", "30"]);
+    // Run from elsewhere: the built-in configuration and DBC need no file.
+    let out = Command::new(env!("CARGO_BIN_EXE_canodom"))
+        .args(["demo", "--path", "track-ccw", "--every", "30"])
+        .current_dir(std::env::temp_dir())
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let so = String::from_utf8(out.stdout).unwrap();
     println!("{so}");
     assert!(so.contains("fused") && so.contains("rear-only"));
     assert!(so.contains("end after"));

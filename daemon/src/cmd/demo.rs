@@ -20,14 +20,18 @@ use tokio::sync::watch;
 /// The built-in configuration: the 1:10 car of `rc_car.dbc`.
 pub const DEFAULT_CONFIG: &str = include_str!("../../examples/rc_car.toml");
 
+/// `rc_car.dbc`, built in with the configuration so the installed binary's
+/// demo needs no file.
+pub const DEFAULT_DBC: &str = include_str!("../../../../shared/dbc/rc_car.dbc");
+
 /// Arguments of `demo`.
 #[derive(Debug, clap::Args)]
 #[command(after_help = "Example:\n  cargo run --release -p canodom -- demo\n  \
 canodom demo --config examples/toyota.toml --path random --seed 3\n\n\
 Prints a table every --every seconds of simulated time: the true pose, the fused pose, \
 rear-wheel-only odometry, the fused pose's distance from the truth, and frames rejected so \
-far; then the end errors. Without --config it uses the built-in rc_car configuration (which \
-reads ../../shared/dbc/rc_car.dbc relative to daemon/examples/).")]
+far; then the end errors. Without --config it uses the built-in rc_car configuration \
+(daemon/examples/rc_car.toml with rc_car.dbc, both compiled in).")]
 pub struct DemoArgs {
     /// A configuration file (default: daemon/examples/rc_car.toml, built in).
     #[arg(long)]
@@ -62,17 +66,18 @@ pub struct DemoReport {
     pub summary: Summary,
 }
 
-/// Loads the demo configuration: the file given, or the built-in one resolved
-/// against `daemon/examples/` of this source tree.
+/// Loads the demo configuration: the file given, or the built-in one (with
+/// its DBC built in too).
 ///
 /// # Errors
 /// The configuration is invalid.
 pub fn load_config(path: Option<&std::path::Path>) -> anyhow::Result<Config> {
     Ok(match path {
         Some(p) => Config::load(p)?,
-        None => Config::from_toml(
+        None => Config::from_toml_with_dbc(
             DEFAULT_CONFIG,
-            &PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/examples/rc_car.toml")),
+            &PathBuf::from("<built-in rc_car.toml>"),
+            DEFAULT_DBC,
         )?,
     })
 }
