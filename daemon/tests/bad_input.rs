@@ -211,9 +211,9 @@ fn log_with_garbage_lines() {
             dirty.push_str(
                 [
                     "not a frame",
-                    "(17000.1) vcan0 100#ZZ",
-                    "(1.0) vcan0 12345678901#00",
-                    "\u{0}\u{1}",
+                    "(1700000000.000001) vcan0 100#ZZ",
+                    "(1700000000.000001) vcan0 12345678901#00",
+                    "(1700000000.000001) vcan0",
                 ][garbage % 4],
             );
             dirty.push('\n');
@@ -235,6 +235,11 @@ fn log_with_garbage_lines() {
         diag.lines().next().unwrap()
     );
     assert_eq!(b.malformed as usize, garbage);
+    assert_eq!(b.malformed_by_reason.total() as usize, garbage);
+    assert!(
+        b.malformed_by_reason.nonzero().count() >= 2,
+        "several reasons"
+    );
     assert!(diag.contains("line 9:"), "{diag}");
     assert_eq!(a.state, b.state);
     // The cut last line is a short frame at worst, counted, never used.

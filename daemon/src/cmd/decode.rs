@@ -5,6 +5,7 @@ use crate::candump::{LogReader, ReadError};
 use crate::frame::{CanId, FrameKind};
 use anyhow::Context as _;
 use canodom_dbc::{Database, FrameId};
+use std::fmt::Write as _;
 use std::io::Write;
 use std::path::PathBuf;
 
@@ -43,6 +44,8 @@ pub struct DecodeCounts {
     pub undecodable: u64,
     /// Malformed lines skipped.
     pub malformed: u64,
+    /// The same by reason.
+    pub malformed_by_reason: crate::candump::MalformedCounts,
 }
 
 /// Runs `decode` with standard output.
@@ -58,8 +61,12 @@ pub fn execute(args: &DecodeArgs) -> anyhow::Result<()> {
     let counts = decode(&db, &mut input, &mut out, args, &mut std::io::stderr())?;
     out.flush()?;
     input.finish();
+    let mut malformed = String::new();
+    for (reason, n) in counts.malformed_by_reason.nonzero() {
+        let _ = write!(malformed, " {reason}={n}");
+    }
     eprintln!(
-        "decode: {} frames printed, {} of unknown ids skipped, {} undecodable, {} malformed lines",
+        "decode: {} frames printed, {} of unknown ids skipped, {} undecodable, {} malformed lines{malformed}",
         counts.printed, counts.unknown, counts.undecodable, counts.malformed
     );
     Ok(())
@@ -88,6 +95,7 @@ pub fn decode(
                     anyhow::bail!("{}: {m}", args.log.display());
                 }
                 counts.malformed += 1;
+                counts.malformed_by_reason.add(m.reason);
                 writeln!(diag, "{}: {m}; skipped", args.log.display())?;
                 continue;
             }

@@ -1,11 +1,12 @@
 //! `canodom replay`: the daemon's pipeline over a candump log, timed by the
 //! log's timestamps, as fast as the machine goes; one CSV row per filter step.
 
-use crate::candump::{LogReader, ReadError};
+use crate::candump::{LogReader, MalformedCounts, ReadError};
 use crate::config::Config;
 use crate::pipeline::{Pipeline, Step};
 use crate::stats::Stats;
 use anyhow::Context as _;
+use std::fmt::Write as _;
 use std::io::Write;
 use std::path::PathBuf;
 
@@ -39,6 +40,8 @@ pub struct ReplaySummary {
     pub stats: Stats,
     /// Malformed log lines skipped.
     pub malformed: u64,
+    /// The same by reason.
+    pub malformed_by_reason: MalformedCounts,
     /// The last step.
     pub last_step: Option<Step>,
     /// The filter's final state.
@@ -69,11 +72,14 @@ pub fn execute(args: &ReplayArgs) -> anyhow::Result<()> {
     };
     input.finish();
     let secs = started.elapsed().as_secs_f64();
+    let mut malformed = format!("malformed lines {}", summary.malformed);
+    for (reason, n) in summary.malformed_by_reason.nonzero() {
+        let _ = write!(malformed, " {reason}={n}");
+    }
     eprintln!(
-        "replay: {} ({:.0} frames/s), malformed lines {}",
+        "replay: {} ({:.0} frames/s), {malformed}",
         summary.stats,
         summary.stats.frames as f64 / secs.max(1e-9),
-        summary.malformed
     );
     if let Some(s) = summary.last_step {
         eprintln!(
@@ -104,6 +110,7 @@ pub fn replay(
     let mut pipeline = Pipeline::new(config)?;
     let mut reader = LogReader::new(input);
     let mut malformed = 0u64;
+    let mut by_reason = MalformedCounts::default();
     writeln!(out, "{CSV_HEADER}")?;
     let mut row = Vec::with_capacity(160);
     loop {
@@ -112,6 +119,7 @@ pub fn replay(
             Ok(None) => break,
             Err(ReadError::Malformed(m)) => {
                 malformed += 1;
+                by_reason.add(m.reason);
                 if malformed <= 20 {
                     writeln!(diag, "replay: {m}; skipped")?;
                 }
@@ -138,6 +146,7 @@ pub fn replay(
     Ok(ReplaySummary {
         stats: *pipeline.stats(),
         malformed,
+        malformed_by_reason: by_reason,
         last_step: pipeline.last_step(),
         state: *pipeline.state(),
     })
