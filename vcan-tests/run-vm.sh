@@ -159,7 +159,9 @@ timeout "$vm_timeout_s" qemu-system-x86_64 -accel tcg -cpu max -m 1024 -smp 2 -n
     -append "console=ttyS0 quiet panic=-1 loglevel=3" </dev/null >"$work/console.log" 2>&1
 qemu_status=$?
 set -e
-tr -d '\r' <"$work/console.log" >"$work/console.txt"
+# The serial console carries terminal resets and colour codes; strip them so
+# the line prefixes the host parses start their lines.
+tr -d '\r' <"$work/console.log" | sed -e 's/\x1b\[[0-9;?]*[A-Za-z]//g' -e 's/\x1bc//g' >"$work/console.txt"
 
 grep -E '^(vcan-vm|vcan-result|vcan-metric|  \|)' "$work/console.txt" || true
 summary=$(grep -E '^vcan: [0-9]+ passed, [0-9]+ failed$' "$work/console.txt" | tail -n 1 || true)
