@@ -138,7 +138,8 @@ for bin in /scenarios/*; do
             failed=\$((failed+1)); verdict=FAIL
             sed "s/^/  | /" /tmp/out.txt | tail -n 40
         fi
-        grep '^vcan-metric:' /tmp/out.txt
+        # -o: libtest prints a test's name without a newline, so its first metric shares that line.
+        grep -o 'vcan-metric:.*' /tmp/out.txt
         echo "vcan-result: \$name \$verdict (\$(awk -v a=\$t0 -v b=\$(cut -d' ' -f1 /proc/uptime) 'BEGIN{printf "%.1f", b-a}') s)"
     done
 done
