@@ -5,6 +5,7 @@
 #![allow(clippy::unwrap_used)]
 
 mod bad_input;
+mod calibrate;
 mod cantools_decode;
 mod cli;
 mod config_errors;

@@ -2,6 +2,7 @@
 //! and the code they run. `main.rs` only parses, sets up logging and calls
 //! [`Command::execute`].
 
+pub mod calibrate;
 pub mod decode;
 pub mod demo;
 pub mod replay;
@@ -23,6 +24,8 @@ pub enum Command {
     Simulate(simulate::SimulateArgs),
     /// The whole system without CAN hardware: a simulated vehicle and the daemon on an in-process bus.
     Demo(demo::DemoArgs),
+    /// Calibrate the rear tread and wheel diameters offline from candump logs of track runs.
+    Calibrate(calibrate::CalibrateArgs),
 }
 
 impl Command {
@@ -37,6 +40,7 @@ impl Command {
             Self::Replay(a) => replay::execute(&a),
             Self::Simulate(a) => simulate::execute(&a),
             Self::Demo(a) => demo::execute(&a),
+            Self::Calibrate(a) => calibrate::execute(&a),
         }
     }
 }
