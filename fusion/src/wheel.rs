@@ -279,8 +279,14 @@ impl TickDecoder {
         let ticks = wrapping_delta(prev_raw, raw, self.bits).unwrap_or(0);
         let dt_s = t_s - prev_t_s;
         let distance_m = ticks as f64 * self.distance_per_tick_m;
+        // The counter is cumulative, so its delta is real distance however the
+        // frames were bunched on the way: what bounds it is the time the
+        // sender had, at least one nominal period per frame, not the receive
+        // gap (a busy host or canplayer delivers frames microseconds apart).
         // One tick of quantisation is allowed on top of the speed limit.
-        let max_distance_m = self.config.max_wheel_speed_mps * dt_s + self.distance_per_tick_m;
+        let max_distance_m = self.config.max_wheel_speed_mps
+            * dt_s.max(self.config.nominal_period_s)
+            + self.distance_per_tick_m;
         self.last = Some((t_s, raw));
         if distance_m.abs() > max_distance_m {
             return self.fault(InputFault::ImplausibleJump {
@@ -530,6 +536,43 @@ mod tests {
             )
             .is_err()
         );
+    }
+
+    #[test]
+    fn bunched_frames_keep_every_tick() {
+        // 100 Hz frames at 0.4 m/s (4 ticks of 1 mm per period) that reach the
+        // host in bursts of five, 20 µs apart: every tick is real distance.
+        let mut d = decoder(16);
+        let mut t_s = 0.0;
+        let mut total = 0;
+        d.push(t_s, 0);
+        for i in 1..=200u64 {
+            t_s += if i % 5 == 0 {
+                0.05 - 4.0 * 20e-6
+            } else {
+                20e-6
+            };
+            let s = d.push(t_s, (i * 4) & 0xFFFF);
+            assert!(s.fault.is_none() || matches!(s.fault, Some(InputFault::MissedSamples { .. })));
+            total += s.ticks;
+        }
+        assert_eq!((total, d.cumulative_ticks()), (800, 800));
+        assert_eq!(d.faults().implausible_jump, 0);
+    }
+
+    #[test]
+    fn genuine_jumps_are_refused_even_when_bunched() {
+        let mut d = decoder(16);
+        d.push(0.0, 1000);
+        // A counter reset (to 0) 20 µs later: 1 m in what can be one period at most.
+        let s = d.push(20e-6, 0);
+        assert!(matches!(s.fault, Some(InputFault::ImplausibleJump { .. })) && s.ticks == 0);
+        // A corrupted value after a normal period.
+        d.push(0.01 + 20e-6, 4);
+        let s = d.push(0.02 + 20e-6, 4 + 3000);
+        assert!(matches!(s.fault, Some(InputFault::ImplausibleJump { .. })) && s.ticks == 0);
+        assert_eq!(d.faults().implausible_jump, 2);
+        assert_eq!(d.cumulative_ticks(), 4);
     }
 
     #[test]
