@@ -31,6 +31,7 @@ use canodom_dbc::{Checksum, Database, SignalHandle};
 use canodom_fusion::ekf::State;
 use std::future::Future;
 use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Duration;
 use tokio::sync::{mpsc, watch};
 use tokio::time::{Instant, MissedTickBehavior};
@@ -99,6 +100,9 @@ pub struct Summary {
     pub frames_lost: u64,
     /// Connections opened (1 + reconnects).
     pub connections: u64,
+    /// Outages seen: the interface went down, disappeared or went bus-off
+    /// (noticed by the receiver or by a pose send).
+    pub outages: u64,
 }
 
 /// Why the daemon stopped abnormally.
@@ -135,6 +139,31 @@ enum LinkEvent {
 /// Backoff bounds for reopening the interface.
 const BACKOFF_MIN: Duration = Duration::from_millis(100);
 const BACKOFF_MAX: Duration = Duration::from_secs(5);
+/// Backoff cap while the interface is down or missing: a vehicle's CAN
+/// interface coming back (link up, driver reloaded, USB adapter replugged)
+/// must be picked up within the 1 s, and trying to open a missing
+/// interface is one cheap syscall, so there is nothing to save by waiting
+/// longer. Other errors still back off up to [`BACKOFF_MAX`].
+const BACKOFF_MAX_LINK: Duration = Duration::from_millis(500);
+
+/// The next backoff after `current` failed with `cause`.
+fn next_backoff(current: Duration, cause: Option<&BusError>) -> Duration {
+    let cap = match cause {
+        Some(BusError::InterfaceDown { .. } | BusError::NoSuchInterface { .. }) => BACKOFF_MAX_LINK,
+        _ => BACKOFF_MAX,
+    };
+    (current * 2).min(cap)
+}
+
+/// Whether a send error means the link itself is gone (the receiver must
+/// reopen): the socket error that tells of it is shared by both halves of a
+/// raw CAN socket, and a send that meets it consumes it.
+fn is_link_loss(e: &BusError) -> bool {
+    matches!(
+        e,
+        BusError::InterfaceDown { .. } | BusError::NoSuchInterface { .. }
+    )
+}
 
 /// Runs the daemon until `shutdown` completes or the transport fails for good.
 ///
@@ -173,11 +202,15 @@ pub async fn run<C: Connector>(
 
     let (frames_tx, frames_rx) = mpsc::channel(1024);
     let (sink_tx, sink_rx) = watch::channel(None);
+    let (lost_tx, lost_rx) = mpsc::channel(1);
+    let outages = Arc::new(AtomicU64::new(0));
     let link = LinkTask {
         connector,
         filters,
         frames: frames_tx,
         sink: sink_tx,
+        link_lost: lost_rx,
+        outages: Arc::clone(&outages),
         token: token.clone(),
     };
     let link_handle = tracker.spawn(link.run());
@@ -202,6 +235,8 @@ pub async fn run<C: Connector>(
         clock: None,
         published: 0,
         lost: 0,
+        link_lost: lost_tx,
+        outages: Arc::clone(&outages),
     };
     let pipeline_handle = tracker.spawn(task.run());
     tracker.close();
@@ -224,6 +259,7 @@ pub async fn run<C: Connector>(
         .await
         .map_err(|e| RunError::Task(e.to_string()))?;
     summary.connections = connections;
+    summary.outages = outages.load(Ordering::Relaxed);
     Ok(summary)
 }
 
@@ -235,31 +271,42 @@ struct LinkTask<C: Connector> {
     /// the in-process bus) counts what overflows as lost.
     frames: mpsc::Sender<LinkEvent>,
     sink: watch::Sender<Option<C::Tx>>,
+    /// Link losses the pipeline task met while sending (see [`is_link_loss`]).
+    link_lost: mpsc::Receiver<BusError>,
+    outages: Arc<AtomicU64>,
     token: CancellationToken,
 }
 
 impl<C: Connector> LinkTask<C> {
     #[instrument(skip(self), fields(iface = %self.connector.name()))]
-    async fn run(self) -> Result<u64, BusError> {
+    async fn run(mut self) -> Result<u64, BusError> {
         let mut backoff = BACKOFF_MIN;
         let mut connections = 0u64;
         loop {
             if self.token.is_cancelled() {
                 return Ok(connections);
             }
+            let mut cause = None;
             match self.connector.connect(&self.filters) {
                 Ok((mut rx, tx)) => {
                     connections += 1;
                     info!(connections, "CAN interface open");
+                    // A loss reported by a send on the previous socket is over.
+                    while self.link_lost.try_recv().is_ok() {}
                     self.sink.send_replace(Some(tx));
                     let outcome = self.pump(&mut rx).await;
                     self.sink.send_replace(None);
                     match outcome {
                         Ok(true) => return Ok(connections),
-                        Ok(false) => backoff = BACKOFF_MIN,
+                        Ok(false) => {
+                            self.outages.fetch_add(1, Ordering::Relaxed);
+                            backoff = BACKOFF_MIN;
+                        }
                         Err(e) if e.is_transient() => {
+                            self.outages.fetch_add(1, Ordering::Relaxed);
                             warn!(cause = %e, "CAN interface lost; reopening");
                             backoff = BACKOFF_MIN;
+                            cause = Some(e);
                         }
                         Err(e) => {
                             error!(cause = %e, "CAN transport failed for good");
@@ -270,6 +317,7 @@ impl<C: Connector> LinkTask<C> {
                 }
                 Err(e) if e.is_transient() => {
                     warn!(cause = %e, retry_in_ms = backoff.as_millis() as u64, "cannot open CAN interface");
+                    cause = Some(e);
                 }
                 Err(e) => {
                     error!(cause = %e, "cannot open CAN interface");
@@ -283,15 +331,17 @@ impl<C: Connector> LinkTask<C> {
                 () = self.token.cancelled() => return Ok(connections),
                 () = tokio::time::sleep(backoff) => {}
             }
-            backoff = (backoff * 2).min(BACKOFF_MAX);
+            backoff = next_backoff(backoff, cause.as_ref());
         }
     }
 
-    /// Forwards events; `Ok(true)` on shutdown, `Ok(false)` on bus-off (reopen).
-    async fn pump(&self, rx: &mut C::Rx) -> Result<bool, BusError> {
+    /// Forwards events; `Ok(true)` on shutdown, `Ok(false)` on bus-off
+    /// (reopen), `Err` when the link is lost, seen here or by a send.
+    async fn pump(&mut self, rx: &mut C::Rx) -> Result<bool, BusError> {
         loop {
             let event = tokio::select! {
                 () = self.token.cancelled() => return Ok(true),
+                Some(e) = self.link_lost.recv() => return Err(e),
                 event = rx.recv() => event?,
             };
             let out = match event {
@@ -337,6 +387,9 @@ struct PipelineTask<Tx> {
     clock: Option<(Timestamp, Instant)>,
     published: u64,
     lost: u64,
+    /// Tells the link task of a link loss a send met (see [`is_link_loss`]).
+    link_lost: mpsc::Sender<BusError>,
+    outages: Arc<AtomicU64>,
 }
 
 impl<Tx: FrameSink + Clone> PipelineTask<Tx> {
@@ -371,6 +424,7 @@ impl<Tx: FrameSink + Clone> PipelineTask<Tx> {
                     info!(
                         fps = format!("{:.1}", (s.frames - last_stats.frames) as f64 / secs),
                         stats = %s, lost = self.lost, poses = self.published,
+                        outages = self.outages.load(Ordering::Relaxed),
                         "statistics"
                     );
                     last_stats = s;
@@ -399,6 +453,7 @@ impl<Tx: FrameSink + Clone> PipelineTask<Tx> {
             poses_published: self.published,
             frames_lost: self.lost,
             connections: 0,
+            outages: 0,
         }
     }
 
@@ -449,10 +504,52 @@ impl<Tx: FrameSink + Clone> PipelineTask<Tx> {
         let Some(tx) = tx else { return };
         for f in &frames {
             if let Err(e) = tx.send(f).await {
-                debug!(cause = %e, "pose frame not sent");
+                if is_link_loss(&e) {
+                    // The receiver may never see this error: hand it over so
+                    // the outage is logged, counted and the socket reopened.
+                    let _ = self.link_lost.try_send(e);
+                } else {
+                    debug!(cause = %e, "pose frame not sent");
+                }
                 return;
             }
         }
         self.published += 1;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn backoff_stays_short_while_the_interface_is_missing_or_down() {
+        let down = BusError::InterfaceDown {
+            iface: "vcan0".into(),
+        };
+        let gone = BusError::NoSuchInterface {
+            iface: "vcan0".into(),
+        };
+        let other = BusError::Io {
+            iface: "vcan0".into(),
+            source: std::io::Error::from_raw_os_error(libc::EACCES),
+        };
+        for cause in [&down, &gone] {
+            let mut b = BACKOFF_MIN;
+            for _ in 0..20 {
+                b = next_backoff(b, Some(cause));
+                assert!(b <= Duration::from_millis(500), "{b:?}");
+            }
+            assert_eq!(b, BACKOFF_MAX_LINK);
+        }
+        let mut b = BACKOFF_MIN;
+        for _ in 0..20 {
+            b = next_backoff(b, Some(&other));
+        }
+        assert_eq!(b, BACKOFF_MAX);
+        assert!(is_link_loss(&down) && is_link_loss(&gone) && !is_link_loss(&other));
+        assert!(!is_link_loss(&BusError::TxQueueFull {
+            iface: "vcan0".into()
+        }));
     }
 }
