@@ -10,9 +10,7 @@ use std::f64::consts::FRAC_PI_2;
 
 use nalgebra::{Matrix2, Vector2};
 
-use super::{
-    CalibrationResult, Method, alpha_beta_between, centroids, check_inputs, heading, turns,
-};
+use super::{CalibrationResult, Method, check_inputs, heading, replayed_result, turns};
 use crate::error::{Error, Result};
 use crate::run::{RearParams, Run, need_both_directions, replay_rear};
 use crate::track::Track;
@@ -254,19 +252,14 @@ pub fn exact(
         }
         _ => (None, None),
     };
-    let (alpha_rad, beta_rad) = alpha_beta_between(used, &rear, track.radius_m());
-    Ok(CalibrationResult {
-        method: Method::Exact,
-        used: *used,
+    Ok(replayed_result(
+        Method::Exact,
+        runs,
+        used,
         rear,
-        alpha_rad,
-        beta_rad,
-        e_max_before_m: centroids(runs, used).e_max_m(),
-        e_max_after_m: centroids(runs, &rear).e_max_m(),
-        tread_std_m,
-        ratio_std,
+        track,
+        (tread_std_m, ratio_std),
         iterations,
         converged,
-        scale_fixed: false,
-    })
+    ))
 }

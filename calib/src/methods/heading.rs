@@ -12,7 +12,7 @@ use std::f64::consts::PI;
 
 use nalgebra::{Matrix2, Vector2};
 
-use super::{CalibrationResult, Method, alpha_beta_between, centroids, check_inputs};
+use super::{CalibrationResult, Method, check_inputs, replayed_result};
 use crate::error::{Error, Result, finite};
 use crate::run::{RearParams, Run, need_both_directions, replay_rear};
 use crate::track::Track;
@@ -70,19 +70,14 @@ pub fn heading(runs: &[Run], used: &RearParams, track: Track) -> Result<Calibrat
     } else {
         (None, None)
     };
-    let (alpha_rad, beta_rad) = alpha_beta_between(used, &rear, track.radius_m());
-    Ok(CalibrationResult {
-        method: Method::Heading,
-        used: *used,
+    Ok(replayed_result(
+        Method::Heading,
+        runs,
+        used,
         rear,
-        alpha_rad,
-        beta_rad,
-        e_max_before_m: centroids(runs, used).e_max_m(),
-        e_max_after_m: centroids(runs, &rear).e_max_m(),
-        tread_std_m,
-        ratio_std,
-        iterations: 1,
-        converged: true,
-        scale_fixed: false,
-    })
+        track,
+        (tread_std_m, ratio_std),
+        1,
+        true,
+    ))
 }

@@ -225,6 +225,37 @@ pub fn update_from_alpha_beta(
     RearParams::from_ratio(tread, used.mean_diameter_m(), ratio)
 }
 
+/// A result whose α, β and end errors all follow from replaying the runs with
+/// the used and the new parameters (the heading law and the exact method; the
+/// paper's closed form reports its own measured α, β instead).
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn replayed_result(
+    method: Method,
+    runs: &[Run],
+    used: &RearParams,
+    rear: RearParams,
+    track: Track,
+    (tread_std_m, ratio_std): (Option<f64>, Option<f64>),
+    iterations: u32,
+    converged: bool,
+) -> CalibrationResult {
+    let (alpha_rad, beta_rad) = alpha_beta_between(used, &rear, track.radius_m());
+    CalibrationResult {
+        method,
+        used: *used,
+        rear,
+        alpha_rad,
+        beta_rad,
+        e_max_before_m: centroids(runs, used).e_max_m(),
+        e_max_after_m: centroids(runs, &rear).e_max_m(),
+        tread_std_m,
+        ratio_std,
+        iterations,
+        converged,
+        scale_fixed: false,
+    }
+}
+
 /// α and β that the change from `used` to `new` corrects (the inverse of
 /// [`update_from_alpha_beta`]): how the used parameters mis-turned.
 pub(crate) fn alpha_beta_between(used: &RearParams, new: &RearParams, radius_m: f64) -> (f64, f64) {
