@@ -47,7 +47,7 @@
 //! untouched; no step allocates.
 #![allow(non_snake_case)]
 
-use crate::error::{Error, Result};
+use crate::error::{Error, Result, require_non_negative, require_positive};
 #[cfg(test)]
 use crate::odometry::wheel_distance_factors;
 use crate::odometry::{Increment, Pose};
@@ -205,34 +205,14 @@ impl EkfConfig {
             ("steer_offset_drift_rad", self.steer_offset_drift_rad),
             ("front_scale_drift", self.front_scale_drift),
         ] {
-            if let Some(d) = drift
-                && !(d.is_finite() && d >= 0.0)
-            {
-                return Err(Error::InvalidConfig {
-                    name,
-                    reason: format!("must be finite and >= 0, got {d}"),
-                });
+            if let Some(d) = drift {
+                require_non_negative(name, d)?;
             }
         }
-        let positive = |name: &'static str, v: f64| {
-            if v.is_finite() && v > 0.0 {
-                Ok(())
-            } else {
-                Err(Error::InvalidConfig {
-                    name,
-                    reason: format!("must be finite and > 0, got {v}"),
-                })
-            }
-        };
-        positive("k_rear_m", self.k_rear_m)?;
-        positive("k_front_m", self.k_front_m)?;
-        positive("steer_sigma_rad", self.steer_sigma_rad)?;
-        if !(self.steer_bias_sigma_rad.is_finite() && self.steer_bias_sigma_rad >= 0.0) {
-            return Err(Error::InvalidConfig {
-                name: "steer_bias_sigma_rad",
-                reason: format!("must be finite and >= 0, got {}", self.steer_bias_sigma_rad),
-            });
-        }
+        require_positive("k_rear_m", self.k_rear_m)?;
+        require_positive("k_front_m", self.k_front_m)?;
+        require_positive("steer_sigma_rad", self.steer_sigma_rad)?;
+        require_non_negative("steer_bias_sigma_rad", self.steer_bias_sigma_rad)?;
         if self.correct_every == 0 {
             return Err(Error::InvalidConfig {
                 name: "correct_every",
@@ -240,11 +220,11 @@ impl EkfConfig {
             });
         }
         if let Some(t) = self.gate_threshold {
-            positive("gate_threshold", t)?;
+            require_positive("gate_threshold", t)?;
         }
         if let CorrectionForm::Literal { r_diag } = self.form {
             for r in r_diag {
-                positive("literal r_diag", r)?;
+                require_positive("literal r_diag", r)?;
             }
         }
         Ok(())

@@ -62,3 +62,27 @@ pub enum Error {
 
 /// The fusion crate's result type.
 pub type Result<T> = std::result::Result<T, Error>;
+
+/// Checks a configuration value that must be finite and strictly positive.
+pub(crate) fn require_positive(name: &'static str, value: f64) -> Result<()> {
+    if value.is_finite() && value > 0.0 {
+        Ok(())
+    } else {
+        Err(Error::InvalidConfig {
+            name,
+            reason: format!("must be finite and > 0, got {value}"),
+        })
+    }
+}
+
+/// Checks a configuration value that must be finite and zero or more.
+pub(crate) fn require_non_negative(name: &'static str, value: f64) -> Result<()> {
+    if value.is_finite() && value >= 0.0 {
+        Ok(())
+    } else {
+        Err(Error::InvalidConfig {
+            name,
+            reason: format!("must be finite and >= 0, got {value}"),
+        })
+    }
+}

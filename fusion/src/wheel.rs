@@ -16,7 +16,7 @@
 //! the counter range between two samples; [`TickDecoder::new`] refuses a
 //! configuration where that can happen within one nominal period.
 
-use crate::error::{Error, Result};
+use crate::error::{Error, Result, require_positive};
 
 /// Why a wheel sample was not integrated as it came.
 #[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
@@ -136,12 +136,7 @@ impl InputConfig {
             ("gap_factor", self.gap_factor),
             ("max_wheel_speed_mps", self.max_wheel_speed_mps),
         ] {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(Error::InvalidConfig {
-                    name,
-                    reason: format!("must be finite and > 0, got {v}"),
-                });
-            }
+            require_positive(name, v)?;
         }
         if self.gap_factor < 1.0 {
             return Err(Error::InvalidConfig {
@@ -234,12 +229,7 @@ impl TickDecoder {
             return Err(Error::InvalidCounterWidth { bits });
         }
         config.validate()?;
-        if !(distance_per_tick_m.is_finite() && distance_per_tick_m > 0.0) {
-            return Err(Error::InvalidConfig {
-                name: "distance_per_tick_m",
-                reason: format!("must be finite and > 0, got {distance_per_tick_m}"),
-            });
-        }
+        require_positive("distance_per_tick_m", distance_per_tick_m)?;
         let max_ticks = config.max_wheel_speed_mps * config.nominal_period_s / distance_per_tick_m;
         let half_range = 2f64.powi(bits as i32 - 1);
         if max_ticks >= half_range {

@@ -25,7 +25,7 @@ pub mod plan;
 
 pub use plan::{Direction, Plan, Segment};
 
-use crate::error::{Error, Result};
+use crate::error::{Error, Result, require_non_negative, require_positive};
 use crate::odometry::{Pose, wheel_distance_factors};
 use crate::params::{SteeringMap, VehicleParams};
 use crate::wheel::SpeedUnit;
@@ -279,26 +279,8 @@ impl SimConfig {
     }
 
     fn validate(&self) -> Result<()> {
-        let positive = |name: &'static str, v: f64| {
-            if v.is_finite() && v > 0.0 {
-                Ok(())
-            } else {
-                Err(Error::InvalidConfig {
-                    name,
-                    reason: format!("must be finite and > 0, got {v}"),
-                })
-            }
-        };
-        let non_negative = |name: &'static str, v: f64| {
-            if v.is_finite() && v >= 0.0 {
-                Ok(())
-            } else {
-                Err(Error::InvalidConfig {
-                    name,
-                    reason: format!("must be finite and >= 0, got {v}"),
-                })
-            }
-        };
+        let positive = require_positive;
+        let non_negative = require_non_negative;
         positive("speed_mps", self.speed_mps)?;
         positive("accel_mps2", self.accel_mps2)?;
         positive("rate_hz", self.rate_hz)?;
