@@ -10,11 +10,27 @@
 
 use std::f64::consts::PI;
 
-use canodom_fusion::{VehicleParams, odometry::wheel_distance_factors};
+use canodom_fusion::params::rear_diameters_for_ratio;
+use canodom_fusion::{VehicleParams, WheelSet, odometry::wheel_distance_factors};
 
 use crate::error::Result;
 use crate::run::RevSample;
 use crate::track::{Direction, Track};
+
+/// The vehicle of `calibration-math.md` §9: wheelbase 25 cm, true effective
+/// rear tread 28.5 cm, rear diameter ratio 1.005 around 9 cm, with a 3.5 %
+/// tape on the left and/or right rear wheel (Table 2's four cases).
+///
+/// # Errors
+/// Never for these constants; the type says the parameters were validated.
+pub fn section9_truth(tape_left: bool, tape_right: bool) -> Result<VehicleParams> {
+    let (left_m, right_m) = rear_diameters_for_ratio(0.09, 1.005);
+    let tape = |d: f64, on: bool| if on { d * 1.035 } else { d };
+    let mut diameters_m = WheelSet::splat(0.09);
+    diameters_m.rear_left = tape(left_m, tape_left);
+    diameters_m.rear_right = tape(right_m, tape_right);
+    Ok(VehicleParams::nominal(0.25, 0.285, 0.09, 1000)?.with_diameters(diameters_m)?)
+}
 
 /// Wheel revolutions of one piece of constant curvature.
 fn piece(truth: &VehicleParams, curvature_per_m: f64, ds_m: f64) -> [f64; 4] {

@@ -294,15 +294,7 @@ pub(crate) mod tests {
 
     /// §9's truth with optional tape on the rear wheels (3.5 % on a diameter).
     pub(crate) fn truth(tape_left: bool, tape_right: bool) -> VehicleParams {
-        let (l, r) = canodom_fusion::params::rear_diameters_for_ratio(0.09, 1.005);
-        let tape = |d: f64, on: bool| if on { d * 1.035 } else { d };
-        let mut d = WheelSet::splat(0.09);
-        d.rear_left = tape(l, tape_left);
-        d.rear_right = tape(r, tape_right);
-        VehicleParams::nominal(0.25, 0.285, 0.09, 1000)
-            .unwrap()
-            .with_diameters(d)
-            .unwrap()
+        synth::section9_truth(tape_left, tape_right).unwrap()
     }
 
     pub(crate) fn used() -> RearParams {

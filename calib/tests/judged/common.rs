@@ -3,10 +3,9 @@
 
 use canodom_calib::run::{InputFault, Tolerances};
 use canodom_calib::{Direction, RearParams, RevSample, Run, RunRecorder};
-use canodom_fusion::params::rear_diameters_for_ratio;
 use canodom_fusion::sim::{self, Plan, SimConfig};
 use canodom_fusion::wheel::{InputConfig, TickDecoder};
-use canodom_fusion::{SteeringMap, VehicleParams, Wheel, WheelSet};
+use canodom_fusion::{SteeringMap, VehicleParams, Wheel};
 
 pub const RHO_M: f64 = 0.78;
 pub const DEG: f64 = std::f64::consts::PI / 180.0;
@@ -22,14 +21,7 @@ pub fn true_steering() -> SteeringMap {
 /// §9's truth: b = 28.5 cm, E = 1.005 around 9 cm, with a 3.5 % tape on
 /// the left and/or right rear wheel.
 pub fn truth(tape_left: bool, tape_right: bool) -> VehicleParams {
-    let (l, r) = rear_diameters_for_ratio(0.09, 1.005);
-    let tape = |d: f64, on: bool| if on { d * 1.035 } else { d };
-    let mut d = WheelSet::splat(0.09);
-    d.rear_left = tape(l, tape_left);
-    d.rear_right = tape(r, tape_right);
-    VehicleParams::nominal(0.25, 0.285, 0.09, 1000)
-        .unwrap()
-        .with_diameters(d)
+    canodom_calib::synth::section9_truth(tape_left, tape_right)
         .unwrap()
         .with_steering(true_steering())
         .unwrap()
