@@ -5,6 +5,7 @@
 //! - [`frame`]: the CAN frame value type shared by every transport and log.
 //! - [`candump`]: the `candump -L` log format, streaming parser and formatter.
 //! - [`bus`]: the transport trait, with the in-process bus and SocketCAN.
+//! - [`calib_wire`]: the calibration frames as typed values, encode/decode.
 //! - [`own_dbc`]: canodom's own frames (`dbc/canodom.dbc`), id map and base id.
 //! - [`persist`]: the calibrated-parameter file, atomic and durable.
 //! - [`cmd`]: the subcommands (run, decode, replay, simulate, demo).
@@ -18,6 +19,7 @@
 //! - [`sd_notify`]: systemd readiness and watchdog notifications.
 
 pub mod bus;
+pub mod calib_wire;
 pub mod candump;
 pub mod cmd;
 pub mod config;
