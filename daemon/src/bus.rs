@@ -414,10 +414,35 @@ impl FrameSink for InProcessTx {
 
 pub use self::socketcan_bus::{SocketCanRx, SocketCanTx, open_socketcan};
 
+/// `SO_MEMINFO` (`asm-generic/socket.h`, the value on x86-64 and arm64):
+/// `getsockopt` fills `u32[SK_MEMINFO_VARS]` with the socket's memory
+/// counters, among them `sk_drops`.
+const SO_MEMINFO: libc::c_int = 55;
+
+/// Size of the `SO_MEMINFO` answer we need: up to and including
+/// `SK_MEMINFO_DROPS` (index 8, Linux 4.12 and later).
+pub const MEMINFO_LEN: usize = (libc::SK_MEMINFO_DROPS as usize + 1) * 4;
+
+/// The socket's drop counter (`sk_drops`: frames the kernel discarded
+/// because the socket's receive queue was full) from an `SO_MEMINFO`
+/// answer of `len` bytes, `None` when the kernel's answer is too short to
+/// hold it.
+pub fn drops_from_meminfo(buf: &[u8], len: usize) -> Option<u64> {
+    let at = libc::SK_MEMINFO_DROPS as usize * 4;
+    if len < at + 4 || buf.len() < at + 4 {
+        return None;
+    }
+    let bytes: [u8; 4] = buf[at..at + 4].try_into().ok()?;
+    Some(u64::from(u32::from_ne_bytes(bytes)))
+}
+
 /// SocketCAN through the socketcan crate's tokio socket. Cannot run on a
 /// host without CAN in its kernel; exercised by the vcan VM tests.
 mod socketcan_bus {
-    use super::{BusError, BusEvent, FrameSink, FrameSource, IdFilter, Received};
+    use super::{
+        BusError, BusEvent, FrameSink, FrameSource, IdFilter, MEMINFO_LEN, Received, SO_MEMINFO,
+        drops_from_meminfo,
+    };
     use crate::candump::Timestamp;
     use crate::frame::{CanFrame, CanId, FrameKind, MAX_EXTENDED_ID};
     use socketcan::{
@@ -433,10 +458,24 @@ mod socketcan_bus {
     const CAN_ERR_MASK: u32 = 0x1FFF_FFFF;
 
     /// Receiving half of a SocketCAN endpoint.
+    ///
+    /// Frames the kernel drops because this socket's receive queue is full
+    /// are counted by the kernel (`sk_drops`, read with `SO_MEMINFO`, which
+    /// is the counter `SO_RXQ_OVFL` reports too); every increase is handed
+    /// to the caller as [`BusEvent::Lost`] before the next frame, and the
+    /// total is logged when the endpoint closes.
     #[derive(Debug)]
     pub struct SocketCanRx {
         iface: String,
         socket: Arc<CanFdSocket>,
+        /// `sk_drops` when the socket was opened (it starts at 0; kept in
+        /// case a kernel ever does not) and when last reported.
+        drops_at_open: u64,
+        drops_reported: u64,
+        /// Frames read since the drop counter was last looked at.
+        frames_since_drop_check: u32,
+        /// The kernel lacks `SO_MEMINFO` (before 4.12): drops cannot be counted.
+        drops_unknown: bool,
     }
 
     /// Sending half of a SocketCAN endpoint (shares the socket).
@@ -464,7 +503,18 @@ mod socketcan_bus {
         let mut rx = SocketCanRx {
             iface: iface.to_owned(),
             socket: Arc::new(socket),
+            drops_at_open: 0,
+            drops_reported: 0,
+            frames_since_drop_check: 0,
+            drops_unknown: false,
         };
+        match rx.read_kernel_drops() {
+            Ok(n) => (rx.drops_at_open, rx.drops_reported) = (n, n),
+            Err(e) => {
+                tracing::warn!(iface, cause = %e, "kernel drop counter unreadable; drops not counted");
+                rx.drops_unknown = true;
+            }
+        }
         rx.set_filters(filters)?;
         let tx = SocketCanTx {
             iface: iface.to_owned(),
@@ -500,7 +550,47 @@ mod socketcan_bus {
     /// How long a receive waits before checking the socket for an error.
     const SOCKET_ERROR_POLL: Duration = Duration::from_millis(250);
 
+    /// How many frames may be read between two looks at the kernel's drop
+    /// counter: a drop is reported at most this many frames late, and the
+    /// `getsockopt` costs one syscall per this many reads. While no frame
+    /// arrives the counter is read at every [`SOCKET_ERROR_POLL`].
+    const DROP_CHECK_EVERY: u32 = 64;
+
     impl SocketCanRx {
+        /// The kernel's count of frames dropped on this socket since it was
+        /// opened (its receive queue was full).
+        ///
+        /// # Errors
+        /// The kernel cannot report it (no `SO_MEMINFO`).
+        pub fn kernel_drops(&self) -> io::Result<u64> {
+            Ok(self.read_kernel_drops()?.saturating_sub(self.drops_at_open))
+        }
+
+        fn read_kernel_drops(&self) -> io::Result<u64> {
+            let mut buf = [0u8; MEMINFO_LEN];
+            let len =
+                self.socket
+                    .get_socket_option_bytes(libc::SOL_SOCKET, SO_MEMINFO, &mut buf)?;
+            drops_from_meminfo(&buf, len).ok_or_else(|| {
+                io::Error::new(
+                    io::ErrorKind::Unsupported,
+                    format!("SO_MEMINFO answered {len} bytes, without the drop counter"),
+                )
+            })
+        }
+
+        /// New kernel drops since the last report, if any.
+        fn new_drops(&mut self) -> Option<u64> {
+            self.frames_since_drop_check = 0;
+            if self.drops_unknown {
+                return None;
+            }
+            let now = self.read_kernel_drops().ok()?;
+            let new = now.saturating_sub(self.drops_reported);
+            self.drops_reported = self.drops_reported.max(now);
+            (new > 0).then_some(new)
+        }
+
         /// Takes (and clears) a pending socket error: `ENETDOWN` after the
         /// interface went down, `ENODEV` after it was deleted.
         fn check_socket_error(&self) -> Result<(), BusError> {
@@ -522,6 +612,11 @@ mod socketcan_bus {
     impl FrameSource for SocketCanRx {
         async fn recv(&mut self) -> Result<BusEvent, BusError> {
             loop {
+                if self.frames_since_drop_check >= DROP_CHECK_EVERY
+                    && let Some(count) = self.new_drops()
+                {
+                    return Ok(BusEvent::Lost { count });
+                }
                 // The kernel reports an interface going down or away through
                 // the socket error (EPOLLERR), which tokio does not treat as
                 // read readiness: while no frame arrives, poll SO_ERROR.
@@ -529,9 +624,13 @@ mod socketcan_bus {
                     read = self.socket.read_frame_with_timestamp() => read,
                     () = tokio::time::sleep(SOCKET_ERROR_POLL) => {
                         self.check_socket_error()?;
+                        if let Some(count) = self.new_drops() {
+                            return Ok(BusEvent::Lost { count });
+                        }
                         continue;
                     }
                 };
+                self.frames_since_drop_check += 1;
                 let (frame, time) = read.map_err(|e| BusError::from_io(&self.iface, e))?;
                 let timestamp = to_micros(time);
                 // A frame the kernel hands over that our type rejects (e.g.
@@ -566,6 +665,19 @@ mod socketcan_bus {
                 self.socket.set_filters(&kernel)
             };
             result.map_err(|e| BusError::from_io(&self.iface, e))
+        }
+    }
+
+    impl Drop for SocketCanRx {
+        fn drop(&mut self) {
+            // The total since open, including drops not yet handed over as
+            // `Lost`: the figure an operator compares with the statistics.
+            match self.kernel_drops() {
+                Ok(kernel_drops) if !self.drops_unknown => {
+                    tracing::info!(iface = %self.iface, kernel_drops, "CAN socket closed");
+                }
+                _ => tracing::info!(iface = %self.iface, "CAN socket closed"),
+            }
         }
     }
 
@@ -783,6 +895,17 @@ mod tests {
             io::Error::from_raw_os_error(libc::ENETDOWN).kind(),
             io::ErrorKind::NetworkDown
         );
+    }
+
+    #[test]
+    fn the_drop_counter_is_read_from_its_meminfo_slot() {
+        let mut buf = [0u8; MEMINFO_LEN];
+        buf[32..36].copy_from_slice(&4_000_000_123u32.to_ne_bytes());
+        buf[0..4].copy_from_slice(&7u32.to_ne_bytes());
+        assert_eq!(drops_from_meminfo(&buf, MEMINFO_LEN), Some(4_000_000_123));
+        // An older kernel answers fewer counters: no drop count, not a wrong one.
+        assert_eq!(drops_from_meminfo(&buf, 32), None);
+        assert_eq!(drops_from_meminfo(&buf[..20], 36), None);
     }
 
     #[test]

@@ -14,6 +14,7 @@
 //! - [`pose_frames`]: pose samples encoded into canodom's own frames.
 //! - [`vehicle`]: the simulator encoded with the configured DBC (simulate, demo, tests).
 //! - [`progress`]: a progress line on terminals for long offline work.
+//! - [`state_file`]: the end state `run --state-file` saves on SIGTERM.
 //! - [`stats`]: reject reasons and counters.
 //! - [`server`]: the async daemon (link and pipeline tasks), generic over the transport.
 //! - [`sd_notify`]: systemd readiness and watchdog notifications.
@@ -31,5 +32,6 @@ pub mod pose_frames;
 pub mod progress;
 pub mod sd_notify;
 pub mod server;
+pub mod state_file;
 pub mod stats;
 pub mod vehicle;

@@ -23,6 +23,10 @@ pub struct RunArgs {
     /// The configuration file.
     #[arg(long)]
     pub config: PathBuf,
+    /// On stopping, write the end state here (JSON, atomically): last pose,
+    /// covariance, statistics, parameters (see `canodom::state_file`).
+    #[arg(long)]
+    pub state_file: Option<PathBuf>,
 }
 
 /// Runs the daemon.
@@ -43,6 +47,10 @@ pub fn execute(args: &RunArgs) -> anyhow::Result<()> {
         shutdown_signal(),
         Observers::default(),
     ))?;
+    if let Some(path) = &args.state_file {
+        crate::state_file::save(path, &crate::state_file::SavedState::new(&config, &summary))?;
+        info!(path = %path.display(), "state saved");
+    }
     info!(stats = %summary.stats, poses = summary.poses_published, "canodom stopped");
     Ok(())
 }

@@ -1,0 +1,455 @@
+//! The state `canodom run --state-file PATH` leaves behind when it stops
+//! (SIGTERM, SIGINT): where the vehicle was, how sure the filter was, what
+//! the pipeline did with every frame, and the parameters it ran with.
+//!
+//! What is saved is the daemon's end state after the pipeline task has
+//! drained every frame already queued (see [`crate::server`]): the pose of
+//! the last filter step, the position and heading standard deviations of
+//! its covariance, the complete statistics (every reject reason, zeros
+//! included, so a reader never mistakes "absent" for "not counted"), the
+//! pose samples published, frames lost, connections and outages, and the
+//! vehicle parameters in use.
+//!
+//! The file is JSON, written atomically and durably: a temporary file in
+//! the same directory is written and `fsync`ed, renamed over the target,
+//! and the directory `fsync`ed, so a crash or power loss at any instant
+//! leaves either the previous complete file or the new complete one, never
+//! a torn one.
+
+use crate::config::Config;
+use crate::server::Summary;
+use crate::stats::{Reject, Stats};
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+use std::fs::{self, File, OpenOptions};
+use std::io::Write;
+use std::os::unix::fs::OpenOptionsExt;
+use std::path::{Path, PathBuf};
+use std::time::{SystemTime, UNIX_EPOCH};
+
+/// Version of the layout written by this code.
+pub const FORMAT_VERSION: u32 = 1;
+
+/// Why the state file cannot be written or read.
+#[derive(Debug, thiserror::Error)]
+pub enum StateFileError {
+    /// A file system operation failed.
+    #[error("{path}: {source}")]
+    Io {
+        /// The path that failed.
+        path: PathBuf,
+        /// The OS error.
+        #[source]
+        source: std::io::Error,
+    },
+    /// The text is not a state file of this version.
+    #[error("{path}: {reason}")]
+    Format {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong with it.
+        reason: String,
+    },
+}
+
+/// The pose of the last filter step.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SavedPose {
+    /// Seconds since the first input frame of the run.
+    pub t_s: f64,
+    /// Position of the rear-axle centre, metres.
+    pub x_m: f64,
+    /// Position, metres.
+    pub y_m: f64,
+    /// Heading in (−π, π], as the pose frames carry it.
+    pub heading_rad: f64,
+    /// Heading as the total turn since the start.
+    pub heading_unwrapped_rad: f64,
+}
+
+/// The filter's uncertainty at the end, as the pose frames summarise it.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SavedCovariance {
+    /// Square root of the largest eigenvalue of the x/y covariance, metres.
+    pub pos_std_m: f64,
+    /// Standard deviation of the heading, radians.
+    pub heading_std_rad: f64,
+    /// The full 3×3 covariance of (x, y, heading), row by row.
+    pub p: [[f64; 3]; 3],
+}
+
+/// The pipeline's statistics.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SavedStats {
+    /// Frames offered to the pipeline.
+    pub frames: u64,
+    /// Frames used.
+    pub used: u64,
+    /// Filter steps.
+    pub steps: u64,
+    /// Steps without a valid front window.
+    pub steps_without_front: u64,
+    /// Every reject reason by its log name ([`Reject::as_str`]), zeros included.
+    pub rejects: BTreeMap<String, u64>,
+}
+
+impl From<&Stats> for SavedStats {
+    fn from(s: &Stats) -> Self {
+        Self {
+            frames: s.frames,
+            used: s.used,
+            steps: s.steps,
+            steps_without_front: s.steps_without_front,
+            rejects: Reject::ALL
+                .iter()
+                .map(|&r| (r.as_str().to_owned(), s.get(r)))
+                .collect(),
+        }
+    }
+}
+
+/// The vehicle parameters the filter ran with.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SavedParams {
+    /// Wheelbase, metres.
+    pub wheelbase_m: f64,
+    /// Rear tread, metres.
+    pub rear_tread_m: f64,
+    /// Front tread, metres.
+    pub front_tread_m: f64,
+    /// Rear-left wheel diameter, metres.
+    pub rear_left_diameter_m: f64,
+    /// Rear-right wheel diameter, metres.
+    pub rear_right_diameter_m: f64,
+    /// Front-left wheel diameter, metres.
+    pub front_left_diameter_m: f64,
+    /// Front-right wheel diameter, metres.
+    pub front_right_diameter_m: f64,
+    /// Road-wheel radians per unit of the steering signal.
+    pub steering_gain: f64,
+    /// Road-wheel angle at a zero steering signal, radians.
+    pub steering_offset_rad: f64,
+}
+
+/// Everything the state file holds.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SavedState {
+    /// [`FORMAT_VERSION`].
+    pub format_version: u32,
+    /// Wall-clock time of the save, µs since the Unix epoch.
+    pub saved_at_unix_us: u64,
+    /// The CAN interface.
+    pub interface: String,
+    /// The configuration file.
+    pub config: PathBuf,
+    /// The last filter step's pose; `None` when no step was made.
+    pub pose: Option<SavedPose>,
+    /// The final covariance.
+    pub covariance: SavedCovariance,
+    /// The pipeline's statistics.
+    pub stats: SavedStats,
+    /// Pose samples published.
+    pub poses_published: u64,
+    /// Frames the transport reported lost (kernel socket drops included).
+    pub frames_lost: u64,
+    /// Connections opened (1 + reconnects).
+    pub connections: u64,
+    /// Outages seen.
+    pub outages: u64,
+    /// The parameters in use.
+    pub params: SavedParams,
+}
+
+impl SavedState {
+    /// The state of a daemon run that ended with `summary`.
+    pub fn new(config: &Config, summary: &Summary) -> Self {
+        let pose = summary.state.pose();
+        let unwrapped = summary.state.pose_unwrapped();
+        let p = summary.state.covariance();
+        let (a, b, c) = (p[(0, 0)], p[(0, 1)], p[(1, 1)]);
+        // The same summary as ODOM_QUALITY.POS_STD: the worst direction.
+        let lambda_max = 0.5 * (a + c) + (0.25 * (a - c) * (a - c) + b * b).sqrt();
+        let d = config.params.wheel_diameters_m();
+        let steering = config.params.steering();
+        Self {
+            format_version: FORMAT_VERSION,
+            saved_at_unix_us: SystemTime::now()
+                .duration_since(UNIX_EPOCH)
+                .map_or(0, |d| d.as_micros() as u64),
+            interface: config.interface.clone(),
+            config: config.file.clone(),
+            pose: summary.last_step.map(|step| SavedPose {
+                t_s: step.t_s,
+                x_m: pose.x_m,
+                y_m: pose.y_m,
+                heading_rad: pose.heading_rad,
+                heading_unwrapped_rad: unwrapped.heading_rad,
+            }),
+            covariance: SavedCovariance {
+                pos_std_m: lambda_max.max(0.0).sqrt(),
+                heading_std_rad: p[(2, 2)].max(0.0).sqrt(),
+                p: [0, 1, 2].map(|i| [0, 1, 2].map(|j| p[(i, j)])),
+            },
+            stats: SavedStats::from(&summary.stats),
+            poses_published: summary.poses_published,
+            frames_lost: summary.frames_lost,
+            connections: summary.connections,
+            outages: summary.outages,
+            params: SavedParams {
+                wheelbase_m: config.params.wheelbase_m(),
+                rear_tread_m: config.params.rear_tread_m(),
+                front_tread_m: config.params.front_tread_m(),
+                rear_left_diameter_m: d.rear_left,
+                rear_right_diameter_m: d.rear_right,
+                front_left_diameter_m: d.front_left,
+                front_right_diameter_m: d.front_right,
+                steering_gain: steering.gain,
+                steering_offset_rad: steering.offset_rad,
+            },
+        }
+    }
+}
+
+/// Writes `state` to `path` atomically and durably (see the module doc).
+///
+/// # Errors
+/// [`StateFileError::Io`] naming the path that failed; the previous file is
+/// then untouched.
+pub fn save(path: &Path, state: &SavedState) -> Result<(), StateFileError> {
+    let io_err = |p: &Path| {
+        let p = p.to_owned();
+        move |source| StateFileError::Io { path: p, source }
+    };
+    let mut text = serde_json::to_string_pretty(state).map_err(|e| StateFileError::Format {
+        path: path.to_owned(),
+        reason: e.to_string(),
+    })?;
+    text.push('\n');
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d.to_owned(),
+        _ => PathBuf::from("."),
+    };
+    let name = path
+        .file_name()
+        .map_or_else(|| "state".into(), |n| n.to_string_lossy());
+    let tmp = path.with_file_name(format!(".{name}.tmp"));
+    // One daemon writes one state file, so a fixed temporary name is safe;
+    // truncation discards the leftover of a crashed earlier attempt.
+    let mut f = OpenOptions::new()
+        .write(true)
+        .create(true)
+        .truncate(true)
+        .mode(0o644)
+        .open(&tmp)
+        .map_err(io_err(&tmp))?;
+    f.write_all(text.as_bytes()).map_err(io_err(&tmp))?;
+    f.sync_all().map_err(io_err(&tmp))?;
+    drop(f);
+    fs::rename(&tmp, path).map_err(io_err(path))?;
+    File::open(&dir)
+        .and_then(|d| d.sync_all())
+        .map_err(io_err(&dir))
+}
+
+/// Reads a state file written by [`save`].
+///
+/// # Errors
+/// Unreadable file, not JSON of this layout, or another format version.
+pub fn load(path: &Path) -> Result<SavedState, StateFileError> {
+    let text = fs::read_to_string(path).map_err(|source| StateFileError::Io {
+        path: path.to_owned(),
+        source,
+    })?;
+    let state: SavedState = serde_json::from_str(&text).map_err(|e| StateFileError::Format {
+        path: path.to_owned(),
+        reason: e.to_string(),
+    })?;
+    if state.format_version != FORMAT_VERSION {
+        return Err(StateFileError::Format {
+            path: path.to_owned(),
+            reason: format!(
+                "format_version {} is not supported (expected {FORMAT_VERSION})",
+                state.format_version
+            ),
+        });
+    }
+    Ok(state)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bus::InProcessBus;
+    use crate::candump::Timestamp;
+    use crate::cmd::simulate::{LOG_EPOCH_US, simulator};
+    use crate::frame::{CanFrame, CanId};
+    use crate::server::{Observers, run};
+    use crate::vehicle::{PathKind, SampleEncoder};
+    use std::sync::Arc;
+    use std::time::Duration;
+
+    fn config() -> Config {
+        Config::load(Path::new(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/examples/rc_car.toml"
+        )))
+        .unwrap()
+    }
+
+    fn scratch(name: &str) -> PathBuf {
+        let dir = std::env::temp_dir().join(format!("canodom-state-{name}-{}", std::process::id()));
+        let _ = fs::remove_dir_all(&dir);
+        fs::create_dir_all(&dir).unwrap();
+        dir
+    }
+
+    /// The daemon on the in-process bus, fed `seconds` of a simulated drive
+    /// plus a few rejects, stopped by its shutdown future once everything
+    /// was sent (the frames still queued must be drained, not lost).
+    async fn daemon_run(config: &Arc<Config>, seconds: f64) -> (Summary, u64) {
+        let bus = InProcessBus::with_epoch("sim0", 1 << 16, Timestamp::from_micros(LOG_EPOCH_US));
+        let (_, tx) = bus.open().unwrap();
+        let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
+        let daemon = tokio::spawn(run(
+            Arc::clone(config),
+            bus.clone(),
+            async move {
+                let _ = stop_rx.await;
+            },
+            Observers::default(),
+        ));
+        // Let the link task open its endpoint before the first frame.
+        tokio::time::sleep(Duration::from_millis(50)).await;
+        let mut sim = simulator(config, PathKind::FigureEight, None, 1, false).unwrap();
+        let mut enc = SampleEncoder::new(config);
+        let mut frames = Vec::new();
+        let mut sent = 0u64;
+        while let Some(sample) = sim.try_next().unwrap() {
+            if sample.t_s > seconds {
+                break;
+            }
+            frames.clear();
+            enc.encode(&sample, &mut frames);
+            for f in &frames {
+                crate::bus::FrameSink::send(&tx, f).await.unwrap();
+                sent += 1;
+            }
+            // Every 100th sample a rear-wheel frame with a broken checksum.
+            if sent.is_multiple_of(300) {
+                let rear = frames
+                    .iter()
+                    .find(|f| f.id() == CanId::Standard(0x100))
+                    .unwrap();
+                let mut data = [0u8; 8];
+                data.copy_from_slice(rear.data());
+                data[7] ^= 0x5A;
+                let bad = CanFrame::new_data(CanId::Standard(0x100), &data).unwrap();
+                crate::bus::FrameSink::send(&tx, &bad).await.unwrap();
+                sent += 1;
+            }
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+        // Stop at once: frames still queued for the pipeline must count.
+        stop_tx.send(()).unwrap();
+        (daemon.await.unwrap().unwrap(), sent)
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn the_saved_state_is_the_daemons_end_state_and_survives_a_round_trip() {
+        let config = Arc::new(config());
+        let (summary, sent) = daemon_run(&config, 6.0).await;
+        assert_eq!(summary.stats.frames, sent, "every frame sent was counted");
+        assert!(summary.stats.get(Reject::BadChecksum) > 0);
+        let dir = scratch("roundtrip");
+        let path = dir.join("state.json");
+        let state = SavedState::new(&config, &summary);
+        save(&path, &state).unwrap();
+        let back = load(&path).unwrap();
+        // serde_json reads floats to within an ulp (no `float_roundtrip`):
+        // everything else is exact.
+        let close = |a: f64, b: f64| (a - b).abs() <= 1e-15 * a.abs().max(b.abs());
+        assert_eq!(back.stats, state.stats);
+        assert_eq!(back.params, state.params);
+        assert_eq!(
+            (back.poses_published, back.frames_lost, back.connections),
+            (state.poses_published, state.frames_lost, state.connections)
+        );
+        let (bp, sp) = (back.pose.unwrap(), state.pose.unwrap());
+        assert!(
+            close(bp.x_m, sp.x_m) && close(bp.y_m, sp.y_m) && close(bp.heading_rad, sp.heading_rad)
+        );
+        // The file holds the run's numbers, not defaults.
+        let pose = back.pose.expect("steps were made");
+        let end = summary.state.pose();
+        assert!(close(pose.x_m, end.x_m) && close(pose.y_m, end.y_m));
+        assert!(pose.x_m.hypot(pose.y_m) > 0.1, "the car moved: {pose:?}");
+        assert_eq!(back.stats.frames, sent);
+        assert_eq!(back.stats.steps, summary.stats.steps);
+        assert_eq!(
+            back.stats.rejects["bad_checksum"],
+            summary.stats.get(Reject::BadChecksum)
+        );
+        assert_eq!(back.stats.rejects.len(), Reject::ALL.len());
+        assert!(back.covariance.pos_std_m > 0.0 && back.covariance.pos_std_m.is_finite());
+        assert_eq!(back.params.wheelbase_m, 0.26);
+        assert!(!dir.join(".state.json.tmp").exists(), "temporary file left");
+        fs::remove_dir_all(dir).unwrap();
+    }
+
+    #[test]
+    fn a_failed_save_leaves_the_previous_file_and_bad_files_are_typed() {
+        let dir = scratch("errors");
+        let path = dir.join("state.json");
+        let mut state = SavedState {
+            format_version: FORMAT_VERSION,
+            saved_at_unix_us: 1,
+            interface: "vcan0".into(),
+            config: PathBuf::from("car.toml"),
+            pose: None,
+            covariance: SavedCovariance {
+                pos_std_m: 0.0,
+                heading_std_rad: 0.0,
+                p: [[0.0; 3]; 3],
+            },
+            stats: SavedStats::from(&Stats::default()),
+            poses_published: 0,
+            frames_lost: 0,
+            connections: 1,
+            outages: 0,
+            params: SavedParams {
+                wheelbase_m: 0.26,
+                rear_tread_m: 0.3,
+                front_tread_m: 0.3,
+                rear_left_diameter_m: 0.09,
+                rear_right_diameter_m: 0.09,
+                front_left_diameter_m: 0.09,
+                front_right_diameter_m: 0.09,
+                steering_gain: 1.0,
+                steering_offset_rad: 0.0,
+            },
+        };
+        save(&path, &state).unwrap();
+        // The temporary name is taken by a directory: the write fails and
+        // the previous file is untouched.
+        fs::create_dir(dir.join(".state.json.tmp")).unwrap();
+        state.poses_published = 99;
+        assert!(matches!(
+            save(&path, &state),
+            Err(StateFileError::Io { .. })
+        ));
+        assert_eq!(load(&path).unwrap().poses_published, 0);
+        fs::write(&path, "{\"format_version\": 1}").unwrap();
+        assert!(matches!(load(&path), Err(StateFileError::Format { .. })));
+        let mut text = serde_json::to_string(&state).unwrap();
+        text = text.replace("\"format_version\":1", "\"format_version\":7");
+        fs::write(&path, text).unwrap();
+        let e = load(&path).unwrap_err();
+        assert!(e.to_string().contains("format_version 7"), "{e}");
+        fs::remove_dir_all(dir).unwrap();
+    }
+}
