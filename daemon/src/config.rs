@@ -9,9 +9,9 @@
 //! Sections: `[can]`, `[vehicle]`, `[signals]`, `[checks.MESSAGE]` (as issue 5
 //! writes them), and with defaults `[inputs]` (timeouts, hysteresis),
 //! `[ekf]` (noise and gate; defaults are `canodom_fusion`'s `EkfConfig::new`)
-//! and `[output]` (own frames' base id, pose rate). The calibration issue adds
-//! a `[calibration]` section beside them: `RawConfig` gets one more optional
-//! field and `Config` one more typed member; no existing key changes.
+//! and `[output]` (own frames' base id, pose rate), and `[calibration]` (the
+//! live session over CAN: command id, arming code, parameter file, bounds,
+//! uncertainty limits, write-back timing; see [`CalibrationConfig`]).
 
 use crate::own_dbc::BaseId;
 use canodom_dbc::{Checksum, ChecksumAlgorithm, Database, SignalHandle};
@@ -72,6 +72,8 @@ struct RawConfig {
     ekf: RawEkf,
     #[serde(default)]
     output: RawOutput,
+    #[serde(default)]
+    calibration: RawCalibration,
 }
 
 #[derive(Debug, Deserialize)]
@@ -175,6 +177,42 @@ impl Default for RawOutput {
     }
 }
 
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+struct RawCalibration {
+    param_file: PathBuf,
+    command_id: Option<u32>,
+    arming_code: Option<u8>,
+    bounds_rel: f64,
+    max_steer_offset_deg: f64,
+    max_tread_std_m: f64,
+    max_ratio_std: f64,
+    ack_timeout_ms: u64,
+    writeback_retries: u32,
+    max_history: usize,
+    standstill_speed_mps: f64,
+    standstill_time_s: f64,
+}
+
+impl Default for RawCalibration {
+    fn default() -> Self {
+        Self {
+            param_file: PathBuf::from("canodom-params.toml"),
+            command_id: None,
+            arming_code: None,
+            bounds_rel: 0.30,
+            max_steer_offset_deg: 10.0,
+            max_tread_std_m: 0.005,
+            max_ratio_std: 0.002,
+            ack_timeout_ms: 500,
+            writeback_retries: 3,
+            max_history: crate::persist::DEFAULT_MAX_HISTORY,
+            standstill_speed_mps: 0.01,
+            standstill_time_s: 1.0,
+        }
+    }
+}
+
 // ---------------------------------------------------------------- typed
 
 /// How wheels are reported.
@@ -260,6 +298,35 @@ pub struct OutputConfig {
     pub stats_interval_s: f64,
 }
 
+/// The live calibration session (`[calibration]`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct CalibrationConfig {
+    /// The calibrated-parameter file (default `canodom-params.toml` beside
+    /// the configuration file).
+    pub param_file: PathBuf,
+    /// The only id `CALIB_CMD` is accepted on (default base id + 0x10).
+    pub command_id: crate::frame::CanId,
+    /// When set, every `CALIB_CMD` must carry this `ARMING_CODE`.
+    pub arming_code: Option<u8>,
+    /// Bounds around the nominal parameters a committed or loaded set must
+    /// lie in (default ±30 %, steering offset ±10°).
+    pub bounds: crate::persist::ParamBounds,
+    /// Largest tread standard deviation a commit accepts, m (default 5 mm).
+    pub max_tread_std_m: f64,
+    /// Largest diameter-ratio standard deviation a commit accepts (default 0.002).
+    pub max_ratio_std: f64,
+    /// How long to wait for `CALIB_ACK` after sending `CALIB_PARAMS` (default 500 ms).
+    pub ack_timeout: std::time::Duration,
+    /// Resends after the first without an ACK before the write-back fails (default 3).
+    pub writeback_retries: u32,
+    /// Previous sets kept in the file for rollback (default 10).
+    pub max_history: usize,
+    /// Below this rear-axle speed the vehicle stands still, m/s (default 0.01).
+    pub standstill_speed_mps: f64,
+    /// How long it must stay below it, s (default 1).
+    pub standstill_time_s: f64,
+}
+
 /// The validated configuration.
 #[derive(Debug)]
 pub struct Config {
@@ -283,6 +350,8 @@ pub struct Config {
     pub ekf: EkfConfig,
     /// Output.
     pub output: OutputConfig,
+    /// The live calibration session.
+    pub calibration: CalibrationConfig,
 }
 
 impl Config {
@@ -743,6 +812,8 @@ impl Validator<'_> {
             }
         }
 
+        let calibration = self.calibration(&raw.calibration, base_id, &params)?;
+
         Ok(Config {
             file: self.file.to_owned(),
             interface: iface,
@@ -761,6 +832,86 @@ impl Validator<'_> {
             inputs,
             ekf,
             output,
+            calibration,
+        })
+    }
+
+    fn calibration(
+        &self,
+        c: &RawCalibration,
+        base_id: BaseId,
+        params: &VehicleParams,
+    ) -> Result<CalibrationConfig, ConfigError> {
+        use crate::frame::CanId;
+        let command_id = match c.command_id {
+            None => crate::own_dbc::OwnFrame::CalibCmd.id(base_id),
+            Some(raw) => {
+                let id = if base_id.id().is_extended() {
+                    CanId::extended(raw)
+                } else {
+                    CanId::standard(raw)
+                };
+                id.ok_or_else(|| {
+                    self.err(
+                        "calibration.command_id",
+                        "an id of the base id's format (11 or 29 bits)",
+                        format!("{raw:#x}"),
+                    )
+                })?
+            }
+        };
+        let rel = c.bounds_rel;
+        if !(rel.is_finite() && rel > 0.0 && rel < 1.0) {
+            return Err(self.err("calibration.bounds_rel", "a fraction in (0, 1)", rel));
+        }
+        let offset_deg =
+            self.positive("calibration.max_steer_offset_deg", c.max_steer_offset_deg)?;
+        if c.ack_timeout_ms == 0 {
+            return Err(self.err("calibration.ack_timeout_ms", "an integer >= 1", 0));
+        }
+        if c.writeback_retries > 6 {
+            // WB_ATTEMPTS is 3 bits: 1 + retries must fit 7.
+            return Err(self.err(
+                "calibration.writeback_retries",
+                "an integer 0..=6",
+                c.writeback_retries,
+            ));
+        }
+        if c.param_file.as_os_str().is_empty() {
+            return Err(self.err("calibration.param_file", "a file path", "\"\""));
+        }
+        let mut bounds = crate::persist::ParamBounds::around(
+            params.rear_tread_m(),
+            params.rear_mean_diameter_m(),
+            rel,
+            offset_deg.to_radians(),
+        );
+        // The gain's bounds are around the configured map's gain, whatever its sign.
+        let g = params.steering().gain;
+        let (a, b) = (g * (1.0 - rel), g * (1.0 + rel));
+        bounds.steering_gain = (a.min(b), a.max(b));
+        bounds.steering_offset_rad = (
+            params.steering().offset_rad - offset_deg.to_radians(),
+            params.steering().offset_rad + offset_deg.to_radians(),
+        );
+        Ok(CalibrationConfig {
+            param_file: self
+                .file
+                .parent()
+                .unwrap_or(Path::new("."))
+                .join(&c.param_file),
+            command_id,
+            arming_code: c.arming_code,
+            bounds,
+            max_tread_std_m: self.positive("calibration.max_tread_std_m", c.max_tread_std_m)?,
+            max_ratio_std: self.positive("calibration.max_ratio_std", c.max_ratio_std)?,
+            ack_timeout: std::time::Duration::from_millis(c.ack_timeout_ms),
+            writeback_retries: c.writeback_retries,
+            max_history: c.max_history.max(1),
+            standstill_speed_mps: self
+                .positive("calibration.standstill_speed_mps", c.standstill_speed_mps)?,
+            standstill_time_s: self
+                .positive("calibration.standstill_time_s", c.standstill_time_s)?,
         })
     }
 }

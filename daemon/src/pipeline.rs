@@ -203,6 +203,13 @@ pub struct Pipeline {
     yaw_rate_radps: f64,
     latched: PoseFlags,
     stats: Stats,
+    /// The parameters the wheel decoders were built with (the configured
+    /// nominal ones): decoded distances are in these units.
+    decoder_params: VehicleParams,
+    /// Rear (left, right) distance factors: diameter in use over decoder diameter.
+    rear_scale: (f64, f64),
+    /// Version of the calibrated set in use; `None` for the nominal parameters.
+    param_version: Option<u16>,
 }
 
 /// Index of a message within `inputs`, by role.
@@ -306,7 +313,62 @@ impl Pipeline {
             yaw_rate_radps: 0.0,
             latched: PoseFlags::default(),
             stats: Stats::default(),
+            decoder_params: params,
+            rear_scale: (1.0, 1.0),
+            param_version: None,
         })
+    }
+
+    /// Puts a calibrated parameter set (`version` ≥ 1) into the running
+    /// odometry: rear wheel distances, rear tread and steering map from the
+    /// next step on; the pose so far is kept. `None` returns to the nominal
+    /// parameters. The caller chooses the instant (canodom applies sets only
+    /// at standstill).
+    ///
+    /// # Errors
+    /// The filter refused the parameters; nothing changed then.
+    pub fn apply_params(
+        &mut self,
+        set: Option<(u16, &crate::persist::ParamValues)>,
+    ) -> Result<(), canodom_fusion::Error> {
+        let params = match set {
+            None => self.decoder_params,
+            Some((_, v)) => self
+                .decoder_params
+                .with_rear(
+                    v.rear_tread_m,
+                    v.rear_left_diameter_m,
+                    v.rear_right_diameter_m,
+                )?
+                .with_steering(SteeringMap {
+                    gain: v.steering_gain,
+                    offset_rad: v.steering_offset_rad,
+                })?,
+        };
+        let ekf = Ekf::new(canodom_fusion::ekf::EkfConfig {
+            params,
+            ..*self.ekf.config()
+        })?;
+        let d = |p: &VehicleParams, w: Wheel| p.wheel_diameter_m(w);
+        self.rear_scale = (
+            d(&params, Wheel::RearLeft) / d(&self.decoder_params, Wheel::RearLeft),
+            d(&params, Wheel::RearRight) / d(&self.decoder_params, Wheel::RearRight),
+        );
+        self.ekf = ekf;
+        self.params = params;
+        self.steer_map = params.steering();
+        self.param_version = set.map(|(v, _)| v);
+        Ok(())
+    }
+
+    /// The parameters in use (nominal or calibrated).
+    pub fn params(&self) -> &VehicleParams {
+        &self.params
+    }
+
+    /// Version of the calibrated set in use, `None` for nominal.
+    pub fn param_version(&self) -> Option<u16> {
+        self.param_version
     }
 
     /// The statistics so far.
@@ -416,8 +478,8 @@ impl Pipeline {
             self.front_acc_m.1 += fr;
         }
         if rear {
-            let rl = self.wheel(Wheel::RearLeft, t_s, data, speeds.rear_left);
-            let rr = self.wheel(Wheel::RearRight, t_s, data, speeds.rear_right);
+            let rl = self.wheel(Wheel::RearLeft, t_s, data, speeds.rear_left) * self.rear_scale.0;
+            let rr = self.wheel(Wheel::RearRight, t_s, data, speeds.rear_right) * self.rear_scale.1;
             return self.step(t_s, t_us, rl, rr);
         }
         None
@@ -542,7 +604,7 @@ impl Pipeline {
             counter_fault: self.latched.counter_fault,
             checksum_fault: self.latched.checksum_fault,
             gate_reject: self.latched.gate_reject,
-            nominal_params: true,
+            nominal_params: self.param_version.is_none(),
         };
         self.latched = PoseFlags::default();
         let pose = self.state.pose();
@@ -559,7 +621,7 @@ impl Pipeline {
             pos_std_m: lambda_max.max(0.0).sqrt(),
             heading_std_rad: p[(2, 2)].max(0.0).sqrt(),
             flags,
-            param_version: 0,
+            param_version: self.param_version.unwrap_or(0),
         }
     }
 }
@@ -603,6 +665,45 @@ mod tests {
 
     const REAR: u32 = 0x100;
     const FRONT: u32 = 0x101;
+
+    #[test]
+    fn an_applied_set_drives_the_next_steps_and_is_reported() {
+        let c = config();
+        let fr = frames(&c, 10.0);
+        let mut nominal = Pipeline::new(&c).unwrap();
+        let mut calibrated = Pipeline::new(&c).unwrap();
+        let steer = c.params.steering();
+        let set = crate::persist::ParamValues {
+            rear_tread_m: 0.33,
+            rear_left_diameter_m: 0.09,
+            rear_right_diameter_m: 0.09 * 1.01,
+            steering_gain: steer.gain,
+            steering_offset_rad: steer.offset_rad,
+        };
+        calibrated.apply_params(Some((4, &set))).unwrap();
+        for (t, f) in &fr {
+            nominal.push(*t, f);
+            calibrated.push(*t, f);
+        }
+        let (a, b) = (
+            nominal.last_step().unwrap().odometry,
+            calibrated.last_step().unwrap().odometry,
+        );
+        // Rear odometry turns by (D_R·n_R − D_L·n_L)/b: with the calibrated
+        // set the right wheel goes 1 % further and the tread is 10 % wider.
+        assert!((a.heading_rad - b.heading_rad).abs() > 0.03, "{a:?} {b:?}");
+        let out = calibrated.pose_output(fr.last().unwrap().0);
+        assert_eq!((out.param_version, out.flags.nominal_params), (4, false));
+        assert!((calibrated.params().rear_diameter_ratio() - 1.01).abs() < 1e-12);
+        calibrated.apply_params(None).unwrap();
+        assert_eq!(calibrated.param_version(), None);
+        assert!(
+            calibrated
+                .pose_output(fr.last().unwrap().0)
+                .flags
+                .nominal_params
+        );
+    }
 
     #[test]
     fn stale_front_runs_on_prediction_and_says_so() {

@@ -177,7 +177,8 @@ pub async fn run<C: Connector>(
 ) -> Result<Summary, RunError> {
     let token = CancellationToken::new();
     let tracker = TaskTracker::new();
-    let pipeline = Pipeline::new(&config)?;
+    let mut pipeline = Pipeline::new(&config)?;
+    apply_param_file(&mut pipeline, &config.calibration);
     let encoder = PoseEncoder::new(config.output.base_id)?;
     let cmd_id = OwnFrame::OdomCmd.id(config.output.base_id);
     let mut filters: Vec<IdFilter> = config
@@ -261,6 +262,58 @@ pub async fn run<C: Connector>(
     summary.connections = connections;
     summary.outages = outages.load(Ordering::Relaxed);
     Ok(summary)
+}
+
+/// Which parameters the daemon started with.
+#[derive(Debug)]
+pub enum ParamStart {
+    /// No parameter file yet: the nominal parameters.
+    Nominal,
+    /// The file's current set, this version, is in use.
+    Loaded(u16),
+    /// The file is damaged (or out of bounds): the nominal parameters, and a
+    /// warning naming the file was logged.
+    Fallback(crate::persist::PersistError),
+}
+
+/// Loads the calibrated-parameter file (checksums and bounds checked) and
+/// applies its current set to `pipeline`; falls back to the nominal
+/// parameters with a warning naming the file when it is damaged.
+pub fn apply_param_file(
+    pipeline: &mut Pipeline,
+    calibration: &crate::config::CalibrationConfig,
+) -> ParamStart {
+    use crate::persist::{PersistError, load};
+    let path = &calibration.param_file;
+    let fallback = |pipeline: &mut Pipeline, e: PersistError| {
+        warn!(file = %path.display(), cause = %e, "calibrated parameter file unusable; using the nominal parameters");
+        // Nominal parameters cannot be refused: the pipeline was built with them.
+        let _ = pipeline.apply_params(None);
+        ParamStart::Fallback(e)
+    };
+    match load(path, &calibration.bounds) {
+        Err(PersistError::Missing { .. }) => {
+            info!(file = %path.display(), "no calibrated parameter file; using the nominal parameters");
+            ParamStart::Nominal
+        }
+        Err(e) => fallback(pipeline, e),
+        Ok(file) => match &file.current {
+            None => ParamStart::Nominal,
+            Some(set) => match pipeline.apply_params(Some((set.version, &set.values))) {
+                Ok(()) => {
+                    info!(file = %path.display(), version = set.version, "calibrated parameters in use");
+                    ParamStart::Loaded(set.version)
+                }
+                Err(e) => fallback(
+                    pipeline,
+                    PersistError::Inconsistent {
+                        path: path.clone(),
+                        reason: format!("set version {}: {e}", set.version),
+                    },
+                ),
+            },
+        },
+    }
 }
 
 /// Owns the connection (see the module doc).
@@ -521,6 +574,86 @@ impl<Tx: FrameSink + Clone> PipelineTask<Tx> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::persist::{ParamFile, ParamValues, store};
+
+    fn rc_car(param_file: &str) -> (Config, std::path::PathBuf) {
+        let p = std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/examples/rc_car.toml"));
+        let mut c = Config::load(p).unwrap();
+        let dir =
+            std::env::temp_dir().join(format!("canodom-live-{}-{param_file}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        c.calibration.param_file = dir.join(param_file);
+        let _ = std::fs::remove_file(&c.calibration.param_file);
+        (c, dir)
+    }
+
+    /// A set with the rc_car's steering map (degrees in, radians out).
+    fn values(tread_m: f64) -> ParamValues {
+        ParamValues {
+            rear_tread_m: tread_m,
+            rear_left_diameter_m: 0.09,
+            rear_right_diameter_m: 0.0915,
+            steering_gain: 1f64.to_radians(),
+            steering_offset_rad: 0.0,
+        }
+    }
+
+    #[test]
+    fn a_stored_set_is_applied_at_start_and_a_damaged_file_falls_back_to_nominal() {
+        let (c, dir) = rc_car("params.toml");
+        let mut p = Pipeline::new(&c).unwrap();
+        assert!(matches!(
+            apply_param_file(&mut p, &c.calibration),
+            ParamStart::Nominal
+        ));
+        let mut file = ParamFile::default();
+        file.commit(values(0.31), "exact", 0, 10);
+        file.commit(values(0.305), "exact", 1, 10);
+        store(&c.calibration.param_file, &file).unwrap();
+        assert!(matches!(
+            apply_param_file(&mut p, &c.calibration),
+            ParamStart::Loaded(2)
+        ));
+        assert_eq!(p.param_version(), Some(2));
+        assert!((p.params().rear_tread_m() - 0.305).abs() < 1e-12);
+        let out = p.pose_output(crate::candump::Timestamp::from_micros(0));
+        assert_eq!((out.param_version, out.flags.nominal_params), (2, false));
+        // One flipped digit in a value: the checksum no longer matches.
+        let text = std::fs::read_to_string(&c.calibration.param_file).unwrap();
+        let damaged = text.replacen("0.305", "0.306", 1);
+        assert_ne!(text, damaged);
+        std::fs::write(&c.calibration.param_file, damaged).unwrap();
+        let start = apply_param_file(&mut p, &c.calibration);
+        let ParamStart::Fallback(e) = start else {
+            panic!("{start:?}")
+        };
+        assert!(e.to_string().contains("params.toml"), "{e}");
+        assert_eq!(p.param_version(), None);
+        assert!((p.params().rear_tread_m() - 0.30).abs() < 1e-12);
+        let out = p.pose_output(crate::candump::Timestamp::from_micros(0));
+        assert_eq!((out.param_version, out.flags.nominal_params), (0, true));
+        // A set outside the configured bounds (±30 %) is refused at start too.
+        let mut far = ParamFile::default();
+        far.commit(values(0.5), "exact", 0, 10);
+        store(&c.calibration.param_file, &far).unwrap();
+        assert!(matches!(
+            apply_param_file(&mut p, &c.calibration),
+            ParamStart::Fallback(crate::persist::PersistError::OutOfBounds { .. })
+        ));
+        let _ = std::fs::remove_dir_all(dir);
+    }
+
+    #[test]
+    fn calibration_defaults_follow_the_base_id_and_the_nominal_parameters() {
+        let (c, _dir) = rc_car("defaults.toml");
+        let cal = &c.calibration;
+        assert_eq!(cal.command_id, OwnFrame::CalibCmd.id(c.output.base_id));
+        assert_eq!(cal.arming_code, None);
+        assert_eq!(cal.ack_timeout, Duration::from_millis(500));
+        assert_eq!(cal.writeback_retries, 3);
+        let (lo, hi) = cal.bounds.rear_tread_m;
+        assert!((lo - 0.21).abs() < 1e-12 && (hi - 0.39).abs() < 1e-12);
+    }
 
     #[test]
     fn backoff_stays_short_while_the_interface_is_missing_or_down() {
