@@ -13,6 +13,7 @@
 //! - [`pipeline`]: the pure frame → EKF core shared by run, replay and demo.
 //! - [`pose_frames`]: pose samples encoded into canodom's own frames.
 //! - [`vehicle`]: the simulator encoded with the configured DBC (simulate, demo, tests).
+//! - [`report`]: calibration reports, an SVG picture and a JSON file of every number.
 //! - [`progress`]: a progress line on terminals for long offline work.
 //! - [`state_file`]: the end state `run --state-file` saves on SIGTERM.
 //! - [`stats`]: reject reasons and counters.
@@ -30,6 +31,7 @@ pub mod persist;
 pub mod pipeline;
 pub mod pose_frames;
 pub mod progress;
+pub mod report;
 pub mod sd_notify;
 pub mod server;
 pub mod state_file;

@@ -37,7 +37,8 @@ fn simulate(dir: &Path, truth: &Path, path: &str, seed: u64) -> String {
     log.to_str().unwrap().to_owned()
 }
 
-/// One §9 case: true tread and rear diameters; returns the `[calibration]` table.
+/// One §9 case: true tread and rear diameters; returns the `[calibration]`
+/// table, after checking the `--report` files against it.
 fn calibrate_case(name: &str, tread_m: f64, left_m: f64, right_m: f64) -> toml::Table {
     let dir = tmp_dir(&format!("calibrate-{name}"));
     let truth = dir.join("truth.toml");
@@ -64,8 +65,11 @@ fn calibrate_case(name: &str, tread_m: f64, left_m: f64, right_m: f64) -> toml::
         "0.78",
         "--out",
         out.to_str().unwrap(),
-        "--cw",
+        "--report",
     ];
+    let report_dir = dir.join("report");
+    args.push(report_dir.to_str().unwrap());
+    args.push("--cw");
     args.extend(cw.iter().map(String::as_str));
     args.push("--ccw");
     args.extend(ccw.iter().map(String::as_str));
@@ -74,7 +78,70 @@ fn calibrate_case(name: &str, tread_m: f64, left_m: f64, right_m: f64) -> toml::
     assert_eq!(std::fs::read_to_string(&out).unwrap(), stdout);
     assert!(stdout.contains("EFFECTIVE tread"), "{stdout}");
     let doc: toml::Table = stdout.parse().unwrap();
-    doc["calibration"].as_table().unwrap().clone()
+    let calibration = doc["calibration"].as_table().unwrap().clone();
+    check_report(&report_dir, &calibration, &cw, &ccw);
+    calibration
+}
+
+/// The `--report` files: the JSON carries exactly the numbers of the TOML,
+/// the SVG draws every run before and after, and the centres of gravity
+/// moved towards the start.
+fn check_report(dir: &Path, toml: &toml::Table, cw: &[String], ccw: &[String]) {
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("calibration.json")).unwrap())
+            .unwrap();
+    let t = |k: &str| toml[k].as_float().unwrap();
+    let j = |v: &serde_json::Value| v.as_f64().unwrap();
+    // The files carry the shortest round-trip text of each float; serde_json
+    // without `float_roundtrip` may read it one unit in the last place off.
+    let same = |a: f64, b: f64| (a - b).abs() <= f64::EPSILON * b.abs();
+    for key in ["end_error_before_m", "end_error_after_m"] {
+        assert!(same(j(&json[key]), t(key)), "{key}");
+    }
+    let cal = &json["calibrated"];
+    for key in [
+        "rear_tread_m",
+        "rear_left_diameter_m",
+        "rear_right_diameter_m",
+        "diameter_ratio",
+        "rear_tread_std_m",
+    ] {
+        assert!(same(j(&cal[key]), t(key)), "{key}");
+    }
+    assert_eq!(json["method"].as_str(), toml["method"].as_str());
+    let runs = json["runs"].as_array().unwrap();
+    let labels: Vec<&str> = runs.iter().map(|r| r["label"].as_str().unwrap()).collect();
+    let logs: Vec<&str> = cw.iter().chain(ccw).map(String::as_str).collect();
+    assert_eq!(labels, logs);
+    for which in ["ccw_distance_m", "cw_distance_m"] {
+        let before = j(&json["centres_before"][which]);
+        let after = j(&json["centres_after"][which]);
+        assert!(after < 0.5 * before, "{which}: {before} -> {after}");
+    }
+    let svg = std::fs::read_to_string(dir.join("calibration.svg")).unwrap();
+    assert!(svg.starts_with("<svg") && svg.trim_end().ends_with("</svg>"));
+    assert_eq!(svg.matches("<svg").count(), 1);
+    let polylines = |colour: &str| {
+        svg.lines()
+            .filter(|l| l.contains("<polyline") && l.contains(&format!("stroke=\"{colour}\"")))
+            .count()
+    };
+    let [before, after] = [
+        canodom::report::BEFORE_COLOUR,
+        canodom::report::AFTER_COLOUR,
+    ]
+    .map(|c| polylines(&format!("#{:02X}{:02X}{:02X}", c.0, c.1, c.2)));
+    assert_eq!((before, after), (runs.len(), runs.len()));
+    for text in [
+        "before: parameters used",
+        "after: calibrated",
+        "reference track",
+        "CoG before: ",
+        "CoG after: ",
+        "x [m]",
+    ] {
+        assert!(svg.contains(text), "the SVG lacks {text:?}");
+    }
 }
 
 #[test]

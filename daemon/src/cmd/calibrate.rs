@@ -29,12 +29,15 @@ use std::path::{Path, PathBuf};
 #[command(after_help = "Example:\n  \
 canodom simulate --config rc_car.toml --log cw1.log --path track-cw --true-params truth.toml --seed 1\n  \
 canodom simulate --config rc_car.toml --log ccw1.log --path track-ccw --true-params truth.toml --seed 2\n  \
-canodom calibrate --config rc_car.toml --track-radius 0.78 --cw cw1.log --ccw ccw1.log --out calibrated.toml\n\n\
+canodom calibrate --config rc_car.toml --track-radius 0.78 --cw cw1.log --ccw ccw1.log --out calibrated.toml --report report\n\n\
 Each log is one whole run: standing still, one lap of the track (straight 2R, semicircle R, \
 straight 2R, semicircle R), standing still; the run is found inside it (moving off to stopping). \
 Runs are validated (length within 10 %, total turn of 2 pi in the announced direction, no input \
 faults, steering following the track); rejected runs are named on stderr with their reasons and \
 left out. The result is a TOML document on stdout (and in --out, written atomically).\n\n\
+--report DIR writes DIR/calibration.svg (every run's path before and after, the end \
+positions and their centres of gravity around each start point, the reference track) and \
+DIR/calibration.json (every number of the result and of each run).\n\n\
 --end-poses FILE gives measured real end poses, in the run frame (x along the first straight, \
 y to the left), for some or all logs; a log not listed is assumed to end exactly at its start:\n  \
 [[run]]\n  log = \"cw1.log\"      # as given on the command line, or its file name\n  \
@@ -61,6 +64,11 @@ pub struct CalibrateArgs {
     /// Also write the TOML result to this file (atomically).
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// Write a report into this directory (created if missing): calibration.svg,
+    /// every run's path before and after with the centres of gravity of the ends,
+    /// and calibration.json with every number.
+    #[arg(long, value_name = "DIR")]
+    pub report: Option<PathBuf>,
 }
 
 /// `--method`.
@@ -365,6 +373,8 @@ pub fn execute(args: &CalibrateArgs) -> anyhow::Result<()> {
     }
     let tolerances = Tolerances::default();
     let mut runs = Vec::new();
+    // The report names each accepted run after its log.
+    let mut labels = Vec::new();
     let mut accepted = (0, 0);
     let logs = args
         .cw
@@ -386,6 +396,7 @@ pub fn execute(args: &CalibrateArgs) -> anyhow::Result<()> {
                 Direction::Ccw => accepted.1 += 1,
             }
             runs.push(run);
+            labels.push(log.display().to_string());
         } else {
             for r in &reasons {
                 eprintln!("calibrate: {}: run rejected: {r:?}", log.display());
@@ -405,6 +416,15 @@ pub fn execute(args: &CalibrateArgs) -> anyhow::Result<()> {
     print!("{text}");
     if let Some(out) = &args.out {
         write_atomic(out, &text)?;
+    }
+    if let Some(dir) = &args.report {
+        let report = crate::report::CalibrationReport::build(&result, track, &runs, &labels);
+        let (svg, json) = crate::report::write_report(dir, &report)?;
+        eprintln!(
+            "calibrate: report written to {} and {}",
+            svg.display(),
+            json.display()
+        );
     }
     Ok(())
 }
