@@ -142,6 +142,11 @@ impl Spawned {
         run("kill", &["-s", signal, &child.id().to_string()]).map(|_| ())
     }
 
+    /// The process id, while it runs.
+    pub fn id(&self) -> Option<u32> {
+        self.child.as_ref().map(Child::id)
+    }
+
     /// Whether the process is still running.
     pub fn is_running(&mut self) -> bool {
         self.child
