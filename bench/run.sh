@@ -1,0 +1,124 @@
+#!/usr/bin/env bash
+# One command for issue 8's offline benchmarks: builds release, makes (once) a
+# 1,000,000-frame rc_car log with `canodom simulate`, times `canodom replay`,
+# `canodom decode`, `wc -l` and cantools on that same file in the same run,
+# then runs the codec and filter criterion benches with short measurement
+# times, and writes everything to one markdown report.
+#
+#   bench/run.sh                 # report in target/bench-report.md
+#   BENCH_DIR=/tmp/b RUNS=5 bench/run.sh
+#
+# Wall times are the best of $RUNS runs (least disturbed by other load);
+# CPU is user+sys of that run. See bench/README.md.
+set -euo pipefail
+root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+cd "$root"
+target=${CARGO_TARGET_DIR:-$root/target}
+bench_dir=${BENCH_DIR:-$target/bench}
+runs=${RUNS:-3}
+report=${REPORT:-$target/bench-report.md}
+frames=1000000
+config=daemon/examples/rc_car.toml
+dbc=$root/../shared/dbc/rc_car.dbc
+[ -f "$dbc" ] || dbc=daemon/dbc/rc_car.dbc
+mkdir -p "$bench_dir"
+
+echo "== build (release)" >&2
+CARGO_TARGET_DIR=$target cargo build --release -p canodom >&2
+bin=$target/release/canodom
+
+log=$bench_dir/rc_car_${frames}.log
+if [ ! -s "$log" ] || [ "$(wc -l < "$log")" -ne "$frames" ]; then
+    echo "== simulate $frames frames" >&2
+    # 42 track laps ≈ 1.01 M frames; cut to exactly $frames.
+    "$bin" simulate --config "$config" --log "$bench_dir/sim.log" --laps 42 >&2
+    head -n "$frames" "$bench_dir/sim.log" > "$log"
+    rm -f "$bench_dir/sim.log"
+fi
+
+venv=$bench_dir/venv
+if [ ! -x "$venv/bin/cantools" ]; then
+    echo "== cantools venv in $venv" >&2
+    python3 -m venv "$venv"
+    "$venv/bin/pip" install --quiet cantools >&2
+fi
+
+# best_of NAME CMD...: runs CMD $runs times, stdout to /dev/null; sets wall/cpu/rss of the fastest.
+best_of() {
+    local name=$1; shift
+    wall=; cpu=; rss=
+    for _ in $(seq "$runs"); do
+        # /usr/bin/time's wall clock has 10 ms steps, too coarse for `wc -l`.
+        t0=$(date +%s%N)
+        /usr/bin/time -f '%U %S %M' -o "$bench_dir/time.txt" "$@" > /dev/null 2> "$bench_dir/$name.err"
+        t1=$(date +%s%N)
+        w=$(awk -v a="$t0" -v b="$t1" 'BEGIN{printf "%.4f", (b - a) / 1e9}')
+        read -r u s m < "$bench_dir/time.txt"
+        if [ -z "$wall" ] || awk -v a="$w" -v b="$wall" 'BEGIN{exit !(a<b)}'; then
+            wall=$w; cpu=$(awk -v u="$u" -v s="$s" 'BEGIN{printf "%.2f", u+s}'); rss=$m
+        fi
+    done
+}
+rate() { awk -v n="$1" -v t="$2" 'BEGIN{ printf "%.0f", n / t }'; }
+
+echo "== timing ($runs runs each)" >&2
+best_of wc wc -l "$log"; wc_wall=$wall; wc_cpu=$cpu; wc_rss=$rss
+best_of replay "$bin" replay --config "$config" "$log" --out /dev/null
+rp_wall=$wall; rp_cpu=$cpu; rp_rss=$rss
+best_of decode "$bin" decode --dbc "$dbc" "$log"; dc_wall=$wall; dc_cpu=$cpu; dc_rss=$rss
+# Memory constant in log size: the same commands on a tenth of the log.
+head -n $((frames / 10)) "$log" > "$bench_dir/tenth.log"
+runs_saved=$runs; runs=1
+best_of replay10 "$bin" replay --config "$config" "$bench_dir/tenth.log" --out /dev/null; rp10_rss=$rss
+best_of decode10 "$bin" decode --dbc "$dbc" "$bench_dir/tenth.log"; dc10_rss=$rss
+runs=$runs_saved
+echo "== cantools loop (Python, whole log)" >&2
+ct=$("$venv/bin/python" bench/cantools_loop.py "$dbc" "$log")
+ct_fps=$(python3 -c 'import json,sys; print(round(json.loads(sys.argv[1])["frames_per_s"]))' "$ct")
+slice=20000
+head -n $slice "$log" > "$bench_dir/slice.log"
+runs_saved=$runs; runs=1
+best_of cantools_cmd sh -c "'$venv/bin/cantools' decode '$dbc' < '$bench_dir/slice.log'"
+runs=$runs_saved
+cc_fps=$(rate $slice "$wall")
+
+rp_fps=$(rate $frames "$rp_wall"); dc_fps=$(rate $frames "$dc_wall"); wc_fps=$(rate $frames "$wc_wall")
+rp_cfps=$(rate $frames "$rp_cpu"); dc_cfps=$(rate $frames "$dc_cpu")
+ratio() { awk -v a="$1" -v b="$2" 'BEGIN{printf "%.1f", a / b}'; }
+
+echo "== criterion microbenchmarks (short)" >&2
+crit_args=(--warm-up-time 0.3 --measurement-time 1 --output-format bencher)
+micro=$(
+    CARGO_TARGET_DIR=$target cargo bench -q -p canodom-dbc --bench decode -- "${crit_args[@]}" 2>/dev/null | grep '^test '
+    CARGO_TARGET_DIR=$target cargo bench -q -p canodom-fusion --bench fusion -- "${crit_args[@]}" 2>/dev/null | grep '^test '
+    CARGO_TARGET_DIR=$target cargo bench -q -p canodom --bench candump -- "${crit_args[@]}" 2>/dev/null | grep '^test '
+)
+
+{
+    echo "# canodom offline benchmarks"
+    echo
+    echo "$(date -u '+%Y-%m-%d %H:%M UTC'), $(nproc) cores, load $(cut -d' ' -f1-3 /proc/loadavg); log $frames frames of rc_car.dbc ($(du -m "$log" | cut -f1) MB) from \`canodom simulate --laps 42\`; best of $runs runs."
+    echo
+    echo "| command | wall s | frames/s (wall) | CPU s | frames/s (CPU) | peak RSS kB (1 M / 0.1 M frames) |"
+    echo "|---|---:|---:|---:|---:|---:|"
+    echo "| \`wc -l\` (floor: reading the bytes) | $wc_wall | $wc_fps | $wc_cpu | | $wc_rss |"
+    echo "| \`canodom replay\` (EKF, CSV out) | $rp_wall | $rp_fps | $rp_cpu | $rp_cfps | $rp_rss / $rp10_rss |"
+    echo "| \`canodom decode\` (JSON out) | $dc_wall | $dc_fps | $dc_cpu | $dc_cfps | $dc_rss / $dc10_rss |"
+    echo "| cantools loop (logreader + decode_message) | | $ct_fps | | | |"
+    echo "| \`cantools decode\` command ($slice-frame slice) | | $cc_fps | | | |"
+    echo
+    echo "| ratio | value | goal |"
+    echo "|---|---:|---|"
+    echo "| replay / cantools loop (frame rate) | $(ratio "$rp_fps" "$ct_fps")x | ≥ 50x |"
+    echo "| replay time / \`wc -l\` time | $(ratio "$rp_wall" "$wc_wall")x | ≤ 10x |"
+    echo "| decode / cantools loop (frame rate) | $(ratio "$dc_fps" "$ct_fps")x | ≥ 10x |"
+    echo "| decode / \`cantools decode\` command | $(ratio "$dc_fps" "$cc_fps")x | |"
+    echo
+    echo "## Criterion microbenchmarks (codec, filter, candump parser; 1 s each)"
+    echo
+    echo '```'
+    echo "$micro"
+    echo '```'
+} > "$report"
+cat "$report"
+echo "report: $report" >&2
