@@ -34,14 +34,24 @@ impl PathKind {
     /// # Errors
     /// The fusion crate refused the plan.
     pub fn plan(self, road_scale: bool, seed: u64) -> canodom_fusion::Result<Plan> {
+        self.plan_laps(road_scale, seed, 1)
+    }
+
+    /// [`Self::plan`] driven `laps` times: laps of the track, turns of the
+    /// circle, `laps` × 20 m of the random drive (a long log for benchmarks).
+    /// The figure eight and the road-scale random drive are always one lap.
+    ///
+    /// # Errors
+    /// The fusion crate refused the plan (zero laps among others).
+    pub fn plan_laps(self, road_scale: bool, seed: u64, laps: u32) -> canodom_fusion::Result<Plan> {
         let k = if road_scale { 20.0 } else { 1.0 };
         match self {
-            Self::TrackCw => Plan::track(0.78 * k, Direction::Cw, 1),
-            Self::TrackCcw => Plan::track(0.78 * k, Direction::Ccw, 1),
-            Self::Circle => Plan::circle(1.0 * k, Direction::Ccw, 1.0),
+            Self::TrackCw => Plan::track(0.78 * k, Direction::Cw, laps),
+            Self::TrackCcw => Plan::track(0.78 * k, Direction::Ccw, laps),
+            Self::Circle => Plan::circle(1.0 * k, Direction::Ccw, f64::from(laps)),
             Self::FigureEight => Plan::figure_eight(1.0 * k),
             Self::Random if road_scale => Plan::road_drive(seed),
-            Self::Random => Plan::random_drive(seed, 20.0, 0.5),
+            Self::Random => Plan::random_drive(seed, 20.0 * f64::from(laps), 0.5),
         }
     }
 }

@@ -51,6 +51,10 @@ pub struct SimulateArgs {
     /// Let the wheels slip now and then (§11: 0.02 events/s per wheel, ratio N(0, 0.35), 0.5–2 s).
     #[arg(long)]
     pub slip: bool,
+    /// Drive the path this many times (track laps, circle turns, 20 m of random drive each):
+    /// long logs for benchmarks, about 24 700 frames per track lap.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..))]
+    pub laps: u32,
 }
 
 /// Builds the simulator for `config` and the arguments.
@@ -64,6 +68,21 @@ pub fn simulator(
     seed: u64,
     slip: bool,
 ) -> anyhow::Result<Simulator> {
+    simulator_laps(config, path, true_params, seed, slip, 1)
+}
+
+/// [`simulator`] driving the path `laps` times ([`PathKind::plan_laps`]).
+///
+/// # Errors
+/// Bad true-parameter file, or the fusion crate refused the drive.
+pub fn simulator_laps(
+    config: &Config,
+    path: PathKind,
+    true_params: Option<&std::path::Path>,
+    seed: u64,
+    slip: bool,
+    laps: u32,
+) -> anyhow::Result<Simulator> {
     let truth = match true_params {
         Some(p) => TrueParamsFile::load(p)?.apply(&config.params)?,
         None => config.params,
@@ -72,9 +91,10 @@ pub fn simulator(
     if slip {
         cfg.slip = SlipConfig::paper(SlipWheels::All);
     }
-    let plan = path.plan(
+    let plan = path.plan_laps(
         matches!(config.signals.wheel_kind, WheelKind::Speed(_)),
         seed,
+        laps,
     )?;
     Ok(Simulator::new(&cfg, &plan, seed)?)
 }
@@ -172,12 +192,13 @@ pub async fn drive<S: FrameSink>(
 /// Configuration, simulator, I/O or the interface.
 pub fn execute(args: &SimulateArgs) -> anyhow::Result<()> {
     let config = Config::load(&args.config)?;
-    let mut sim = simulator(
+    let mut sim = simulator_laps(
         &config,
         args.path,
         args.true_params.as_deref(),
         args.seed,
         args.slip,
+        args.laps,
     )?;
     if let Some(log) = &args.log {
         let file = std::fs::File::create(log)?;
