@@ -191,3 +191,38 @@ async fn sender_after_recreate(frame: &CanFrame) {
     let (_, sender) = open_socketcan("vcan0", &[]).expect("open sender on the new vcan0");
     sender.send(frame).await.expect("send on the new vcan0");
 }
+
+#[tokio::test]
+async fn frames_the_kernel_drops_on_a_full_socket_are_reported_with_their_count() {
+    // A receiver that reads nothing while 20,000 frames are sent overflows
+    // its socket's receive queue: the kernel drops the excess and counts it
+    // (sk_drops). Every frame must then be either received or reported lost.
+    let (mut rx, _) = open_socketcan("vcan0", &[IdFilter::accept_all()]).expect("open vcan0");
+    let (_, tx) = open_socketcan("vcan0", &[]).expect("open vcan0 for sending");
+    let sent = 20_000u32;
+    for i in 0..sent {
+        let f = CanFrame::new_data(CanId::standard(0x321).unwrap(), &i.to_le_bytes()).unwrap();
+        tx.send(&f).await.expect("send");
+    }
+    let drops = rx.kernel_drops().expect("SO_MEMINFO on this kernel");
+    assert!(
+        drops > 0,
+        "20,000 unread frames did not overflow the socket"
+    );
+    let (mut received, mut lost) = (0u64, 0u64);
+    while received + lost < u64::from(sent) {
+        match timeout(DEFAULT_WAIT, rx.recv()).await {
+            Ok(Ok(BusEvent::Frame(_))) => received += 1,
+            Ok(Ok(BusEvent::Lost { count })) => lost += count,
+            Ok(Ok(BusEvent::Error { .. })) => {}
+            Ok(Err(e)) => panic!("receive failed: {e}"),
+            Err(elapsed) => {
+                panic!("stalled at {received} received + {lost} lost of {sent}: {elapsed}")
+            }
+        }
+    }
+    metric("socket_overflow_received", received);
+    metric("socket_overflow_lost_reported", lost);
+    assert_eq!(lost, drops, "Lost events add up to the kernel's count");
+    assert_eq!(received + lost, u64::from(sent));
+}
