@@ -2,6 +2,7 @@
 //! and the code they run. `main.rs` only parses, sets up logging and calls
 //! [`Command::execute`].
 
+pub mod calib;
 pub mod calibrate;
 pub mod decode;
 pub mod demo;
@@ -26,6 +27,8 @@ pub enum Command {
     Demo(demo::DemoArgs),
     /// Calibrate the rear tread and wheel diameters offline from candump logs of track runs.
     Calibrate(calibrate::CalibrateArgs),
+    /// The operator's client of the live calibration: send CALIB_CMD, show CALIB_STATUS as a guide.
+    Calib(calib::CalibArgs),
 }
 
 impl Command {
@@ -41,6 +44,7 @@ impl Command {
             Self::Simulate(a) => simulate::execute(&a),
             Self::Demo(a) => demo::execute(&a),
             Self::Calibrate(a) => calibrate::execute(&a),
+            Self::Calib(a) => calib::execute(&a),
         }
     }
 }
