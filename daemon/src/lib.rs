@@ -26,6 +26,7 @@ pub mod candump;
 pub mod cmd;
 pub mod config;
 pub mod frame;
+pub mod live_calib;
 pub mod own_dbc;
 pub mod persist;
 pub mod pipeline;

@@ -47,6 +47,12 @@ pub struct Step {
     pub fused: Pose,
     /// Rear-wheel-only odometry (heading unwrapped).
     pub odometry: Pose,
+    /// Rear (left, right) wheel revolutions of this step, with the diameters
+    /// in use: what the calibration session records.
+    pub rear_rev: (f64, f64),
+    /// The latest steering signal `u` as the vehicle reports it (before the
+    /// steering map), if any arrived yet.
+    pub steer_signal: Option<f64>,
 }
 
 /// Validity flags of a pose sample.
@@ -198,6 +204,7 @@ pub struct Pipeline {
     last_t_us: u64,
     front_acc_m: (f64, f64),
     steer_rad: Option<f64>,
+    steer_signal: Option<f64>,
     last_step: Option<Step>,
     speed_mps: f64,
     yaw_rate_radps: f64,
@@ -308,6 +315,7 @@ impl Pipeline {
             last_t_us: 0,
             front_acc_m: (0.0, 0.0),
             steer_rad: None,
+            steer_signal: None,
             last_step: None,
             speed_mps: 0.0,
             yaw_rate_radps: 0.0,
@@ -470,6 +478,7 @@ impl Pipeline {
         self.last_t_us = self.last_t_us.max(t_us);
         if let Some(phi) = steer_rad {
             self.steer_rad = Some(phi);
+            self.steer_signal = steer_signal;
         }
         if front {
             let fl = self.wheel(Wheel::FrontLeft, t_s, data, speeds.front_left);
@@ -575,10 +584,13 @@ impl Pipeline {
                 self.yaw_rate_radps = (fused.heading_rad - prev.fused.heading_rad) / dt;
             }
         }
+        let rev = |m: f64, w: Wheel| m / (std::f64::consts::PI * self.params.wheel_diameter_m(w));
         let step = Step {
             t_s,
             fused,
             odometry: self.odometry,
+            rear_rev: (rev(rl, Wheel::RearLeft), rev(rr, Wheel::RearRight)),
+            steer_signal: self.steer_signal,
         };
         self.last_step = Some(step);
         Some(step)

@@ -1,0 +1,1033 @@
+//! The live calibration session over CAN: `CALIB_CMD` in, `CALIB_STATUS`,
+//! `CALIB_PARAMS` out, `CALIB_ACK` back (issue 6).
+//!
+//! [`LiveCalibration`] is pure: no async, no clock. Time comes in as bus
+//! timestamps, frames come in already routed by id, and what the daemon must
+//! do comes out as [`Output`]s. The one side effect it cannot defer, storing
+//! the parameter file, goes through a [`Persister`] the caller supplies, so a
+//! commit whose file cannot be written is refused before anything changes
+//! (`PERSIST_FAILED`): a command is either carried out whole or not at all.
+//!
+//! Checks of a command, in order: CRC-8 (`BAD_CHECKSUM`), a counter equal to
+//! the previous command's (`BAD_COUNTER`: a duplicate frame), the arming code
+//! (`BAD_ARMING_CODE`), the command code (`UNKNOWN_COMMAND`), then the session
+//! state (calib's refusals) and the daemon's own conditions (bounds,
+//! uncertainty, write-back in progress). Every command, carried out or
+//! refused, is answered on status page 1 (`LAST_CMD`, `CMD_REASON`, `CMD_SEQ`)
+//! at once.
+
+use crate::calib_wire::{
+    Ack, AckStatus, CalibWire, Command, Counts, DEFAULT_RUNS_PER_DIRECTION, InstructionCode,
+    ParamSet as WireSet, Progress, Reason, StartPoint, State, StatusPage, WireDirection, Writeback,
+};
+use crate::candump::Timestamp;
+use crate::config::CalibrationConfig;
+use crate::frame::CanFrame;
+use crate::persist::{ParamFile, ParamValues};
+use crate::report::CalibrationReport;
+use canodom_calib::CalibrationResult;
+use canodom_calib::run::{RevSample, Run};
+use canodom_calib::session::{Action, Event, Instruction, Phase, Session, SessionConfig};
+use canodom_calib::steering::SteeringProvenance;
+use canodom_calib::track::{Direction, Track};
+use canodom_fusion::{Pose, SteeringMap, VehicleParams, Wheel};
+
+/// Status period while a session is active, s (10 Hz).
+const ACTIVE_STATUS_S: f64 = 0.1;
+/// Status period otherwise, s.
+const IDLE_STATUS_S: f64 = 1.0;
+
+/// Stores the parameter file durably; `Err` carries the cause for the log.
+pub type Persister = Box<dyn FnMut(&ParamFile) -> Result<(), String> + Send>;
+
+/// What the daemon must do.
+#[derive(Debug, Clone)]
+pub enum Output {
+    /// Send this frame on the bus.
+    Send(CanFrame),
+    /// Put this set (version ≥ 1) into the running odometry now (the vehicle
+    /// stands still).
+    Apply(u16, ParamValues),
+    /// Write this report of a committed session (version, report).
+    Report(u16, Box<CalibrationReport>),
+}
+
+/// The parameter write-back in progress.
+#[derive(Debug, Clone, Copy)]
+struct WriteBack {
+    set: WireSet,
+    state: Writeback,
+    /// Sends so far (the first and the retries).
+    attempts: u8,
+    deadline_s: f64,
+}
+
+/// The live calibration (see the module doc).
+pub struct LiveCalibration {
+    wire: CalibWire,
+    config: CalibrationConfig,
+    nominal: VehicleParams,
+    session: Option<Session>,
+    session_config: SessionConfig,
+    file: ParamFile,
+    persister: Persister,
+    /// Set committed or rolled back to but not yet applied (moving).
+    pending_apply: Option<(u16, ParamValues)>,
+    last_counter: Option<u8>,
+    last_cmd: u8,
+    cmd_reason: Reason,
+    cmd_seq: u8,
+    /// Accepted and rejected runs, [CW, CCW].
+    accepted: [u8; 2],
+    rejected: [u8; 2],
+    reject_reason: Reason,
+    run_direction: Option<Direction>,
+    run_distance_m: f64,
+    result: Option<CalibrationResult>,
+    /// The track and runs the result came from (for the report).
+    computed_from: Option<(Track, Vec<Run>)>,
+    writeback: Option<WriteBack>,
+    still_since_s: Option<f64>,
+    last_step_s: Option<f64>,
+    next_status_s: Option<f64>,
+    status_counter: u8,
+    params_counter: u8,
+}
+
+impl std::fmt::Debug for LiveCalibration {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("LiveCalibration")
+            .field("phase", &self.phase())
+            .field("file", &self.file)
+            .finish_non_exhaustive()
+    }
+}
+
+fn seconds(t: Timestamp) -> f64 {
+    t.as_micros() as f64 * 1e-6
+}
+
+fn dir_index(d: Direction) -> usize {
+    match d {
+        Direction::Cw => 0,
+        Direction::Ccw => 1,
+    }
+}
+
+impl LiveCalibration {
+    /// A live calibration for a vehicle with `nominal` parameters, whose
+    /// parameter file currently holds `file` (its current set is in use).
+    pub fn new(
+        wire: CalibWire,
+        config: CalibrationConfig,
+        nominal: VehicleParams,
+        file: ParamFile,
+        persister: Persister,
+    ) -> Self {
+        let session_config = SessionConfig {
+            standstill_speed_mps: config.standstill_speed_mps,
+            standstill_time_s: config.standstill_time_s,
+            ..SessionConfig::default()
+        };
+        let mut me = Self {
+            wire,
+            config,
+            nominal,
+            session: None,
+            session_config,
+            file,
+            persister,
+            pending_apply: None,
+            last_counter: None,
+            last_cmd: 0,
+            cmd_reason: Reason::None,
+            cmd_seq: 0,
+            accepted: [0; 2],
+            rejected: [0; 2],
+            reject_reason: Reason::None,
+            run_direction: None,
+            run_distance_m: 0.0,
+            result: None,
+            computed_from: None,
+            writeback: None,
+            still_since_s: None,
+            last_step_s: None,
+            next_status_s: None,
+            status_counter: 0,
+            params_counter: 0,
+        };
+        me.session = Some(me.fresh_session());
+        me
+    }
+
+    /// The parameter file as the daemon last stored it.
+    pub fn file(&self) -> &ParamFile {
+        &self.file
+    }
+
+    /// The session's phase.
+    pub fn phase(&self) -> Phase {
+        self.session.as_ref().map_or(Phase::Idle, Session::phase)
+    }
+
+    /// The write-back state.
+    pub fn writeback(&self) -> Writeback {
+        self.writeback.map_or(Writeback::Idle, |w| w.state)
+    }
+
+    fn current_values(&self) -> ParamValues {
+        self.file.current.as_ref().map_or_else(
+            || {
+                let steer = self.nominal.steering();
+                ParamValues {
+                    rear_tread_m: self.nominal.rear_tread_m(),
+                    rear_left_diameter_m: self.nominal.wheel_diameter_m(Wheel::RearLeft),
+                    rear_right_diameter_m: self.nominal.wheel_diameter_m(Wheel::RearRight),
+                    steering_gain: steer.gain,
+                    steering_offset_rad: steer.offset_rad,
+                }
+            },
+            |s| s.values,
+        )
+    }
+
+    fn vehicle(&self, v: &ParamValues) -> VehicleParams {
+        self.nominal
+            .with_rear(
+                v.rear_tread_m,
+                v.rear_left_diameter_m,
+                v.rear_right_diameter_m,
+            )
+            .and_then(|p| {
+                p.with_steering(SteeringMap {
+                    gain: v.steering_gain,
+                    offset_rad: v.steering_offset_rad,
+                })
+            })
+            .unwrap_or(self.nominal)
+    }
+
+    /// A session over the parameters in the file: the runs are recorded with
+    /// the parameters the odometry uses.
+    fn fresh_session(&self) -> Session {
+        Session::new(
+            self.vehicle(&self.current_values()),
+            SteeringProvenance::Independent,
+            self.session_config,
+        )
+    }
+
+    fn standstill(&self, t_s: f64) -> bool {
+        match (self.last_step_s, self.still_since_s) {
+            // No wheel data: nothing moves the vehicle we could see.
+            (None, _) => true,
+            (Some(_), None) => false,
+            (Some(_), Some(since)) => t_s - since >= self.config.standstill_time_s,
+        }
+    }
+
+    fn event(&mut self, event: Event) -> Vec<Action> {
+        let session = self.session.take().unwrap_or_else(|| self.fresh_session());
+        let before = session.instruction();
+        let (session, actions) = session.on_event(event);
+        self.session = Some(session);
+        for a in &actions {
+            match a {
+                Action::RunStarted { .. } => {
+                    self.run_distance_m = 0.0;
+                    self.run_direction = match self.instruction() {
+                        Instruction::Drive { direction, .. }
+                        | Instruction::Go { direction, .. }
+                        | Instruction::GoToStart { direction, .. } => Some(direction),
+                        _ => match before {
+                            Instruction::Go { direction, .. }
+                            | Instruction::GoToStart { direction, .. } => Some(direction),
+                            _ => None,
+                        },
+                    };
+                }
+                Action::RunAccepted { .. } => {
+                    if let Some(d) = self.run_direction {
+                        self.accepted[dir_index(d)] = self.accepted[dir_index(d)].saturating_add(1);
+                    }
+                }
+                Action::RunRejected { reason, .. } => {
+                    if let Some(d) = self.run_direction {
+                        self.rejected[dir_index(d)] = self.rejected[dir_index(d)].saturating_add(1);
+                    }
+                    self.reject_reason = Reason::of_rejection(reason);
+                }
+                _ => {}
+            }
+        }
+        actions
+    }
+
+    fn instruction(&self) -> Instruction {
+        self.session
+            .as_ref()
+            .map_or(Instruction::Idle, Session::instruction)
+    }
+
+    /// A filter step: `rear_rev` wheel revolutions (left, right) since the
+    /// previous step with the diameters in use, the steering signal, the
+    /// rear-axle speed.
+    pub fn on_step(
+        &mut self,
+        t: Timestamp,
+        rear_rev: (f64, f64),
+        steer_signal: Option<f64>,
+        speed_mps: f64,
+    ) -> Vec<Output> {
+        let t_s = seconds(t);
+        if speed_mps.abs() > self.config.standstill_speed_mps || !speed_mps.is_finite() {
+            self.still_since_s = None;
+        } else if self.still_since_s.is_none() {
+            self.still_since_s = Some(t_s);
+        }
+        self.last_step_s = Some(t_s);
+        let phase = self.phase();
+        if matches!(phase, Phase::Positioning | Phase::Recording) {
+            let params = self.session.as_ref().map(|s| *s.params());
+            if let Some(p) = params
+                && phase == Phase::Recording
+            {
+                let d = 0.5
+                    * std::f64::consts::PI
+                    * (p.wheel_diameter_m(Wheel::RearLeft) * rear_rev.0
+                        + p.wheel_diameter_m(Wheel::RearRight) * rear_rev.1);
+                if d.is_finite() {
+                    self.run_distance_m += d.abs();
+                }
+            }
+            let before = self.instruction();
+            self.event(Event::Sample(RevSample {
+                t_s,
+                rear_left_rev: rear_rev.0,
+                rear_right_rev: rear_rev.1,
+                front_rev: None,
+                steer_signal: steer_signal.unwrap_or(0.0),
+            }));
+            if self.instruction() != before {
+                // The driver's next move changed: tell at once.
+                let mut out = self.status(t_s);
+                out.extend(self.apply_if_still(t_s));
+                return out;
+            }
+        }
+        self.apply_if_still(t_s)
+    }
+
+    fn apply_if_still(&mut self, t_s: f64) -> Vec<Output> {
+        match self.pending_apply {
+            Some((v, values)) if self.standstill(t_s) => {
+                self.pending_apply = None;
+                vec![Output::Apply(v, values)]
+            }
+            _ => Vec::new(),
+        }
+    }
+
+    /// Periodic work: status frames, write-back timeouts, deferred applies.
+    pub fn tick(&mut self, t: Timestamp) -> Vec<Output> {
+        let t_s = seconds(t);
+        let mut out = self.apply_if_still(t_s);
+        if let Some(wb) = self.writeback
+            && wb.state == Writeback::Pending
+            && t_s >= wb.deadline_s
+        {
+            if u32::from(wb.attempts) <= self.config.writeback_retries {
+                out.extend(self.send_params(t_s, wb.set, wb.attempts.saturating_add(1)));
+            } else {
+                self.writeback = Some(WriteBack {
+                    state: Writeback::Failed,
+                    ..wb
+                });
+                out.extend(self.status(t_s));
+            }
+        }
+        // 1 ms of slack: a tick exactly one period later must not miss by rounding.
+        if self.next_status_s.is_none_or(|n| t_s >= n - 1e-3) {
+            out.extend(self.status(t_s));
+        }
+        out
+    }
+
+    /// A `CALIB_ACK` frame.
+    pub fn on_ack(&mut self, t: Timestamp, frame: &CanFrame) -> Vec<Output> {
+        let t_s = seconds(t);
+        if !self.wire.checksum_ok(frame.data()) {
+            return Vec::new();
+        }
+        let Ok((Ack { version, status }, _)) = self.wire.decode_ack(frame.data()) else {
+            return Vec::new();
+        };
+        match self.writeback {
+            Some(wb) if wb.state == Writeback::Pending && wb.set.version == version => {
+                let state = match status {
+                    AckStatus::Stored => Writeback::Acked,
+                    AckStatus::Refused => Writeback::Failed,
+                };
+                self.writeback = Some(WriteBack { state, ..wb });
+                self.status(t_s)
+            }
+            _ => Vec::new(),
+        }
+    }
+
+    /// A `CALIB_CMD` frame (the caller routes the configured command id here).
+    pub fn on_command(&mut self, t: Timestamp, frame: &CanFrame) -> Vec<Output> {
+        let t_s = seconds(t);
+        let mut out = Vec::new();
+        let reason = self.judge(t_s, frame, &mut out);
+        self.cmd_reason = reason;
+        self.cmd_seq = (self.cmd_seq + 1) % 8;
+        out.extend(self.status(t_s));
+        out
+    }
+
+    /// Carries out the command or refuses it; the reason (`None` = done).
+    fn judge(&mut self, t_s: f64, frame: &CanFrame, out: &mut Vec<Output>) -> Reason {
+        let data = frame.data();
+        let Ok(cmd) = self.wire.decode_command(data) else {
+            self.last_cmd = 0;
+            return Reason::BadChecksum;
+        };
+        self.last_cmd = cmd.cmd_raw;
+        if !cmd.checksum_ok {
+            return Reason::BadChecksum;
+        }
+        let repeated = self.last_counter == Some(cmd.counter);
+        self.last_counter = Some(cmd.counter);
+        if repeated {
+            return Reason::BadCounter;
+        }
+        if self
+            .config
+            .arming_code
+            .is_some_and(|code| code != cmd.arming_code)
+        {
+            return Reason::BadArmingCode;
+        }
+        let Some(command) = cmd.command else {
+            return Reason::UnknownCommand;
+        };
+        match command {
+            Command::StartSession {
+                track_radius_mm,
+                runs_per_direction,
+            } => {
+                let runs = if runs_per_direction == 0 {
+                    DEFAULT_RUNS_PER_DIRECTION
+                } else {
+                    runs_per_direction
+                };
+                if self.phase() == Phase::Idle {
+                    // Record with the parameters in use now.
+                    self.session = Some(self.fresh_session());
+                }
+                let r = self.session_event(Event::StartSession {
+                    radius_m: f64::from(track_radius_mm) * 1e-3,
+                    runs_per_direction: runs,
+                });
+                if r == Reason::None {
+                    self.accepted = [0; 2];
+                    self.rejected = [0; 2];
+                    self.reject_reason = Reason::None;
+                    self.result = None;
+                    self.run_distance_m = 0.0;
+                }
+                r
+            }
+            Command::StartSteering => Reason::NotSupported,
+            Command::EndRun => self.session_event(Event::EndRun),
+            Command::StartRun => self.session_event(Event::StartRun),
+            Command::EndPose {
+                dx_mm,
+                dy_mm,
+                dtheta_decideg,
+            } => self.session_event(Event::MeasuredEndPose(Pose {
+                x_m: f64::from(dx_mm) * 1e-3,
+                y_m: f64::from(dy_mm) * 1e-3,
+                heading_rad: (f64::from(dtheta_decideg) * 0.1).to_radians(),
+            })),
+            Command::Abort => {
+                let r = self.session_event(Event::Abort);
+                if r == Reason::None {
+                    self.result = None;
+                }
+                r
+            }
+            Command::Compute => self.compute(),
+            Command::Commit => self.commit(t_s, out),
+            Command::Rollback => self.rollback(t_s, out),
+            Command::RequestParams => {
+                let set = self.wire_set();
+                match self.wire.encode_params(&set, self.params_counter) {
+                    Ok(pages) => {
+                        self.params_counter = self.params_counter.wrapping_add(1);
+                        out.extend(Self::frames(self.wire.params_id(), &pages));
+                        Reason::None
+                    }
+                    Err(_) => Reason::OutOfBounds,
+                }
+            }
+        }
+    }
+
+    /// Feeds a command event to the session; its refusal as a wire reason.
+    fn session_event(&mut self, event: Event) -> Reason {
+        let actions = self.event(event);
+        actions
+            .iter()
+            .find_map(|a| match a {
+                Action::Refused { reason, .. } => Some(Reason::of_refusal(*reason)),
+                _ => None,
+            })
+            .unwrap_or(Reason::None)
+    }
+
+    fn compute(&mut self) -> Reason {
+        let actions = self.event(Event::Compute);
+        if let Some(Action::Refused { reason, .. }) = actions.first() {
+            return Reason::of_refusal(*reason);
+        }
+        // The exact method takes some 20 ms: inline keeps the core pure.
+        let Some(job) = self.session.as_ref().and_then(Session::calibration_job) else {
+            return Reason::ComputeFailed;
+        };
+        let outcome = job.run();
+        self.computed_from = Some((job.track, job.runs));
+        let actions = self.event(Event::Computed(outcome));
+        match actions.iter().find_map(|a| match a {
+            Action::ResultReady(r) => Some(*r),
+            _ => None,
+        }) {
+            Some(r) => {
+                self.result = Some(r);
+                Reason::None
+            }
+            None => Reason::ComputeFailed,
+        }
+    }
+
+    fn values_of(&self, r: &CalibrationResult) -> ParamValues {
+        ParamValues {
+            rear_tread_m: r.rear.tread_m,
+            rear_left_diameter_m: r.rear.left_diameter_m,
+            rear_right_diameter_m: r.rear.right_diameter_m,
+            ..self.current_values()
+        }
+    }
+
+    fn commit(&mut self, t_s: f64, out: &mut Vec<Output>) -> Reason {
+        let (Phase::Computed, Some(result)) = (self.phase(), self.result) else {
+            return Reason::NothingToCommit;
+        };
+        if self.writeback() == Writeback::Pending {
+            return Reason::WritebackBusy;
+        }
+        let values = self.values_of(&result);
+        if self.config.bounds.check(&values).is_err() {
+            return Reason::OutOfBounds;
+        }
+        let uncertain = |std: Option<f64>, max: f64| std.is_none_or(|s| s.is_nan() || s > max);
+        if uncertain(result.tread_std_m, self.config.max_tread_std_m)
+            || uncertain(result.ratio_std, self.config.max_ratio_std)
+        {
+            return Reason::UncertaintyTooHigh;
+        }
+        let mut file = self.file.clone();
+        let method = format!("{:?}", result.method).to_lowercase();
+        // Bus timestamps are Unix time on a live bus.
+        let created = t_s.max(0.0) as u64;
+        let version = file
+            .commit(values, &method, created, self.config.max_history)
+            .version;
+        if let Err(cause) = (self.persister)(&file) {
+            tracing::warn!(%cause, "calibrated parameters not stored; commit refused");
+            return Reason::PersistFailed;
+        }
+        let actions = self.event(Event::Commit);
+        if let Some(Action::Refused { reason, .. }) = actions.first() {
+            // Not reachable after the checks above; the file is stored, so
+            // keep it consistent with what is in use.
+            tracing::warn!(?reason, "session refused a checked commit");
+        }
+        self.file = file;
+        self.result = None;
+        if let Some((track, runs)) = self.computed_from.take() {
+            out.push(Output::Report(
+                version,
+                Box::new(CalibrationReport::build(&result, track, &runs, &[])),
+            ));
+        }
+        self.adopt(t_s, version, values, out);
+        Reason::None
+    }
+
+    /// Applies (now or at the next standstill) and writes back a set.
+    fn adopt(&mut self, t_s: f64, version: u16, values: ParamValues, out: &mut Vec<Output>) {
+        self.pending_apply = Some((version, values));
+        out.extend(self.apply_if_still(t_s));
+        self.session = Some(self.fresh_session());
+        let set = self.wire_set();
+        out.extend(self.send_params(t_s, set, 1));
+    }
+
+    fn rollback(&mut self, t_s: f64, out: &mut Vec<Output>) -> Reason {
+        if self.phase() != Phase::Idle {
+            return Reason::SessionActive;
+        }
+        if self.writeback() == Writeback::Pending {
+            return Reason::WritebackBusy;
+        }
+        let mut file = self.file.clone();
+        let Some(set) = file.rollback().cloned() else {
+            return Reason::NothingToRollback;
+        };
+        if let Err(cause) = (self.persister)(&file) {
+            tracing::warn!(%cause, "rolled-back parameters not stored; rollback refused");
+            return Reason::PersistFailed;
+        }
+        self.file = file;
+        self.adopt(t_s, set.version, set.values, out);
+        Reason::None
+    }
+
+    /// The steering map on the wire, relative to the nominal map: the
+    /// "measured angle" of `CALIB_PARAMS` is the nominal map's angle (the
+    /// raw signal's unit is the vehicle's, so an absolute gain may be 0.017
+    /// for degrees and would not fit STEER_GAIN's range around 1).
+    fn wire_steering(&self, v: &ParamValues) -> (f64, f64) {
+        let n = self.nominal.steering();
+        let gain = v.steering_gain / n.gain;
+        (gain, v.steering_offset_rad - gain * n.offset_rad)
+    }
+
+    fn wire_set(&self) -> WireSet {
+        let v = self.current_values();
+        let (steer_gain, steer_offset_rad) = self.wire_steering(&v);
+        WireSet {
+            version: self.file.current.as_ref().map_or(0, |s| s.version),
+            rear_tread_m: v.rear_tread_m,
+            rear_left_diameter_m: v.rear_left_diameter_m,
+            rear_right_diameter_m: v.rear_right_diameter_m,
+            diameter_ratio: v.diameter_ratio(),
+            steer_gain,
+            steer_offset_rad,
+        }
+    }
+
+    fn send_params(&mut self, t_s: f64, set: WireSet, attempts: u8) -> Vec<Output> {
+        let Ok(pages) = self.wire.encode_params(&set, self.params_counter) else {
+            self.writeback = Some(WriteBack {
+                set,
+                state: Writeback::Failed,
+                attempts,
+                deadline_s: t_s,
+            });
+            return Vec::new();
+        };
+        self.params_counter = self.params_counter.wrapping_add(1);
+        self.writeback = Some(WriteBack {
+            set,
+            state: Writeback::Pending,
+            attempts,
+            deadline_s: t_s + self.config.ack_timeout.as_secs_f64(),
+        });
+        Self::frames(self.wire.params_id(), &pages)
+    }
+
+    fn frames(id: crate::frame::CanId, pages: &[[u8; 8]]) -> Vec<Output> {
+        pages
+            .iter()
+            .filter_map(|p| CalibWire::frame(id, p).ok())
+            .map(Output::Send)
+            .collect()
+    }
+
+    /// The status pages now; schedules the next.
+    fn status(&mut self, t_s: f64) -> Vec<Output> {
+        let phase = self.phase();
+        let active = phase != Phase::Idle;
+        self.next_status_s = Some(
+            t_s + if active {
+                ACTIVE_STATUS_S
+            } else {
+                IDLE_STATUS_S
+            },
+        );
+        let instruction = self.instruction();
+        let (run, runs, direction) = match instruction {
+            Instruction::GoToStart {
+                run,
+                runs,
+                direction,
+            }
+            | Instruction::Go {
+                run,
+                runs,
+                direction,
+            }
+            | Instruction::Drive {
+                run,
+                runs,
+                direction,
+            } => (run, runs, Some(direction)),
+            Instruction::Stop { run, runs } => (run, runs, self.run_direction),
+            _ => (0, 0, None),
+        };
+        let wb = self.writeback;
+        let mut pages = vec![
+            StatusPage::Progress(Progress {
+                state: State::of(phase),
+                instruction: InstructionCode::of(&instruction),
+                run_index: run,
+                runs_total: runs,
+                direction: WireDirection::of(direction),
+                start_point: StartPoint::of(direction),
+                run_distance_m: if phase == Phase::Recording {
+                    self.run_distance_m
+                } else {
+                    0.0
+                },
+                writeback: wb.map_or(Writeback::Idle, |w| w.state),
+                standstill: self.standstill(t_s),
+                writeback_attempts: wb.map_or(0, |w| w.attempts),
+            }),
+            StatusPage::Counts(Counts {
+                cw_accepted: self.accepted[0],
+                cw_rejected: self.rejected[0],
+                ccw_accepted: self.accepted[1],
+                ccw_rejected: self.rejected[1],
+                reject_reason: self.reject_reason,
+                last_cmd: self.last_cmd,
+                cmd_reason: self.cmd_reason,
+                active_version: self.file.current.as_ref().map_or(0, |s| s.version),
+                cmd_seq: self.cmd_seq,
+            }),
+        ];
+        if let Some(r) = self.result {
+            let (steer_gain, steer_offset_rad) = self.wire_steering(&self.values_of(&r));
+            pages.extend([
+                StatusPage::ResultGeometry {
+                    rear_tread_m: r.rear.tread_m,
+                    rear_tread_std_m: r.tread_std_m.unwrap_or(f64::NAN),
+                    diameter_ratio: r.rear.ratio(),
+                },
+                StatusPage::ResultQuality {
+                    diameter_ratio_std: r.ratio_std.unwrap_or(f64::NAN),
+                    end_err_before_m: r.e_max_before_m,
+                    end_err_after_m: r.e_max_after_m,
+                },
+                StatusPage::ResultSteering {
+                    steer_gain,
+                    steer_gain_std: 0.0,
+                    steer_offset_rad,
+                },
+                StatusPage::ResultExtra {
+                    steer_offset_std_rad: 0.0,
+                    version: self.file.last_version.checked_add(1).unwrap_or(1),
+                },
+            ]);
+        }
+        let id = self.wire.status_id();
+        let mut out = Vec::with_capacity(pages.len());
+        for p in &pages {
+            let data = self.wire.encode_status(p, self.status_counter);
+            self.status_counter = self.status_counter.wrapping_add(1);
+            if let Ok(f) = CalibWire::frame(id, &data) {
+                out.push(Output::Send(f));
+            }
+        }
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::Config;
+    use crate::pipeline::Pipeline;
+    use std::sync::{Arc, Mutex};
+
+    type Stored = Arc<Mutex<Vec<ParamFile>>>;
+
+    fn config() -> Config {
+        let p = std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/examples/rc_car.toml"));
+        Config::load(p).unwrap()
+    }
+
+    fn values(tread_m: f64) -> ParamValues {
+        ParamValues {
+            rear_tread_m: tread_m,
+            rear_left_diameter_m: 0.09,
+            rear_right_diameter_m: 0.0915,
+            steering_gain: 1f64.to_radians(),
+            steering_offset_rad: 0.0,
+        }
+    }
+
+    /// A core over `file`; `fail` makes every store fail.
+    fn core(c: &Config, file: ParamFile, fail: bool) -> (LiveCalibration, CalibWire, Stored) {
+        let stored: Stored = Arc::default();
+        let s = Arc::clone(&stored);
+        let persister: Persister = Box::new(move |f: &ParamFile| {
+            if fail {
+                return Err("disk full".into());
+            }
+            s.lock().unwrap().push(f.clone());
+            Ok(())
+        });
+        let nominal = *Pipeline::new(c).unwrap().params();
+        let live = LiveCalibration::new(
+            CalibWire::new(c.output.base_id).unwrap(),
+            c.calibration.clone(),
+            nominal,
+            file,
+            persister,
+        );
+        (live, CalibWire::new(c.output.base_id).unwrap(), stored)
+    }
+
+    fn at(ms: u64) -> Timestamp {
+        Timestamp::from_micros(1_000_000_000 + ms * 1000)
+    }
+
+    fn cmd(w: &CalibWire, data: [u8; 8]) -> CanFrame {
+        CalibWire::frame(w.cmd_id(), &data).unwrap()
+    }
+
+    /// Status page 1 among the outputs.
+    fn counts(w: &CalibWire, out: &[Output]) -> Counts {
+        out.iter()
+            .find_map(|o| match o {
+                Output::Send(f) if f.id() == w.status_id() => match w.decode_status(f.data()) {
+                    Ok((StatusPage::Counts(c), _)) => Some(c),
+                    _ => None,
+                },
+                _ => None,
+            })
+            .expect("status page 1")
+    }
+
+    fn progress(w: &CalibWire, out: &[Output]) -> Option<Progress> {
+        out.iter().find_map(|o| match o {
+            Output::Send(f) if f.id() == w.status_id() => match w.decode_status(f.data()) {
+                Ok((StatusPage::Progress(p), _)) => Some(p),
+                _ => None,
+            },
+            _ => None,
+        })
+    }
+
+    fn params_sent(w: &CalibWire, out: &[Output]) -> Vec<u16> {
+        out.iter()
+            .filter_map(|o| match o {
+                Output::Send(f) if f.id() == w.params_id() => {
+                    w.decode_params(f.data()).ok().map(|(p, _)| p.version)
+                }
+                _ => None,
+            })
+            .collect()
+    }
+
+    fn two_sets() -> ParamFile {
+        let mut file = ParamFile::default();
+        file.commit(values(0.30), "exact", 1, 10);
+        file.commit(values(0.31), "exact", 2, 10);
+        file
+    }
+
+    #[test]
+    fn every_refusal_is_answered_on_page_1_and_changes_nothing() {
+        let mut c = config();
+        c.calibration.arming_code = Some(0x5a);
+        let (mut live, w, stored) = core(&c, ParamFile::default(), false);
+        let start = Command::StartSession {
+            track_radius_mm: 1000,
+            runs_per_direction: 5,
+        };
+        let cases: Vec<([u8; 8], Reason)> = vec![
+            (
+                {
+                    let mut d = w.encode_command(start, 0x5a, 1);
+                    d[7] ^= 0xff;
+                    d
+                },
+                Reason::BadChecksum,
+            ),
+            (w.encode_command(start, 0x11, 2), Reason::BadArmingCode),
+            (
+                w.encode_command_raw(0x0f, Command::Abort, 0x5a, 3),
+                Reason::UnknownCommand,
+            ),
+            (
+                w.encode_command(Command::Commit, 0x5a, 4),
+                Reason::NothingToCommit,
+            ),
+            (
+                w.encode_command(Command::Commit, 0x5a, 4),
+                Reason::BadCounter,
+            ),
+            (
+                w.encode_command(Command::Rollback, 0x5a, 5),
+                Reason::NothingToRollback,
+            ),
+            (
+                w.encode_command(Command::StartSteering, 0x5a, 6),
+                Reason::NotSupported,
+            ),
+            (
+                w.encode_command(Command::Compute, 0x5a, 7),
+                Reason::NoSession,
+            ),
+            (
+                w.encode_command(Command::EndRun, 0x5a, 8),
+                Reason::NoSession,
+            ),
+        ];
+        for (i, (data, reason)) in cases.iter().enumerate() {
+            let out = live.on_command(at(i as u64), &cmd(&w, *data));
+            let page = counts(&w, &out);
+            assert_eq!(page.cmd_reason, *reason, "case {i}");
+            assert_eq!(page.cmd_seq, u8::try_from((i + 1) % 8).unwrap());
+            assert_eq!(live.phase(), Phase::Idle);
+            assert!(params_sent(&w, &out).is_empty());
+        }
+        assert!(stored.lock().unwrap().is_empty());
+        // The right code starts the session.
+        let out = live.on_command(at(20), &cmd(&w, w.encode_command(start, 0x5a, 9)));
+        assert_eq!(counts(&w, &out).cmd_reason, Reason::None);
+        assert_eq!(live.phase(), Phase::Positioning);
+        let p = progress(&w, &out).unwrap();
+        assert_eq!(p.state, State::Positioning);
+        assert_eq!((p.run_index, p.runs_total), (1, 10));
+        // Out of order: a second start, a commit while positioning.
+        let out = live.on_command(at(21), &cmd(&w, w.encode_command(start, 0x5a, 10)));
+        assert_eq!(counts(&w, &out).cmd_reason, Reason::SessionActive);
+        let out = live.on_command(
+            at(22),
+            &cmd(&w, w.encode_command(Command::Rollback, 0x5a, 11)),
+        );
+        assert_eq!(counts(&w, &out).cmd_reason, Reason::SessionActive);
+        let out = live.on_command(at(23), &cmd(&w, w.encode_command(Command::Abort, 0x5a, 12)));
+        assert_eq!(counts(&w, &out).cmd_reason, Reason::None);
+        assert_eq!(live.phase(), Phase::Idle);
+    }
+
+    #[test]
+    fn write_back_retries_exactly_then_fails_keeping_the_set_applied() {
+        let c = config();
+        let retries = c.calibration.writeback_retries;
+        let timeout_ms = u64::try_from(c.calibration.ack_timeout.as_millis()).unwrap();
+        let (mut live, w, stored) = core(&c, two_sets(), false);
+        let out = live.on_command(at(0), &cmd(&w, w.encode_command(Command::Rollback, 0, 1)));
+        assert_eq!(counts(&w, &out).cmd_reason, Reason::None);
+        assert_eq!(counts(&w, &out).active_version, 1);
+        assert_eq!(params_sent(&w, &out), vec![1; 4]);
+        // No wheel data yet: standing still, applied at once.
+        assert!(
+            out.iter()
+                .any(|o| matches!(o, Output::Apply(1, v) if *v == values(0.30)))
+        );
+        assert_eq!(
+            stored
+                .lock()
+                .unwrap()
+                .last()
+                .unwrap()
+                .current
+                .as_ref()
+                .unwrap()
+                .version,
+            1
+        );
+        let mut sends = 1;
+        let mut failed_at = None;
+        for ms in (10..=timeout_ms * u64::from(retries + 3)).step_by(10) {
+            let out = live.tick(at(ms));
+            if !params_sent(&w, &out).is_empty() {
+                sends += 1;
+                // Each resend comes one timeout after the previous.
+                assert_eq!(ms % timeout_ms, 0, "resend at {ms} ms");
+            }
+            if failed_at.is_none() && live.writeback() == Writeback::Failed {
+                failed_at = Some(ms);
+                assert_eq!(progress(&w, &out).unwrap().writeback, Writeback::Failed);
+            }
+            assert!(!out.iter().any(|o| matches!(o, Output::Apply(..))));
+        }
+        assert_eq!(sends, 1 + retries);
+        assert_eq!(failed_at, Some(timeout_ms * u64::from(retries + 1)));
+        assert_eq!(live.file().current.as_ref().unwrap().version, 1);
+    }
+
+    #[test]
+    fn ack_of_the_version_ends_the_write_back_and_moving_defers_the_apply() {
+        let c = config();
+        let (mut live, w, _) = core(&c, two_sets(), false);
+        // Moving: the set waits for the standstill.
+        let _ = live.on_step(at(0), (0.1, 0.1), Some(0.0), 1.0);
+        let out = live.on_command(at(5), &cmd(&w, w.encode_command(Command::Rollback, 0, 1)));
+        assert!(!out.iter().any(|o| matches!(o, Output::Apply(..))));
+        let ack = |version, status| {
+            CalibWire::frame(w.ack_id(), &w.encode_ack(Ack { version, status }, 0)).unwrap()
+        };
+        assert!(live.on_ack(at(10), &ack(2, AckStatus::Stored)).is_empty());
+        assert_eq!(live.writeback(), Writeback::Pending);
+        let out = live.on_ack(at(20), &ack(1, AckStatus::Stored));
+        assert_eq!(progress(&w, &out).unwrap().writeback, Writeback::Acked);
+        let _ = live.on_step(at(100), (0.0, 0.0), Some(0.0), 0.0);
+        let still_ms = u64::try_from((c.calibration.standstill_time_s * 1000.0) as i64).unwrap();
+        let early = live.on_step(at(100 + still_ms - 10), (0.0, 0.0), Some(0.0), 0.0);
+        assert!(!early.iter().any(|o| matches!(o, Output::Apply(..))));
+        let late = live.on_step(at(100 + still_ms), (0.0, 0.0), Some(0.0), 0.0);
+        assert!(late.iter().any(|o| matches!(o, Output::Apply(1, _))));
+        assert_eq!(
+            live.tick(at(200 + still_ms))
+                .iter()
+                .filter(|o| matches!(o, Output::Apply(..)))
+                .count(),
+            0
+        );
+    }
+
+    #[test]
+    fn a_rollback_that_cannot_be_stored_is_refused_whole() {
+        let c = config();
+        let (mut live, w, _) = core(&c, two_sets(), true);
+        let out = live.on_command(at(0), &cmd(&w, w.encode_command(Command::Rollback, 0, 1)));
+        assert_eq!(counts(&w, &out).cmd_reason, Reason::PersistFailed);
+        assert_eq!(live.file().current.as_ref().unwrap().version, 2);
+        assert!(params_sent(&w, &out).is_empty());
+        assert!(!out.iter().any(|o| matches!(o, Output::Apply(..))));
+    }
+
+    #[test]
+    fn request_params_sends_the_set_in_use_and_status_keeps_its_rate() {
+        let c = config();
+        let (mut live, w, _) = core(&c, two_sets(), false);
+        let out = live.on_command(
+            at(0),
+            &cmd(&w, w.encode_command(Command::RequestParams, 0, 1)),
+        );
+        assert_eq!(params_sent(&w, &out), vec![2; 4]);
+        assert_eq!(live.writeback(), Writeback::Idle);
+        let statuses = |live: &mut LiveCalibration, from: u64, to: u64| {
+            (from..to)
+                .step_by(50)
+                .filter(|&ms| progress(&w, &live.tick(at(ms))).is_some())
+                .count()
+        };
+        assert_eq!(statuses(&mut live, 50, 3050), 3);
+        let start = Command::StartSession {
+            track_radius_mm: 1000,
+            runs_per_direction: 0,
+        };
+        let out = live.on_command(at(3050), &cmd(&w, w.encode_command(start, 0, 2)));
+        assert_eq!(progress(&w, &out).unwrap().runs_total, 10);
+        assert_eq!(statuses(&mut live, 3100, 4100), 10);
+    }
+}
