@@ -5,6 +5,7 @@
 #![allow(clippy::unwrap_used)]
 
 mod bad_input;
+mod calib_client;
 mod calibrate;
 mod cantools_decode;
 mod cli;
