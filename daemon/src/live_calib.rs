@@ -270,17 +270,24 @@ impl LiveCalibration {
     }
 
     /// A filter step: `rear_rev` wheel revolutions (left, right) since the
-    /// previous step with the diameters in use, the steering signal, the
-    /// rear-axle speed.
+    /// previous step with the diameters in use, and the steering signal.
     pub fn on_step(
         &mut self,
         t: Timestamp,
         rear_rev: (f64, f64),
         steer_signal: Option<f64>,
-        speed_mps: f64,
     ) -> Vec<Output> {
         let t_s = seconds(t);
-        if speed_mps.abs() > self.config.standstill_speed_mps || !speed_mps.is_finite() {
+        let p = self.vehicle(&self.current_values());
+        let distance_m = 0.5
+            * std::f64::consts::PI
+            * (p.wheel_diameter_m(Wheel::RearLeft) * rear_rev.0
+                + p.wheel_diameter_m(Wheel::RearRight) * rear_rev.1);
+        // The first step has no interval: any distance is motion.
+        let dt_s = self.last_step_s.map_or(0.0, |last| (t_s - last).max(0.0));
+        let moving =
+            !distance_m.is_finite() || distance_m.abs() > self.config.standstill_speed_mps * dt_s;
+        if moving {
             self.still_since_s = None;
         } else if self.still_since_s.is_none() {
             self.still_since_s = Some(t_s);
@@ -288,17 +295,8 @@ impl LiveCalibration {
         self.last_step_s = Some(t_s);
         let phase = self.phase();
         if matches!(phase, Phase::Positioning | Phase::Recording) {
-            let params = self.session.as_ref().map(|s| *s.params());
-            if let Some(p) = params
-                && phase == Phase::Recording
-            {
-                let d = 0.5
-                    * std::f64::consts::PI
-                    * (p.wheel_diameter_m(Wheel::RearLeft) * rear_rev.0
-                        + p.wheel_diameter_m(Wheel::RearRight) * rear_rev.1);
-                if d.is_finite() {
-                    self.run_distance_m += d.abs();
-                }
+            if phase == Phase::Recording && distance_m.is_finite() {
+                self.run_distance_m += distance_m.abs();
             }
             let before = self.instruction();
             self.event(Event::Sample(RevSample {
@@ -969,7 +967,7 @@ mod tests {
         let c = config();
         let (mut live, w, _) = core(&c, two_sets(), false);
         // Moving: the set waits for the standstill.
-        let _ = live.on_step(at(0), (0.1, 0.1), Some(0.0), 1.0);
+        let _ = live.on_step(at(0), (0.1, 0.1), Some(0.0));
         let out = live.on_command(at(5), &cmd(&w, w.encode_command(Command::Rollback, 0, 1)));
         assert!(!out.iter().any(|o| matches!(o, Output::Apply(..))));
         let ack = |version, status| {
@@ -979,11 +977,11 @@ mod tests {
         assert_eq!(live.writeback(), Writeback::Pending);
         let out = live.on_ack(at(20), &ack(1, AckStatus::Stored));
         assert_eq!(progress(&w, &out).unwrap().writeback, Writeback::Acked);
-        let _ = live.on_step(at(100), (0.0, 0.0), Some(0.0), 0.0);
+        let _ = live.on_step(at(100), (0.0, 0.0), Some(0.0));
         let still_ms = u64::try_from((c.calibration.standstill_time_s * 1000.0) as i64).unwrap();
-        let early = live.on_step(at(100 + still_ms - 10), (0.0, 0.0), Some(0.0), 0.0);
+        let early = live.on_step(at(100 + still_ms - 10), (0.0, 0.0), Some(0.0));
         assert!(!early.iter().any(|o| matches!(o, Output::Apply(..))));
-        let late = live.on_step(at(100 + still_ms), (0.0, 0.0), Some(0.0), 0.0);
+        let late = live.on_step(at(100 + still_ms), (0.0, 0.0), Some(0.0));
         assert!(late.iter().any(|o| matches!(o, Output::Apply(1, _))));
         assert_eq!(
             live.tick(at(200 + still_ms))

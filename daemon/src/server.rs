@@ -19,9 +19,11 @@
 //! before it returns, so nothing received is lost.
 
 use crate::bus::{BusError, BusEvent, FrameSink, FrameSource, IdFilter, InProcessBus, Received};
+use crate::calib_wire::CalibWire;
 use crate::candump::Timestamp;
 use crate::config::Config;
 use crate::frame::{CanFrame, CanId, ErrorSeverity};
+use crate::live_calib::{LiveCalibration, Output, Persister};
 use crate::own_dbc::{OwnFrame, dbc_for_base};
 use crate::pipeline::{Pipeline, Step};
 use crate::pose_frames::PoseEncoder;
@@ -120,7 +122,14 @@ pub enum RunError {
     /// A task panicked or did not stop in time.
     #[error("task: {0}")]
     Task(String),
+    /// The calibration frames cannot be built at the configured base id.
+    #[error("calibration frames: {0}")]
+    Calibration(#[from] crate::calib_wire::WireError),
 }
+
+/// How often the live calibration's clock runs (status periods and ACK
+/// timeouts are multiples of it).
+const CALIB_TICK: Duration = Duration::from_millis(50);
 
 /// Optional observers (the demo's display, tests).
 #[derive(Clone, Debug, Default)]
@@ -178,7 +187,10 @@ pub async fn run<C: Connector>(
     let token = CancellationToken::new();
     let tracker = TaskTracker::new();
     let mut pipeline = Pipeline::new(&config)?;
+    let nominal = *pipeline.params();
     apply_param_file(&mut pipeline, &config.calibration);
+    let live = live_calibration(&config, nominal)?;
+    let (calib_cmd_id, calib_ack_id) = (config.calibration.command_id, live.1);
     let encoder = PoseEncoder::new(config.output.base_id)?;
     let cmd_id = OwnFrame::OdomCmd.id(config.output.base_id);
     let mut filters: Vec<IdFilter> = config
@@ -193,6 +205,8 @@ pub async fn run<C: Connector>(
         })
         .collect();
     filters.push(IdFilter::exact(cmd_id));
+    filters.push(IdFilter::exact(calib_cmd_id));
+    filters.push(IdFilter::exact(calib_ack_id));
     let notifier = match Notifier::from_env() {
         Ok(n) => n,
         Err(e) => {
@@ -238,6 +252,10 @@ pub async fn run<C: Connector>(
         lost: 0,
         link_lost: lost_tx,
         outages: Arc::clone(&outages),
+        live: live.0,
+        calib_cmd_id,
+        calib_ack_id,
+        report_root: report_root(&config.calibration.param_file),
     };
     let pipeline_handle = tracker.spawn(task.run());
     tracker.close();
@@ -262,6 +280,35 @@ pub async fn run<C: Connector>(
     summary.connections = connections;
     summary.outages = outages.load(Ordering::Relaxed);
     Ok(summary)
+}
+
+/// The live calibration over the parameter file (re-read: `apply_param_file`
+/// already judged it; a damaged file starts an empty history) and the
+/// `CALIB_ACK` id.
+fn live_calibration(
+    config: &Config,
+    nominal: canodom_fusion::VehicleParams,
+) -> Result<(LiveCalibration, CanId), RunError> {
+    let cal = &config.calibration;
+    let file = crate::persist::load(&cal.param_file, &cal.bounds).unwrap_or_default();
+    let wire = CalibWire::new(config.output.base_id)?;
+    let ack_id = wire.ack_id();
+    let path = cal.param_file.clone();
+    let persister: Persister =
+        Box::new(move |f| crate::persist::store(&path, f).map_err(|e| e.to_string()));
+    Ok((
+        LiveCalibration::new(wire, cal.clone(), nominal, file, persister),
+        ack_id,
+    ))
+}
+
+/// Reports of committed sessions go to `<param file stem>-reports/<version>/`
+/// beside the parameter file.
+fn report_root(param_file: &std::path::Path) -> std::path::PathBuf {
+    let stem = param_file
+        .file_stem()
+        .map_or_else(|| "canodom-params".into(), |s| s.to_string_lossy());
+    param_file.with_file_name(format!("{stem}-reports"))
 }
 
 /// Which parameters the daemon started with.
@@ -443,6 +490,10 @@ struct PipelineTask<Tx> {
     /// Tells the link task of a link loss a send met (see [`is_link_loss`]).
     link_lost: mpsc::Sender<BusError>,
     outages: Arc<AtomicU64>,
+    live: LiveCalibration,
+    calib_cmd_id: CanId,
+    calib_ack_id: CanId,
+    report_root: std::path::PathBuf,
 }
 
 impl<Tx: FrameSink + Clone> PipelineTask<Tx> {
@@ -461,6 +512,8 @@ impl<Tx: FrameSink + Clone> PipelineTask<Tx> {
         {
             warn!(cause = %e, "sd_notify READY failed");
         }
+        let mut calib_tick = tokio::time::interval(CALIB_TICK);
+        calib_tick.set_missed_tick_behavior(MissedTickBehavior::Delay);
         let mut last_stats = *self.pipeline.stats();
         let mut last_stats_at = Instant::now();
         loop {
@@ -471,6 +524,12 @@ impl<Tx: FrameSink + Clone> PipelineTask<Tx> {
                     None => break,
                 },
                 _ = pose_tick.tick() => self.publish().await,
+                _ = calib_tick.tick() => {
+                    if let Some(now) = self.now() {
+                        let out = self.live.tick(now);
+                        self.carry_out(out).await;
+                    }
+                }
                 _ = stats_tick.tick() => {
                     let s = *self.pipeline.stats();
                     let secs = last_stats_at.elapsed().as_secs_f64().max(1e-9);
@@ -515,12 +574,26 @@ impl<Tx: FrameSink + Clone> PipelineTask<Tx> {
             LinkEvent::Lost(n) => self.lost += n,
             LinkEvent::Frame(r) => {
                 self.clock = Some((r.timestamp, Instant::now()));
+                if r.frame.id() == self.calib_cmd_id {
+                    let out = self.live.on_command(r.timestamp, &r.frame);
+                    self.carry_out(out).await;
+                    return;
+                }
+                if r.frame.id() == self.calib_ack_id {
+                    let out = self.live.on_ack(r.timestamp, &r.frame);
+                    self.carry_out(out).await;
+                    return;
+                }
                 if r.frame.id() == self.cmd_id {
                     self.command(&r.frame).await;
                     return;
                 }
                 let step = self.pipeline.push(r.timestamp, &r.frame);
                 if let Some(step) = step {
+                    let out = self
+                        .live
+                        .on_step(r.timestamp, step.rear_rev, step.steer_signal);
+                    self.carry_out(out).await;
                     if let Some(w) = &self.observers.steps {
                         w.send_replace(Some(step));
                     }
@@ -546,9 +619,59 @@ impl<Tx: FrameSink + Clone> PipelineTask<Tx> {
         }
     }
 
+    /// The bus clock now: the last frame's timestamp plus the time since.
+    fn now(&self) -> Option<Timestamp> {
+        let (t, at) = self.clock?;
+        Some(Timestamp::from_micros(
+            t.as_micros() + at.elapsed().as_micros() as u64,
+        ))
+    }
+
+    /// Does what the live calibration asks: frames, applies, reports.
+    async fn carry_out(&mut self, outputs: Vec<Output>) {
+        for o in outputs {
+            match o {
+                Output::Send(f) => self.send(&f).await,
+                Output::Apply(version, values) => {
+                    match self.pipeline.apply_params(Some((version, &values))) {
+                        Ok(()) => info!(version, "calibrated parameters applied"),
+                        Err(e) => {
+                            error!(version, cause = %e, "calibrated parameters refused by the filter");
+                        }
+                    }
+                }
+                Output::Report(version, report) => {
+                    let dir = self.report_root.join(version.to_string());
+                    // SVG rendering is file work: keep it off the frame path.
+                    tokio::task::spawn_blocking(move || {
+                        match crate::report::write_report(&dir, &report) {
+                            Ok((svg, _)) => {
+                                info!(report = %svg.display(), "calibration report written");
+                            }
+                            Err(e) => {
+                                warn!(cause = %e, "calibration report not written");
+                            }
+                        }
+                    });
+                }
+            }
+        }
+    }
+
+    async fn send(&mut self, frame: &CanFrame) {
+        let tx = self.sink.borrow().clone();
+        let Some(tx) = tx else { return };
+        if let Err(e) = tx.send(frame).await {
+            if is_link_loss(&e) {
+                let _ = self.link_lost.try_send(e);
+            } else {
+                debug!(cause = %e, "calibration frame not sent");
+            }
+        }
+    }
+
     async fn publish(&mut self) {
-        let Some((t, at)) = self.clock else { return };
-        let now = Timestamp::from_micros(t.as_micros() + at.elapsed().as_micros() as u64);
+        let Some(now) = self.now() else { return };
         let pose = self.pipeline.pose_output(now);
         let Ok(frames) = self.encoder.encode(&pose) else {
             return;
