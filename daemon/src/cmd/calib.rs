@@ -8,7 +8,7 @@
 //! [`render_line`], [`reason_text`]) and unit-tested; the I/O shell only
 //! moves frames between SocketCAN and those functions.
 
-use crate::bus::{BusEvent, FrameSink as _, FrameSource as _, IdFilter, open_socketcan};
+use crate::bus::{BusEvent, FrameSink, FrameSource, IdFilter, open_socketcan};
 use crate::calib_wire::{
     CalibWire, CmdCode, Command, Counts, InstructionCode, ParamsAssembler, Progress, Reason, State,
     StatusPage, WireDirection, Writeback,
@@ -559,9 +559,24 @@ fn initial_counter() -> u8 {
 /// Exit code when the daemon does not answer.
 const EXIT_NO_ANSWER: i32 = 2;
 
-struct Link {
-    rx: crate::bus::SocketCanRx,
-    tx: crate::bus::SocketCanTx,
+/// The daemon did not answer in time (exit code 2).
+#[derive(Debug, thiserror::Error)]
+#[error(
+    "no {what} from canodom on {iface} within {timeout_s} s — is the daemon running with this config?"
+)]
+pub struct NoAnswer {
+    /// What was awaited.
+    pub what: String,
+    /// The interface.
+    pub iface: String,
+    /// The wait, seconds.
+    pub timeout_s: f64,
+}
+
+/// The client's end of the bus: generic so tests drive it on the in-process bus.
+struct Link<R, T> {
+    rx: R,
+    tx: T,
     wire: CalibWire,
     iface: String,
     timeout: Duration,
@@ -572,7 +587,7 @@ enum Incoming {
     Params(crate::calib_wire::ParamsPage),
 }
 
-impl Link {
+impl Link<crate::bus::SocketCanRx, crate::bus::SocketCanTx> {
     fn open(config: &Config, timeout: Duration) -> anyhow::Result<Self> {
         let wire = CalibWire::new(config.output.base_id)?;
         let iface = config.interface.clone();
@@ -594,7 +609,9 @@ impl Link {
             timeout,
         })
     }
+}
 
+impl<R: FrameSource, T: FrameSink> Link<R, T> {
     /// The next calibration frame before `deadline`, `None` at the deadline.
     async fn next(&mut self, deadline: Instant) -> anyhow::Result<Option<Incoming>> {
         loop {
@@ -616,13 +633,13 @@ impl Link {
         }
     }
 
-    fn no_answer(&self, what: &str) -> ! {
-        eprintln!(
-            "no {what} from canodom on {} within {} s — is the daemon running with this config?",
-            self.iface,
-            self.timeout.as_secs_f64()
-        );
-        std::process::exit(EXIT_NO_ANSWER);
+    fn no_answer(&self, what: &str) -> anyhow::Error {
+        NoAnswer {
+            what: what.to_owned(),
+            iface: self.iface.clone(),
+            timeout_s: self.timeout.as_secs_f64(),
+        }
+        .into()
     }
 
     /// The current counts page: any status within the timeout, then a page 1
@@ -638,8 +655,8 @@ impl Link {
                     self.timeout
                 };
             match self.next(deadline).await? {
-                None if alive => self.no_answer("CALIB_STATUS page 1 (counts)"),
-                None => self.no_answer("CALIB_STATUS"),
+                None if alive => return Err(self.no_answer("CALIB_STATUS page 1 (counts)")),
+                None => return Err(self.no_answer("CALIB_STATUS")),
                 Some(Incoming::Status(StatusPage::Counts(c))) => return Ok(c),
                 Some(Incoming::Status(_)) => alive = true,
                 Some(Incoming::Params(_)) => {}
@@ -649,13 +666,17 @@ impl Link {
 
     /// Sends `cmd` and waits for its answer; one retry with the next counter
     /// when the daemon took it for a duplicate.
-    async fn command(&mut self, config: &Config, cmd: Command) -> anyhow::Result<Answer> {
-        let arming = config.calibration.arming_code.unwrap_or(0);
-        let mut counter = initial_counter();
+    async fn command(
+        &mut self,
+        cmd: Command,
+        cmd_id: crate::frame::CanId,
+        arming: u8,
+        mut counter: u8,
+    ) -> anyhow::Result<Answer> {
         let mut seq_before = self.counts().await?.cmd_seq;
         for attempt in 0..2 {
             let data = self.wire.encode_command(cmd, arming, counter);
-            let frame = CalibWire::frame(config.calibration.command_id, &data)?;
+            let frame = CalibWire::frame(cmd_id, &data)?;
             self.tx
                 .send(&frame)
                 .await
@@ -663,7 +684,7 @@ impl Link {
             let deadline = Instant::now() + PAGE_CYCLE.max(self.timeout);
             let answer = loop {
                 match self.next(deadline).await? {
-                    None => self.no_answer(&format!("answer to {}", cmd.code())),
+                    None => return Err(self.no_answer(&format!("answer to {}", cmd.code()))),
                     Some(Incoming::Status(StatusPage::Counts(c))) => {
                         match judge(&c, seq_before, cmd.code()) {
                             Answer::Pending => {}
@@ -705,7 +726,7 @@ impl Link {
                 Some(Incoming::Params(_)) => {}
                 None if g.progress.is_none() && g.counts.is_none() => {
                     if Instant::now() >= start + self.timeout {
-                        self.no_answer("CALIB_STATUS");
+                        return Err(self.no_answer("CALIB_STATUS"));
                     }
                     deadline = start + self.timeout;
                 }
@@ -794,6 +815,16 @@ impl Link {
 /// Configuration or SocketCAN unavailable. Refusals exit with 1 and no
 /// answer with 2 after printing why.
 pub fn execute(args: &CalibArgs) -> anyhow::Result<()> {
+    match run(args) {
+        Err(e) if e.downcast_ref::<NoAnswer>().is_some() => {
+            eprintln!("{e}");
+            std::process::exit(EXIT_NO_ANSWER);
+        }
+        other => other,
+    }
+}
+
+fn run(args: &CalibArgs) -> anyhow::Result<()> {
     let config = Config::load(&args.config)?;
     let timeout = Duration::from_secs_f64(args.timeout_s);
     let rt = tokio::runtime::Builder::new_current_thread()
@@ -815,7 +846,15 @@ pub fn execute(args: &CalibArgs) -> anyhow::Result<()> {
                 let Some(cmd) = command_for(action) else {
                     unreachable!("every other action sends a command")
                 };
-                match link.command(&config, cmd).await? {
+                let answer = link
+                    .command(
+                        cmd,
+                        config.calibration.command_id,
+                        config.calibration.arming_code.unwrap_or(0),
+                        initial_counter(),
+                    )
+                    .await?;
+                match answer {
                     Answer::Done => println!("done"),
                     Answer::Refused(r) => {
                         println!("refused: {r} ({})", reason_text(r));
@@ -841,7 +880,7 @@ pub fn execute(args: &CalibArgs) -> anyhow::Result<()> {
                             "CALIB_PARAMS version {}: SET_CRC mismatch, set not trusted",
                             set.version
                         ),
-                        None => link.no_answer("CALIB_PARAMS"),
+                        None => return Err(link.no_answer("CALIB_PARAMS")),
                     }
                 }
                 Ok(())
@@ -1136,5 +1175,117 @@ mod tests {
         assert_eq!(back.command, Some(cmd));
         assert_eq!(back.arming_code, 0xA5);
         assert!(back.checksum_ok);
+    }
+    /// A daemon that answers every command at once (COMMIT refused as out
+    /// of bounds, a repeated counter as BAD_COUNTER) and otherwise sends
+    /// progress and counts every 100 ms.
+    async fn fake_daemon(bus: crate::bus::InProcessBus, wire: CalibWire) {
+        let (mut rx, tx) = bus.open().unwrap();
+        let mut c = counts(5, CmdCode::None, Reason::None);
+        let mut last_counter = None;
+        let mut tick = tokio::time::interval(Duration::from_millis(100));
+        let mut out = 0u8;
+        loop {
+            let answer = tokio::select! {
+                _ = tick.tick() => false,
+                ev = rx.recv() => {
+                    let Ok(BusEvent::Frame(r)) = ev else { return };
+                    if r.frame.id() != wire.cmd_id() { continue; }
+                    let f = wire.decode_command(r.frame.data()).unwrap();
+                    c.last_cmd = f.cmd_raw;
+                    c.cmd_reason = if last_counter == Some(f.counter) {
+                        Reason::BadCounter
+                    } else if f.command == Some(Command::Commit) {
+                        Reason::OutOfBounds
+                    } else {
+                        Reason::None
+                    };
+                    last_counter = Some(f.counter);
+                    c.cmd_seq = (c.cmd_seq + 1) % 8;
+                    true
+                }
+            };
+            let mut pages = vec![StatusPage::Counts(c)];
+            if !answer {
+                pages.push(StatusPage::Progress(progress(
+                    State::Idle,
+                    InstructionCode::None,
+                )));
+            }
+            for page in pages {
+                out = out.wrapping_add(1);
+                let data = wire.encode_status(&page, out);
+                tx.send(&CalibWire::frame(wire.status_id(), &data).unwrap())
+                    .await
+                    .unwrap();
+            }
+        }
+    }
+
+    fn base() -> crate::own_dbc::BaseId {
+        crate::own_dbc::BaseId::new(0x600, false).unwrap()
+    }
+
+    fn client(
+        bus: &crate::bus::InProcessBus,
+    ) -> Link<crate::bus::InProcessRx, crate::bus::InProcessTx> {
+        let (rx, tx) = bus.open().unwrap();
+        Link {
+            rx,
+            tx,
+            wire: CalibWire::new(base()).unwrap(),
+            iface: "vcan0".into(),
+            timeout: Duration::from_secs(2),
+        }
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn commands_are_answered_refused_and_retried_after_a_duplicate_counter() {
+        let bus = crate::bus::InProcessBus::new("vcan0", 256);
+        let mut link = client(&bus);
+        tokio::spawn(fake_daemon(bus.clone(), CalibWire::new(base()).unwrap()));
+        let id = link.wire.cmd_id();
+        assert_eq!(
+            link.command(Command::Abort, id, 0, 3).await.unwrap(),
+            Answer::Done
+        );
+        // Same counter again: the daemon sees a duplicate, the client retries with 4.
+        assert_eq!(
+            link.command(Command::Compute, id, 0, 3).await.unwrap(),
+            Answer::Done
+        );
+        assert_eq!(
+            link.command(Command::Commit, id, 0, 9).await.unwrap(),
+            Answer::Refused(Reason::OutOfBounds)
+        );
+        let g = link.status().await.unwrap();
+        assert!(
+            render_guide(&g).contains("COMMIT refused: OUT_OF_BOUNDS"),
+            "{}",
+            render_guide(&g)
+        );
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_silent_bus_is_no_answer_naming_the_interface() {
+        let bus = crate::bus::InProcessBus::new("vcan0", 16);
+        let mut link = client(&bus);
+        let err = link
+            .command(Command::Abort, link.wire.cmd_id(), 0, 1)
+            .await
+            .unwrap_err();
+        let text = err.to_string();
+        assert!(err.downcast_ref::<NoAnswer>().is_some(), "{text}");
+        assert_eq!(
+            text,
+            "no CALIB_STATUS from canodom on vcan0 within 2 s — is the daemon running with this config?"
+        );
+        assert!(
+            link.status()
+                .await
+                .unwrap_err()
+                .downcast_ref::<NoAnswer>()
+                .is_some()
+        );
     }
 }
