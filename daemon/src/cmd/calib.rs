@@ -383,6 +383,9 @@ pub fn progress_bar(done_m: f64, total_m: f64, width: usize) -> String {
 }
 
 fn answer_text(code: u8, reason: Reason) -> String {
+    if code == CmdCode::None.code() && reason == Reason::None {
+        return "none yet".to_owned();
+    }
     let name = CmdCode::from_code(code).map_or_else(|| format!("code {code}"), |c| c.to_string());
     if reason == Reason::None {
         format!("{name} done")
@@ -755,18 +758,20 @@ impl<R: FrameSource, T: FrameSink> Link<R, T> {
         }
     }
 
+    /// Draws the guide on `out` (in place when `tty`) until Ctrl-C or
+    /// `count` status frames.
     async fn watch(
         &mut self,
         track_length_m: Option<f64>,
         count: Option<u64>,
+        out: &mut impl std::io::Write,
+        tty: bool,
     ) -> anyhow::Result<()> {
-        let tty = std::io::stdout().is_terminal();
         let mut g = GuideState::new(track_length_m);
         let mut drawn_lines = 0usize;
         let mut frames = 0u64;
         let ctrl_c = tokio::signal::ctrl_c();
         tokio::pin!(ctrl_c);
-        let mut out = std::io::stdout().lock();
         loop {
             let deadline = Instant::now() + self.timeout;
             let next = tokio::select! {
@@ -788,7 +793,7 @@ impl<R: FrameSource, T: FrameSink> Link<R, T> {
                 Some(Incoming::Params(_)) => continue,
             };
             frames += 1;
-            if g.apply(&page) || frames == 1 {
+            if g.apply(&page) && g.progress.is_some() {
                 if tty {
                     let block = render_guide(&g);
                     if drawn_lines > 0 {
@@ -841,7 +846,12 @@ fn run(args: &CalibArgs) -> anyhow::Result<()> {
             Action::Watch {
                 track_radius,
                 count,
-            } => link.watch(track_radius.map(track_length_m), *count).await,
+            } => {
+                let tty = std::io::stdout().is_terminal();
+                let mut out = std::io::stdout().lock();
+                link.watch(track_radius.map(track_length_m), *count, &mut out, tty)
+                    .await
+            }
             action => {
                 let Some(cmd) = command_for(action) else {
                     unreachable!("every other action sends a command")
@@ -1185,6 +1195,7 @@ mod tests {
         let mut last_counter = None;
         let mut tick = tokio::time::interval(Duration::from_millis(100));
         let mut out = 0u8;
+        let mut still = false;
         loop {
             let answer = tokio::select! {
                 _ = tick.tick() => false,
@@ -1207,10 +1218,11 @@ mod tests {
             };
             let mut pages = vec![StatusPage::Counts(c)];
             if !answer {
-                pages.push(StatusPage::Progress(progress(
-                    State::Idle,
-                    InstructionCode::None,
-                )));
+                // Standstill toggles so a watcher sees changes.
+                let mut p = progress(State::Idle, InstructionCode::None);
+                still = !still;
+                p.standstill = still;
+                pages.push(StatusPage::Progress(p));
             }
             for page in pages {
                 out = out.wrapping_add(1);
@@ -1287,5 +1299,32 @@ mod tests {
                 .downcast_ref::<NoAnswer>()
                 .is_some()
         );
+    }
+    #[tokio::test(start_paused = true)]
+    async fn watch_prints_a_line_per_change_or_redraws_in_place() {
+        let bus = crate::bus::InProcessBus::new("vcan0", 256);
+        tokio::spawn(fake_daemon(bus.clone(), CalibWire::new(base()).unwrap()));
+        for tty in [false, true] {
+            let mut link = client(&bus);
+            let mut out = Vec::new();
+            link.watch(Some(track_length_m(1.0)), Some(6), &mut out, tty)
+                .await
+                .unwrap();
+            let text = String::from_utf8(out).unwrap();
+            assert!(text.contains("No session"), "{text}");
+            if tty {
+                assert!(
+                    text.contains("\x1b[") && text.contains("A\x1b[J"),
+                    "{text:?}"
+                );
+                assert!(text.contains("runs:  CW 2 accepted"), "{text}");
+            } else {
+                assert!(!text.contains('\x1b'), "{text:?}");
+                // The pages repeat: only changes print, and each is one line.
+                let lines: Vec<_> = text.lines().collect();
+                assert!((1..6).contains(&lines.len()), "{text}");
+                assert!(lines.iter().all(|l| l.starts_with("IDLE | ")), "{text}");
+            }
+        }
     }
 }
