@@ -6,6 +6,7 @@
 
 mod bad_input;
 mod calib_client;
+mod calib_session;
 mod calibrate;
 mod cantools_decode;
 mod cli;
