@@ -26,7 +26,7 @@ use crate::frame::CanFrame;
 use crate::persist::{ParamFile, ParamValues};
 use crate::report::CalibrationReport;
 use canodom_calib::CalibrationResult;
-use canodom_calib::run::{RevSample, Run};
+use canodom_calib::run::{InputFault, RevSample, Run};
 use canodom_calib::session::{Action, Event, Instruction, Phase, Session, SessionConfig};
 use canodom_calib::steering::SteeringProvenance;
 use canodom_calib::track::{Direction, Track};
@@ -314,6 +314,17 @@ impl LiveCalibration {
             }
         }
         self.apply_if_still(t_s)
+    }
+
+    /// The input path refused or faulted a wheel frame (`code`: the
+    /// decoder's fault code): a run recording now is rejected at its end.
+    pub fn on_fault(&mut self, t: Timestamp, code: u8) {
+        if self.phase() == Phase::Recording {
+            self.event(Event::InputFault {
+                t_s: seconds(t),
+                fault: InputFault::Decoder { code },
+            });
+        }
     }
 
     fn apply_if_still(&mut self, t_s: f64) -> Vec<Output> {
@@ -990,6 +1001,38 @@ mod tests {
                 .count(),
             0
         );
+    }
+
+    #[test]
+    fn a_wheel_fault_during_a_run_rejects_it() {
+        let c = config();
+        let (mut live, w, _) = core(&c, ParamFile::default(), false);
+        let start = Command::StartSession {
+            track_radius_mm: 780,
+            runs_per_direction: 1,
+        };
+        let _ = live.on_command(at(0), &cmd(&w, w.encode_command(start, 0, 1)));
+        let mut ms = 0;
+        for _ in 0..150 {
+            ms += 10;
+            let _ = live.on_step(at(ms), (0.0, 0.0), Some(0.0));
+        }
+        // Straight ahead for 2 m: recording.
+        for _ in 0..200 {
+            ms += 10;
+            let _ = live.on_step(at(ms), (0.035, 0.035), Some(0.0));
+        }
+        assert_eq!(live.phase(), Phase::Recording);
+        live.on_fault(at(ms), 2);
+        let out = live.on_command(
+            at(ms + 5),
+            &cmd(&w, w.encode_command(Command::EndRun, 0, 2)),
+        );
+        let page = counts(&w, &out);
+        assert_eq!(page.cmd_reason, Reason::None);
+        assert_eq!(page.reject_reason, Reason::InputFault);
+        assert_eq!(page.ccw_rejected + page.cw_rejected, 1);
+        assert_eq!(live.phase(), Phase::Positioning);
     }
 
     #[test]

@@ -28,7 +28,7 @@ use crate::own_dbc::{OwnFrame, dbc_for_base};
 use crate::pipeline::{Pipeline, Step};
 use crate::pose_frames::PoseEncoder;
 use crate::sd_notify::Notifier;
-use crate::stats::Stats;
+use crate::stats::{Reject, Stats};
 use canodom_dbc::{Checksum, Database, SignalHandle};
 use canodom_fusion::ekf::State;
 use std::future::Future;
@@ -588,7 +588,24 @@ impl<Tx: FrameSink + Clone> PipelineTask<Tx> {
                     self.command(&r.frame).await;
                     return;
                 }
+                let faults = |s: &Stats| {
+                    [
+                        Reject::WheelFault,
+                        Reject::WheelGap,
+                        Reject::BadCounter,
+                        Reject::BadChecksum,
+                        Reject::NonFinite,
+                    ]
+                    .map(|r| s.get(r))
+                };
+                let before = faults(self.pipeline.stats());
                 let step = self.pipeline.push(r.timestamp, &r.frame);
+                let after = faults(self.pipeline.stats());
+                if let Some(i) = (0..after.len()).find(|&i| after[i] > before[i]) {
+                    // The fault code is the index in the list above, from 1.
+                    self.live
+                        .on_fault(r.timestamp, u8::try_from(i + 1).unwrap_or(u8::MAX));
+                }
                 if let Some(step) = step {
                     let out = self
                         .live
