@@ -759,6 +759,7 @@ mod tests {
     use super::*;
     use crate::config::Config;
     use crate::pipeline::Pipeline;
+    use canodom_fusion::VehicleParams;
     use std::sync::{Arc, Mutex};
 
     type Stored = Arc<Mutex<Vec<ParamFile>>>;
@@ -1033,6 +1034,97 @@ mod tests {
         assert_eq!(page.reject_reason, Reason::InputFault);
         assert_eq!(page.ccw_rejected + page.cw_rejected, 1);
         assert_eq!(live.phase(), Phase::Positioning);
+    }
+
+    /// Drives a whole noise-free session of `truth` to Computed; the time.
+    fn computed_session(live: &mut LiveCalibration, w: &CalibWire, truth: &VehicleParams) -> u64 {
+        use canodom_calib::synth::lap;
+        let start = Command::StartSession {
+            track_radius_mm: 780,
+            runs_per_direction: 2,
+        };
+        let _ = live.on_command(at(0), &cmd(w, w.encode_command(start, 0, 1)));
+        let track = Track::new(0.78).unwrap();
+        let mut ms = 0;
+        let rest = |live: &mut LiveCalibration, ms: &mut u64| {
+            for _ in 0..150 {
+                *ms += 10;
+                let _ = live.on_step(at(*ms), (0.0, 0.0), Some(0.0));
+            }
+        };
+        rest(live, &mut ms);
+        for _ in 0..4 {
+            let Instruction::Go { direction, .. } = live.instruction() else {
+                panic!("{:?}", live.instruction());
+            };
+            for s in lap(truth, track, direction, 0.3, 100.0).unwrap() {
+                ms += 10;
+                let _ = live.on_step(
+                    at(ms),
+                    (s.rear_left_rev, s.rear_right_rev),
+                    Some(s.steer_signal),
+                );
+            }
+            rest(live, &mut ms);
+        }
+        let out = live.on_command(at(ms), &cmd(w, w.encode_command(Command::Compute, 0, 2)));
+        assert_eq!(counts(w, &out).cmd_reason, Reason::None);
+        assert_eq!(live.phase(), Phase::Computed);
+        ms
+    }
+
+    #[test]
+    fn commit_checks_bounds_and_uncertainty_then_persists_applies_and_reports() {
+        let mut c = config();
+        let nominal = *Pipeline::new(&c).unwrap().params();
+        let truth = nominal
+            .with_rear(
+                nominal.rear_tread_m() * 1.033,
+                nominal.wheel_diameter_m(Wheel::RearLeft),
+                nominal.wheel_diameter_m(Wheel::RearRight) * 1.015,
+            )
+            .unwrap();
+        let commit = |live: &mut LiveCalibration, w: &CalibWire, ms: u64| {
+            live.on_command(at(ms), &cmd(w, w.encode_command(Command::Commit, 0, 3)))
+        };
+        // Bounds tighter than the result: refused, still computed.
+        let wide = c.calibration.bounds;
+        c.calibration.bounds.rear_tread_m.1 = nominal.rear_tread_m() * 1.01;
+        let (mut live, w, stored) = core(&c, ParamFile::default(), false);
+        let ms = computed_session(&mut live, &w, &truth);
+        let out = commit(&mut live, &w, ms);
+        assert_eq!(counts(&w, &out).cmd_reason, Reason::OutOfBounds);
+        assert_eq!(live.phase(), Phase::Computed);
+        assert!(stored.lock().unwrap().is_empty());
+        // An uncertainty limit no estimate meets: refused.
+        c.calibration.bounds = wide;
+        c.calibration.max_tread_std_m = -1.0;
+        let (mut live, w, stored) = core(&c, ParamFile::default(), false);
+        let ms = computed_session(&mut live, &w, &truth);
+        let out = commit(&mut live, &w, ms);
+        assert_eq!(counts(&w, &out).cmd_reason, Reason::UncertaintyTooHigh);
+        assert!(stored.lock().unwrap().is_empty());
+        // Within both: stored, applied at standstill, reported, written back.
+        c.calibration.max_tread_std_m = 1.0;
+        c.calibration.max_ratio_std = 1.0;
+        let (mut live, w, stored) = core(&c, ParamFile::default(), false);
+        let ms = computed_session(&mut live, &w, &truth);
+        let out = commit(&mut live, &w, ms);
+        assert_eq!(counts(&w, &out).cmd_reason, Reason::None);
+        assert_eq!(live.phase(), Phase::Idle);
+        assert_eq!(stored.lock().unwrap().len(), 1);
+        let applied = out.iter().find_map(|o| match o {
+            Output::Apply(v, values) => Some((*v, *values)),
+            _ => None,
+        });
+        let (version, values) = applied.expect("applied at standstill");
+        assert_eq!(version, 1);
+        assert!(
+            (values.diameter_ratio() / 1.015 - 1.0).abs() < 1e-3,
+            "{values:?}"
+        );
+        assert!(out.iter().any(|o| matches!(o, Output::Report(1, _))));
+        assert_eq!(params_sent(&w, &out), vec![1; 4]);
     }
 
     #[test]
