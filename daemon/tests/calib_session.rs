@@ -17,10 +17,12 @@ use canodom::calib_wire::{
 use canodom::candump::Timestamp;
 use canodom::cmd::simulate::LOG_EPOCH_US;
 use canodom::frame::CanId;
+use canodom::own_dbc::{OwnFrame, dbc_for_base};
 use canodom::persist::{ParamFile, ParamValues, store};
 use canodom::pipeline::Pipeline;
 use canodom::server::{Observers, run};
 use canodom::vehicle::{SampleEncoder, sim_config};
+use canodom_dbc::Database;
 use canodom_fusion::sim::{Direction, Plan, simulate};
 use canodom_fusion::{VehicleParams, Wheel};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -37,6 +39,8 @@ struct Seen {
     progress: Vec<Progress>,
     counts: Vec<Counts>,
     sets: Vec<ParamSet>,
+    /// ODOM_QUALITY.PARAM_VERSION of the latest pose.
+    pose_param_version: Option<u16>,
 }
 
 struct Driver {
@@ -186,6 +190,9 @@ async fn a_driven_session_commits_the_true_parameters_and_writes_them_back() {
     ));
     let wire = CalibWire::new(config.output.base_id).unwrap();
     let (status_id, params_id, ack_id) = (wire.status_id(), wire.params_id(), wire.ack_id());
+    let quality_id = OwnFrame::OdomQuality.id(config.output.base_id);
+    let own_db = Database::parse(&dbc_for_base(config.output.base_id), "canodom.dbc").unwrap();
+    let param_version = own_db.signal("ODOM_QUALITY.PARAM_VERSION").unwrap();
 
     // Listener and ECU emulator: collects status and parameter sets, and
     // acknowledges every complete set while `ecu_on`.
@@ -201,7 +208,11 @@ async fn a_driven_session_commits_the_true_parameters_and_writes_them_back() {
             while let Ok(ev) = rx.recv().await {
                 let BusEvent::Frame(r) = ev else { continue };
                 let id = r.frame.id();
-                if id == status_id {
+                if id == quality_id {
+                    seen.lock().unwrap().pose_param_version = param_version
+                        .raw(r.frame.data())
+                        .and_then(|v| u16::try_from(v).ok());
+                } else if id == status_id {
                     match wire.decode_status(r.frame.data()) {
                         Ok((StatusPage::Progress(p), _)) => seen.lock().unwrap().progress.push(p),
                         Ok((StatusPage::Counts(c), _)) => seen.lock().unwrap().counts.push(c),
@@ -351,6 +362,8 @@ async fn a_driven_session_commits_the_true_parameters_and_writes_them_back() {
         .until("ACKED", |p| p.writeback == Writeback::Acked)
         .await;
     assert_eq!(acked.writeback_attempts, 1);
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    assert_eq!(seen.lock().unwrap().pose_param_version, Some(2));
     let set = seen.lock().unwrap().sets[sets_before];
     assert_eq!(set.version, 2);
     let tread_err = set.rear_tread_m / b_eff - 1.0;
@@ -398,6 +411,8 @@ async fn a_driven_session_commits_the_true_parameters_and_writes_them_back() {
         sets_before + 1 + retries as usize
     );
     assert_eq!(driver.counts().active_version, 1);
+    // The odometry runs on the rolled-back set: its poses say so.
+    assert_eq!(seen.lock().unwrap().pose_param_version, Some(1));
 
     stop.cancel();
     let summary = daemon.await.unwrap().unwrap();
