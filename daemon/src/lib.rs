@@ -14,6 +14,7 @@
 //! - [`pose_frames`]: pose samples encoded into canodom's own frames.
 //! - [`vehicle`]: the simulator encoded with the configured DBC (simulate, demo, tests).
 //! - [`report`]: calibration reports, an SVG picture and a JSON file of every number.
+//! - [`float_text`]: `f64` written as `{}` writes it, fast (replay output).
 //! - [`progress`]: a progress line on terminals for long offline work.
 //! - [`state_file`]: the end state `run --state-file` saves on SIGTERM.
 //! - [`stats`]: reject reasons and counters.
@@ -25,6 +26,7 @@ pub mod calib_wire;
 pub mod candump;
 pub mod cmd;
 pub mod config;
+pub mod float_text;
 pub mod frame;
 pub mod live_calib;
 pub mod own_dbc;

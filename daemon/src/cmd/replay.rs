@@ -3,6 +3,7 @@
 
 use crate::candump::{LogReader, MalformedCounts, ReadError};
 use crate::config::Config;
+use crate::float_text::push_f64;
 use crate::pipeline::{Pipeline, Step};
 use crate::stats::Stats;
 use anyhow::Context as _;
@@ -129,17 +130,24 @@ pub fn replay(
         };
         if let Some(s) = pipeline.push(record.timestamp, &record.frame) {
             row.clear();
-            let _ = writeln!(
-                row,
-                "{},{},{},{},{},{},{}",
+            for (i, v) in [
                 s.t_s,
                 s.fused.x_m,
                 s.fused.y_m,
                 s.fused.heading_rad,
                 s.odometry.x_m,
                 s.odometry.y_m,
-                s.odometry.heading_rad
-            );
+                s.odometry.heading_rad,
+            ]
+            .into_iter()
+            .enumerate()
+            {
+                if i > 0 {
+                    row.push(b',');
+                }
+                push_f64(&mut row, v);
+            }
+            row.push(b'\n');
             out.write_all(&row)?;
         }
     }
