@@ -24,7 +24,7 @@ enum LogFormat {
     Json,
 }
 
-fn main() -> anyhow::Result<()> {
+fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
     // The demo prints its own table; the daemon's periodic log would bury it.
     let default_level = match cli.command {
@@ -42,13 +42,20 @@ fn main() -> anyhow::Result<()> {
         LogFormat::Json => builder.json().init(),
     }
     match cli.command.execute() {
+        Ok(()) => std::process::ExitCode::SUCCESS,
         // `canodom decode log | head` is normal use, not a failure.
         Err(e)
             if e.downcast_ref::<std::io::Error>()
                 .is_some_and(|io| io.kind() == std::io::ErrorKind::BrokenPipe) =>
         {
-            Ok(())
+            std::process::ExitCode::SUCCESS
         }
-        other => other,
+        // The message with its causes, never a backtrace: these are input
+        // and environment errors for the user, not bugs (RUST_BACKTRACE=1 is
+        // common on developer machines and would bury the one useful line).
+        Err(e) => {
+            eprintln!("Error: {e:#}");
+            std::process::ExitCode::FAILURE
+        }
     }
 }
