@@ -26,9 +26,12 @@ use crate::frame::CanFrame;
 use crate::persist::{ParamFile, ParamValues};
 use crate::report::CalibrationReport;
 use canodom_calib::CalibrationResult;
+use canodom_calib::RearParams;
 use canodom_calib::run::{InputFault, RevSample, Run};
 use canodom_calib::session::{Action, Event, Instruction, Phase, Session, SessionConfig};
-use canodom_calib::steering::SteeringProvenance;
+use canodom_calib::steering::{
+    ArcEstimate, ArcOptions, SteeringFit, SteeringProvenance, estimate_arc, fit_steering,
+};
 use canodom_calib::track::{Direction, Track};
 use canodom_fusion::{Pose, SteeringMap, VehicleParams, Wheel};
 
@@ -36,6 +39,29 @@ use canodom_fusion::{Pose, SteeringMap, VehicleParams, Wheel};
 const ACTIVE_STATUS_S: f64 = 0.1;
 /// Status period otherwise, s.
 const IDLE_STATUS_S: f64 = 1.0;
+/// A steering arc ends when the signal moves the nominal road-wheel angle
+/// by more than this from the arc's first sample, rad (0.25°): a servo
+/// holding a command jitters far less, a new command moves it by degrees.
+const ARC_SIGNAL_TOL_RAD: f64 = 0.25 * std::f64::consts::PI / 180.0;
+/// Arcs whose signals differ by less than this (nominal angle, rad) count
+/// as one command when judging whether the fit has enough distinct ones.
+const DISTINCT_SIGNAL_RAD: f64 = 1.0 * std::f64::consts::PI / 180.0;
+/// Distinct commands a steering fit needs: two fix a line, a third checks it.
+const MIN_STEERING_COMMANDS: usize = 3;
+
+/// The steering calibration (§10) in progress: constant-command arcs driven
+/// with the calibrated rear set in use.
+#[derive(Debug, Clone, Default)]
+struct SteeringCollect {
+    /// Arcs closed and long enough to estimate.
+    arcs: Vec<ArcEstimate>,
+    /// Samples of the arc being driven.
+    current: Vec<RevSample>,
+    /// Distance of the arc being driven, m.
+    current_m: f64,
+    /// The fit of `compute`, awaiting commit.
+    fit: Option<SteeringFit>,
+}
 
 /// Stores the parameter file durably; `Err` carries the cause for the log.
 pub type Persister = Box<dyn FnMut(&ParamFile) -> Result<(), String> + Send>;
@@ -92,6 +118,7 @@ pub struct LiveCalibration {
     next_status_s: Option<f64>,
     status_counter: u8,
     params_counter: u8,
+    steering: Option<SteeringCollect>,
 }
 
 impl std::fmt::Debug for LiveCalibration {
@@ -155,6 +182,7 @@ impl LiveCalibration {
             next_status_s: None,
             status_counter: 0,
             params_counter: 0,
+            steering: None,
         };
         me.session = Some(me.fresh_session());
         me
@@ -293,6 +321,9 @@ impl LiveCalibration {
             self.still_since_s = Some(t_s);
         }
         self.last_step_s = Some(t_s);
+        if self.steering.is_some() {
+            self.steering_sample(t_s, rear_rev, steer_signal, distance_m, moving);
+        }
         let phase = self.phase();
         if matches!(phase, Phase::Positioning | Phase::Recording) {
             if phase == Phase::Recording && distance_m.is_finite() {
@@ -319,6 +350,11 @@ impl LiveCalibration {
     /// The input path refused or faulted a wheel frame (`code`: the
     /// decoder's fault code): a run recording now is rejected at its end.
     pub fn on_fault(&mut self, t: Timestamp, code: u8) {
+        if let Some(st) = self.steering.as_mut() {
+            // The arc lost samples: its curvature would be wrong.
+            st.current.clear();
+            st.current_m = 0.0;
+        }
         if self.phase() == Phase::Recording {
             self.event(Event::InputFault {
                 t_s: seconds(t),
@@ -422,6 +458,7 @@ impl LiveCalibration {
             return Reason::UnknownCommand;
         };
         match command {
+            Command::StartSession { .. } if self.steering.is_some() => Reason::SessionActive,
             Command::StartSession {
                 track_radius_mm,
                 runs_per_direction,
@@ -448,7 +485,13 @@ impl LiveCalibration {
                 }
                 r
             }
-            Command::StartSteering => Reason::NotSupported,
+            Command::StartSteering => self.start_steering(),
+            Command::Abort if self.steering.is_some() => {
+                self.steering = None;
+                Reason::None
+            }
+            Command::Compute if self.steering.is_some() => self.compute_steering(),
+            Command::Commit if self.steering.is_some() => self.commit_steering(t_s, out),
             Command::EndRun => self.session_event(Event::EndRun),
             Command::StartRun => self.session_event(Event::StartRun),
             Command::EndPose {
@@ -585,7 +628,7 @@ impl LiveCalibration {
     }
 
     fn rollback(&mut self, t_s: f64, out: &mut Vec<Output>) -> Reason {
-        if self.phase() != Phase::Idle {
+        if self.phase() != Phase::Idle || self.steering.is_some() {
             return Reason::SessionActive;
         }
         if self.writeback() == Writeback::Pending {
@@ -602,6 +645,175 @@ impl LiveCalibration {
         self.file = file;
         self.adopt(t_s, set.version, set.values, out);
         Reason::None
+    }
+
+    /// Starts the steering calibration (§10): only with the rear session idle
+    /// and a calibrated rear set in use, since a map fitted with uncalibrated
+    /// rear odometry makes the car drive the path on which that odometry
+    /// closes (the trap of §10); without one, `NOTHING_TO_COMMIT` (no
+    /// calibrated set to build on).
+    fn start_steering(&mut self) -> Reason {
+        if self.phase() != Phase::Idle || self.steering.is_some() {
+            return Reason::SessionActive;
+        }
+        if self.file.current.as_ref().is_none_or(|s| s.version == 0) {
+            return Reason::NothingToCommit;
+        }
+        self.steering = Some(SteeringCollect::default());
+        self.result = None;
+        Reason::None
+    }
+
+    /// One step while collecting steering arcs: extends the current arc or
+    /// closes it when the signal changed or the vehicle stopped.
+    fn steering_sample(
+        &mut self,
+        t_s: f64,
+        rear_rev: (f64, f64),
+        steer_signal: Option<f64>,
+        distance_m: f64,
+        moving: bool,
+    ) {
+        let nominal_gain = self.nominal.steering().gain;
+        let Some(st) = self.steering.as_ref() else {
+            return;
+        };
+        if st.fit.is_some() {
+            return;
+        }
+        let same_command = match (st.current.first(), steer_signal) {
+            (Some(first), Some(u)) => {
+                (nominal_gain * (u - first.steer_signal)).abs() <= ARC_SIGNAL_TOL_RAD
+            }
+            (None, _) => true,
+            (Some(_), None) => false,
+        };
+        let usable = moving && distance_m.is_finite() && steer_signal.is_some();
+        if !(usable && same_command) {
+            self.close_arc();
+        }
+        if let (true, Some(u), Some(st)) = (usable, steer_signal, self.steering.as_mut()) {
+            st.current.push(RevSample {
+                t_s,
+                rear_left_rev: rear_rev.0,
+                rear_right_rev: rear_rev.1,
+                front_rev: None,
+                steer_signal: u,
+            });
+            st.current_m += distance_m.abs();
+        }
+    }
+
+    /// Ends the current arc; estimates it with the rear set in use when it
+    /// is long enough after the settling time (else it is dropped).
+    fn close_arc(&mut self) {
+        let v = self.current_values();
+        let wheelbase_m = self.nominal.wheelbase_m();
+        let Some(st) = self.steering.as_mut() else {
+            return;
+        };
+        let samples = std::mem::take(&mut st.current);
+        st.current_m = 0.0;
+        if samples.is_empty() {
+            return;
+        }
+        let rear = RearParams {
+            tread_m: v.rear_tread_m,
+            left_diameter_m: v.rear_left_diameter_m,
+            right_diameter_m: v.rear_right_diameter_m,
+        };
+        match estimate_arc(&samples, &rear, wheelbase_m, &ArcOptions::default()) {
+            Ok(arc) if arc.curvature_per_m.is_finite() => st.arcs.push(arc),
+            Ok(_) => {}
+            Err(e) => tracing::debug!(%e, "steering arc dropped"),
+        }
+    }
+
+    /// Fits the steering map over the arcs: `RUNS_INCOMPLETE` with fewer
+    /// than three distinct commands.
+    fn compute_steering(&mut self) -> Reason {
+        if self.steering.as_ref().is_some_and(|s| s.fit.is_some()) {
+            return Reason::SessionActive;
+        }
+        self.close_arc();
+        let nominal_gain = self.nominal.steering().gain;
+        let Some(st) = self.steering.as_mut() else {
+            return Reason::NoSession;
+        };
+        let mut commands: Vec<f64> = Vec::new();
+        for a in &st.arcs {
+            if !commands
+                .iter()
+                .any(|&u| (nominal_gain * (u - a.command)).abs() < DISTINCT_SIGNAL_RAD)
+            {
+                commands.push(a.command);
+            }
+        }
+        if commands.len() < MIN_STEERING_COMMANDS {
+            return Reason::RunsIncomplete;
+        }
+        match fit_steering(&st.arcs, false) {
+            Ok(fit) if fit.gain.is_finite() && fit.offset_rad.is_finite() => {
+                st.fit = Some(fit);
+                Reason::None
+            }
+            _ => Reason::ComputeFailed,
+        }
+    }
+
+    /// The fitted map with the rear values in use.
+    fn steering_values(&self, fit: &SteeringFit) -> ParamValues {
+        let map = fit.map();
+        ParamValues {
+            steering_gain: map.gain,
+            steering_offset_rad: map.offset_rad,
+            ..self.current_values()
+        }
+    }
+
+    /// Commits a steering fit the way a rear result is committed: bounds,
+    /// stored, applied at standstill, written back.
+    fn commit_steering(&mut self, t_s: f64, out: &mut Vec<Output>) -> Reason {
+        let Some(fit) = self.steering.as_ref().and_then(|s| s.fit.clone()) else {
+            return Reason::NothingToCommit;
+        };
+        if self.writeback() == Writeback::Pending {
+            return Reason::WritebackBusy;
+        }
+        let values = self.steering_values(&fit);
+        if self.config.bounds.check(&values).is_err() {
+            return Reason::OutOfBounds;
+        }
+        let mut file = self.file.clone();
+        let created = t_s.max(0.0) as u64;
+        let version = file
+            .commit(values, "steering", created, self.config.max_history)
+            .version;
+        if let Err(cause) = (self.persister)(&file) {
+            tracing::warn!(%cause, "steering map not stored; commit refused");
+            return Reason::PersistFailed;
+        }
+        self.file = file;
+        self.steering = None;
+        self.adopt(t_s, version, values, out);
+        Reason::None
+    }
+
+    /// Standard deviations of the fit's gain and offset (least squares,
+    /// residual variance over n − 2); NaN with no degree of freedom left.
+    fn fit_std(fit: &SteeringFit) -> (f64, f64) {
+        let n = fit.arcs.len() as f64;
+        let mean_u = fit.arcs.iter().map(|a| a.command).sum::<f64>() / n;
+        let sxx: f64 = fit.arcs.iter().map(|a| (a.command - mean_u).powi(2)).sum();
+        let dof = n - 2.0;
+        if dof <= 0.0 || sxx <= 0.0 {
+            return (f64::NAN, f64::NAN);
+        }
+        let var = fit.residuals_rad.iter().map(|r| r * r).sum::<f64>() / dof;
+        (
+            (var / sxx).sqrt(),
+            (var * (1.0 / n + mean_u * mean_u / sxx)).sqrt(),
+        )
     }
 
     /// The steering map on the wire, relative to the nominal map: the
@@ -656,10 +868,56 @@ impl LiveCalibration {
             .collect()
     }
 
+    /// The result pages of a rear result or a steering fit awaiting commit.
+    fn result_pages(&self) -> Vec<StatusPage> {
+        let mut pages = Vec::new();
+        if let Some(r) = self.result {
+            let (steer_gain, steer_offset_rad) = self.wire_steering(&self.values_of(&r));
+            pages.extend([
+                StatusPage::ResultGeometry {
+                    rear_tread_m: r.rear.tread_m,
+                    rear_tread_std_m: r.tread_std_m.unwrap_or(f64::NAN),
+                    diameter_ratio: r.rear.ratio(),
+                },
+                StatusPage::ResultQuality {
+                    diameter_ratio_std: r.ratio_std.unwrap_or(f64::NAN),
+                    end_err_before_m: r.e_max_before_m,
+                    end_err_after_m: r.e_max_after_m,
+                },
+                StatusPage::ResultSteering {
+                    steer_gain,
+                    steer_gain_std: 0.0,
+                    steer_offset_rad,
+                },
+                StatusPage::ResultExtra {
+                    steer_offset_std_rad: 0.0,
+                    version: self.file.last_version.checked_add(1).unwrap_or(1),
+                },
+            ]);
+        }
+        if let Some(fit) = self.steering.as_ref().and_then(|s| s.fit.as_ref()) {
+            let (steer_gain, steer_offset_rad) = self.wire_steering(&self.steering_values(fit));
+            let (gain_std, offset_std_rad) = Self::fit_std(fit);
+            pages.extend([
+                StatusPage::ResultSteering {
+                    steer_gain,
+                    // Relative to the nominal gain, as the gain itself.
+                    steer_gain_std: gain_std / self.nominal.steering().gain,
+                    steer_offset_rad,
+                },
+                StatusPage::ResultExtra {
+                    steer_offset_std_rad: offset_std_rad,
+                    version: self.file.last_version.checked_add(1).unwrap_or(1),
+                },
+            ]);
+        }
+        pages
+    }
+
     /// The status pages now; schedules the next.
     fn status(&mut self, t_s: f64) -> Vec<Output> {
         let phase = self.phase();
-        let active = phase != Phase::Idle;
+        let active = phase != Phase::Idle || self.steering.is_some();
         self.next_status_s = Some(
             t_s + if active {
                 ACTIVE_STATUS_S
@@ -688,19 +946,36 @@ impl LiveCalibration {
             _ => (0, 0, None),
         };
         let wb = self.writeback;
+        // The steering calibration has no state of its own on the wire: it
+        // shows as RECORDING while arcs are collected (RUN_INDEX = arcs
+        // estimated so far, RUN_DISTANCE = the current arc's length) and as
+        // COMPUTED once a fit awaits commit (RESULT_STEERING pages).
+        let (state, run, run_distance_m) = match &self.steering {
+            Some(st) if st.fit.is_some() => (State::Computed, 0, 0.0),
+            Some(st) => (
+                State::Recording,
+                u8::try_from(st.arcs.len()).unwrap_or(u8::MAX),
+                st.current_m,
+            ),
+            None => (
+                State::of(phase),
+                run,
+                if phase == Phase::Recording {
+                    self.run_distance_m
+                } else {
+                    0.0
+                },
+            ),
+        };
         let mut pages = vec![
             StatusPage::Progress(Progress {
-                state: State::of(phase),
+                state,
                 instruction: InstructionCode::of(&instruction),
                 run_index: run,
                 runs_total: runs,
                 direction: WireDirection::of(direction),
                 start_point: StartPoint::of(direction),
-                run_distance_m: if phase == Phase::Recording {
-                    self.run_distance_m
-                } else {
-                    0.0
-                },
+                run_distance_m,
                 writeback: wb.map_or(Writeback::Idle, |w| w.state),
                 standstill: self.standstill(t_s),
                 writeback_attempts: wb.map_or(0, |w| w.attempts),
@@ -717,30 +992,7 @@ impl LiveCalibration {
                 cmd_seq: self.cmd_seq,
             }),
         ];
-        if let Some(r) = self.result {
-            let (steer_gain, steer_offset_rad) = self.wire_steering(&self.values_of(&r));
-            pages.extend([
-                StatusPage::ResultGeometry {
-                    rear_tread_m: r.rear.tread_m,
-                    rear_tread_std_m: r.tread_std_m.unwrap_or(f64::NAN),
-                    diameter_ratio: r.rear.ratio(),
-                },
-                StatusPage::ResultQuality {
-                    diameter_ratio_std: r.ratio_std.unwrap_or(f64::NAN),
-                    end_err_before_m: r.e_max_before_m,
-                    end_err_after_m: r.e_max_after_m,
-                },
-                StatusPage::ResultSteering {
-                    steer_gain,
-                    steer_gain_std: 0.0,
-                    steer_offset_rad,
-                },
-                StatusPage::ResultExtra {
-                    steer_offset_std_rad: 0.0,
-                    version: self.file.last_version.checked_add(1).unwrap_or(1),
-                },
-            ]);
-        }
+        pages.extend(self.result_pages());
         let id = self.wire.status_id();
         let mut out = Vec::with_capacity(pages.len());
         for p in &pages {
@@ -887,7 +1139,7 @@ mod tests {
             ),
             (
                 w.encode_command(Command::StartSteering, 0x5a, 6),
-                Reason::NotSupported,
+                Reason::NothingToCommit,
             ),
             (
                 w.encode_command(Command::Compute, 0x5a, 7),
@@ -1162,5 +1414,155 @@ mod tests {
         let out = live.on_command(at(3050), &cmd(&w, w.encode_command(start, 0, 2)));
         assert_eq!(progress(&w, &out).unwrap().runs_total, 10);
         assert_eq!(statuses(&mut live, 3100, 4100), 10);
+    }
+
+    /// A file whose current set (version 1) holds the nominal rear values.
+    fn calibrated(nominal: &VehicleParams) -> ParamFile {
+        let steer = nominal.steering();
+        let mut file = ParamFile::default();
+        file.commit(
+            ParamValues {
+                rear_tread_m: nominal.rear_tread_m(),
+                rear_left_diameter_m: nominal.wheel_diameter_m(Wheel::RearLeft),
+                rear_right_diameter_m: nominal.wheel_diameter_m(Wheel::RearRight),
+                steering_gain: steer.gain,
+                steering_offset_rad: steer.offset_rad,
+            },
+            "exact",
+            1,
+            10,
+        );
+        file
+    }
+
+    /// Drives one constant-command arc of `truth` then stands still 1.5 s.
+    fn drive_arc(live: &mut LiveCalibration, truth: &VehicleParams, u: f64, ms: &mut u64) {
+        use canodom_calib::synth::arc;
+        for s in arc(truth, u, 3.0, 0.5, 100.0).unwrap() {
+            *ms += 10;
+            let _ = live.on_step(
+                at(*ms),
+                (s.rear_left_rev, s.rear_right_rev),
+                Some(s.steer_signal),
+            );
+        }
+        for _ in 0..150 {
+            *ms += 10;
+            let _ = live.on_step(at(*ms), (0.0, 0.0), Some(u));
+        }
+    }
+
+    #[test]
+    fn steering_needs_a_calibrated_set_and_three_commands() {
+        let c = config();
+        let nominal = *Pipeline::new(&c).unwrap().params();
+        let (mut live, w, _) = core(&c, ParamFile::default(), false);
+        let out = live.on_command(
+            at(0),
+            &cmd(&w, w.encode_command(Command::StartSteering, 0, 1)),
+        );
+        assert_eq!(counts(&w, &out).cmd_reason, Reason::NothingToCommit);
+        let (mut live, w, stored) = core(&c, calibrated(&nominal), false);
+        let out = live.on_command(
+            at(0),
+            &cmd(&w, w.encode_command(Command::StartSteering, 0, 1)),
+        );
+        assert_eq!(counts(&w, &out).cmd_reason, Reason::None);
+        assert_eq!(progress(&w, &out).unwrap().state, State::Recording);
+        let mut ms = 0;
+        drive_arc(&mut live, &nominal, -10.0, &mut ms);
+        drive_arc(&mut live, &nominal, 10.0, &mut ms);
+        let p = progress(&w, &live.tick(at(ms))).unwrap();
+        assert_eq!(p.run_index, 2);
+        let out = live.on_command(at(ms), &cmd(&w, w.encode_command(Command::Compute, 0, 2)));
+        assert_eq!(counts(&w, &out).cmd_reason, Reason::RunsIncomplete);
+        // A rear session cannot start over it; abort drops it.
+        let start = Command::StartSession {
+            track_radius_mm: 1000,
+            runs_per_direction: 1,
+        };
+        let out = live.on_command(at(ms), &cmd(&w, w.encode_command(start, 0, 3)));
+        assert_eq!(counts(&w, &out).cmd_reason, Reason::SessionActive);
+        let out = live.on_command(at(ms), &cmd(&w, w.encode_command(Command::Abort, 0, 4)));
+        assert_eq!(counts(&w, &out).cmd_reason, Reason::None);
+        let out = live.on_command(at(ms), &cmd(&w, w.encode_command(Command::Commit, 0, 5)));
+        assert_eq!(counts(&w, &out).cmd_reason, Reason::NothingToCommit);
+        assert!(stored.lock().unwrap().is_empty());
+    }
+
+    #[test]
+    fn steering_arcs_fit_commit_and_write_back_the_true_map() {
+        let c = config();
+        let nominal = *Pipeline::new(&c).unwrap().params();
+        let n = nominal.steering();
+        let truth_gain = n.gain * 0.93;
+        let truth_offset_rad = 0.8f64.to_radians();
+        let truth = nominal
+            .with_steering(SteeringMap {
+                gain: truth_gain,
+                offset_rad: truth_offset_rad,
+            })
+            .unwrap();
+        let (mut live, w, stored) = core(&c, calibrated(&nominal), false);
+        let _ = live.on_command(
+            at(0),
+            &cmd(&w, w.encode_command(Command::StartSteering, 0, 1)),
+        );
+        let mut ms = 0;
+        for u in [-20.0, -8.0, 5.0, 18.0] {
+            drive_arc(&mut live, &truth, u, &mut ms);
+        }
+        let out = live.on_command(at(ms), &cmd(&w, w.encode_command(Command::Compute, 0, 2)));
+        assert_eq!(counts(&w, &out).cmd_reason, Reason::None);
+        assert_eq!(progress(&w, &out).unwrap().state, State::Computed);
+        let (wire_gain, wire_offset_rad) = out
+            .iter()
+            .find_map(|o| match o {
+                Output::Send(f) if f.id() == w.status_id() => match w.decode_status(f.data()) {
+                    Ok((
+                        StatusPage::ResultSteering {
+                            steer_gain,
+                            steer_offset_rad,
+                            ..
+                        },
+                        _,
+                    )) => Some((steer_gain, steer_offset_rad)),
+                    _ => None,
+                },
+                _ => None,
+            })
+            .expect("steering result page");
+        eprintln!(
+            "wire steering gain {wire_gain:.4}, offset {:.3}°",
+            wire_offset_rad.to_degrees()
+        );
+        assert!((wire_gain / 0.93 - 1.0).abs() < 0.01, "{wire_gain}");
+        let out = live.on_command(at(ms), &cmd(&w, w.encode_command(Command::Commit, 0, 3)));
+        assert_eq!(counts(&w, &out).cmd_reason, Reason::None);
+        assert_eq!(counts(&w, &out).active_version, 2);
+        let (version, values) = out
+            .iter()
+            .find_map(|o| match o {
+                Output::Apply(v, values) => Some((*v, *values)),
+                _ => None,
+            })
+            .expect("applied at standstill");
+        assert_eq!(version, 2);
+        eprintln!(
+            "committed steering gain {:.5} (truth {truth_gain:.5}), offset {:.4}° (truth 0.8°)",
+            values.steering_gain,
+            values.steering_offset_rad.to_degrees()
+        );
+        assert!((values.steering_gain / truth_gain - 1.0).abs() < 0.01);
+        assert!(
+            (values.steering_offset_rad - truth_offset_rad)
+                .abs()
+                .to_degrees()
+                < 0.05
+        );
+        assert!((values.rear_tread_m - nominal.rear_tread_m()).abs() < 1e-12);
+        assert_eq!(params_sent(&w, &out), vec![2; 4]);
+        assert_eq!(stored.lock().unwrap().len(), 1);
+        assert_eq!(live.file().current.as_ref().unwrap().version, 2);
     }
 }
