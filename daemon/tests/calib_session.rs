@@ -388,6 +388,18 @@ async fn a_driven_session_commits_the_true_parameters_and_writes_them_back() {
     assert!(report.join("calibration.svg").exists());
     assert!(report.join("calibration.json").exists());
 
+    // With a calibrated set in use the steering fit (§10) starts over the
+    // bus and shows as RECORDING; ABORT drops it and nothing is committed.
+    let answer = driver.command(Command::StartSteering).await;
+    assert_eq!(answer.cmd_reason, Reason::None);
+    assert_eq!(driver.progress().state, State::Recording);
+    let answer = driver.command(Command::Abort).await;
+    assert_eq!(
+        (answer.cmd_reason, answer.active_version),
+        (Reason::None, 2)
+    );
+    assert_eq!(driver.progress().state, State::Idle);
+
     // Rollback with the ECU silent: the previous set is re-applied and
     // re-sent, retried, then the write-back fails with the set kept.
     ecu_on.store(false, Ordering::Relaxed);
