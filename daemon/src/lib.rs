@@ -2,6 +2,7 @@
 //! decode and replay of candump logs; guided calibration over CAN.
 //!
 //! Layout:
+//! - [`atomic_file`]: atomic, durable file replacement (parameters, state, reports).
 //! - [`frame`]: the CAN frame value type shared by every transport and log.
 //! - [`candump`]: the `candump -L` log format, streaming parser and formatter.
 //! - [`bus`]: the transport trait, with the in-process bus and SocketCAN.
@@ -21,6 +22,7 @@
 //! - [`server`]: the async daemon (link and pipeline tasks), generic over the transport.
 //! - [`sd_notify`]: systemd readiness and watchdog notifications.
 
+pub mod atomic_file;
 pub mod bus;
 pub mod calib_wire;
 pub mod candump;

@@ -14,9 +14,8 @@
 //! nominal parameters with a warning.
 
 use serde::{Deserialize, Serialize};
-use std::fs::{self, File, OpenOptions};
-use std::io::{self, Write};
-use std::os::unix::fs::OpenOptionsExt;
+use std::fs;
+use std::io;
 use std::path::{Path, PathBuf};
 
 /// Version of the file layout written by this code.
@@ -445,45 +444,20 @@ pub fn store(path: &Path, file: &ParamFile) -> Result<(), PersistError> {
 
 /// Temporary file used by [`store`] for `path`: hidden, same directory.
 pub fn temp_path(path: &Path) -> PathBuf {
-    let name = path
-        .file_name()
-        .map_or_else(|| "params".into(), |n| n.to_string_lossy());
-    path.with_file_name(format!(".{name}.tmp"))
+    crate::atomic_file::temp_path(path)
 }
 
 fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), PersistError> {
-    let io_err = |p: &Path| {
-        let p = p.to_owned();
-        move |source| PersistError::Io { path: p, source }
-    };
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d.to_owned(),
-        _ => PathBuf::from("."),
-    };
-    let tmp = temp_path(path);
-    // The daemon is the only writer, so a fixed name is safe; truncation
-    // discards a half-written leftover of a crashed earlier attempt.
-    let mut f = OpenOptions::new()
-        .write(true)
-        .create(true)
-        .truncate(true)
-        .mode(0o644)
-        .open(&tmp)
-        .map_err(io_err(&tmp))?;
-    f.write_all(bytes).map_err(io_err(&tmp))?;
-    f.sync_all().map_err(io_err(&tmp))?;
-    drop(f);
-    fs::rename(&tmp, path).map_err(io_err(path))?;
-    File::open(&dir)
-        .and_then(|d| d.sync_all())
-        .map_err(io_err(&dir))?;
-    Ok(())
+    crate::atomic_file::write(path, bytes).map_err(|e| PersistError::Io {
+        path: e.path,
+        source: e.source,
+    })
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use std::io::{BufRead, BufReader};
+    use std::io::{BufRead, BufReader, Write};
     use std::process::{Command, Stdio};
     use std::time::{Duration, Instant};
 

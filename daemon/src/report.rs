@@ -25,7 +25,6 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 use serde::Serialize;
 use std::f64::consts::PI;
-use std::io::Write as _;
 use std::path::{Path, PathBuf};
 
 /// File name of the picture inside the report directory.
@@ -670,36 +669,12 @@ fn draw_ends(
     Ok(())
 }
 
-/// Writes `text` to `path` durably and atomically: a temporary file in the
-/// same directory, `fsync`, rename over `path`, `fsync` of the directory.
+/// Writes `text` to `path` durably and atomically ([`crate::atomic_file`]).
 fn write_durable(path: &Path, text: &str) -> Result<(), ReportError> {
-    let io = |p: &Path| {
-        let p = p.to_path_buf();
-        move |source| ReportError::Io { path: p, source }
-    };
-    let dir = path.parent().unwrap_or(Path::new("."));
-    let name = path
-        .file_name()
-        .map_or_else(String::new, |n| n.to_string_lossy().into_owned());
-    let tmp = dir.join(format!(".{name}.tmp{}", std::process::id()));
-    let write = || -> std::io::Result<()> {
-        let mut f = std::fs::File::create(&tmp)?;
-        f.write_all(text.as_bytes())?;
-        f.sync_all()?;
-        std::fs::rename(&tmp, path)
-    };
-    if let Err(e) = write() {
-        let _ = std::fs::remove_file(&tmp);
-        return Err(io(path)(e));
-    }
-    let dir_for_sync = if dir.as_os_str().is_empty() {
-        Path::new(".")
-    } else {
-        dir
-    };
-    std::fs::File::open(dir_for_sync)
-        .and_then(|d| d.sync_all())
-        .map_err(io(dir_for_sync))
+    crate::atomic_file::write(path, text.as_bytes()).map_err(|e| ReportError::Io {
+        path: e.path,
+        source: e.source,
+    })
 }
 
 /// Writes `calibration.svg` and `calibration.json` into `dir` (created if

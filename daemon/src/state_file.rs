@@ -21,9 +21,7 @@ use crate::server::Summary;
 use crate::stats::{Reject, Stats};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
-use std::fs::{self, File, OpenOptions};
-use std::io::Write;
-use std::os::unix::fs::OpenOptionsExt;
+use std::fs;
 use std::path::{Path, PathBuf};
 use std::time::{SystemTime, UNIX_EPOCH};
 
@@ -221,39 +219,15 @@ impl SavedState {
 /// [`StateFileError::Io`] naming the path that failed; the previous file is
 /// then untouched.
 pub fn save(path: &Path, state: &SavedState) -> Result<(), StateFileError> {
-    let io_err = |p: &Path| {
-        let p = p.to_owned();
-        move |source| StateFileError::Io { path: p, source }
-    };
     let mut text = serde_json::to_string_pretty(state).map_err(|e| StateFileError::Format {
         path: path.to_owned(),
         reason: e.to_string(),
     })?;
     text.push('\n');
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d.to_owned(),
-        _ => PathBuf::from("."),
-    };
-    let name = path
-        .file_name()
-        .map_or_else(|| "state".into(), |n| n.to_string_lossy());
-    let tmp = path.with_file_name(format!(".{name}.tmp"));
-    // One daemon writes one state file, so a fixed temporary name is safe;
-    // truncation discards the leftover of a crashed earlier attempt.
-    let mut f = OpenOptions::new()
-        .write(true)
-        .create(true)
-        .truncate(true)
-        .mode(0o644)
-        .open(&tmp)
-        .map_err(io_err(&tmp))?;
-    f.write_all(text.as_bytes()).map_err(io_err(&tmp))?;
-    f.sync_all().map_err(io_err(&tmp))?;
-    drop(f);
-    fs::rename(&tmp, path).map_err(io_err(path))?;
-    File::open(&dir)
-        .and_then(|d| d.sync_all())
-        .map_err(io_err(&dir))
+    crate::atomic_file::write(path, text.as_bytes()).map_err(|e| StateFileError::Io {
+        path: e.path,
+        source: e.source,
+    })
 }
 
 /// Reads a state file written by [`save`].
