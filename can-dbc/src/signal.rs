@@ -190,6 +190,51 @@ impl Codec {
         }
     }
 
+    /// Raw bits for a physical value, saturated: a value beyond the signal's
+    /// range gives the nearest end of it (in raw space, so a negative factor
+    /// saturates the right way), NaN gives the raw value of physical 0
+    /// (saturated in turn).
+    pub(crate) fn scaled_to_raw_saturating(&self, value: f64) -> u64 {
+        let value = if value.is_nan() { 0.0 } else { value };
+        let unscaled = match self.scaling {
+            Scaling::Identity => value,
+            _ => (value - self.offset) / self.factor,
+        };
+        let size = self.layout.size();
+        match self.value_type {
+            ValueType::Float32 => {
+                let clamped = unscaled.clamp(f64::from(f32::MIN), f64::from(f32::MAX));
+                u64::from((clamped as f32).to_bits())
+            }
+            ValueType::Float64 => unscaled.to_bits(),
+            ValueType::Unsigned => {
+                let max = if size == 64 {
+                    u64::MAX
+                } else {
+                    (1u64 << size) - 1
+                };
+                let r = unscaled.round_ties_even();
+                // `as` saturates at 0 and u64::MAX; the explicit bound covers narrower signals.
+                if r >= 2f64.powi(size as i32) {
+                    max
+                } else {
+                    r as u64
+                }
+            }
+            ValueType::Signed => {
+                let half = 2f64.powi(size as i32 - 1);
+                let r = unscaled.round_ties_even().clamp(-half, half - 1.0);
+                let mask = if size == 64 {
+                    u64::MAX
+                } else {
+                    (1u64 << size) - 1
+                };
+                // For 64 bits `half - 1.0` rounds to 2^63, which `as` saturates to i64::MAX.
+                (r as i64) as u64 & mask
+            }
+        }
+    }
+
     /// Smallest and largest physical values the raw range can encode.
     pub(crate) fn scaled_range(&self) -> (f64, f64) {
         let size = self.layout.size();
@@ -501,6 +546,15 @@ impl SignalHandle {
             Some(raw) => self.encode_raw(raw, data),
             None => false,
         }
+    }
+
+    /// Write the physical `value` into `data`, or, when it does not fit, the
+    /// nearest end of the signal's range (NaN as 0): for outputs that must
+    /// always carry a value, such as a position far from the origin.
+    /// `false` (writing nothing) only if `data` is shorter than the message.
+    #[inline]
+    pub fn encode_saturating(&self, value: f64, data: &mut [u8]) -> bool {
+        self.encode_raw(self.codec.scaled_to_raw_saturating(value), data)
     }
 
     /// Write raw bits (low `size` bits of `raw`) into `data`; `false` if `data` is too short.

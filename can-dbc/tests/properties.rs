@@ -65,4 +65,36 @@ proptest! {
         }
         prop_assert_eq!(mask.iter().map(|b| b.count_ones()).sum::<u32>() as u64, size);
     }
+
+    #[test]
+    fn saturating_encode_is_encode_inside_the_range_and_the_nearest_end_outside(
+        size in 2u64..=32,
+        signed in any::<bool>(),
+        factor in prop_oneof![Just(1.0), 0.001f64..10.0, -10.0f64..-0.001],
+        offset in -1000.0f64..1000.0,
+        value in prop_oneof![-1e12f64..1e12, Just(f64::NAN), Just(f64::INFINITY), Just(f64::NEG_INFINITY)],
+    ) {
+        let db = one_signal_db(0, size, false, signed, factor, offset);
+        let h = db.signal("M.S").unwrap();
+        let m = db.message_by_name("M").unwrap();
+        let (lo, hi) = m.signals()[0].encodable_range();
+        let mut saturated = [0u8; 64];
+        prop_assert!(h.encode_saturating(value, &mut saturated));
+        let mut plain = [0u8; 64];
+        if h.encode(value, &mut plain) {
+            prop_assert_eq!(saturated, plain, "a value that fits is written as it is");
+        } else {
+            let y = h.decode(&saturated).unwrap();
+            // NaN is written as 0, itself saturated.
+            let target = if value.is_nan() { 0.0 } else { value };
+            let nearest_end = if target <= lo { lo } else { hi };
+            let lsb_slack = factor.abs() * 0.5 * (1.0 + 1e-9);
+            if target < lo - lsb_slack || target > hi + lsb_slack {
+                prop_assert_eq!(y, nearest_end, "value {} range [{}, {}]", value, lo, hi);
+            } else {
+                // Only rounding pushed it out: the written value is within one LSB.
+                prop_assert!((y - target).abs() <= factor.abs() * (1.0 + 1e-9), "value {} wrote {}", value, y);
+            }
+        }
+    }
 }

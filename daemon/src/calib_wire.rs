@@ -938,7 +938,7 @@ impl CalibWire {
                 for (hd, r) in h.p0.iter().zip(raws) {
                     hd.encode_raw(u64::from(r), &mut buf);
                 }
-                put_clamped(&h.p0[6], p.run_distance_m, &mut buf);
+                h.p0[6].encode_saturating(p.run_distance_m, &mut buf);
                 h.p0[7].encode_raw(u64::from(p.writeback.code()), &mut buf);
                 h.p0[8].encode_raw(u64::from(p.standstill), &mut buf);
                 h.p0[9].encode_raw(u64::from(p.writeback_attempts.min(7)), &mut buf);
@@ -990,7 +990,7 @@ impl CalibWire {
                 steer_offset_std_rad,
                 version,
             } => {
-                put_clamped(&h.results[3][0], *steer_offset_std_rad, &mut buf);
+                h.results[3][0].encode_saturating(*steer_offset_std_rad, &mut buf);
                 h.results[3][1].encode_raw(u64::from(*version), &mut buf);
             }
         }
@@ -1294,26 +1294,8 @@ fn coded<T>(f: fn(u8) -> Option<T>, signal: &'static str, raw: u64) -> Result<T>
 
 fn put_all(handles: &[SignalHandle; 3], values: [f64; 3], buf: &mut [u8]) {
     for (h, v) in handles.iter().zip(values) {
-        put_clamped(h, v, buf);
+        h.encode_saturating(v, buf);
     }
-}
-
-/// Writes `value`, or the nearest end of the signal's raw range when it does
-/// not fit (NaN as 0).
-fn put_clamped(h: &SignalHandle, value: f64, buf: &mut [u8]) {
-    let v = if value.is_finite() { value } else { 0.0 };
-    if h.encode(v, buf) {
-        return;
-    }
-    let bits = h.size();
-    let signed = h.raw_to_scaled(1u64 << (bits - 1)) < h.raw_to_scaled(0);
-    let raw = match (signed, v > h.raw_to_scaled(0)) {
-        (true, true) => (1u64 << (bits - 1)) - 1,
-        (true, false) => 1u64 << (bits - 1),
-        (false, true) => (1u64 << bits) - 1,
-        (false, false) => 0,
-    };
-    h.encode_raw(raw, buf);
 }
 
 #[cfg(test)]

@@ -95,11 +95,14 @@ impl PoseEncoder {
         // Position wraps beyond ±33.5 km (the DBC says so): raw two's complement.
         put_wrapped(&self.x, pose.x_m / 0.001, &mut bufs[0]);
         put_wrapped(&self.y, pose.y_m / 0.001, &mut bufs[0]);
-        put_clamped(&self.heading, pose.heading_rad, &mut bufs[1]);
-        put_clamped(&self.speed, pose.speed_mps, &mut bufs[1]);
-        put_clamped(&self.yaw_rate, pose.yaw_rate_radps, &mut bufs[1]);
-        put_clamped(&self.pos_std, pose.pos_std_m, &mut bufs[2]);
-        put_clamped(&self.heading_std, pose.heading_std_rad, &mut bufs[2]);
+        self.heading
+            .encode_saturating(pose.heading_rad, &mut bufs[1]);
+        self.speed.encode_saturating(pose.speed_mps, &mut bufs[1]);
+        self.yaw_rate
+            .encode_saturating(pose.yaw_rate_radps, &mut bufs[1]);
+        self.pos_std.encode_saturating(pose.pos_std_m, &mut bufs[2]);
+        self.heading_std
+            .encode_saturating(pose.heading_std_rad, &mut bufs[2]);
         let f = pose.flags;
         for (h, on) in self.flags.iter().zip([
             f.pose_valid,
@@ -135,22 +138,6 @@ fn put_wrapped(h: &SignalHandle, raw_scaled: f64, buf: &mut [u8]) {
         0
     };
     h.encode_raw(raw as u64, buf);
-}
-
-fn put_clamped(h: &SignalHandle, value: f64, buf: &mut [u8]) {
-    let v = if value.is_finite() { value } else { 0.0 };
-    if !h.encode(v, buf) {
-        // Out of range: the nearest end of the signal's raw range.
-        let bits = h.size();
-        let signed = h.raw_to_scaled(1u64 << (bits - 1)) < 0.0;
-        let raw = match (signed, v > 0.0) {
-            (true, true) => (1u64 << (bits - 1)) - 1,
-            (true, false) => 1u64 << (bits - 1),
-            (false, true) => (1u64 << bits) - 1,
-            (false, false) => 0,
-        };
-        h.encode_raw(raw, buf);
-    }
 }
 
 #[cfg(test)]
