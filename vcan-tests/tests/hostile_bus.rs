@@ -29,7 +29,11 @@ use canodom_vcan_tests::{
     PoseDecoder, Spawned, canodom_bin, canodom_replay, metric, read_candump, read_csv, repo_file,
     run, scratch_dir, wait_until,
 };
-use socketcan::{EmbeddedFrame, ExtendedId, Socket, StandardId};
+use nix::errno::Errno;
+use nix::sys::socket::{MsgFlags, MultiHeaders, sendmmsg};
+use socketcan::Socket;
+use std::io::IoSlice;
+use std::os::fd::AsRawFd;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
@@ -184,45 +188,68 @@ fn schedule(lines: &[String], load_s: u64, exp: &mut Expected) -> Vec<(u64, CanF
     out
 }
 
-fn to_socketcan(f: &CanFrame) -> socketcan::CanFrame {
-    let id: socketcan::Id = match f.id() {
-        CanId::Standard(raw) => StandardId::new(raw).unwrap().into(),
-        CanId::Extended(raw) => ExtendedId::new(raw).unwrap().into(),
+/// `struct can_frame` of linux/can.h as bytes: what one `sendmmsg` entry
+/// carries (id with the extended flag, length, three reserved bytes, data).
+fn to_raw(f: &CanFrame) -> [u8; 16] {
+    let can_id = match f.id() {
+        CanId::Standard(raw) => u32::from(raw),
+        CanId::Extended(raw) => raw | libc::CAN_EFF_FLAG,
     };
-    socketcan::CanFrame::new(id, f.data()).unwrap()
+    let mut raw = [0u8; 16];
+    raw[..4].copy_from_slice(&can_id.to_ne_bytes());
+    raw[4] = u8::try_from(f.data().len()).unwrap();
+    raw[8..8 + f.data().len()].copy_from_slice(f.data());
+    raw
 }
 
+/// Most frames one `sendmmsg` call carries: a burst no larger than this
+/// cannot overflow a receiver's socket buffer (about 260 frames by default).
+const MAX_BATCH: usize = 32;
+
 /// Sends the schedule in real time; returns (frames sent, seconds taken).
+///
+/// Every frame due (or due within 1 ms) goes out in one `sendmmsg` call of
+/// up to [`MAX_BATCH`] frames: in the emulated guest a system call per
+/// frame cost so much that the sender fell behind 8,000 frames/s whenever
+/// the host was busy, and the rate was then the sender's, not the bus's.
 fn inject(events: &[(u64, CanFrame)]) -> (u64, f64) {
     let sock = socketcan::CanSocket::open("vcan0").unwrap();
-    let frames: Vec<socketcan::CanFrame> = events.iter().map(|(_, f)| to_socketcan(f)).collect();
+    let fd = sock.as_raw_fd();
+    let frames: Vec<[u8; 16]> = events.iter().map(|(_, f)| to_raw(f)).collect();
+    let slices: Vec<[IoSlice<'_>; 1]> = frames.iter().map(|f| [IoSlice::new(f)]).collect();
+    let no_addresses = [None::<()>; MAX_BATCH];
+    let mut headers = MultiHeaders::<()>::preallocate(MAX_BATCH, None);
     let start = Instant::now();
-    let mut sent = 0u64;
-    for ((t_us, _), f) in events.iter().zip(&frames) {
-        let due = Duration::from_micros(*t_us);
+    let mut next = 0;
+    while next < events.len() {
+        let due = Duration::from_micros(events[next].0);
         let now = start.elapsed();
         if let Some(ahead) = due.checked_sub(now)
             && ahead > Duration::from_millis(1)
         {
             std::thread::sleep(ahead);
         }
-        loop {
-            match sock.write_frame(f) {
-                Ok(()) => break,
-                // ENOBUFS: the socket's send buffer is full for a moment.
-                Err(e) if e.raw_os_error() == Some(libc_enobufs()) => {
-                    std::thread::sleep(Duration::from_micros(200));
-                }
-                Err(e) => panic!("injector: {e}"),
-            }
+        let horizon_us = u64::try_from(start.elapsed().as_micros()).unwrap() + 1_000;
+        let batch = 1 + events[next + 1..]
+            .iter()
+            .take(MAX_BATCH - 1)
+            .take_while(|(t_us, _)| *t_us <= horizon_us)
+            .count();
+        match sendmmsg(
+            fd,
+            &mut headers,
+            &slices[next..next + batch],
+            &no_addresses[..batch],
+            [],
+            MsgFlags::empty(),
+        ) {
+            Ok(sent) => next += sent.count(),
+            // ENOBUFS: the socket's send buffer is full for a moment.
+            Err(Errno::ENOBUFS) => std::thread::sleep(Duration::from_micros(200)),
+            Err(e) => panic!("injector: {e}"),
         }
-        sent += 1;
     }
-    (sent, start.elapsed().as_secs_f64())
-}
-
-const fn libc_enobufs() -> i32 {
-    105
+    (next as u64, start.elapsed().as_secs_f64())
 }
 
 /// utime + stime of a process, in clock ticks (100 Hz on Debian's kernel).
@@ -339,6 +366,15 @@ fn hostile_bus_at_8000_fps_rejects_counted_exactly_no_drops_then_sigterm_saves_t
     metric(
         "hostile_offered_fps",
         format!("{:.0}", events.len() as f64 / load_s as f64),
+    );
+    // First: when the guest cannot keep real time, the wheel frames arrive
+    // bunched, the daemon rightly sees gaps and resets its counter checks,
+    // and every exact count below would fail for the host's sake, not the
+    // daemon's.
+    assert!(
+        fps >= MIN_FPS,
+        "the injector reached only {fps:.0} of {MIN_FPS} frames/s: the emulated guest could not keep \
+         real time (is the host busy?); the counts below assume frames arrive when they are due"
     );
 
     // The state file: complete, and the daemon's exact counts.
@@ -470,8 +506,4 @@ fn hostile_bus_at_8000_fps_rejects_counted_exactly_no_drops_then_sigterm_saves_t
     metric("latency_samples", lat.len());
     metric("latency_median_us", percentile(&lat, 0.5));
     metric("latency_p99_us", percentile(&lat, 0.99));
-    assert!(
-        fps >= MIN_FPS,
-        "the injector reached only {fps:.0} frames/s"
-    );
 }
