@@ -154,13 +154,18 @@ impl Codec {
         }
     }
 
+    /// The physical value in raw units, before rounding.
+    fn unscaled(&self, value: f64) -> f64 {
+        match self.scaling {
+            Scaling::Identity => value,
+            _ => (value - self.offset) / self.factor,
+        }
+    }
+
     /// Raw bits for a physical value (cantools `scaled_to_raw`, rounding half to even as
     /// Python's `round` does); `None` if the raw value does not fit the signal.
     pub(crate) fn scaled_to_raw(&self, value: f64) -> Option<u64> {
-        let unscaled = match self.scaling {
-            Scaling::Identity => value,
-            _ => (value - self.offset) / self.factor,
-        };
+        let unscaled = self.unscaled(value);
         let size = self.layout.size();
         match self.value_type {
             ValueType::Float32 => {
@@ -180,57 +185,40 @@ impl Codec {
             ValueType::Signed => {
                 let r = unscaled.round_ties_even();
                 let half = 2f64.powi(size as i32 - 1);
-                let mask = if size == 64 {
-                    u64::MAX
-                } else {
-                    (1u64 << size) - 1
-                };
-                (r >= -half && r < half).then_some((r as i64) as u64 & mask)
+                (r >= -half && r < half).then_some((r as i64) as u64 & raw_mask(size))
             }
         }
     }
 
     /// Raw bits for a physical value, saturated: a value beyond the signal's
-    /// range gives the nearest end of it (in raw space, so a negative factor
-    /// saturates the right way), NaN gives the raw value of physical 0
+    /// range gives the nearest end of it (judged in raw space, so a negative
+    /// factor saturates the right way), NaN gives the raw value of physical 0
     /// (saturated in turn).
     pub(crate) fn scaled_to_raw_saturating(&self, value: f64) -> u64 {
         let value = if value.is_nan() { 0.0 } else { value };
-        let unscaled = match self.scaling {
-            Scaling::Identity => value,
-            _ => (value - self.offset) / self.factor,
-        };
-        let size = self.layout.size();
+        if let Some(raw) = self.scaled_to_raw(value) {
+            return raw;
+        }
+        let below = self.unscaled(value) < 0.0;
+        let mask = raw_mask(self.layout.size());
         match self.value_type {
-            ValueType::Float32 => {
-                let clamped = unscaled.clamp(f64::from(f32::MIN), f64::from(f32::MAX));
-                u64::from((clamped as f32).to_bits())
-            }
-            ValueType::Float64 => unscaled.to_bits(),
+            ValueType::Float32 => u64::from(if below { f32::MIN } else { f32::MAX }.to_bits()),
+            // Every f64 fits: `scaled_to_raw` has already answered.
+            ValueType::Float64 => self.unscaled(value).to_bits(),
             ValueType::Unsigned => {
-                let max = if size == 64 {
-                    u64::MAX
+                if below {
+                    0
                 } else {
-                    (1u64 << size) - 1
-                };
-                let r = unscaled.round_ties_even();
-                // `as` saturates at 0 and u64::MAX; the explicit bound covers narrower signals.
-                if r >= 2f64.powi(size as i32) {
-                    max
-                } else {
-                    r as u64
+                    mask
                 }
             }
+            // Two's complement: the minimum is the sign bit alone, the maximum every other bit.
             ValueType::Signed => {
-                let half = 2f64.powi(size as i32 - 1);
-                let r = unscaled.round_ties_even().clamp(-half, half - 1.0);
-                let mask = if size == 64 {
-                    u64::MAX
+                if below {
+                    (mask >> 1) + 1
                 } else {
-                    (1u64 << size) - 1
-                };
-                // For 64 bits `half - 1.0` rounds to 2^63, which `as` saturates to i64::MAX.
-                (r as i64) as u64 & mask
+                    mask >> 1
+                }
             }
         }
     }
@@ -253,6 +241,11 @@ impl Codec {
         );
         if a <= b { (a, b) } else { (b, a) }
     }
+}
+
+/// The low `size` bits set (`size` is 1 to 64).
+fn raw_mask(size: u32) -> u64 {
+    u64::MAX >> (64 - size)
 }
 
 /// Which multiplexor values select a multiplexed signal.
