@@ -25,16 +25,18 @@
 //! reproducible bit for bit. [`Timestamp::as_secs_f64`] is one correctly
 //! rounded division, the same on every machine.
 //!
-//! Speed: the hot path allocates nothing. [`LogReader`] reuses one line
-//! buffer, the interface name is borrowed from it, hex is decoded through a
-//! 256-entry table, and the formatter appends bytes to a caller's `Vec`.
+//! Speed: the hot path allocates nothing and reads no byte twice but to
+//! find the newline. [`LogReader`] reads large blocks into one buffer, the
+//! common line shape takes a straight-line fast path (`parse_common`; the
+//! general parser handles the rest and every error), hex is decoded through
+//! a 256-entry table, and the formatter appends bytes to a caller's `Vec`.
 
 use crate::frame::{
     CAN_ERR_FLAG, CLASSIC_MAX_LEN, CanFrame, CanId, ERROR_FRAME_LEN, FD_MAX_LEN, FrameKind,
     MAX_EXTENDED_ID, MAX_STANDARD_ID, is_fd_len,
 };
 use std::fmt;
-use std::io::{self, BufRead, Read};
+use std::io::{self, Read};
 
 /// Longest line the reader accepts; a valid record is at most ~330 bytes,
 /// so this only stops a corrupt file from growing the buffer without bound.
@@ -248,36 +250,50 @@ pub enum ReadError {
     Malformed(#[from] Malformed),
 }
 
-/// Streaming candump log reader over any `BufRead`.
+/// Bytes [`LogReader::new`] reads at a time: large reads keep the per-line
+/// cost of I/O bookkeeping to a few instructions.
+pub const DEFAULT_BUFFER_BYTES: usize = 1 << 18;
+
+/// Streaming candump log reader over any `Read`.
 ///
-/// A line that lies whole in the reader's buffer is parsed in place (the
-/// record borrows the buffer until the next call); only a line straddling a
-/// buffer refill is copied, into one reused line buffer.
+/// The reader owns one block buffer: it reads large blocks, finds each line
+/// with `memchr` and parses it in place (the record borrows the buffer until
+/// the next call); only the unfinished tail of a block is moved to the front
+/// before the next read. Memory is the buffer, whatever the log's length.
+/// The interface name is kept in one reused `String`, so the common case,
+/// a log of one interface, neither allocates nor re-validates it per line.
 #[derive(Debug)]
 pub struct LogReader<R> {
     inner: R,
-    line: Vec<u8>,
+    buf: Vec<u8>,
+    /// First byte not yet handed out as a line.
+    start: usize,
+    /// End of the bytes read so far.
+    end: usize,
+    eof: bool,
     line_no: u64,
-    /// Bytes of the line parsed in place, consumed at the next call.
-    pending_consume: usize,
+    /// The interface name of the last record parsed on the fast path.
+    iface: String,
 }
 
-/// Where the next line lies.
-enum LineAt {
-    /// In the reader's buffer, this many bytes (newline excluded).
-    Buffer(usize),
-    /// Copied into `line`, this many bytes.
-    Copied(usize),
-}
-
-impl<R: BufRead> LogReader<R> {
-    /// Wraps a buffered reader.
+impl<R: Read> LogReader<R> {
+    /// Wraps a reader (buffered or not: the reader does its own buffering).
     pub fn new(inner: R) -> Self {
+        Self::with_capacity(DEFAULT_BUFFER_BYTES, inner)
+    }
+
+    /// As [`LogReader::new`] with a buffer of `bytes` (at least
+    /// [`MAX_LINE_BYTES`] + 2, so a line of the longest accepted length
+    /// and its newline always fit).
+    pub fn with_capacity(bytes: usize, inner: R) -> Self {
         Self {
             inner,
-            line: Vec::with_capacity(256),
+            buf: vec![0; bytes.max(MAX_LINE_BYTES + 2)],
+            start: 0,
+            end: 0,
+            eof: false,
             line_no: 0,
-            pending_consume: 0,
+            iface: String::new(),
         }
     }
 
@@ -292,70 +308,116 @@ impl<R: BufRead> LogReader<R> {
     /// [`ReadError::Malformed`] for a bad line, after which the reader is
     /// positioned on the next line; [`ReadError::Io`] when reading fails.
     pub fn next_record(&mut self) -> Result<Option<Record<'_>>, ReadError> {
-        let at = loop {
-            if self.pending_consume > 0 {
-                self.inner.consume(self.pending_consume);
-                self.pending_consume = 0;
+        if let Some(line) = parse_common(&self.buf[self.start..self.end], self.iface.as_bytes()) {
+            let name = &self.buf[self.start + line.iface.start..self.start + line.iface.end];
+            if !same_bytes(name, self.iface.as_bytes()) {
+                // `parse_common` checked it is printable ASCII.
+                let Ok(name) = std::str::from_utf8(name) else {
+                    return self.next_record_general();
+                };
+                self.iface.clear();
+                self.iface.push_str(name);
             }
-            let buf = self.inner.fill_buf()?;
-            if buf.is_empty() {
-                return Ok(None);
-            }
-            let window = &buf[..buf.len().min(MAX_LINE_BYTES + 1)];
-            let newline = memchr::memchr(b'\n', window);
-            let at = if let Some(pos) = newline {
-                let len = trim_end(&buf[..pos]).len();
-                self.pending_consume = pos + 1;
+            self.start += line.consumed;
+            self.line_no += 1;
+            return Ok(Some(Record {
+                timestamp: line.timestamp,
+                iface: &self.iface,
+                frame: line.frame,
+                direction: None,
+            }));
+        }
+        self.next_record_general()
+    }
+
+    /// [`Self::next_record`] for any line: finds its end, skips blank lines
+    /// and enforces [`MAX_LINE_BYTES`], then parses with [`parse_line`].
+    fn next_record_general(&mut self) -> Result<Option<Record<'_>>, ReadError> {
+        let (line_start, len) = loop {
+            let window_end = self.end.min(self.start + MAX_LINE_BYTES + 1);
+            let window = &self.buf[self.start..window_end];
+            let line_len = if let Some(pos) = memchr::memchr(b'\n', window) {
+                pos
+            } else if window.len() == MAX_LINE_BYTES + 1 {
                 self.line_no += 1;
-                LineAt::Buffer(len)
-            } else {
-                self.line.clear();
-                let limit = MAX_LINE_BYTES as u64 + 1;
-                let n = (&mut self.inner)
-                    .take(limit)
-                    .read_until(b'\n', &mut self.line)?;
-                self.line_no += 1;
-                if self.line.last() != Some(&b'\n') && n as u64 == limit {
-                    self.skip_rest_of_line()?;
-                    return Err(Malformed {
-                        line_no: self.line_no,
-                        reason: Reason::LineTooLong,
-                    }
-                    .into());
+                self.start = window_end;
+                self.skip_rest_of_line()?;
+                return Err(Malformed {
+                    line_no: self.line_no,
+                    reason: Reason::LineTooLong,
                 }
-                LineAt::Copied(trim_end(&self.line).len())
+                .into());
+            } else if self.eof {
+                if window.is_empty() {
+                    return Ok(None);
+                }
+                // The last line, without a newline.
+                window.len()
+            } else {
+                self.refill()?;
+                continue;
             };
-            match at {
-                LineAt::Buffer(0) | LineAt::Copied(0) => {}
-                at => break at,
+            let line_start = self.start;
+            self.start = (line_start + line_len + 1).min(self.end);
+            self.line_no += 1;
+            let len = trim_end(&self.buf[line_start..line_start + line_len]).len();
+            if len > 0 {
+                break (line_start, len);
             }
         };
-        let line_no = self.line_no;
-        let line = match at {
-            // `fill_buf` returns the same, unconsumed buffer without I/O.
-            LineAt::Buffer(len) => &self.inner.fill_buf()?[..len],
-            LineAt::Copied(len) => &self.line[..len],
-        };
-        match parse_line(line) {
+        match parse_line(&self.buf[line_start..line_start + len]) {
             Ok(record) => Ok(Some(record)),
-            Err(reason) => Err(Malformed { line_no, reason }.into()),
+            Err(reason) => Err(Malformed {
+                line_no: self.line_no,
+                reason,
+            }
+            .into()),
+        }
+    }
+
+    /// Moves the unread tail to the front and reads once; marks end of input.
+    fn refill(&mut self) -> io::Result<()> {
+        if self.start > 0 {
+            self.buf.copy_within(self.start..self.end, 0);
+            self.end -= self.start;
+            self.start = 0;
+        }
+        loop {
+            match self.inner.read(&mut self.buf[self.end..]) {
+                Ok(0) => {
+                    self.eof = true;
+                    return Ok(());
+                }
+                Ok(n) => {
+                    self.end += n;
+                    return Ok(());
+                }
+                Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
+                Err(e) => return Err(e),
+            }
         }
     }
 
     fn skip_rest_of_line(&mut self) -> io::Result<()> {
         loop {
-            let buf = self.inner.fill_buf()?;
-            if buf.is_empty() {
+            if let Some(pos) = memchr::memchr(b'\n', &self.buf[self.start..self.end]) {
+                self.start += pos + 1;
                 return Ok(());
             }
-            if let Some(pos) = buf.iter().position(|&b| b == b'\n') {
-                self.inner.consume(pos + 1);
+            self.start = self.end;
+            if self.eof {
                 return Ok(());
             }
-            let len = buf.len();
-            self.inner.consume(len);
+            self.refill()?;
         }
     }
+}
+
+/// `a == b` for the few bytes of an interface name: slice equality calls
+/// `memcmp`, whose call costs more than comparing five bytes in a loop.
+#[inline]
+fn same_bytes(a: &[u8], b: &[u8]) -> bool {
+    a.len() == b.len() && a.iter().zip(b).all(|(x, y)| x == y)
 }
 
 fn trim_end(mut line: &[u8]) -> &[u8] {
@@ -432,6 +494,150 @@ impl Cursor<'_> {
         let n = self.pos - start;
         (n <= 19).then_some((value, n))
     }
+}
+
+/// What the fast path found: the record's parts and the line's length.
+struct Common {
+    timestamp: Timestamp,
+    /// Where the interface name lies in the text.
+    iface: std::ops::Range<usize>,
+    frame: CanFrame,
+    /// Bytes up to and with the line's `\n`.
+    consumed: usize,
+}
+
+/// Eight ASCII decimal digits (most significant first) as a number, `None`
+/// if any byte is not a digit: a few multiplications on one `u64` instead of
+/// a loop of eight (the timestamps are most of a line's digits).
+#[inline]
+fn eight_digits(chunk: [u8; 8]) -> Option<u64> {
+    const HIGH: u64 = 0xF0F0_F0F0_F0F0_F0F0;
+    const ZEROS: u64 = 0x3030_3030_3030_3030;
+    let v = u64::from_le_bytes(chunk);
+    // Each byte 0x30..=0x39: high nibble 3, and still 3 after adding 6
+    // (no byte can carry into the next: each is at most 0x3F + 6).
+    if v & HIGH != ZEROS || v.wrapping_add(0x0606_0606_0606_0606) & HIGH != ZEROS {
+        return None;
+    }
+    // Pairs, then quads, then the eight digits.
+    let v = (v & 0x0F0F_0F0F_0F0F_0F0F).wrapping_mul(10 << 8 | 1) >> 8;
+    let v = (v & 0x00FF_00FF_00FF_00FF).wrapping_mul(100 << 16 | 1) >> 16;
+    Some((v & 0x0000_FFFF_0000_FFFF).wrapping_mul(10_000 << 32 | 1) >> 32)
+}
+
+/// The fast path for the shape nearly every line of a real log has: a
+/// timestamp of at most 12 second digits, an interface name, a 3- or 8-digit
+/// data frame id and up to 8 payload bytes as plain hex, then the newline
+/// (`\n` or `\r\n`). `text` starts at a line and runs on past it: the
+/// line's end is found while parsing, so the common line is read once and
+/// never searched for its newline. Returns `None` for anything else (other
+/// frame kinds, `-x` directions, dots, trailing blanks, a line not whole in
+/// `text`, every malformed line), which the general [`parse_line`] then
+/// parses or rejects, so errors and every other case come from one parser.
+/// Whenever this returns a record, [`parse_line`] returns the same (tested).
+///
+/// `known_iface` is a name accepted before: an equal name is not checked again.
+#[inline]
+fn parse_common(text: &[u8], known_iface: &[u8]) -> Option<Common> {
+    if text.first() != Some(&b'(') {
+        return None;
+    }
+    let (secs, p) = if let Some([d0, d1, rest @ .., b'.']) = text.get(1..12) {
+        // The usual 10 digits (years 2001 to 2286): eight of them at once.
+        let (d0, d1) = (d0.wrapping_sub(b'0'), d1.wrapping_sub(b'0'));
+        if d0 > 9 || d1 > 9 {
+            return None;
+        }
+        let rest: [u8; 8] = rest.try_into().ok()?;
+        let high = u64::from(d0) * 10 + u64::from(d1);
+        (high * 100_000_000 + eight_digits(rest)?, 11)
+    } else {
+        let mut secs: u64 = 0;
+        let mut p = 1;
+        while let Some(&b) = text.get(p) {
+            let digit = b.wrapping_sub(b'0');
+            if digit > 9 || p > 12 {
+                break;
+            }
+            secs = secs * 10 + u64::from(digit);
+            p += 1;
+        }
+        (secs, p)
+    };
+    // 1..=12 digits (a 13th fails the `.` test below): no overflow below,
+    // so no check as in `Timestamp::from_parts` is needed.
+    if p == 1 {
+        return None;
+    }
+    let [b'.', m0, m1, m2, m3, m4, m5, b')', b' '] = *text.get(p..p + 9)? else {
+        return None;
+    };
+    let micros = eight_digits([b'0', b'0', m0, m1, m2, m3, m4, m5])?;
+    let timestamp = Timestamp::from_micros(secs * 1_000_000 + micros);
+    let iface_start = p + 9;
+    let mut q = iface_start;
+    while *text.get(q)? != b' ' {
+        q += 1;
+        if q - iface_start > MAX_IFACE_BYTES {
+            return None;
+        }
+    }
+    let name = &text[iface_start..q];
+    if name.is_empty() || (!same_bytes(name, known_iface) && !name.iter().all(u8::is_ascii_graphic))
+    {
+        return None;
+    }
+    let id_start = q + 1;
+    let digits = if text.get(id_start + 3) == Some(&b'#') {
+        3
+    } else if text.get(id_start + 8) == Some(&b'#') {
+        8
+    } else {
+        return None;
+    };
+    let mut raw: u32 = 0;
+    for &b in &text[id_start..id_start + digits] {
+        let v = hex(b);
+        if v == INVALID {
+            return None;
+        }
+        raw = (raw << 4) | u32::from(v);
+    }
+    let id = match digits {
+        3 if raw <= MAX_STANDARD_ID => CanId::Standard(raw as u16),
+        // Above MAX_EXTENDED_ID lie CAN_ERR_FLAG (error frames) and errors.
+        8 if raw <= MAX_EXTENDED_ID => CanId::Extended(raw),
+        _ => return None,
+    };
+    let payload_start = id_start + digits + 1;
+    let mut data = [0u8; CLASSIC_MAX_LEN];
+    let mut len = 0;
+    let mut at = payload_start;
+    let end = loop {
+        let hi = hex(*text.get(at)?);
+        if hi == INVALID {
+            break at;
+        }
+        let lo = hex(*text.get(at + 1)?);
+        if lo == INVALID || len == CLASSIC_MAX_LEN {
+            return None;
+        }
+        data[len] = (hi << 4) | lo;
+        len += 1;
+        at += 2;
+    };
+    let consumed = match text[end] {
+        b'\n' => end + 1,
+        b'\r' if text.get(end + 1) == Some(&b'\n') => end + 2,
+        _ => return None,
+    };
+    let frame = CanFrame::new_data(id, &data[..len]).ok()?;
+    Some(Common {
+        timestamp,
+        iface: iface_start..q,
+        frame,
+        consumed,
+    })
 }
 
 /// Parses one line (without its newline) into a record.
@@ -1042,6 +1248,67 @@ mod tests {
         rec.to_string()
     }
 
+    /// Hands out at most `chunk` bytes per read, as a pipe or socket may.
+    struct Trickle<'a> {
+        data: &'a [u8],
+        chunk: usize,
+    }
+
+    impl Read for Trickle<'_> {
+        fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
+            let n = buf.len().min(self.chunk).min(self.data.len());
+            buf[..n].copy_from_slice(&self.data[..n]);
+            self.data = &self.data[n..];
+            Ok(n)
+        }
+    }
+
+    #[test]
+    fn eight_digits_reads_digits_and_refuses_the_rest() {
+        assert_eq!(eight_digits(*b"01234567"), Some(1_234_567));
+        assert_eq!(eight_digits(*b"99999999"), Some(99_999_999));
+        assert_eq!(eight_digits(*b"00000000"), Some(0));
+        // Each byte next to the digit range, in each position.
+        for i in 0..8 {
+            for bad in [b'/', b':', b'0' + 0x80, b' ', 0, 0xFF, b'?'] {
+                let mut chunk = *b"12345678";
+                chunk[i] = bad;
+                assert_eq!(eight_digits(chunk), None, "{chunk:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn common_lines_take_the_fast_path_and_others_do_not() {
+        let fast = |s: &str| {
+            parse_common(format!("{s}\n").as_bytes(), b"").map(|c| (c.timestamp, c.frame))
+        };
+        let r = parse("(1700000000.123456) vcan0 123#DEADBEEF").unwrap();
+        assert_eq!(
+            fast("(1700000000.123456) vcan0 123#DEADBEEF"),
+            Some((r.timestamp, r.frame))
+        );
+        assert!(fast("(1.000000) can0 1FFFFFFF#").is_some());
+        for other in [
+            "(1.000000) can0 123#DE.AD",
+            "(1.000000) can0 123#R",
+            "(1.000000) can0 123##1DEADBEEF",
+            "(1.000000) can0 123#01 R",
+            "(1.000000) can0 123#1122334455667788_E",
+            "(1.000000) can0 20000004#000C000000000000",
+            "(1700000000123.000000) can0 123#",
+            "(1.000000) can0 800#01",
+            "(1.000000) can0 123#0",
+            "(1.000000) can0 123#0G",
+            "(1.000000) can0 123#00 ",
+        ] {
+            assert_eq!(fast(other), None, "{other}");
+        }
+        // A line not whole in the text is left to the general reader.
+        assert!(parse_common(b"(1.000000) can0 123#00", b"").is_none());
+        assert!(parse_common(b"(1.000000) can0 123#00\r", b"").is_none());
+    }
+
     fn arb_id() -> impl Strategy<Value = CanId> {
         prop_oneof![
             (0..=MAX_STANDARD_ID).prop_map(|v| CanId::Standard(v as u16)),
@@ -1156,46 +1423,125 @@ mod tests {
             prop_assert_eq!(format!("{other}\n"), String::from_utf8(out).unwrap());
         }
 
-        /// Lines parsed in place and lines copied across a buffer refill
-        /// give the same records, errors and line numbers.
+        /// Whatever the buffer size and however the input trickles in, the
+        /// reader gives the records, errors and line numbers of an obvious
+        /// reference: split at newlines, cut to size, trim, `parse_line`.
         #[test]
-        fn buffer_size_does_not_change_results(
+        fn reader_matches_the_obvious_reference(
             lines in proptest::collection::vec(prop_oneof![
-                4 => (arb_frame(), 0u64..=99_999_999_999_999).prop_map(|(frame, t)| {
+                4 => (arb_frame(), 0u64..=99_999_999_999_999, "[a-z]{1,3}[0-9]?").prop_map(|(frame, t, iface)| {
                     let mut out = Vec::new();
-                    format_record(&mut out, &Record { timestamp: Timestamp::from_micros(t), iface: "vcan0", frame, direction: None });
+                    format_record(&mut out, &Record { timestamp: Timestamp::from_micros(t), iface: &iface, frame, direction: None });
                     out.pop();
                     String::from_utf8(out).unwrap()
                 }),
                 1 => "[ -~]{0,80}",
                 1 => Just(String::new()),
-                1 => Just("x".repeat(MAX_LINE_BYTES + 3)),
+                1 => Just(" \t".to_string()),
+                1 => (MAX_LINE_BYTES - 2..MAX_LINE_BYTES + 3).prop_map(|n| "x".repeat(n)),
             ], 0..40),
             crlf in any::<bool>(),
             final_newline in any::<bool>(),
+            capacity in prop_oneof![Just(0usize), Just(MAX_LINE_BYTES + 7), Just(4096)],
+            chunk in prop_oneof![Just(1usize), 2..300usize, Just(usize::MAX)],
         ) {
             let sep = if crlf { "\r\n" } else { "\n" };
             let mut log = lines.join(sep);
             if final_newline {
                 log.push_str(sep);
             }
-            let read_all = |capacity: usize| {
-                let mut r = LogReader::new(io::BufReader::with_capacity(capacity, log.as_bytes()));
-                let mut out = Vec::new();
-                loop {
-                    match r.next_record() {
-                        Ok(Some(rec)) => out.push(Ok((r_line(&rec), rec.frame))),
-                        Ok(None) => break,
-                        Err(ReadError::Malformed(m)) => out.push(Err(m)),
-                        Err(ReadError::Io(e)) => panic!("{e}"),
-                    }
+            let mut reference = Vec::new();
+            let mut text = log.as_bytes();
+            let mut line_no = 0;
+            while !text.is_empty() {
+                let (line, rest) = match text.iter().position(|&b| b == b'\n') {
+                    Some(i) => (&text[..i], &text[i + 1..]),
+                    None => (text, &text[text.len()..]),
+                };
+                text = rest;
+                line_no += 1;
+                if line.len() > MAX_LINE_BYTES {
+                    reference.push(Err(Malformed { line_no, reason: Reason::LineTooLong }));
+                    continue;
                 }
-                (out, r.line_no())
-            };
-            let reference = read_all(1 << 16);
-            for capacity in [1, 7, 64, 300] {
-                prop_assert_eq!(&read_all(capacity), &reference, "capacity {}", capacity);
+                let line = trim_end(line);
+                if !line.is_empty() {
+                    reference.push(parse_line(line).map(|r| (r.to_string(), r.frame)).map_err(|reason| Malformed { line_no, reason }));
+                }
             }
+            let mut r = LogReader::with_capacity(capacity, Trickle { data: log.as_bytes(), chunk });
+            let mut got = Vec::new();
+            loop {
+                match r.next_record() {
+                    Ok(Some(rec)) => got.push(Ok((r_line(&rec), rec.frame))),
+                    Ok(None) => break,
+                    Err(ReadError::Malformed(m)) => got.push(Err(m)),
+                    Err(ReadError::Io(e)) => panic!("{e}"),
+                }
+            }
+            prop_assert_eq!(got, reference);
+            prop_assert_eq!(r.line_no(), line_no);
+        }
+
+        /// The fast path accepts only what the general parser accepts, as
+        /// the same record, on valid lines of every kind and on mutations.
+        #[test]
+        fn fast_path_agrees_with_the_general_parser(
+            micros in prop_oneof![
+                0u64..=99_999_999_999_999_999,
+                // 10 and 13 second digits: the usual and one beyond the fast path's 12.
+                0u64..=9_999_999_999_999_999,
+                1_000_000_000_000_000_000u64..=1_999_999_999_999_999_999,
+            ],
+            iface in "[a-zA-Z0-9_.:-]{1,16}",
+            frame in arb_frame(),
+            dir in proptest::option::of(prop_oneof![Just(Direction::Rx), Just(Direction::Tx)]),
+            mutation in proptest::option::of((any::<prop::sample::Index>(), prop_oneof![any::<u8>(), Just(b' '), Just(b'#'), Just(b'0'), Just(b'F')])),
+            known in prop_oneof![Just(String::new()), Just("can0".to_string()), "[a-z]{1,4}"],
+            crlf in any::<bool>(),
+        ) {
+            let rec = Record { timestamp: Timestamp::from_micros(micros), iface: &iface, frame, direction: dir };
+            let mut out = Vec::new();
+            format_record(&mut out, &rec);
+            out.pop();
+            if let Some((pos, byte)) = mutation {
+                let i = pos.index(out.len());
+                out[i] = byte;
+            }
+            // A newline inside would end the line there, for both parsers.
+            prop_assume!(!out.contains(&b'\n') && !out.contains(&b'\r'));
+            let general = parse_line(&out);
+            let mut text = out.clone();
+            text.extend_from_slice(if crlf { b"\r\n(1" } else { b"\n(1" });
+            if let Some(c) = parse_common(&text, known.as_bytes()) {
+                let Ok(general) = general else {
+                    return Err(TestCaseError::fail(format!("fast path accepted {:?}", String::from_utf8_lossy(&out))));
+                };
+                prop_assert_eq!(general.timestamp, c.timestamp);
+                prop_assert_eq!(general.iface.as_bytes(), &out[c.iface]);
+                prop_assert_eq!(general.frame, c.frame);
+                prop_assert_eq!(general.direction, None);
+                prop_assert_eq!(c.consumed, text.len() - 2);
+            } else if mutation.is_none() && dir.is_none() && micros < 1_000_000_000_000_000_000
+                && matches!(frame.kind(), FrameKind::Data { len8_dlc: None })
+            {
+                // The common shape itself must take the fast path.
+                prop_assert!(false, "fast path refused {:?}", String::from_utf8_lossy(&out));
+            }
+        }
+
+        #[test]
+        fn eight_digits_matches_a_digit_loop(chunk in prop_oneof![
+            any::<[u8; 8]>(),
+            "[0-9]{8}".prop_map(|s| <[u8; 8]>::try_from(s.as_bytes()).unwrap()),
+            ("[0-9]{7}", any::<u8>(), 0..8usize).prop_map(|(s, b, i)| {
+                let mut v = s.into_bytes();
+                v.insert(i, b);
+                <[u8; 8]>::try_from(&v[..]).unwrap()
+            }),
+        ]) {
+            let expected = chunk.iter().try_fold(0u64, |n, &b| b.is_ascii_digit().then(|| n * 10 + u64::from(b - b'0')));
+            prop_assert_eq!(eight_digits(chunk), expected);
         }
 
         #[test]
