@@ -109,6 +109,9 @@ struct Health {
     /// From the DBC; `None` means the period is learnt.
     fixed_period_s: Option<f64>,
     period_s: f64,
+    /// `period_s · timeout_factor` in µs, kept with `period_s`: it is
+    /// judged several times per frame and changes only with a learnt period.
+    timeout_us: u64,
     last_good_us: Option<u64>,
     good_run: u32,
     bad_run: u32,
@@ -116,11 +119,13 @@ struct Health {
 }
 
 impl Health {
-    fn new(cycle_ms: Option<u64>, default_period_s: f64) -> Self {
+    fn new(cycle_ms: Option<u64>, inputs: &InputsConfig) -> Self {
         let fixed = cycle_ms.filter(|&ms| ms > 0).map(|ms| ms as f64 / 1000.0);
+        let period_s = fixed.unwrap_or(inputs.default_period_s);
         Self {
             fixed_period_s: fixed,
-            period_s: fixed.unwrap_or(default_period_s),
+            period_s,
+            timeout_us: Self::timeout_of(period_s, inputs),
             last_good_us: None,
             good_run: 0,
             bad_run: 0,
@@ -128,26 +133,31 @@ impl Health {
         }
     }
 
-    fn timeout_us(&self, inputs: &InputsConfig) -> u64 {
-        (self.period_s * inputs.timeout_factor * 1e6) as u64
+    fn timeout_of(period_s: f64, inputs: &InputsConfig) -> u64 {
+        (period_s * inputs.timeout_factor * 1e6) as u64
     }
 
-    fn fresh(&self, now_us: u64, inputs: &InputsConfig) -> bool {
+    fn timeout_us(&self) -> u64 {
+        self.timeout_us
+    }
+
+    fn fresh(&self, now_us: u64) -> bool {
         self.trusted
             && self
                 .last_good_us
-                .is_some_and(|t| now_us.saturating_sub(t) <= self.timeout_us(inputs))
+                .is_some_and(|t| now_us.saturating_sub(t) <= self.timeout_us())
     }
 
     fn good(&mut self, t_us: u64, inputs: &InputsConfig) {
         if let Some(prev) = self.last_good_us {
             let gap = t_us.saturating_sub(prev);
-            if gap > self.timeout_us(inputs) {
+            if gap > self.timeout_us() {
                 // A timeout: trust is earned again from this frame on.
                 self.trusted = false;
                 self.good_run = 0;
             } else if self.fixed_period_s.is_none() && gap > 0 {
                 self.period_s += 0.05 * (gap as f64 * 1e-6 - self.period_s);
+                self.timeout_us = Self::timeout_of(self.period_s, inputs);
             }
         }
         self.last_good_us = Some(t_us);
@@ -198,7 +208,11 @@ pub struct Pipeline {
     inputs: Vec<Input>,
     decoders: Decoders,
     ekf: Ekf,
-    state: State,
+    /// The filter state and a scratch buffer the next step is written into;
+    /// `states[current]` is the state. A step flips `current` on success, so
+    /// the ~0.7 kB state is copied once per step, not four times.
+    states: [State; 2],
+    current: usize,
     odometry: Pose,
     t0_us: Option<u64>,
     last_t_us: u64,
@@ -250,7 +264,7 @@ impl Pipeline {
                         .and_then(|c| c.counter)
                         .and_then(|h| CounterCheck::new(h.size()).ok().map(|cc| (h, cc))),
                     checksum: check.and_then(|c| c.checksum.clone()),
-                    health: Health::new(m.cycle_time_ms(), config.inputs.default_period_s),
+                    health: Health::new(m.cycle_time_ms(), &config.inputs),
                 });
                 inputs.len() - 1
             };
@@ -309,7 +323,8 @@ impl Pipeline {
             inputs,
             decoders,
             ekf: Ekf::new(config.ekf)?,
-            state: State::origin(),
+            states: [State::origin(); 2],
+            current: 0,
             odometry: Pose::default(),
             t0_us: None,
             last_t_us: 0,
@@ -386,7 +401,7 @@ impl Pipeline {
 
     /// The filter state (bit-for-bit comparisons between commands).
     pub fn state(&self) -> &State {
-        &self.state
+        &self.states[self.current]
     }
 
     /// The last filter step, if any.
@@ -414,7 +429,7 @@ impl Pipeline {
         let data = frame.data();
         let t_us = t.as_micros();
         let input = &mut self.inputs[idx];
-        if let Some(reason) = Self::check(input, data, t_us, &self.inputs_cfg) {
+        if let Some(reason) = Self::check(input, data, t_us) {
             input.health.bad(&self.inputs_cfg);
             match reason {
                 Reject::BadCounter => self.latched.counter_fault = true,
@@ -495,7 +510,7 @@ impl Pipeline {
     }
 
     /// DLC, checksum and counter checks; `Some(reason)` rejects the frame.
-    fn check(input: &mut Input, data: &[u8], t_us: u64, cfg: &InputsConfig) -> Option<Reject> {
+    fn check(input: &mut Input, data: &[u8], t_us: u64) -> Option<Reject> {
         if data.len() < input.length {
             return Some(Reject::Truncated);
         }
@@ -513,7 +528,7 @@ impl Pipeline {
             if input
                 .health
                 .last_good_us
-                .is_some_and(|last| t_us.saturating_sub(last) > input.health.timeout_us(cfg))
+                .is_some_and(|last| t_us.saturating_sub(last) > input.health.timeout_us())
             {
                 cc.reset();
             }
@@ -556,13 +571,19 @@ impl Pipeline {
             steer_angle_rad: self.steer_rad.unwrap_or(0.0),
         };
         self.front_acc_m = (0.0, 0.0);
-        let before = self.state.stats;
-        let Ok(next) = self.ekf.step(&self.state, &input) else {
+        let before = self.states[self.current].stats;
+        let [a, b] = &mut self.states;
+        let (prev, next) = if self.current == 0 {
+            (&*a, b)
+        } else {
+            (&*b, a)
+        };
+        if self.ekf.step_into(prev, next, &input).is_err() {
             self.stats.add(Reject::FilterError);
             return None;
-        };
-        self.state = next;
-        let after = self.state.stats;
+        }
+        self.current ^= 1;
+        let after = self.states[self.current].stats;
         let rejected = (after.rejected_used_front + after.rejected_kept_rear)
             - (before.rejected_used_front + before.rejected_kept_rear);
         if rejected > 0 {
@@ -576,7 +597,7 @@ impl Pipeline {
             self.odometry = self.odometry.advanced(inc);
         }
         self.stats.steps += 1;
-        let fused = self.state.pose_unwrapped();
+        let fused = self.states[self.current].pose_unwrapped();
         if let Some(prev) = self.last_step {
             let dt = t_s - prev.t_s;
             if dt > 0.0 {
@@ -600,7 +621,7 @@ impl Pipeline {
         self.inputs
             .iter()
             .filter(|i| role(i))
-            .all(|i| i.health.fresh(now_us, &self.inputs_cfg))
+            .all(|i| i.health.fresh(now_us))
     }
 
     /// The pose sample at `now` (the reader's clock: only the flags depend on
@@ -619,8 +640,9 @@ impl Pipeline {
             nominal_params: self.param_version.is_none(),
         };
         self.latched = PoseFlags::default();
-        let pose = self.state.pose();
-        let p = self.state.covariance();
+        let state = &self.states[self.current];
+        let pose = state.pose();
+        let p = state.covariance();
         let (a, b, c) = (p[(0, 0)], p[(0, 1)], p[(1, 1)]);
         let lambda_max = 0.5 * (a + c) + (0.25 * (a - c) * (a - c) + b * b).sqrt();
         PoseOutput {

@@ -779,6 +779,27 @@ impl Ekf {
     /// [`Error::SteeringOutOfRange`] for |φ| ≥ 90°, [`Error::Numerical`] if the
     /// result is not finite. On error `prev` stays the valid state.
     pub fn step(&self, prev: &State, input: &OdometryInput) -> Result<State> {
+        let mut next = *prev;
+        self.advance(&mut next, input)?;
+        Ok(next)
+    }
+
+    /// [`Ekf::step`] writing the next state into `next` (which may hold
+    /// anything: it is overwritten): the same result, bit for bit, with one
+    /// copy of the state instead of the two or more that returning it by
+    /// value costs. A caller that keeps two states and flips between them
+    /// on success never copies a state back.
+    ///
+    /// # Errors
+    /// As [`Ekf::step`]; `prev` is untouched and `next` holds garbage then.
+    pub fn step_into(&self, prev: &State, next: &mut State, input: &OdometryInput) -> Result<()> {
+        *next = *prev;
+        self.advance(next, input)
+    }
+
+    /// The body of [`Ekf::step`], on a copy of the previous state.
+    #[inline]
+    fn advance(&self, st: &mut State, input: &OdometryInput) -> Result<()> {
         let w = &input.wheel_m;
         let phi = input.steer_angle_rad;
         // One test on the sum in the common case; the slow path names the culprit.
@@ -801,7 +822,6 @@ impl Ekf {
                 steer_angle_rad: phi,
             });
         }
-        let mut st = *prev;
         // As odometry::rear_increment, with 1/b precomputed (inputs checked above).
         let rear = Increment {
             distance_m: 0.5 * (w.rear_right + w.rear_left),
@@ -850,7 +870,7 @@ impl Ekf {
         }
         st.window_len += 1;
         if st.window_len >= self.cfg.correct_every {
-            self.close_window(&mut st)?;
+            self.close_window(st)?;
         }
         // A NaN or infinity anywhere makes the sum non-finite: one check, not nine.
         if !(st.anchor.sum()
@@ -864,7 +884,7 @@ impl Ekf {
                 context: "EKF step",
             });
         }
-        Ok(st)
+        Ok(())
     }
 
     /// Fuses the window (per the form), composes it onto the anchor, resets it.
@@ -1320,6 +1340,44 @@ mod tests {
         assert_eq!((a.stats.corrections, a.stats.accepted), (10, 10));
         assert!(a.covariance().trace() < b.covariance().trace());
         assert!((a.pose().x_m - b.pose().x_m).abs() < 1e-9);
+    }
+
+    #[test]
+    fn step_into_is_step_bit_for_bit() {
+        // Two buffers flipped on success, as the daemon's pipeline keeps them,
+        // against states returned by value; errors in between leave `prev`.
+        let p = car();
+        let ekf = Ekf::new(EkfConfig::new(p)).unwrap();
+        let mut by_value = State::origin();
+        let mut buffers = [State::origin(), State::origin()];
+        let mut current = 0;
+        for k in 0..3_000 {
+            let phi = 0.5 * (f64::from(k) * 3e-3).sin();
+            let mut input = arc_input(&p, 0.003, phi);
+            if k % 97 == 5 {
+                input.wheel_m.rear_left = f64::NAN;
+            }
+            let expected = ekf.step(&by_value, &input);
+            let (prev, next) = if current == 0 {
+                let [a, b] = &mut buffers;
+                (&*a, b)
+            } else {
+                let [a, b] = &mut buffers;
+                (&*b, a)
+            };
+            let got = ekf.step_into(prev, next, &input);
+            assert_eq!(got.is_ok(), expected.is_ok(), "step {k}");
+            if let Ok(state) = expected {
+                by_value = state;
+                current ^= 1;
+            }
+            assert_eq!(
+                format!("{:?}", buffers[current]),
+                format!("{by_value:?}"),
+                "step {k}"
+            );
+        }
+        assert!(by_value.stats.corrections > 10);
     }
 
     #[test]
