@@ -1,15 +1,18 @@
 //! `canodom replay`: the daemon's pipeline over a candump log, timed by the
 //! log's timestamps, as fast as the machine goes; one CSV row per filter step.
 
+use crate::candump::Timestamp;
 use crate::candump::{LogReader, MalformedCounts, ReadError};
 use crate::config::Config;
 use crate::float_text::push_f64;
+use crate::frame::CanFrame;
 use crate::pipeline::{Pipeline, Step};
 use crate::stats::Stats;
 use anyhow::Context as _;
 use std::fmt::Write as _;
-use std::io::Write;
+use std::io::{Read, Write};
 use std::path::PathBuf;
+use std::sync::mpsc;
 
 /// The CSV header `replay` writes.
 pub const CSV_HEADER: &str = "t_s,x_m,y_m,heading_rad,odo_x_m,odo_y_m,odo_heading_rad";
@@ -97,65 +100,161 @@ pub fn execute(args: &ReplayArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// Records per batch handed from the reading thread to the filter thread:
+/// enough that the hand-over costs nothing per record, few enough that the
+/// batches in flight stay in the CPU caches (≈ 90 kB each).
+const BATCH_RECORDS: usize = 1024;
+
+/// Batches in existence at once (reused, never reallocated): the memory of a
+/// replay is bounded by these whatever the log's length.
+const BATCHES: usize = 4;
+
+/// The unit of work between the two threads of [`replay`]: records in, the
+/// CSV values of the filter steps they caused out.
+struct Batch {
+    records: Vec<(Timestamp, CanFrame)>,
+    rows: Vec<[f64; 7]>,
+}
+
 /// Replays `input` through a fresh pipeline, CSV rows to `out`, malformed
 /// lines reported on `diag` (the first 20, then counted only).
+///
+/// Two threads share the work, as the log's frames must go through the one
+/// filter in order: the calling thread reads and parses the log and writes
+/// the CSV (float formatting is a third of the work), a second thread runs
+/// the pipeline. Batches of records go one way and batches of rows come
+/// back in the same order, so the output is byte for byte what one thread
+/// would write.
 ///
 /// # Errors
 /// Pipeline construction, I/O.
 pub fn replay(
     config: &Config,
-    input: impl std::io::BufRead,
+    input: impl Read,
     out: &mut impl Write,
     diag: &mut impl Write,
 ) -> anyhow::Result<ReplaySummary> {
     let mut pipeline = Pipeline::new(config)?;
     let mut reader = LogReader::new(input);
+    writeln!(out, "{CSV_HEADER}")?;
+    let (to_filter, filter_in) = mpsc::channel::<Batch>();
+    let (to_writer, from_filter) = mpsc::channel::<Batch>();
+    std::thread::scope(|scope| {
+        let filter = scope.spawn(move || {
+            for mut batch in filter_in {
+                batch.rows.clear();
+                for (t, frame) in &batch.records {
+                    if let Some(s) = pipeline.push(*t, frame) {
+                        batch.rows.push([
+                            s.t_s,
+                            s.fused.x_m,
+                            s.fused.y_m,
+                            s.fused.heading_rad,
+                            s.odometry.x_m,
+                            s.odometry.y_m,
+                            s.odometry.heading_rad,
+                        ]);
+                    }
+                }
+                if to_writer.send(batch).is_err() {
+                    break;
+                }
+            }
+            pipeline
+        });
+        let fed = feed(&mut reader, &to_filter, &from_filter, out, diag);
+        // Ends the filter thread's loop, whether feeding ended or failed.
+        drop(to_filter);
+        let pipeline = filter
+            .join()
+            .unwrap_or_else(|panic| std::panic::resume_unwind(panic));
+        let (malformed, by_reason) = fed?;
+        Ok(ReplaySummary {
+            stats: *pipeline.stats(),
+            malformed,
+            malformed_by_reason: by_reason,
+            last_step: pipeline.last_step(),
+            state: *pipeline.state(),
+        })
+    })
+}
+
+/// The reading and writing side of [`replay`]: parses batches for the
+/// filter thread and writes the rows of those it has finished, in order.
+/// Returns the malformed line counts.
+fn feed<R: Read>(
+    reader: &mut LogReader<R>,
+    to_filter: &mpsc::Sender<Batch>,
+    from_filter: &mpsc::Receiver<Batch>,
+    out: &mut impl Write,
+    diag: &mut impl Write,
+) -> anyhow::Result<(u64, MalformedCounts)> {
     let mut malformed = 0u64;
     let mut by_reason = MalformedCounts::default();
-    writeln!(out, "{CSV_HEADER}")?;
-    let mut row = Vec::with_capacity(160);
-    loop {
-        let record = match reader.next_record() {
-            Ok(Some(r)) => r,
-            Ok(None) => break,
-            Err(ReadError::Malformed(m)) => {
-                malformed += 1;
-                by_reason.add(m.reason);
-                if malformed <= 20 {
-                    writeln!(diag, "replay: {m}; skipped")?;
-                }
-                continue;
-            }
-            Err(e @ ReadError::Io(_)) => return Err(e.into()),
-        };
-        if let Some(s) = pipeline.push(record.timestamp, &record.frame) {
-            row.clear();
-            for (i, v) in [
-                s.t_s,
-                s.fused.x_m,
-                s.fused.y_m,
-                s.fused.heading_rad,
-                s.odometry.x_m,
-                s.odometry.y_m,
-                s.odometry.heading_rad,
-            ]
-            .into_iter()
-            .enumerate()
-            {
+    let mut spare: Vec<Batch> = (0..BATCHES)
+        .map(|_| Batch {
+            records: Vec::with_capacity(BATCH_RECORDS),
+            rows: Vec::with_capacity(BATCH_RECORDS),
+        })
+        .collect();
+    let mut in_flight = 0usize;
+    let mut text = Vec::with_capacity(1 << 16);
+    let mut write_rows = |batch: &Batch, out: &mut dyn Write| -> std::io::Result<()> {
+        text.clear();
+        for row in &batch.rows {
+            for (i, &v) in row.iter().enumerate() {
                 if i > 0 {
-                    row.push(b',');
+                    text.push(b',');
                 }
-                push_f64(&mut row, v);
+                push_f64(&mut text, v);
             }
-            row.push(b'\n');
-            out.write_all(&row)?;
+            text.push(b'\n');
+        }
+        out.write_all(&text)
+    };
+    let filter_gone = || anyhow::anyhow!("replay: the filter thread stopped");
+    let mut at_end = false;
+    while !at_end {
+        let mut batch = if let Some(b) = spare.pop() {
+            b
+        } else {
+            // All batches are with the filter: write the oldest, reuse it.
+            let b = from_filter.recv().map_err(|_| filter_gone())?;
+            in_flight -= 1;
+            write_rows(&b, out)?;
+            b
+        };
+        batch.records.clear();
+        while batch.records.len() < BATCH_RECORDS {
+            match reader.next_record() {
+                Ok(Some(r)) => batch.records.push((r.timestamp, r.frame)),
+                Ok(None) => {
+                    at_end = true;
+                    break;
+                }
+                Err(ReadError::Malformed(m)) => {
+                    malformed += 1;
+                    by_reason.add(m.reason);
+                    if malformed <= 20 {
+                        writeln!(diag, "replay: {m}; skipped")?;
+                    }
+                }
+                Err(e @ ReadError::Io(_)) => return Err(e.into()),
+            }
+        }
+        to_filter.send(batch).map_err(|_| filter_gone())?;
+        in_flight += 1;
+        // Write what the filter finished meanwhile, without waiting.
+        while let Ok(b) = from_filter.try_recv() {
+            in_flight -= 1;
+            write_rows(&b, out)?;
+            spare.push(b);
         }
     }
-    Ok(ReplaySummary {
-        stats: *pipeline.stats(),
-        malformed,
-        malformed_by_reason: by_reason,
-        last_step: pipeline.last_step(),
-        state: *pipeline.state(),
-    })
+    while in_flight > 0 {
+        let b = from_filter.recv().map_err(|_| filter_gone())?;
+        in_flight -= 1;
+        write_rows(&b, out)?;
+    }
+    Ok((malformed, by_reason))
 }
