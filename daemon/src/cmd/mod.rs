@@ -9,6 +9,7 @@ pub mod demo;
 pub mod replay;
 pub mod run;
 pub mod simulate;
+pub mod simulate_follow;
 
 use std::path::Path;
 

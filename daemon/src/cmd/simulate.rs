@@ -7,6 +7,7 @@ use crate::candump::{Record, Timestamp, format_record};
 use crate::config::{Config, WheelKind};
 use crate::frame::CanFrame;
 use crate::vehicle::{PathKind, SampleEncoder, TrueParamsFile, sim_config};
+use canodom_fusion::VehicleParams;
 use canodom_fusion::sim::{Sample, Simulator, SlipConfig, SlipWheels};
 use std::io::Write;
 use std::path::PathBuf;
@@ -19,7 +20,13 @@ pub const LOG_EPOCH_US: u64 = 1_700_000_000_000_000;
 #[command(
     group(clap::ArgGroup::new("target").required(true).args(["iface", "log"])),
     after_help = "Examples:\n  canodom simulate --config rc_car.toml --log drive.log --path track-ccw --truth truth.csv\n  \
-canodom simulate --config rc_car.toml --iface vcan0 --path figure-eight\n\n\
+canodom simulate --config rc_car.toml --iface vcan0 --path figure-eight\n  \
+canodom simulate --config rc_car.toml --iface vcan0 --follow-calibration --true-params truth.toml --speed-mps 1\n\n\
+With --follow-calibration the vehicle drives a guided calibration session of `canodom run` on the \
+interface: it stands still until CALIB_STATUS says GO, then drives one lap of the track (radius from the \
+operator's `canodom calib start --track-radius`, or --track-radius) in the direction asked for, stops, \
+and waits for the next instruction; it stops by itself once the session is committed or aborted. \
+Start it before `canodom calib ... start` so it hears the track radius.\n\n\
 The vehicle is the configuration's nominal one unless --true-params gives a TOML file with any of: \
 wheelbase_m, rear_tread_m, front_tread_m, rear_left_diameter_m, rear_right_diameter_m, \
 front_left_diameter_m, front_right_diameter_m, steering_gain_factor, steering_offset_deg.\n\
@@ -55,6 +62,28 @@ pub struct SimulateArgs {
     /// long logs for benchmarks, about 24 700 frames per track lap.
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..))]
     pub laps: u32,
+    /// Cruise speed, m/s (default: the simulator's, 0.1 m/s for a 1:10 car with tick inputs).
+    /// The path stays the default speed's: the driver's noise and the servo lag scale to the same
+    /// size per metre and the car reaches its speed in the same time, so a faster drive is the
+    /// same drive played faster.
+    #[arg(long, value_parser = parse_speed)]
+    pub speed_mps: Option<f64>,
+    /// Drive the runs the daemon's guided calibration asks for on --iface (see below).
+    #[arg(long, requires = "iface", conflicts_with_all = ["log", "truth", "laps", "slip"])]
+    pub follow_calibration: bool,
+    /// With --follow-calibration: the track corner radius, m, instead of the one heard in START_SESSION.
+    #[arg(long, requires = "follow_calibration", value_parser = parse_speed)]
+    pub track_radius: Option<f64>,
+    /// With --follow-calibration: stop after this many seconds whatever happens.
+    #[arg(long, default_value_t = 900.0, value_parser = parse_speed)]
+    pub time_limit_s: f64,
+}
+
+fn parse_speed(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
+        _ => Err(format!("expected a positive number, got `{s}`")),
+    }
 }
 
 /// Builds the simulator for `config` and the arguments.
@@ -83,11 +112,40 @@ pub fn simulator_laps(
     slip: bool,
     laps: u32,
 ) -> anyhow::Result<Simulator> {
-    let truth = match true_params {
+    simulator_at(config, path, true_params, seed, slip, laps, None)
+}
+
+/// The true vehicle: the configuration's nominal one changed by `true_params`.
+///
+/// # Errors
+/// The file cannot be read or gives an impossible vehicle.
+pub fn true_vehicle(
+    config: &Config,
+    true_params: Option<&std::path::Path>,
+) -> anyhow::Result<VehicleParams> {
+    Ok(match true_params {
         Some(p) => TrueParamsFile::load(p)?.apply(&config.params)?,
         None => config.params,
-    };
-    let mut cfg = sim_config(config, truth);
+    })
+}
+
+/// [`simulator_laps`] at `speed_mps` (`None`: the simulator's default).
+///
+/// # Errors
+/// Bad true-parameter file, or the fusion crate refused the drive.
+pub fn simulator_at(
+    config: &Config,
+    path: PathKind,
+    true_params: Option<&std::path::Path>,
+    seed: u64,
+    slip: bool,
+    laps: u32,
+    speed_mps: Option<f64>,
+) -> anyhow::Result<Simulator> {
+    let mut cfg = sim_config(config, true_vehicle(config, true_params)?);
+    if let Some(v) = speed_mps {
+        set_speed(&mut cfg, v);
+    }
     if slip {
         cfg.slip = SlipConfig::paper(SlipWheels::All);
     }
@@ -97,6 +155,24 @@ pub fn simulator_laps(
         laps,
     )?;
     Ok(Simulator::new(&cfg, &plan, seed)?)
+}
+
+/// Drives at `speed_mps` the path the simulator's default speed would
+/// drive: the driver's noise and the servo's lag keep their size per metre
+/// of path (their time constants scale with default speed / `speed_mps`), so
+/// a faster drive is the same drive played faster and a calibration on it
+/// is judged on the same geometry. The car reaches its speed in the same
+/// time (acceleration scales with the speed), so the ramps stay short
+/// beside the path.
+pub fn set_speed(cfg: &mut canodom_fusion::sim::SimConfig, speed_mps: f64) {
+    let k = cfg.speed_mps / speed_mps;
+    cfg.accel_mps2 /= k;
+    let pf = &mut cfg.path_following;
+    pf.steer_noise_rad.tau_s *= k;
+    pf.speed_noise.tau_s *= k;
+    pf.servo_lag_s *= k;
+    cfg.steering_sensor.drift_rad.tau_s *= k;
+    cfg.speed_mps = speed_mps;
 }
 
 /// The bus time of a sample.
@@ -192,13 +268,17 @@ pub async fn drive<S: FrameSink>(
 /// Configuration, simulator, I/O or the interface.
 pub fn execute(args: &SimulateArgs) -> anyhow::Result<()> {
     let config = Config::load(&args.config)?;
-    let mut sim = simulator_laps(
+    if args.follow_calibration {
+        return execute_follow(args, &config);
+    }
+    let mut sim = simulator_at(
         &config,
         args.path,
         args.true_params.as_deref(),
         args.seed,
         args.slip,
         args.laps,
+        args.speed_mps,
     )?;
     if let Some(log) = &args.log {
         let file = std::fs::File::create(log)?;
@@ -259,6 +339,58 @@ pub fn execute(args: &SimulateArgs) -> anyhow::Result<()> {
             w.flush()?;
         }
         eprintln!("simulate: {sent} frames sent on {iface}, {failed} failed");
+        anyhow::Ok(())
+    })
+}
+
+/// `simulate --follow-calibration`: the vehicle of [`super::simulate_follow`]
+/// on the interface until the session ends, the time limit or a signal.
+fn execute_follow(args: &SimulateArgs, config: &Config) -> anyhow::Result<()> {
+    use super::simulate_follow::{FollowOptions, FollowOutcome, follow};
+    let options = FollowOptions {
+        true_params: true_vehicle(config, args.true_params.as_deref())?,
+        speed_mps: args.speed_mps,
+        track_radius_m: args.track_radius,
+        time_limit: std::time::Duration::from_secs_f64(args.time_limit_s),
+        seed: args.seed,
+    };
+    let iface = args.iface.clone().unwrap_or_default();
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()?;
+    rt.block_on(async move {
+        let wire = crate::calib_wire::CalibWire::new(config.output.base_id)?;
+        let filters = [
+            crate::bus::IdFilter::exact(wire.status_id()),
+            crate::bus::IdFilter::exact(config.calibration.command_id),
+        ];
+        let (rx, tx) = crate::bus::open_socketcan(&iface, &filters)?;
+        let stop = tokio_util::sync::CancellationToken::new();
+        let on_signal = stop.clone();
+        let mut term =
+            tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
+        tokio::spawn(async move {
+            tokio::select! {
+                _ = tokio::signal::ctrl_c() => {}
+                _ = term.recv() => {}
+            }
+            on_signal.cancel();
+        });
+        let mut stdout = std::io::stdout();
+        println!("simulate: following the guided calibration on {iface}");
+        let summary = follow(config, &options, rx, &tx, stop, &mut stdout).await?;
+        let outcome = match summary.outcome {
+            FollowOutcome::Committed(v) => format!("session committed (parameter set {v})"),
+            FollowOutcome::Ended => "session ended without a commit".to_owned(),
+            FollowOutcome::TimeLimit => "time limit reached".to_owned(),
+            FollowOutcome::Stopped => "stopped by a signal".to_owned(),
+        };
+        println!(
+            "simulate: follow-calibration on {iface}: {} runs driven, {} frames sent, {} failed; {outcome}",
+            summary.laps.len(),
+            summary.frames_sent,
+            summary.send_failures
+        );
         anyhow::Ok(())
     })
 }
