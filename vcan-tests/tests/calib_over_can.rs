@@ -465,7 +465,14 @@ async fn a_guided_session_over_vcan_commits_writes_back_and_survives_a_restart()
     assert_eq!(answered.version, 1);
     assert!((answered.rear_tread_m - current.values.rear_tread_m).abs() < 1e-4);
     assert!((answered.diameter_ratio - current.values.diameter_ratio()).abs() < 1e-4);
-    idle.stop("TERM", Duration::from_secs(5)).unwrap();
+    // The idle vehicle stops cleanly on SIGTERM and says so.
+    let status = idle.stop("TERM", Duration::from_secs(5)).unwrap();
+    let idle_text = read(&dir.join("idle.out"));
+    assert!(
+        status.success(),
+        "vehicle on SIGTERM: {status}: {idle_text}"
+    );
+    assert!(idle_text.contains("stopped by a signal"), "{idle_text}");
     let status = daemon.stop("TERM", Duration::from_secs(10)).unwrap();
     assert!(status.success(), "{}", read(&restart_log));
     candump.stop("INT", Duration::from_secs(5)).unwrap();

@@ -119,6 +119,8 @@ struct Seen {
     start_radius_m: Option<f64>,
     /// A session was seen active.
     session_active_once: bool,
+    /// The version a carried-out COMMIT put in use.
+    committed: Option<u16>,
 }
 
 /// The simulated vehicle's mechanics between status frames.
@@ -283,7 +285,7 @@ pub async fn follow<R: FrameSource, S: FrameSink>(
     let mut seen = Seen::default();
     let mut lap: Option<Lap> = None;
     let mut lap_ended: Option<Instant> = None;
-    let mut ended: Option<(Instant, FollowOutcome)> = None;
+    let mut ended: Option<Instant> = None;
     let mut waiting_end_pose_told = false;
     let started = Instant::now();
     let deadline = started + options.time_limit;
@@ -312,6 +314,14 @@ pub async fn follow<R: FrameSource, S: FrameSink>(
                         }
                         Ok((StatusPage::Counts(c), _)) => {
                             report_counts(out, seen.counts.as_ref(), &c)?;
+                            // The answer to COMMIT may come after the IDLE
+                            // progress page it caused: remember it apart.
+                            if seen.session_active_once
+                                && c.last_cmd == CmdCode::Commit.code()
+                                && c.cmd_reason == Reason::None
+                            {
+                                seen.committed = Some(c.active_version);
+                            }
                             seen.counts = Some(c);
                         }
                         _ => {}
@@ -365,9 +375,15 @@ pub async fn follow<R: FrameSource, S: FrameSink>(
             summary.frames_sent += a;
             summary.send_failures += b;
         }
-        if let Some((at, outcome)) = ended {
+        if let Some(at) = ended {
             if now - at >= LINGER {
-                summary.outcome = outcome;
+                summary.outcome = if let Some(v) = seen.committed {
+                    writeln!(out, "follow: session committed, parameter set {v} in use")?;
+                    FollowOutcome::Committed(v)
+                } else {
+                    writeln!(out, "follow: session ended without a commit")?;
+                    FollowOutcome::Ended
+                };
                 break;
             }
             continue;
@@ -381,21 +397,12 @@ pub async fn follow<R: FrameSource, S: FrameSink>(
             continue;
         };
         if seen.session_active_once && p.state == State::Idle && lap.is_none() {
-            let outcome = match seen.counts {
-                Some(c) if c.last_cmd == CmdCode::Commit.code() && c.cmd_reason == Reason::None => {
-                    FollowOutcome::Committed(c.active_version)
-                }
-                _ => FollowOutcome::Ended,
-            };
-            match outcome {
-                FollowOutcome::Committed(v) => writeln!(
-                    out,
-                    "follow: session committed, parameter set {v} in use; standing still {:.0} s, then stopping",
-                    LINGER.as_secs_f64()
-                )?,
-                _ => writeln!(out, "follow: session ended without a commit; stopping")?,
-            }
-            ended = Some((now, outcome));
+            writeln!(
+                out,
+                "follow: the session is over; standing still {:.0} s, then stopping",
+                LINGER.as_secs_f64()
+            )?;
+            ended = Some(now);
             continue;
         }
         if lap.is_some() {
