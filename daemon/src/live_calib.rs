@@ -421,13 +421,19 @@ impl LiveCalibration {
     }
 
     /// A `CALIB_CMD` frame (the caller routes the configured command id here).
+    ///
+    /// The answer (status page 1 with the new `CMD_SEQ`) goes out before
+    /// whatever the command caused, such as the `CALIB_PARAMS` pages of
+    /// REQUEST_PARAMS: a client waits for its answer first and then for the
+    /// result, so a result sent ahead of the answer would pass it by.
     pub fn on_command(&mut self, t: Timestamp, frame: &CanFrame) -> Vec<Output> {
         let t_s = seconds(t);
-        let mut out = Vec::new();
-        let reason = self.judge(t_s, frame, &mut out);
+        let mut effects = Vec::new();
+        let reason = self.judge(t_s, frame, &mut effects);
         self.cmd_reason = reason;
         self.cmd_seq = (self.cmd_seq + 1) % 8;
-        out.extend(self.status(t_s));
+        let mut out = self.status(t_s);
+        out.extend(effects);
         out
     }
 
@@ -1399,6 +1405,15 @@ mod tests {
             &cmd(&w, w.encode_command(Command::RequestParams, 0, 1)),
         );
         assert_eq!(params_sent(&w, &out), vec![2; 4]);
+        // The answer comes first, then the pages it announces.
+        let first_params = out
+            .iter()
+            .position(|o| matches!(o, Output::Send(f) if f.id() == w.params_id()));
+        let answer = out.iter().position(|o| {
+            matches!(o, Output::Send(f) if f.id() == w.status_id()
+                && matches!(w.decode_status(f.data()), Ok((StatusPage::Counts(_), _))))
+        });
+        assert!(answer.unwrap() < first_params.unwrap(), "{out:?}");
         assert_eq!(live.writeback(), Writeback::Idle);
         let statuses = |live: &mut LiveCalibration, from: u64, to: u64| {
             (from..to)

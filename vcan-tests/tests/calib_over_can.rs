@@ -442,11 +442,7 @@ async fn a_guided_session_over_vcan_commits_writes_back_and_survives_a_restart()
         Some((1, 0)),
         "ODOM_QUALITY (PARAM_VERSION, NOMINAL_PARAMS) after the restart"
     );
-    // REQUEST_PARAMS raw: the daemon answers with the stored set. (Not
-    // with `canodom calib params`: the daemon sends the CALIB_PARAMS pages
-    // before the status page that answers the command, and the client,
-    // waiting for that answer, drops them; it then waits for pages that
-    // never come and exits 2.)
+    // REQUEST_PARAMS raw: the daemon answers with the stored set.
     let data = wire.encode_command(Command::RequestParams, ARMING, 7);
     run(
         "cansend",
@@ -465,6 +461,19 @@ async fn a_guided_session_over_vcan_commits_writes_back_and_survives_a_restart()
     assert_eq!(answered.version, 1);
     assert!((answered.rear_tread_m - current.values.rear_tread_m).abs() < 1e-4);
     assert!((answered.diameter_ratio - current.values.diameter_ratio()).abs() < 1e-4);
+    // And through the operator client, which prints the set it got.
+    let (code, text) = calib(&config, &["params"]);
+    assert_eq!(code, 0, "canodom calib params: {text}");
+    let printed_tread_m: f64 = text
+        .split_once("version 1: rear tread ")
+        .and_then(|(_, rest)| rest.split_once(" m"))
+        .and_then(|(number, _)| number.parse().ok())
+        .unwrap_or_else(|| panic!("no 'version 1: rear tread … m' in {text}"));
+    assert!(
+        (printed_tread_m - current.values.rear_tread_m).abs() < 2e-4,
+        "client printed tread {printed_tread_m} m, file holds {} m",
+        current.values.rear_tread_m
+    );
     // The idle vehicle stops cleanly on SIGTERM and says so.
     let status = idle.stop("TERM", Duration::from_secs(5)).unwrap();
     let idle_text = read(&dir.join("idle.out"));

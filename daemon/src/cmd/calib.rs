@@ -583,6 +583,10 @@ struct Link<R, T> {
     wire: CalibWire,
     iface: String,
     timeout: Duration,
+    /// `CALIB_PARAMS` pages that arrived while a command waited for its
+    /// answer: a daemon may send the result ahead of the answer, and
+    /// [`Link::params`] must still see them.
+    early_params: Vec<crate::calib_wire::ParamsPage>,
 }
 
 enum Incoming {
@@ -610,6 +614,7 @@ impl Link<crate::bus::SocketCanRx, crate::bus::SocketCanTx> {
             wire,
             iface,
             timeout,
+            early_params: Vec::new(),
         })
     }
 }
@@ -697,7 +702,8 @@ impl<R: FrameSource, T: FrameSink> Link<R, T> {
                             }
                         }
                     }
-                    Some(_) => {}
+                    Some(Incoming::Params(page)) => self.early_params.push(page),
+                    Some(Incoming::Status(_)) => {}
                 }
             };
             if answer == Answer::Refused(Reason::BadCounter) && attempt == 0 {
@@ -744,6 +750,11 @@ impl<R: FrameSource, T: FrameSink> Link<R, T> {
     ) -> anyhow::Result<Option<Result<crate::calib_wire::ParamSet, crate::calib_wire::ParamSet>>>
     {
         let mut asm = ParamsAssembler::default();
+        for page in std::mem::take(&mut self.early_params) {
+            if let Some(set) = asm.push(&self.wire, page) {
+                return Ok(Some(set));
+            }
+        }
         let deadline = Instant::now() + self.timeout;
         loop {
             match self.next(deadline).await? {
@@ -1213,6 +1224,15 @@ mod tests {
                     };
                     last_counter = Some(f.counter);
                     c.cmd_seq = (c.cmd_seq + 1) % 8;
+                    if f.command == Some(Command::RequestParams) {
+                        // Result ahead of the answer: the order older
+                        // daemons used, which the client must survive.
+                        for page in wire.encode_params(&fake_set(), 7).unwrap() {
+                            tx.send(&CalibWire::frame(wire.params_id(), &page).unwrap())
+                                .await
+                                .unwrap();
+                        }
+                    }
                     true
                 }
             };
@@ -1234,6 +1254,19 @@ mod tests {
         }
     }
 
+    /// The set the fake daemon reports on REQUEST_PARAMS.
+    fn fake_set() -> crate::calib_wire::ParamSet {
+        crate::calib_wire::ParamSet {
+            version: 3,
+            rear_tread_m: 0.3071,
+            rear_left_diameter_m: 0.09,
+            rear_right_diameter_m: 0.0914,
+            diameter_ratio: 0.0914 / 0.09,
+            steer_gain: 1.0,
+            steer_offset_rad: 0.0,
+        }
+    }
+
     fn base() -> crate::own_dbc::BaseId {
         crate::own_dbc::BaseId::new(0x600, false).unwrap()
     }
@@ -1248,6 +1281,7 @@ mod tests {
             wire: CalibWire::new(base()).unwrap(),
             iface: "vcan0".into(),
             timeout: Duration::from_secs(2),
+            early_params: Vec::new(),
         }
     }
 
@@ -1276,6 +1310,24 @@ mod tests {
             "{}",
             render_guide(&g)
         );
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn params_sent_ahead_of_the_answer_are_still_the_result() {
+        let bus = crate::bus::InProcessBus::new("vcan0", 256);
+        let mut link = client(&bus);
+        tokio::spawn(fake_daemon(bus.clone(), CalibWire::new(base()).unwrap()));
+        let id = link.wire.cmd_id();
+        assert_eq!(
+            link.command(Command::RequestParams, id, 0, 2)
+                .await
+                .unwrap(),
+            Answer::Done
+        );
+        let set = link.params().await.unwrap().unwrap().unwrap();
+        assert_eq!(set.version, 3);
+        assert!((set.rear_tread_m - 0.3071).abs() < 1e-4, "{set:?}");
+        assert!((set.rear_right_diameter_m - 0.0914).abs() < 1e-5, "{set:?}");
     }
 
     #[tokio::test(start_paused = true)]
