@@ -13,6 +13,7 @@
 use canodom::candump::{LogReader, ReadError};
 use canodom::frame::{CanFrame, CanId};
 use canodom_dbc::{Checksum, Database, SignalHandle};
+use std::fmt::Write as _;
 use std::fs::File;
 use std::io::BufReader;
 use std::path::{Path, PathBuf};
@@ -42,6 +43,20 @@ pub fn run(program: &str, args: &[&str]) -> Result<Output, String> {
             String::from_utf8_lossy(&output.stderr).trim()
         ))
     }
+}
+
+/// Sends one classic frame on `iface` with can-utils' `cansend`, as an
+/// operator at a shell would (standard id, data as hex bytes).
+///
+/// # Errors
+/// As [`run`].
+pub fn cansend(iface: &str, id: u32, data: &[u8]) -> Result<(), String> {
+    let mut frame = format!("{id:03X}#");
+    for b in data {
+        // Writing to a String cannot fail.
+        let _ = write!(frame, "{b:02X}");
+    }
+    run("cansend", &[iface, &frame]).map(|_| ())
 }
 
 /// Runs `ip` with the given arguments (busybox `ip` in the guest).
@@ -75,6 +90,41 @@ pub fn canodom_bin() -> PathBuf {
 /// `vcan-tests/fixtures/…`), by its path relative to the repository root.
 pub fn repo_file(relative: &str) -> PathBuf {
     repo_dir().join(relative)
+}
+
+/// Writes `dir/canodom.toml` for a calibration scenario: the rc_car example
+/// with `dbc` (absolute, since the configuration moves), the parameter file
+/// `dir/params.toml` and `arming_code`; returns its path.
+///
+/// # Errors
+/// The example cannot be read, no longer has the lines this edits, or the
+/// file cannot be written.
+pub fn calibration_config(dir: &Path, dbc: &Path, arming_code: u8) -> Result<PathBuf, String> {
+    let example_path = repo_file("daemon/examples/rc_car.toml");
+    let example = std::fs::read_to_string(&example_path)
+        .map_err(|e| format!("{}: {e}", example_path.display()))?;
+    let mut config = example.replace(
+        "dbc = \"../../../shared/dbc/rc_car.dbc\"",
+        &format!("dbc = \"{}\"", dbc.display()),
+    );
+    if config == example {
+        return Err(format!("{}: the dbc line moved", example_path.display()));
+    }
+    if !config.contains("\n[calibration]\n") {
+        return Err(format!(
+            "{}: [calibration] is no longer the last table",
+            example_path.display()
+        ));
+    }
+    // Writing to a String cannot fail.
+    let _ = write!(
+        config,
+        "\nparam_file = \"{}\"\narming_code = {arming_code:#04x}\n",
+        dir.join("params.toml").display()
+    );
+    let path = dir.join("canodom.toml");
+    std::fs::write(&path, config).map_err(|e| format!("{}: {e}", path.display()))?;
+    Ok(path)
 }
 
 /// A fresh, empty scratch directory for one scenario.

@@ -13,9 +13,9 @@ use canodom::calib_wire::{CalibWire, Command, Counts, Reason, State, StatusPage}
 use canodom::frame::CanId;
 use canodom::own_dbc::BaseId;
 use canodom_vcan_tests::{
-    Spawned, canodom_bin, metric, read_candump, repo_file, run, scratch_dir, wait_until,
+    Spawned, calibration_config, canodom_bin, metric, read_candump, repo_file, scratch_dir,
+    wait_until,
 };
-use std::fmt::Write as _;
 use std::path::Path;
 use std::time::{Duration, Instant};
 use tokio::time::timeout;
@@ -33,16 +33,8 @@ fn read(p: &Path) -> String {
     std::fs::read_to_string(p).unwrap_or_default()
 }
 
-fn hex(data: &[u8]) -> String {
-    data.iter().fold(String::new(), |mut s, b| {
-        write!(s, "{b:02X}").unwrap();
-        s
-    })
-}
-
 fn cansend(id: u32, data: &[u8]) {
-    let out = run("cansend", &["vcan0", &format!("{id:03X}#{}", hex(data))]).unwrap();
-    assert!(out.status.success(), "cansend failed: {out:?}");
+    canodom_vcan_tests::cansend("vcan0", id, data).unwrap();
 }
 
 /// The status pages seen live, in order.
@@ -84,27 +76,8 @@ impl<R: FrameSource> StatusReader<R> {
 async fn calibration_commands_on_wrong_id_bad_crc_or_wrong_arming_change_nothing() {
     let dir = scratch_dir("calib-isolation").unwrap();
     let params = dir.join("params.toml");
-    // The rc_car example with an arming code and the parameter file here;
-    // the DBC path made absolute since the configuration moves.
-    let example = read(&repo_file("daemon/examples/rc_car.toml"));
-    let dbc = repo_file("../shared/dbc/rc_car.dbc");
-    let mut config = example.replace(
-        "dbc = \"../../../shared/dbc/rc_car.dbc\"",
-        &format!("dbc = \"{}\"", dbc.display()),
-    );
-    assert_ne!(config, example, "the example's dbc line moved");
-    assert!(
-        config.contains("\n[calibration]\n"),
-        "the example lost its last table"
-    );
-    write!(
-        config,
-        "\nparam_file = \"{}\"\narming_code = {ARMING:#04x}\n",
-        params.display()
-    )
-    .unwrap();
-    let config_path = dir.join("canodom.toml");
-    std::fs::write(&config_path, config).unwrap();
+    let config_path =
+        calibration_config(&dir, &repo_file("../shared/dbc/rc_car.dbc"), ARMING).unwrap();
 
     let wire = CalibWire::new(BaseId::new(BASE, false).unwrap()).unwrap();
     let (rx, _tx) =

@@ -22,9 +22,9 @@ use canodom::frame::CanId;
 use canodom::own_dbc::BaseId;
 use canodom_dbc::Database;
 use canodom_vcan_tests::{
-    Spawned, canodom_bin, metric, read_candump, repo_file, run, scratch_dir, wait_until,
+    Spawned, calibration_config, canodom_bin, cansend, metric, read_candump, repo_file,
+    scratch_dir, wait_until,
 };
-use std::fmt::Write as _;
 use std::path::Path;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -41,13 +41,6 @@ const SPEED_MPS: &str = "1.5";
 
 fn read(p: &Path) -> String {
     std::fs::read_to_string(p).unwrap_or_default()
-}
-
-fn hex(data: &[u8]) -> String {
-    data.iter().fold(String::new(), |mut s, b| {
-        write!(s, "{b:02X}").unwrap();
-        s
-    })
 }
 
 /// What the test's own socket heard: the latest status pages and the last
@@ -87,25 +80,7 @@ fn write_config(dir: &Path) -> std::path::PathBuf {
     );
     let dbc_path = dir.join("rc_car_40ms.dbc");
     std::fs::write(&dbc_path, dbc).unwrap();
-    let example = read(&repo_file("daemon/examples/rc_car.toml"));
-    let mut config = example.replace(
-        "dbc = \"../../../shared/dbc/rc_car.dbc\"",
-        &format!("dbc = \"{}\"", dbc_path.display()),
-    );
-    assert_ne!(config, example, "the example's dbc line moved");
-    assert!(
-        config.contains("\n[calibration]\n"),
-        "the example lost its last table"
-    );
-    write!(
-        config,
-        "\nparam_file = \"{}\"\narming_code = {ARMING:#04x}\n",
-        dir.join("params.toml").display()
-    )
-    .unwrap();
-    let path = dir.join("canodom.toml");
-    std::fs::write(&path, config).unwrap();
-    path
+    calibration_config(dir, &dbc_path, ARMING).unwrap()
 }
 
 /// The `wheel_gap` count of the daemon's last statistics line.
@@ -358,11 +333,7 @@ async fn a_guided_session_over_vcan_commits_writes_back_and_survives_a_restart()
         .map_or(0, |c| c.wrapping_add(1) & 0x0F);
     let seq = c.cmd_seq;
     let data = wire.encode_command(Command::Compute, ARMING, counter);
-    run(
-        "cansend",
-        &["vcan0", &format!("{:03X}#{}", BASE + 0x10, hex(&data))],
-    )
-    .unwrap();
+    cansend("vcan0", BASE + 0x10, &data).unwrap();
     until(
         &heard,
         "the answer to COMPUTE",
@@ -444,11 +415,7 @@ async fn a_guided_session_over_vcan_commits_writes_back_and_survives_a_restart()
     );
     // REQUEST_PARAMS raw: the daemon answers with the stored set.
     let data = wire.encode_command(Command::RequestParams, ARMING, 7);
-    run(
-        "cansend",
-        &["vcan0", &format!("{:03X}#{}", BASE + 0x10, hex(&data))],
-    )
-    .unwrap();
+    cansend("vcan0", BASE + 0x10, &data).unwrap();
     until(
         &heard,
         "CALIB_PARAMS after REQUEST_PARAMS",
