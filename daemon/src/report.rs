@@ -462,6 +462,34 @@ fn draw(report: &CalibrationReport, root: &DrawingArea<SVGBackend<'_>, Shift>) -
     Ok(())
 }
 
+/// Picks one of a run's paths.
+type PathOf = fn(&ReportRun) -> &[[f64; 2]];
+
+/// The two sets of run paths drawn (before, after): which path, colour,
+/// opacity, and the legend entry, which only the first run of a set carries.
+fn run_path_sets(report: &CalibrationReport) -> [(PathOf, RGBColor, f64, Option<String>); 2] {
+    let label = |what: &str, p: &ReportParams| {
+        Some(format!(
+            "{what} (b = {:.4} m, D_R/D_L = {:.5})",
+            p.rear_tread_m, p.diameter_ratio
+        ))
+    };
+    [
+        (
+            |r| &r.path_before_m,
+            BEFORE_COLOUR,
+            0.55,
+            label("before: parameters used", &report.nominal),
+        ),
+        (
+            |r| &r.path_after_m,
+            AFTER_COLOUR,
+            0.8,
+            label("after: calibrated", &report.calibrated),
+        ),
+    ]
+}
+
 fn draw_paths(report: &CalibrationReport, area: &DrawingArea<SVGBackend<'_>, Shift>) -> PlotResult {
     let all = report.track.path_m.iter().chain(
         report
@@ -504,30 +532,15 @@ fn draw_paths(report: &CalibrationReport, area: &DrawingArea<SVGBackend<'_>, Shi
             report.track.radius_m
         ))
         .legend(key(TRACK_COLOUR));
-    for (i, run) in report.runs.iter().enumerate() {
-        let s = chart.draw_series(LineSeries::new(
-            run.path_before_m.iter().map(|p| (p[0], p[1])),
-            BEFORE_COLOUR.mix(0.55).stroke_width(1),
-        ))?;
-        if i == 0 {
-            s.label(format!(
-                "before: parameters used (b = {:.4} m, D_R/D_L = {:.5})",
-                report.nominal.rear_tread_m, report.nominal.diameter_ratio
-            ))
-            .legend(key(BEFORE_COLOUR));
-        }
-    }
-    for (i, run) in report.runs.iter().enumerate() {
-        let s = chart.draw_series(LineSeries::new(
-            run.path_after_m.iter().map(|p| (p[0], p[1])),
-            AFTER_COLOUR.mix(0.8).stroke_width(1),
-        ))?;
-        if i == 0 {
-            s.label(format!(
-                "after: calibrated (b = {:.4} m, D_R/D_L = {:.5})",
-                report.calibrated.rear_tread_m, report.calibrated.diameter_ratio
-            ))
-            .legend(key(AFTER_COLOUR));
+    for (path_of, colour, opacity, mut label) in run_path_sets(report) {
+        for run in &report.runs {
+            let s = chart.draw_series(LineSeries::new(
+                path_of(run).iter().map(|p| (p[0], p[1])),
+                colour.mix(opacity).stroke_width(1),
+            ))?;
+            if let Some(label) = label.take() {
+                s.label(label).legend(key(colour));
+            }
         }
     }
     chart.draw_series(report.runs.iter().flat_map(|r| {
