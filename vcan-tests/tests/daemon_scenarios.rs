@@ -188,23 +188,11 @@ fn live_figure_eight_poses_follow_the_truth_and_equal_replay_of_the_recording() 
     let daemon = start_daemon(&config, &dir);
     let truth_path = dir.join("truth.csv");
     let started = std::time::Instant::now();
-    let mut sim = Spawned::start(
-        &canodom_bin(),
-        &[
-            "simulate",
-            "--config",
-            &s(&config),
-            "--iface",
-            "vcan0",
-            "--path",
-            "figure-eight",
-            "--truth",
-            &s(&truth_path),
-        ],
-        None,
-        Some(&dir.join("simulate.log")),
-    )
-    .unwrap();
+    let mut sim = start_simulator(
+        &config,
+        &["--path", "figure-eight", "--truth", &s(&truth_path)],
+        &dir.join("simulate.log"),
+    );
     let status = sim.wait_timeout(Duration::from_secs(100)).unwrap();
     assert!(
         status.success(),
@@ -477,21 +465,7 @@ fn link_down_for_two_seconds_then_poses_resume_within_a_second() {
     let config = rc_car_config();
     let candump = start_candump(&dir);
     let daemon = start_daemon(&config, &dir);
-    let mut sim = Spawned::start(
-        &canodom_bin(),
-        &[
-            "simulate",
-            "--config",
-            &s(&config),
-            "--iface",
-            "vcan0",
-            "--path",
-            "track-ccw",
-        ],
-        None,
-        Some(&dir.join("simulate.log")),
-    )
-    .unwrap();
+    let mut sim = start_simulator(&config, &["--path", "track-ccw"], &dir.join("simulate.log"));
     let decoder = PoseDecoder::load(RC_CAR_BASE).unwrap();
     let bus = dir.join("bus.log");
     let valid_after = |t_us: u64| {
@@ -760,22 +734,13 @@ async fn watch_poses(
     }
 }
 
-fn start_simulator(config: &Path, dir: &Path, name: &str) -> Spawned {
-    Spawned::start(
-        &canodom_bin(),
-        &[
-            "simulate",
-            "--config",
-            &s(config),
-            "--iface",
-            "vcan0",
-            "--path",
-            "track-ccw",
-        ],
-        None,
-        Some(&dir.join(name)),
-    )
-    .unwrap()
+/// `canodom simulate` sending on vcan0 in real time, with `args` (the path,
+/// a truth file), its stderr to `log`.
+fn start_simulator(config: &Path, args: &[&str], log: &Path) -> Spawned {
+    let config = s(config);
+    let mut all = vec!["simulate", "--config", &config, "--iface", "vcan0"];
+    all.extend_from_slice(args);
+    Spawned::start(&canodom_bin(), &all, None, Some(log)).unwrap()
 }
 
 #[tokio::test]
@@ -783,7 +748,11 @@ async fn interface_deleted_and_recreated_the_daemon_reconnects_by_itself() {
     let dir = scratch_dir("recreate").unwrap();
     let config = rc_car_config();
     let daemon = start_daemon(&config, &dir);
-    let sim = start_simulator(&config, &dir, "simulate1.log");
+    let sim = start_simulator(
+        &config,
+        &["--path", "track-ccw"],
+        &dir.join("simulate1.log"),
+    );
     watch_poses(Duration::from_secs(20), |p| p.iter().any(|p| p.pose_valid))
         .await
         .unwrap();
@@ -796,7 +765,11 @@ async fn interface_deleted_and_recreated_the_daemon_reconnects_by_itself() {
     ip(&["link", "add", "dev", "vcan0", "type", "vcan"]).unwrap();
     ip(&["link", "set", "vcan0", "up"]).unwrap();
     let up_us = now_us();
-    let _sim = start_simulator(&config, &dir, "simulate2.log");
+    let _sim = start_simulator(
+        &config,
+        &["--path", "track-ccw"],
+        &dir.join("simulate2.log"),
+    );
     let samples = watch_poses(Duration::from_secs(10), |p| p.iter().any(|p| p.pose_valid))
         .await
         .unwrap();
