@@ -309,8 +309,8 @@ impl<R: Read> LogReader<R> {
     /// positioned on the next line; [`ReadError::Io`] when reading fails.
     pub fn next_record(&mut self) -> Result<Option<Record<'_>>, ReadError> {
         if let Some(line) = parse_common(&self.buf[self.start..self.end], self.iface.as_bytes()) {
-            let name = &self.buf[self.start + line.iface.start..self.start + line.iface.end];
-            if !same_bytes(name, self.iface.as_bytes()) {
+            if !line.known_iface {
+                let name = &self.buf[self.start + line.iface.start..self.start + line.iface.end];
                 // `parse_common` checked it is printable ASCII.
                 let Ok(name) = std::str::from_utf8(name) else {
                     return self.next_record_general();
@@ -501,6 +501,8 @@ struct Common {
     timestamp: Timestamp,
     /// Where the interface name lies in the text.
     iface: std::ops::Range<usize>,
+    /// Whether the name is `known_iface` (otherwise it differs).
+    known_iface: bool,
     frame: CanFrame,
     /// Bytes up to and with the line's `\n`.
     consumed: usize,
@@ -523,6 +525,39 @@ fn eight_digits(chunk: [u8; 8]) -> Option<u64> {
     let v = (v & 0x0F0F_0F0F_0F0F_0F0F).wrapping_mul(10 << 8 | 1) >> 8;
     let v = (v & 0x00FF_00FF_00FF_00FF).wrapping_mul(100 << 16 | 1) >> 16;
     Some((v & 0x0000_FFFF_0000_FFFF).wrapping_mul(10_000 << 32 | 1) >> 32)
+}
+
+/// Eight ASCII hex digits (either case, most significant first) as a
+/// number, `None` if any byte is not a hex digit: a payload is 16 digits,
+/// and a loop of table look-ups over them was a tenth of a replay's reading.
+#[inline]
+fn eight_hex_digits(chunk: [u8; 8]) -> Option<u32> {
+    const ONES: u64 = 0x0101_0101_0101_0101;
+    const HIGH_BITS: u64 = 0x8080_8080_8080_8080;
+    let v = u64::from_le_bytes(chunk);
+    if v & HIGH_BITS != 0 {
+        return None;
+    }
+    // Per byte (all below 0x80, so no sum carries into the next byte): the
+    // high bit of `x + 0x80 - lo` is set when x >= lo, that of
+    // `x + 0x7F - hi` when x > hi.
+    let in_range = |x: u64, lo: u64, hi: u64| {
+        x.wrapping_add((0x80 - lo) * ONES) & !x.wrapping_add((0x7F - hi) * ONES) & HIGH_BITS
+    };
+    let digit = in_range(v, 0x30, 0x39);
+    // `| 0x20` lower-cases letters (and maps nothing else into a..f).
+    let letter = in_range(v | (0x20 * ONES), 0x61, 0x66);
+    if digit | letter != HIGH_BITS {
+        return None;
+    }
+    // Low nibble, plus 9 for a letter ('A' and 'a' end in 1).
+    let nibbles = (v & (0x0F * ONES)) + (letter >> 7) * 9;
+    // Byte pairs (first digit in the lower byte) into bytes, then together.
+    let bytes = ((nibbles << 4) | (nibbles >> 8)) & 0x00FF_00FF_00FF_00FF;
+    let bytes = (bytes | (bytes >> 8)) & 0x0000_FFFF_0000_FFFF;
+    let bytes = (bytes | (bytes >> 16)) & 0xFFFF_FFFF;
+    // The first digit pair is now the lowest byte: the most significant.
+    Some((bytes as u32).swap_bytes())
 }
 
 /// The fast path for the shape nearly every line of a real log has: a
@@ -575,18 +610,27 @@ fn parse_common(text: &[u8], known_iface: &[u8]) -> Option<Common> {
     let micros = eight_digits([b'0', b'0', m0, m1, m2, m3, m4, m5])?;
     let timestamp = Timestamp::from_micros(secs * 1_000_000 + micros);
     let iface_start = p + 9;
-    let mut q = iface_start;
-    while *text.get(q)? != b' ' {
-        q += 1;
-        if q - iface_start > MAX_IFACE_BYTES {
+    let known_end = iface_start + known_iface.len();
+    let known = !known_iface.is_empty()
+        && text.get(known_end) == Some(&b' ')
+        && same_bytes(&text[iface_start..known_end], known_iface);
+    let q = if known {
+        // The name of the line before (nearly always): no byte-wise search.
+        known_end
+    } else {
+        let mut q = iface_start;
+        while *text.get(q)? != b' ' {
+            q += 1;
+            if q - iface_start > MAX_IFACE_BYTES {
+                return None;
+            }
+        }
+        let name = &text[iface_start..q];
+        if name.is_empty() || !name.iter().all(u8::is_ascii_graphic) {
             return None;
         }
-    }
-    let name = &text[iface_start..q];
-    if name.is_empty() || (!same_bytes(name, known_iface) && !name.iter().all(u8::is_ascii_graphic))
-    {
-        return None;
-    }
+        q
+    };
     let id_start = q + 1;
     let digits = if text.get(id_start + 3) == Some(&b'#') {
         3
@@ -609,10 +653,42 @@ fn parse_common(text: &[u8], known_iface: &[u8]) -> Option<Common> {
         8 if raw <= MAX_EXTENDED_ID => CanId::Extended(raw),
         _ => return None,
     };
-    let payload_start = id_start + digits + 1;
+    let (data, len, end) = payload(text, id_start + digits + 1)?;
+    let consumed = match text[end] {
+        b'\n' => end + 1,
+        b'\r' if text.get(end + 1) == Some(&b'\n') => end + 2,
+        _ => return None,
+    };
+    let frame = CanFrame::new_data(id, &data[..len]).ok()?;
+    Some(Common {
+        timestamp,
+        iface: iface_start..q,
+        known_iface: known,
+        frame,
+        consumed,
+    })
+}
+
+/// The payload of a [`parse_common`] line from `payload_start`: the bytes,
+/// their count and where the hex digits end.
+#[inline]
+fn payload(text: &[u8], payload_start: usize) -> Option<([u8; CLASSIC_MAX_LEN], usize, usize)> {
     let mut data = [0u8; CLASSIC_MAX_LEN];
     let mut len = 0;
     let mut at = payload_start;
+    // The usual 8-byte payload: 16 digits, then the line's end, at once. Any
+    // other payload (or a non-hex byte) goes through the loop below.
+    if let Some([chunk @ .., b'\n' | b'\r']) = text.get(payload_start..payload_start + 17)
+        && let (Some(high), Some(low)) = (
+            eight_hex_digits(chunk[..8].try_into().ok()?),
+            eight_hex_digits(chunk[8..].try_into().ok()?),
+        )
+    {
+        data[..4].copy_from_slice(&high.to_be_bytes());
+        data[4..].copy_from_slice(&low.to_be_bytes());
+        len = CLASSIC_MAX_LEN;
+        at += 2 * CLASSIC_MAX_LEN;
+    }
     let end = loop {
         let hi = hex(*text.get(at)?);
         if hi == INVALID {
@@ -626,18 +702,7 @@ fn parse_common(text: &[u8], known_iface: &[u8]) -> Option<Common> {
         len += 1;
         at += 2;
     };
-    let consumed = match text[end] {
-        b'\n' => end + 1,
-        b'\r' if text.get(end + 1) == Some(&b'\n') => end + 2,
-        _ => return None,
-    };
-    let frame = CanFrame::new_data(id, &data[..len]).ok()?;
-    Some(Common {
-        timestamp,
-        iface: iface_start..q,
-        frame,
-        consumed,
-    })
+    Some((data, len, end))
 }
 
 /// Parses one line (without its newline) into a record.
@@ -1279,6 +1344,21 @@ mod tests {
     }
 
     #[test]
+    fn eight_hex_digits_refuses_every_other_byte_in_every_position() {
+        for i in 0..8 {
+            for b in 0..=u8::MAX {
+                let mut chunk = *b"09afAF5c";
+                chunk[i] = b;
+                let expected = chunk.iter().try_fold(0u32, |n, &b| {
+                    (hex(b) != INVALID).then(|| n << 4 | u32::from(hex(b)))
+                });
+                assert_eq!(eight_hex_digits(chunk), expected, "{chunk:?}");
+            }
+        }
+        assert_eq!(eight_hex_digits(*b"DEADbeef"), Some(0xDEAD_BEEF));
+    }
+
+    #[test]
     fn common_lines_take_the_fast_path_and_others_do_not() {
         let fast = |s: &str| {
             parse_common(format!("{s}\n").as_bytes(), b"").map(|c| (c.timestamp, c.frame))
@@ -1518,6 +1598,7 @@ mod tests {
                     return Err(TestCaseError::fail(format!("fast path accepted {:?}", String::from_utf8_lossy(&out))));
                 };
                 prop_assert_eq!(general.timestamp, c.timestamp);
+                prop_assert_eq!(c.known_iface, general.iface == known);
                 prop_assert_eq!(general.iface.as_bytes(), &out[c.iface]);
                 prop_assert_eq!(general.frame, c.frame);
                 prop_assert_eq!(general.direction, None);
@@ -1542,6 +1623,20 @@ mod tests {
         ]) {
             let expected = chunk.iter().try_fold(0u64, |n, &b| b.is_ascii_digit().then(|| n * 10 + u64::from(b - b'0')));
             prop_assert_eq!(eight_digits(chunk), expected);
+        }
+
+        #[test]
+        fn eight_hex_digits_matches_a_digit_loop(chunk in prop_oneof![
+            any::<[u8; 8]>(),
+            "[0-9a-fA-F]{8}".prop_map(|s| <[u8; 8]>::try_from(s.as_bytes()).unwrap()),
+            ("[0-9a-fA-F]{7}", any::<u8>(), 0..8usize).prop_map(|(s, b, i)| {
+                let mut v = s.into_bytes();
+                v.insert(i, b);
+                <[u8; 8]>::try_from(&v[..]).unwrap()
+            }),
+        ]) {
+            let expected = chunk.iter().try_fold(0u32, |n, &b| (hex(b) != INVALID).then(|| n << 4 | u32::from(hex(b))));
+            prop_assert_eq!(eight_hex_digits(chunk), expected);
         }
 
         #[test]
