@@ -130,7 +130,16 @@ pub struct Checksum {
     table: Option<Box<[u8; 256]>>,
 }
 
-const J1850: crc::Crc<u8> = crc::Crc::<u8>::new(&crc::CRC_8_SAE_J1850);
+/// A static, not a const: the table inside is then one object in memory that
+/// [`Checksum`] reads from, not a 256-byte temporary per use.
+static J1850: crc::Crc<u8> = crc::Crc::<u8>::new(&crc::CRC_8_SAE_J1850);
+
+/// A non-reflected byte-wise table CRC-8 over `bytes` (the catalogue J1850
+/// and the configurable ones share it).
+#[inline]
+fn crc8(table: &[u8; 256], init: u8, xor_out: u8, bytes: &[u8]) -> u8 {
+    bytes.iter().fold(init, |r, &b| table[usize::from(r ^ b)]) ^ xor_out
+}
 
 impl Checksum {
     /// A checksum of `algorithm` over payload bytes `covered`, stored in byte `position`.
@@ -184,33 +193,55 @@ impl Checksum {
     /// # Errors
     /// [`Error::InvalidCheck`] if `data` is too short for the covered bytes or the checksum
     /// byte (never reads past the end).
+    #[inline]
     pub fn compute(&self, data: &[u8]) -> Result<u8> {
-        if data.len() < self.needed_length() {
-            return Err(Error::InvalidCheck(format!(
-                "frame of {} bytes is too short for a checksum over {:?} stored in byte {}",
-                data.len(),
-                self.covered,
-                self.position
-            )));
+        match (self.covered_bytes(data), data.get(self.position)) {
+            (Some(bytes), Some(_)) => Ok(self.checksum_of(bytes)),
+            _ => Err(self.too_short(data.len())),
         }
-        let bytes = &data[self.covered.clone()];
-        Ok(match &self.algorithm {
-            ChecksumAlgorithm::Crc8SaeJ1850 => J1850.checksum(bytes),
-            ChecksumAlgorithm::Crc8 { init, xor_out, .. } => {
-                let table = self.table.as_deref().map_or(&[0u8; 256], |t| t);
-                bytes.iter().fold(*init, |r, &b| table[usize::from(r ^ b)]) ^ xor_out
-            }
-            ChecksumAlgorithm::Sum { init } => bytes.iter().fold(*init, |a, &b| a.wrapping_add(b)),
-            ChecksumAlgorithm::Xor { init } => bytes.iter().fold(*init, |a, &b| a ^ b),
-        })
     }
 
     /// Whether the stored checksum byte matches.
     ///
     /// # Errors
     /// As [`Self::compute`].
+    // Inlined into a receiver's per-frame loop: the checks around the CRC
+    // cost as much as the CRC of 7 bytes itself when called.
+    #[inline]
     pub fn verify(&self, data: &[u8]) -> Result<bool> {
-        Ok(self.compute(data)? == data[self.position])
+        match (self.covered_bytes(data), data.get(self.position)) {
+            (Some(bytes), Some(&stored)) => Ok(self.checksum_of(bytes) == stored),
+            _ => Err(self.too_short(data.len())),
+        }
+    }
+
+    #[inline]
+    fn covered_bytes<'d>(&self, data: &'d [u8]) -> Option<&'d [u8]> {
+        data.get(*self.covered.start()..=*self.covered.end())
+    }
+
+    #[inline]
+    fn checksum_of(&self, bytes: &[u8]) -> u8 {
+        match &self.algorithm {
+            ChecksumAlgorithm::Crc8SaeJ1850 => {
+                let a = J1850.algorithm;
+                crc8(&J1850.table()[0], a.init, a.xorout, bytes)
+            }
+            ChecksumAlgorithm::Crc8 { init, xor_out, .. } => {
+                let table = self.table.as_deref().map_or(&[0u8; 256], |t| t);
+                crc8(table, *init, *xor_out, bytes)
+            }
+            ChecksumAlgorithm::Sum { init } => bytes.iter().fold(*init, |a, &b| a.wrapping_add(b)),
+            ChecksumAlgorithm::Xor { init } => bytes.iter().fold(*init, |a, &b| a ^ b),
+        }
+    }
+
+    #[cold]
+    fn too_short(&self, len: usize) -> Error {
+        Error::InvalidCheck(format!(
+            "frame of {len} bytes is too short for a checksum over {:?} stored in byte {}",
+            self.covered, self.position
+        ))
     }
 
     /// Compute and store the checksum (for encoding frames).
@@ -284,6 +315,22 @@ mod tests {
         // Same bytes, different layout: checksum first, data after.
         let first = Checksum::new(ChecksumAlgorithm::Crc8SaeJ1850, 1..=9, 0).unwrap();
         assert_eq!(first.compute(b"\x00123456789").unwrap(), 0x4B);
+    }
+
+    #[test]
+    fn j1850_table_fold_matches_the_crc_crate() {
+        // `crc8` with the crate's table must be the crate's own checksum
+        // (J1850 is not reflected, so the plain byte-wise fold applies).
+        assert!(!J1850.algorithm.refin && !J1850.algorithm.refout);
+        let c = Checksum::new(ChecksumAlgorithm::Crc8SaeJ1850, 0..=6, 7).unwrap();
+        let mut state = 0x2545_F491_4F6C_DD1Du64;
+        for _ in 0..10_000 {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            let data = state.to_le_bytes();
+            assert_eq!(c.compute(&data).unwrap(), J1850.checksum(&data[..7]));
+        }
     }
 
     #[test]

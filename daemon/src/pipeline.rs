@@ -447,28 +447,23 @@ impl Pipeline {
             let u = val(&self.steering) + self.steering_fine.as_ref().map_or(0.0, val);
             steer_signal = Some(u);
         }
-        let speeds = WheelSet {
-            rear_left: if rear {
-                val(&self.wheels.rear_left)
+        // Each wheel signal is read once: its raw bits feed a tick decoder,
+        // its physical value the finiteness check and a speed decoder.
+        let wheel_raw = |on: bool, h: &SignalHandle| {
+            if on {
+                h.raw(data)
+                    .map_or((0, f64::NAN), |r| (r, h.raw_to_scaled(r)))
             } else {
-                0.0
-            },
-            rear_right: if rear {
-                val(&self.wheels.rear_right)
-            } else {
-                0.0
-            },
-            front_left: if front {
-                val(&self.wheels.front_left)
-            } else {
-                0.0
-            },
-            front_right: if front {
-                val(&self.wheels.front_right)
-            } else {
-                0.0
-            },
+                (0, 0.0)
+            }
         };
+        let raws = WheelSet {
+            rear_left: wheel_raw(rear, &self.wheels.rear_left),
+            rear_right: wheel_raw(rear, &self.wheels.rear_right),
+            front_left: wheel_raw(front, &self.wheels.front_left),
+            front_right: wheel_raw(front, &self.wheels.front_right),
+        };
+        let speeds = raws.map(|_, (_, v)| v);
         if steer_signal.is_some_and(|u| !u.is_finite())
             || !(speeds.rear_left.is_finite()
                 && speeds.rear_right.is_finite()
@@ -496,14 +491,14 @@ impl Pipeline {
             self.steer_signal = steer_signal;
         }
         if front {
-            let fl = self.wheel(Wheel::FrontLeft, t_s, data, speeds.front_left);
-            let fr = self.wheel(Wheel::FrontRight, t_s, data, speeds.front_right);
+            let fl = self.wheel(Wheel::FrontLeft, t_s, raws.front_left);
+            let fr = self.wheel(Wheel::FrontRight, t_s, raws.front_right);
             self.front_acc_m.0 += fl;
             self.front_acc_m.1 += fr;
         }
         if rear {
-            let rl = self.wheel(Wheel::RearLeft, t_s, data, speeds.rear_left) * self.rear_scale.0;
-            let rr = self.wheel(Wheel::RearRight, t_s, data, speeds.rear_right) * self.rear_scale.1;
+            let rl = self.wheel(Wheel::RearLeft, t_s, raws.rear_left) * self.rear_scale.0;
+            let rr = self.wheel(Wheel::RearRight, t_s, raws.rear_right) * self.rear_scale.1;
             return self.step(t_s, t_us, rl, rr);
         }
         None
@@ -540,13 +535,11 @@ impl Pipeline {
         None
     }
 
-    /// Feeds one wheel decoder; the distance it integrated (0 on a fault).
-    fn wheel(&mut self, w: Wheel, t_s: f64, data: &[u8], value: f64) -> f64 {
+    /// Feeds one wheel decoder the signal's (raw bits, physical value); the
+    /// distance it integrated (0 on a fault).
+    fn wheel(&mut self, w: Wheel, t_s: f64, (raw, value): (u64, f64)) -> f64 {
         let step: WheelStep = match &mut self.decoders {
-            Decoders::Ticks(d) => {
-                let raw = self.wheels[w].raw(data).unwrap_or(0);
-                wheel_mut(d, w).push(t_s, raw)
-            }
+            Decoders::Ticks(d) => wheel_mut(d, w).push(t_s, raw),
             Decoders::Speed(d) => wheel_mut(d, w).push(t_s, value),
         };
         match step.fault {
