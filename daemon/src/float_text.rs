@@ -20,28 +20,24 @@ pub fn push_f64(out: &mut Vec<u8>, value: f64) {
     // zmij writes 1e-5 <= |x| < 1e16 without an exponent, in `{}`'s layout
     // but for the `.0` of whole numbers; everything else (NaN, infinities,
     // exponents, possible ties) is rare in odometry output and goes to `{}`.
-    if value.is_finite() {
+    let magnitude = value.abs();
+    // zmij's layout is fixed exactly when its shortest digits lie in
+    // [1e-5, 1e16) (or the value is 0): those digits read back as `value`,
+    // and rounding is monotonic, so they lie there exactly when `value`
+    // does. One comparison instead of looking for an `e` in the text.
+    if (1e-5..1e16).contains(&magnitude) || magnitude == 0.0 {
         let mut buffer = zmij::Buffer::new();
         let text = buffer.format_finite(value).as_bytes();
-        // An exponent (`e+5` .. `e-308`) lies in the last five bytes.
-        // A loop on purpose: `contains` calls memchr, whose call costs more
-        // than looking at five bytes.
-        #[allow(clippy::manual_contains)]
-        let exponent = text[text.len().saturating_sub(5)..]
-            .iter()
-            .any(|&b| b == b'e');
-        if !exponent {
-            if let Some(whole) = text.strip_suffix(b".0") {
-                if !tie_possible(value, 0) {
-                    out.extend_from_slice(whole);
-                    return;
-                }
-            } else if !tie_possible(value, MAX_FIXED_FRACTION_DIGITS)
-                || !tie_possible(value, fraction_digits(text))
-            {
-                out.extend_from_slice(text);
+        if let Some(whole) = text.strip_suffix(b".0") {
+            if !tie_possible(value, 0) {
+                out.extend_from_slice(whole);
                 return;
             }
+        } else if !tie_possible(value, MAX_FIXED_FRACTION_DIGITS)
+            || !tie_possible(value, fraction_digits(text))
+        {
+            out.extend_from_slice(text);
+            return;
         }
     }
     let _ = write!(out, "{value}");
@@ -152,6 +148,19 @@ mod tests {
         ];
         for v in values {
             assert_eq!(ours(v), format!("{v}"), "{v:e}");
+        }
+        // Either side of where zmij's layout changes (a wrong bound would
+        // let zmij's `e` through).
+        for edge in [1e-5, 1e16] {
+            let mut below = edge;
+            let mut above = edge;
+            for _ in 0..1000 {
+                below = f64::next_down(below);
+                above = f64::next_up(above);
+                for v in [below, above, -below, -above] {
+                    assert_eq!(ours(v), format!("{v}"), "{v:e}");
+                }
+            }
         }
     }
 
