@@ -206,6 +206,9 @@ pub struct Pipeline {
     steer_map: SteeringMap,
     params: VehicleParams,
     inputs: Vec<Input>,
+    /// Index into `inputs` + 1 by standard (11-bit) id, 0 for none: every
+    /// frame is looked up, and a search of `inputs` cost ~45 instructions.
+    standard_inputs: Box<[u8; STANDARD_IDS]>,
     decoders: Decoders,
     ekf: Ekf,
     /// The filter state and a scratch buffer the next step is written into;
@@ -236,6 +239,23 @@ pub struct Pipeline {
 /// Index of a message within `inputs`, by role.
 fn find(inputs: &[Input], id: FrameId) -> Option<usize> {
     inputs.iter().position(|i| i.id == id)
+}
+
+/// Standard (11-bit) frame ids.
+const STANDARD_IDS: usize = 1 << 11;
+
+/// The table of [`Pipeline::standard_inputs`].
+fn standard_table(inputs: &[Input]) -> Box<[u8; STANDARD_IDS]> {
+    let mut table = Box::new([0u8; STANDARD_IDS]);
+    for (i, input) in inputs.iter().enumerate() {
+        // At most three inputs (one per role), so `i + 1` fits a u8.
+        if let FrameId::Standard(id) = input.id
+            && let Ok(slot) = u8::try_from(i + 1)
+        {
+            table[usize::from(id)] = slot;
+        }
+    }
+    table
 }
 
 impl Pipeline {
@@ -320,6 +340,7 @@ impl Pipeline {
             steering_fine: s.steering_fine,
             steer_map: params.steering(),
             params,
+            standard_inputs: standard_table(&inputs),
             inputs,
             decoders,
             ekf: Ekf::new(config.ekf)?,
@@ -414,11 +435,16 @@ impl Pipeline {
     pub fn push(&mut self, t: Timestamp, frame: &CanFrame) -> Option<Step> {
         self.stats.frames += 1;
         let kind = frame.kind();
-        let id = match frame.id() {
-            crate::frame::CanId::Standard(s) => FrameId::standard(s).ok(),
-            crate::frame::CanId::Extended(e) => FrameId::extended(e).ok(),
+        let idx = match frame.id() {
+            crate::frame::CanId::Standard(s) => self
+                .standard_inputs
+                .get(usize::from(s))
+                .and_then(|&slot| usize::from(slot).checked_sub(1)),
+            crate::frame::CanId::Extended(e) => FrameId::extended(e)
+                .ok()
+                .and_then(|id| find(&self.inputs, id)),
         };
-        let Some(idx) = id.and_then(|id| find(&self.inputs, id)) else {
+        let Some(idx) = idx else {
             self.stats.add(Reject::UnknownId);
             return None;
         };
