@@ -563,6 +563,11 @@ impl Pipeline {
 
     /// Feeds one wheel decoder the signal's (raw bits, physical value); the
     /// distance it integrated (0 on a fault).
+    // Inlined into its four call sites, each with a constant wheel, the choice
+    // of decoder is made at compile time instead of by a jump table whose
+    // target changes on every call.
+    #[allow(clippy::inline_always)]
+    #[inline(always)]
     fn wheel(&mut self, w: Wheel, t_s: f64, (raw, value): (u64, f64)) -> f64 {
         let step: WheelStep = match &mut self.decoders {
             Decoders::Ticks(d) => wheel_mut(d, w).push(t_s, raw),
