@@ -47,14 +47,13 @@ const LOG_EPOCH_US: u64 = 1_700_000_000_000_000;
 /// when the emulated guest's sender falls a little behind (measured: 7,700 to
 /// 8,200 frames/s reached from an 8,300 schedule on a host busy compiling).
 const UNRELATED_FPS: u64 = 8_500;
-/// The rate below which the run is not a load test at all. The schedule
-/// offers 8,800 frames/s, but what a TCG-emulated guest's sender reaches
-/// depends on the host's other load (measured on the 2-core machine while
-/// other builds ran: 8,206, 7,710 and 5,538 frames/s), so asserting 8,000
-/// would make the suite flaky: the reached rate is printed
-/// (`hostile_fps`) and only a run below this guard fails. Checked before
-/// the exact counts, which only hold when frames arrive when they are due.
-const MIN_FPS: f64 = 4_000.0;
+/// The full classic-CAN load: a run below it fails. Since the
+/// injector sends with `sendmmsg`, the guest on an idle host sends the whole
+/// 8,812 frames/s schedule in 30.0 s; on a host busy with other builds it
+/// fell to 5,800, where frames also arrive bunched and the exact counts
+/// below would fail anyway. Checked before the counts, so such a run names
+/// the host, not the daemon.
+const MIN_FPS: f64 = 8_000.0;
 
 fn s(p: &Path) -> String {
     p.to_string_lossy().into_owned()
