@@ -9,11 +9,9 @@
 //!
 //! `cargo run --release -p canodom --example memory`
 
-use canodom::bus::InProcessBus;
-use canodom::candump::Timestamp;
-use canodom::cmd::simulate::{LOG_EPOCH_US, drive};
+use canodom::cmd::simulate::drive;
 use canodom::config::Config;
-use canodom::server::{Observers, run};
+use canodom::server::{InProcessDaemon, Observers};
 use canodom::vehicle::sim_config;
 use canodom_fusion::sim::{Plan, Simulator};
 use std::path::PathBuf;
@@ -47,14 +45,8 @@ fn main() -> anyhow::Result<()> {
     );
     let started = std::time::Instant::now();
     let summary = rt.block_on(async {
-        let bus = InProcessBus::with_epoch("vcan0", 4096, Timestamp::from_micros(LOG_EPOCH_US));
-        let stop = CancellationToken::new();
-        let daemon = tokio::spawn(run(
-            Arc::clone(&config),
-            bus.clone(),
-            stop.clone().cancelled_owned(),
-            Observers::default(),
-        ));
+        let daemon = InProcessDaemon::spawn(Arc::clone(&config), 4096, Observers::default());
+        let bus = daemon.bus.clone();
         tokio::time::sleep(Duration::from_millis(10)).await;
         let (_rx, tx) = bus.open()?;
         // One hour at 0.1 m/s is 360 m of smooth random driving.
@@ -74,8 +66,7 @@ fn main() -> anyhow::Result<()> {
         })
         .await?;
         tokio::time::sleep(Duration::from_millis(100)).await;
-        stop.cancel();
-        anyhow::Ok(daemon.await??)
+        anyhow::Ok(daemon.stop().await?)
     })?;
     println!(
         "after {} frames ({} steps, {} poses published) in {:.1} s of real time: \

@@ -174,6 +174,55 @@ fn is_link_loss(e: &BusError) -> bool {
     )
 }
 
+/// The daemon's run loop on an in-process bus, with no CAN hardware: how
+/// `canodom demo`, the simulated-vehicle tests and the integration tests
+/// drive it, one frame source and sink per [`InProcessBus::open`].
+pub struct InProcessDaemon {
+    /// The bus the daemon listens and publishes on.
+    pub bus: InProcessBus,
+    stop: CancellationToken,
+    task: tokio::task::JoinHandle<Result<Summary, RunError>>,
+}
+
+impl InProcessDaemon {
+    /// Starts [`run`] on a new bus named after the configured interface,
+    /// whose clock starts at the simulator's log epoch (so bus timestamps
+    /// equal those of a simulated candump log); each receiver queues up to
+    /// `capacity` frames.
+    #[must_use]
+    pub fn spawn(config: Arc<Config>, capacity: usize, observers: Observers) -> Self {
+        let bus = InProcessBus::with_epoch(
+            &config.interface,
+            capacity,
+            Timestamp::from_micros(crate::cmd::simulate::LOG_EPOCH_US),
+        );
+        let stop = CancellationToken::new();
+        let task = tokio::spawn(run(
+            config,
+            bus.clone(),
+            stop.clone().cancelled_owned(),
+            observers,
+        ));
+        Self { bus, stop, task }
+    }
+
+    /// Stops the daemon as SIGTERM would (frames already queued are still
+    /// used) and returns its summary.
+    ///
+    /// # Errors
+    /// As [`run`].
+    ///
+    /// # Panics
+    /// Re-raises a panic of the run loop, as if it had run on this task.
+    pub async fn stop(self) -> Result<Summary, RunError> {
+        self.stop.cancel();
+        match self.task.await {
+            Ok(result) => result,
+            Err(e) => std::panic::resume_unwind(e.into_panic()),
+        }
+    }
+}
+
 /// Runs the daemon until `shutdown` completes or the transport fails for good.
 ///
 /// # Errors

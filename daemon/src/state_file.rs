@@ -258,11 +258,9 @@ pub fn load(path: &Path) -> Result<SavedState, StateFileError> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::bus::InProcessBus;
-    use crate::candump::Timestamp;
-    use crate::cmd::simulate::{LOG_EPOCH_US, simulator};
+    use crate::cmd::simulate::simulator;
     use crate::frame::{CanFrame, CanId};
-    use crate::server::{Observers, run};
+    use crate::server::{InProcessDaemon, Observers};
     use crate::vehicle::{PathKind, SampleEncoder};
     use std::sync::Arc;
     use std::time::Duration;
@@ -286,17 +284,8 @@ mod tests {
     /// plus a few rejects, stopped by its shutdown future once everything
     /// was sent (the frames still queued must be drained, not lost).
     async fn daemon_run(config: &Arc<Config>, seconds: f64) -> (Summary, u64) {
-        let bus = InProcessBus::with_epoch("sim0", 1 << 16, Timestamp::from_micros(LOG_EPOCH_US));
-        let (_, tx) = bus.open().unwrap();
-        let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
-        let daemon = tokio::spawn(run(
-            Arc::clone(config),
-            bus.clone(),
-            async move {
-                let _ = stop_rx.await;
-            },
-            Observers::default(),
-        ));
+        let daemon = InProcessDaemon::spawn(Arc::clone(config), 1 << 16, Observers::default());
+        let (_, tx) = daemon.bus.open().unwrap();
         // Let the link task open its endpoint before the first frame.
         tokio::time::sleep(Duration::from_millis(50)).await;
         let mut sim = simulator(config, PathKind::FigureEight, None, 1, false).unwrap();
@@ -329,8 +318,7 @@ mod tests {
             tokio::time::sleep(Duration::from_millis(10)).await;
         }
         // Stop at once: frames still queued for the pipeline must count.
-        stop_tx.send(()).unwrap();
-        (daemon.await.unwrap().unwrap(), sent)
+        (daemon.stop().await.unwrap(), sent)
     }
 
     #[tokio::test(start_paused = true)]

@@ -9,18 +9,16 @@
 //! time, so minutes of driving take seconds.
 
 use crate::util::{rc_car, tmp_dir};
-use canodom::bus::{BusEvent, FrameSink, FrameSource, InProcessBus, InProcessTx};
+use canodom::bus::{BusEvent, FrameSink, FrameSource, InProcessTx};
 use canodom::calib_wire::{
     Ack, AckStatus, CalibWire, Command, Counts, ParamSet, ParamsAssembler, Progress, Reason, State,
     StatusPage, WireDirection, Writeback,
 };
-use canodom::candump::Timestamp;
-use canodom::cmd::simulate::LOG_EPOCH_US;
 use canodom::frame::CanId;
 use canodom::own_dbc::{OwnFrame, dbc_for_base};
 use canodom::persist::{ParamFile, ParamValues, store};
 use canodom::pipeline::Pipeline;
-use canodom::server::{Observers, run};
+use canodom::server::{InProcessDaemon, Observers};
 use canodom::vehicle::{SampleEncoder, sim_config};
 use canodom_dbc::Database;
 use canodom_fusion::sim::{Direction, Plan, simulate};
@@ -28,7 +26,6 @@ use canodom_fusion::{VehicleParams, Wheel};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
-use tokio_util::sync::CancellationToken;
 
 const ARMING: u8 = 0x42;
 const RHO_M: f64 = 0.78;
@@ -180,14 +177,8 @@ async fn a_driven_session_commits_the_true_parameters_and_writes_them_back() {
     let b_eff = k_mean * b_true;
     let ratio_true = dr_true / dl_true;
 
-    let bus = InProcessBus::with_epoch("vcan0", 65536, Timestamp::from_micros(LOG_EPOCH_US));
-    let stop = CancellationToken::new();
-    let daemon = tokio::spawn(run(
-        Arc::clone(&config),
-        bus.clone(),
-        stop.clone().cancelled_owned(),
-        Observers::default(),
-    ));
+    let daemon = InProcessDaemon::spawn(Arc::clone(&config), 65536, Observers::default());
+    let bus = daemon.bus.clone();
     let wire = CalibWire::new(config.output.base_id).unwrap();
     let (status_id, params_id, ack_id) = (wire.status_id(), wire.params_id(), wire.ack_id());
     let quality_id = OwnFrame::OdomQuality.id(config.output.base_id);
@@ -426,8 +417,7 @@ async fn a_driven_session_commits_the_true_parameters_and_writes_them_back() {
     // The odometry runs on the rolled-back set: its poses say so.
     assert_eq!(seen.lock().unwrap().pose_param_version, Some(1));
 
-    stop.cancel();
-    let summary = daemon.await.unwrap().unwrap();
+    let summary = daemon.stop().await.unwrap();
     assert!(summary.stats.steps > 0);
     listener.abort();
 }

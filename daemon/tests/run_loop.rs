@@ -9,7 +9,7 @@ use canodom::config::Config;
 use canodom::frame::{CanFrame, ErrorFrame};
 use canodom::own_dbc::{OwnFrame, dbc_for_base};
 use canodom::pipeline::Pipeline;
-use canodom::server::{Observers, run};
+use canodom::server::{InProcessDaemon, Observers, run};
 use canodom::vehicle::PathKind;
 use canodom_dbc::{Checksum, Database, FrameId};
 use std::sync::Arc;
@@ -45,14 +45,8 @@ async fn drive_against_daemon(
     path: PathKind,
     disturb: Option<Disturb>,
 ) -> Outcome {
-    let bus = InProcessBus::with_epoch("vcan0", 8192, Timestamp::from_micros(LOG_EPOCH_US));
-    let stop = CancellationToken::new();
-    let daemon = tokio::spawn(run(
-        Arc::clone(&config),
-        bus.clone(),
-        stop.clone().cancelled_owned(),
-        Observers::default(),
-    ));
+    let daemon = InProcessDaemon::spawn(Arc::clone(&config), 8192, Observers::default());
+    let bus = daemon.bus.clone();
     // A listener recording everything, as candump would.
     let (mut listener, _) = bus.open().unwrap();
     let base = config.output.base_id;
@@ -116,8 +110,7 @@ async fn drive_against_daemon(
         .await
         .unwrap();
     tokio::time::sleep(Duration::from_millis(200)).await;
-    stop.cancel();
-    let summary = daemon.await.unwrap().unwrap();
+    let summary = daemon.stop().await.unwrap();
     rec_stop.cancel();
     let (recorded, pose_frames) = recorder.await.unwrap();
     Outcome {

@@ -5,10 +5,8 @@
 //! other end and publishes its pose frames back. Time is tokio's paused
 //! clock, so a minute of driving takes a moment, and the run is reproducible.
 
-use crate::bus::InProcessBus;
-use crate::candump::Timestamp;
 use crate::config::Config;
-use crate::server::{Observers, Summary};
+use crate::server::{InProcessDaemon, Observers, Summary};
 use crate::vehicle::PathKind;
 use canodom_fusion::Pose;
 use std::fmt::Write as _;
@@ -126,27 +124,20 @@ async fn demo_async(
     slip: bool,
     every_s: f64,
 ) -> anyhow::Result<DemoReport> {
-    let bus = InProcessBus::with_epoch(
-        &config.interface,
-        4096,
-        Timestamp::from_micros(super::simulate::LOG_EPOCH_US),
-    );
     let sim = super::simulate::simulator(&config, path, None, seed, slip)?;
     let (steps_tx, steps_rx) = watch::channel(None);
     let (stats_tx, stats_rx) = watch::channel(crate::stats::Stats::default());
-    let stop = tokio_util::sync::CancellationToken::new();
-    let daemon = tokio::spawn(crate::server::run(
+    let daemon = InProcessDaemon::spawn(
         Arc::clone(&config),
-        bus.clone(),
-        stop.clone().cancelled_owned(),
+        4096,
         Observers {
             steps: Some(steps_tx),
             stats: Some(stats_tx),
         },
-    ));
+    );
     // Let the daemon open its endpoint before the vehicle starts.
     tokio::time::sleep(Duration::from_millis(10)).await;
-    let (_vrx, vtx) = bus.open()?;
+    let (_vrx, vtx) = daemon.bus.open()?;
     let mut text = String::new();
     let _ = writeln!(
         text,
@@ -177,8 +168,7 @@ async fn demo_async(
     .await?;
     // Let the last frames through, then stop the daemon as SIGTERM would.
     tokio::time::sleep(Duration::from_millis(100)).await;
-    stop.cancel();
-    let summary = daemon.await??;
+    let summary = daemon.stop().await?;
     let last = summary
         .last_step
         .ok_or_else(|| anyhow::anyhow!("the daemon made no filter step"))?;

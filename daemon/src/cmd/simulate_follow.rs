@@ -491,8 +491,7 @@ mod tests {
     use super::*;
     use crate::bus::InProcessBus;
     use crate::calib_wire::{Ack, AckStatus, ParamSet, ParamsAssembler, Writeback};
-    use crate::candump::Timestamp;
-    use crate::server::{Observers, run};
+    use crate::server::{InProcessDaemon, Observers};
     use std::sync::{Arc, Mutex};
 
     const ARMING: u8 = 0x42;
@@ -578,18 +577,10 @@ mod tests {
         let ratio_true = dr_true / dl_true;
 
         let config = Arc::new(config);
-        let bus = InProcessBus::with_epoch(
-            "vcan0",
-            65536,
-            Timestamp::from_micros(crate::cmd::simulate::LOG_EPOCH_US),
-        );
+        let daemon = InProcessDaemon::spawn(Arc::clone(&config), 65536, Observers::default());
+        let bus = daemon.bus.clone();
+        // The vehicle stops by itself after the commit; this is its Ctrl-C.
         let stop = CancellationToken::new();
-        let daemon = tokio::spawn(run(
-            Arc::clone(&config),
-            bus.clone(),
-            stop.clone().cancelled_owned(),
-            Observers::default(),
-        ));
         let wire = CalibWire::new(config.output.base_id).unwrap();
         let heard = ecu_and_listener(&bus, CalibWire::new(config.output.base_id).unwrap());
         let (vehicle_rx, vehicle_tx) = bus.open().unwrap();
@@ -643,8 +634,7 @@ mod tests {
         .await;
         let (summary, log) = follower.await.unwrap();
         println!("{log}");
-        stop.cancel();
-        daemon.await.unwrap().unwrap();
+        daemon.stop().await.unwrap();
 
         assert_eq!(summary.outcome, FollowOutcome::Committed(1), "{log}");
         assert_eq!(summary.send_failures, 0);
