@@ -361,6 +361,26 @@ impl State {
             .unwrap_or_else(|_| unreachable!("the origin is finite"))
     }
 
+    /// This filter with its frame moved to where the vehicle stands: pose at
+    /// the origin with zero covariance (an operator's reset, at standstill).
+    /// What it has learnt about the vehicle (steering offset, front scale and
+    /// their variances) and its counts are kept; the open correction window
+    /// is dropped, which loses nothing at standstill.
+    #[must_use]
+    pub fn rebased_at_origin(&self) -> Self {
+        Self {
+            stats: self.stats,
+            slip_counts: self.slip_counts,
+            slip_flags: self.slip_flags,
+            last_mahalanobis_sq: self.last_mahalanobis_sq,
+            steer_offset_rad: self.steer_offset_rad,
+            steer_offset_var: self.steer_offset_var,
+            front_scale: self.front_scale,
+            front_scale_var: self.front_scale_var,
+            ..Self::origin()
+        }
+    }
+
     /// The pose estimate, heading wrapped to (−π, π].
     pub fn pose(&self) -> Pose {
         let pose = compose(&self.anchor, self.anchor_cos_sin, &self.rear_w);
@@ -1095,6 +1115,38 @@ mod tests {
             front_valid: true,
             steer_angle_rad: phi,
         }
+    }
+
+    #[test]
+    fn rebased_state_starts_at_the_origin_and_keeps_what_was_learnt() {
+        let p = car();
+        // The default configuration learns the steering offset.
+        let ekf = Ekf::new(EkfConfig::new(p)).unwrap();
+        // A left arc with a 0.02 rad steering error, so an offset is learnt.
+        let drive = |from: State| {
+            (0..400).fold(from, |s, _| {
+                let mut input = arc_input(&p, 0.01, 0.05);
+                input.steer_angle_rad += 0.02;
+                ekf.step(&s, &input).unwrap()
+            })
+        };
+        let driven = drive(State::origin());
+        assert!(driven.pose().x_m > 3.0, "{:?}", driven.pose());
+        assert!(driven.covariance().norm() > 0.0);
+        assert!(driven.steer_offset_rad().abs() > 1e-3, "{driven:?}");
+        let rebased = driven.rebased_at_origin();
+        assert_eq!(rebased.pose(), Pose::default());
+        assert_eq!(rebased.covariance(), Mat3::zeros());
+        assert_eq!(rebased.steer_offset_rad(), driven.steer_offset_rad());
+        assert_eq!(rebased.front_scale(), driven.front_scale());
+        assert_eq!(rebased.stats, driven.stats);
+        assert_eq!(rebased.slip_counts, driven.slip_counts);
+        // From the new origin the same drive ends where a filter that had
+        // learnt the same would: nearer the first end than an untaught one.
+        let again = drive(rebased).pose();
+        let first = driven.pose();
+        let error = |q: Pose| (q.x_m - first.x_m).hypot(q.y_m - first.y_m);
+        assert!(error(again) < 0.05, "{again:?} vs {first:?}");
     }
 
     #[test]
