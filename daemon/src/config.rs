@@ -306,7 +306,8 @@ pub struct CalibrationConfig {
     pub param_file: PathBuf,
     /// The only id `CALIB_CMD` is accepted on (default base id + 0x10).
     pub command_id: crate::frame::CanId,
-    /// When set, every `CALIB_CMD` must carry this `ARMING_CODE`.
+    /// When set, every `CALIB_CMD` and an `ODOM_CMD` RESET_POSE must carry
+    /// this `ARMING_CODE`.
     pub arming_code: Option<u8>,
     /// Bounds around the nominal parameters a committed or loaded set must
     /// lie in (default ±30 %, steering offset ±10°).

@@ -245,6 +245,12 @@ impl LiveCalibration {
         )
     }
 
+    /// Whether the vehicle has stood still (below the configured standstill
+    /// speed for the configured time) at `t`, as the calibration judges it.
+    pub fn is_standstill(&self, t: Timestamp) -> bool {
+        self.standstill(seconds(t))
+    }
+
     fn standstill(&self, t_s: f64) -> bool {
         match (self.last_step_s, self.still_since_s) {
             // No wheel data: nothing moves the vehicle we could see.

@@ -405,6 +405,18 @@ impl Pipeline {
         Ok(())
     }
 
+    /// Moves the odometry frame to where the vehicle stands: the fused and
+    /// the rear-only pose restart at the origin; what the filter has learnt
+    /// and the statistics are kept. Meant for standstill (the caller checks).
+    pub fn reset_pose(&mut self) {
+        self.states[self.current] = self.states[self.current].rebased_at_origin();
+        self.odometry = Pose::default();
+        if let Some(step) = &mut self.last_step {
+            step.fused = Pose::default();
+            step.odometry = Pose::default();
+        }
+    }
+
     /// The parameters in use (nominal or calibrated).
     pub fn params(&self) -> &VehicleParams {
         &self.params

@@ -9,7 +9,8 @@
 //!   pipeline task through a `watch` channel (`None` while disconnected).
 //! - [`PipelineTask`] owns the [`Pipeline`]: feeds it every frame, publishes
 //!   the pose at the configured rate (and after each step with
-//!   `publish_on_update`, and on an `ODOM_CMD` PUBLISH_NOW request), logs one
+//!   `publish_on_update`, and on an `ODOM_CMD` PUBLISH_NOW request), moves
+//!   the pose to the origin on `ODOM_CMD` RESET_POSE at standstill, logs one
 //!   line of statistics periodically, and pets the systemd watchdog.
 //!
 //! Shutdown (tokio's guide): one `CancellationToken` cloned into each task,
@@ -280,8 +281,7 @@ pub async fn run<C: Connector>(
     let link_handle = tracker.spawn(link.run());
     let own_db = Database::parse(&dbc_for_base(config.output.base_id), "canodom.dbc")
         .map_err(crate::pose_frames::PoseEncodeError::from)?;
-    let request = own_db
-        .signal("ODOM_CMD.ODOM_REQUEST")
+    let odom_commands = OdomCommands::new(&own_db, config.calibration.arming_code)
         .map_err(crate::pose_frames::PoseEncodeError::from)?;
     let task = PipelineTask {
         pipeline,
@@ -293,7 +293,7 @@ pub async fn run<C: Connector>(
         stats_period: Duration::from_secs_f64(config.output.stats_interval_s),
         publish_on_update: config.output.publish_on_update,
         cmd_id,
-        request,
+        odom_commands,
         notifier,
         observers,
         clock: None,
@@ -517,6 +517,81 @@ impl<C: Connector> LinkTask<C> {
     }
 }
 
+/// What a checked `ODOM_CMD` asks for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum OdomRequest {
+    /// Publish the pose now.
+    PublishNow,
+    /// Move the pose to the origin (the vehicle stands still).
+    ResetPose,
+}
+
+/// Why an `ODOM_CMD` frame was not carried out.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+enum OdomRefusal {
+    /// The CRC-8 in byte 7 does not match.
+    #[error("bad checksum")]
+    BadChecksum,
+    /// The same rolling counter as the frame before: a repeat, not a new command.
+    #[error("repeated counter {0}")]
+    RepeatedCounter(u64),
+    /// RESET_POSE without the configured arming code.
+    #[error("RESET_POSE with a wrong arming code")]
+    BadArmingCode,
+    /// RESET_POSE while the vehicle moves: the origin would be a blur.
+    #[error("RESET_POSE while the vehicle moves")]
+    Moving,
+    /// An `ODOM_REQUEST` value this daemon does not know (0 is NONE).
+    #[error("request {0} is not one of PUBLISH_NOW (1), RESET_POSE (2)")]
+    Unknown(u64),
+}
+
+/// The checks of `ODOM_CMD` (pure: frame bytes in, decision out).
+#[derive(Debug, Clone)]
+struct OdomCommands {
+    request: SignalHandle,
+    arming: SignalHandle,
+    counter: SignalHandle,
+    arming_code: Option<u8>,
+    last_counter: Option<u64>,
+}
+
+impl OdomCommands {
+    fn new(own_db: &Database, arming_code: Option<u8>) -> canodom_dbc::Result<Self> {
+        Ok(Self {
+            request: own_db.signal("ODOM_CMD.ODOM_REQUEST")?,
+            arming: own_db.signal("ODOM_CMD.ARMING_CODE")?,
+            counter: own_db.signal("ODOM_CMD.COUNTER")?,
+            arming_code,
+            last_counter: None,
+        })
+    }
+
+    /// Checks a frame in the order the DBC states: CRC, counter, then what
+    /// it asks. A frame with a bad CRC does not move the counter on.
+    fn judge(&mut self, data: &[u8], standstill: bool) -> Result<OdomRequest, OdomRefusal> {
+        if !Checksum::rc_car().verify(data).unwrap_or(false) {
+            return Err(OdomRefusal::BadChecksum);
+        }
+        let counter = self.counter.raw(data).ok_or(OdomRefusal::BadChecksum)?;
+        if self.last_counter.replace(counter) == Some(counter) {
+            return Err(OdomRefusal::RepeatedCounter(counter));
+        }
+        match self.request.raw(data).ok_or(OdomRefusal::BadChecksum)? {
+            1 => Ok(OdomRequest::PublishNow),
+            2 if self
+                .arming_code
+                .is_some_and(|code| self.arming.raw(data) != Some(u64::from(code))) =>
+            {
+                Err(OdomRefusal::BadArmingCode)
+            }
+            2 if !standstill => Err(OdomRefusal::Moving),
+            2 => Ok(OdomRequest::ResetPose),
+            other => Err(OdomRefusal::Unknown(other)),
+        }
+    }
+}
+
 /// Owns the pipeline (see the module doc).
 struct PipelineTask<Tx> {
     pipeline: Pipeline,
@@ -528,7 +603,7 @@ struct PipelineTask<Tx> {
     stats_period: Duration,
     publish_on_update: bool,
     cmd_id: CanId,
-    request: SignalHandle,
+    odom_commands: OdomCommands,
     notifier: Option<Notifier>,
     observers: Observers,
     /// Last frame's bus timestamp and when it arrived: the pose flags are
@@ -634,7 +709,7 @@ impl<Tx: FrameSink + Clone> PipelineTask<Tx> {
                     return;
                 }
                 if r.frame.id() == self.cmd_id {
-                    self.command(&r.frame).await;
+                    self.command(r.timestamp, &r.frame).await;
                     return;
                 }
                 let faults = |s: &Stats| {
@@ -674,14 +749,19 @@ impl<Tx: FrameSink + Clone> PipelineTask<Tx> {
         }
     }
 
-    /// `ODOM_CMD`: PUBLISH_NOW (1) publishes at once; frames failing the CRC are ignored.
-    async fn command(&mut self, frame: &CanFrame) {
-        if !Checksum::rc_car().verify(frame.data()).unwrap_or(false) {
-            warn!("ODOM_CMD with a bad checksum ignored");
-            return;
-        }
-        if self.request.decode(frame.data()) == Some(1.0) {
-            self.publish().await;
+    /// `ODOM_CMD`: PUBLISH_NOW publishes at once; RESET_POSE moves the pose
+    /// to the origin (at standstill) and publishes it; anything refused is
+    /// logged with its reason.
+    async fn command(&mut self, t: Timestamp, frame: &CanFrame) {
+        let standstill = self.live.is_standstill(t);
+        match self.odom_commands.judge(frame.data(), standstill) {
+            Ok(OdomRequest::PublishNow) => self.publish().await,
+            Ok(OdomRequest::ResetPose) => {
+                self.pipeline.reset_pose();
+                info!("pose reset to the origin by ODOM_CMD RESET_POSE");
+                self.publish().await;
+            }
+            Err(refusal) => warn!(%refusal, "ODOM_CMD ignored"),
         }
     }
 
@@ -785,6 +865,69 @@ mod tests {
             steering_gain: 1f64.to_radians(),
             steering_offset_rad: 0.0,
         }
+    }
+
+    /// An ODOM_CMD payload with a valid CRC.
+    fn odom_cmd(request: u8, arming_code: u8, counter: u8) -> [u8; 8] {
+        let mut d = [0u8; 8];
+        d[0] = (request & 0x0F) | (arming_code << 4);
+        d[1] = arming_code >> 4;
+        d[6] = (counter & 0x0F) << 4;
+        Checksum::rc_car().apply(&mut d).unwrap();
+        d
+    }
+
+    #[test]
+    fn odom_commands_are_checked_for_crc_counter_arming_and_standstill() {
+        let base = crate::own_dbc::BaseId::new(0x600, false).unwrap();
+        let db = Database::parse(&dbc_for_base(base), "canodom.dbc").unwrap();
+        let mut open = OdomCommands::new(&db, None).unwrap();
+        assert_eq!(
+            open.judge(&odom_cmd(1, 0, 0), false),
+            Ok(OdomRequest::PublishNow)
+        );
+        // The same counter again is a repeat, the next one is new.
+        assert_eq!(
+            open.judge(&odom_cmd(1, 0, 0), false),
+            Err(OdomRefusal::RepeatedCounter(0))
+        );
+        assert_eq!(
+            open.judge(&odom_cmd(2, 0x77, 1), true),
+            Ok(OdomRequest::ResetPose),
+            "no arming code configured: any is accepted"
+        );
+        assert_eq!(
+            open.judge(&odom_cmd(2, 0, 2), false),
+            Err(OdomRefusal::Moving)
+        );
+        assert_eq!(
+            open.judge(&odom_cmd(7, 0, 3), true),
+            Err(OdomRefusal::Unknown(7))
+        );
+        let mut bad = odom_cmd(2, 0, 4);
+        bad[7] ^= 1;
+        assert_eq!(open.judge(&bad, true), Err(OdomRefusal::BadChecksum));
+        // A bad CRC did not take the counter: the good frame with it passes.
+        assert_eq!(
+            open.judge(&odom_cmd(2, 0, 4), true),
+            Ok(OdomRequest::ResetPose)
+        );
+        assert_eq!(open.judge(&[0; 3], true), Err(OdomRefusal::BadChecksum));
+
+        let mut armed = OdomCommands::new(&db, Some(0xA5)).unwrap();
+        assert_eq!(
+            armed.judge(&odom_cmd(2, 0xA4, 0), true),
+            Err(OdomRefusal::BadArmingCode)
+        );
+        assert_eq!(
+            armed.judge(&odom_cmd(2, 0xA5, 1), true),
+            Ok(OdomRequest::ResetPose)
+        );
+        // PUBLISH_NOW needs no arming code.
+        assert_eq!(
+            armed.judge(&odom_cmd(1, 0, 2), false),
+            Ok(OdomRequest::PublishNow)
+        );
     }
 
     #[test]

@@ -16,7 +16,7 @@ use std::sync::Arc;
 use std::time::Duration;
 use tokio_util::sync::CancellationToken;
 
-#[derive(Clone, Copy)]
+#[derive(Clone)]
 enum Disturb {
     Gone {
         at: Duration,
@@ -25,10 +25,21 @@ enum Disturb {
     BusOff {
         at: Duration,
     },
-    PublishNow {
-        at: Duration,
+    /// ODOM_CMD payloads (CRC applied here), each at its time since the
+    /// start; the drive's end waits for the last one.
+    OdomCmd {
         base: canodom::own_dbc::BaseId,
+        commands: Vec<(Duration, [u8; 8])>,
     },
+}
+
+/// An ODOM_CMD payload: request, arming code, counter (CRC applied later).
+fn odom_cmd(request: u8, arming_code: u8, counter: u8) -> [u8; 8] {
+    let mut d = [0u8; 8];
+    d[0] = (request & 0x0F) | (arming_code << 4);
+    d[1] = arming_code >> 4;
+    d[6] = (counter & 0x0F) << 4;
+    d
 }
 
 struct Outcome {
@@ -75,9 +86,10 @@ async fn drive_against_daemon(
         (inputs, poses)
     });
     tokio::time::sleep(Duration::from_millis(10)).await;
+    let mut commands_sent = None;
     if let Some(disturb) = disturb {
         let b = bus.clone();
-        tokio::spawn(async move {
+        let task = tokio::spawn(async move {
             match disturb {
                 Disturb::Gone { at, outage } => {
                     tokio::time::sleep(at).await;
@@ -92,23 +104,28 @@ async fn drive_against_daemon(
                         detail: [0; 8],
                     });
                 }
-                Disturb::PublishNow { at, base } => {
-                    tokio::time::sleep(at).await;
+                Disturb::OdomCmd { base, commands } => {
                     let (_rx, tx) = b.open().unwrap();
-                    let mut d = [0u8; 8];
-                    d[0] = 1; // ODOM_REQUEST = PUBLISH_NOW
-                    Checksum::rc_car().apply(&mut d).unwrap();
-                    let f = CanFrame::new_data(OwnFrame::OdomCmd.id(base), &d).unwrap();
-                    tx.send(&f).await.unwrap();
+                    let start = tokio::time::Instant::now();
+                    for (at, mut d) in commands {
+                        tokio::time::sleep_until(start + at).await;
+                        Checksum::rc_car().apply(&mut d).unwrap();
+                        let f = CanFrame::new_data(OwnFrame::OdomCmd.id(base), &d).unwrap();
+                        tx.send(&f).await.unwrap();
+                    }
                 }
             }
         });
+        commands_sent = Some(task);
     }
     let (_vrx, vtx) = bus.open().unwrap();
     let sim = simulator(&config, path, None, 5, false).unwrap();
     drive(&config, sim, &vtx, 100.0, CancellationToken::new(), |_| {})
         .await
         .unwrap();
+    if let Some(task) = commands_sent {
+        task.await.unwrap();
+    }
     tokio::time::sleep(Duration::from_millis(200)).await;
     let summary = daemon.stop().await.unwrap();
     rec_stop.cancel();
@@ -351,6 +368,71 @@ async fn bus_off_reopens_the_interface() {
 }
 
 #[tokio::test(start_paused = true)]
+async fn reset_pose_moves_the_origin_at_standstill_and_is_refused_while_moving() {
+    let path = crate::util::rc_car_toml();
+    let text = std::fs::read_to_string(&path)
+        .unwrap()
+        .replace("# arming_code = 0xA5", "arming_code = 0xA5");
+    let config = Arc::new(Config::from_toml(&text, &path).unwrap());
+    assert_eq!(config.calibration.arming_code, Some(0xA5));
+    let base = config.output.base_id;
+    let (moving_s, unarmed_s, still_s) = (5, 150, 151);
+    let out = drive_against_daemon(
+        Arc::clone(&config),
+        PathKind::Circle,
+        Some(Disturb::OdomCmd {
+            base,
+            commands: vec![
+                (Duration::from_secs(moving_s), odom_cmd(2, 0xA5, 0)),
+                (Duration::from_secs(unarmed_s), odom_cmd(2, 0x00, 1)),
+                (Duration::from_secs(still_s), odom_cmd(2, 0xA5, 2)),
+            ],
+        }),
+    )
+    .await;
+    let db = Database::parse(&dbc_for_base(base), "canodom.dbc").unwrap();
+    let (x, y) = (
+        db.signal("ODOM_POSITION.POS_X").unwrap(),
+        db.signal("ODOM_POSITION.POS_Y").unwrap(),
+    );
+    let positions: Vec<(f64, f64, f64)> = out
+        .pose_frames
+        .iter()
+        .filter(|r| r.frame.id() == OwnFrame::OdomPosition.id(base))
+        .map(|r| {
+            let t_s = (r.timestamp.as_micros() - LOG_EPOCH_US) as f64 * 1e-6;
+            let d = r.frame.data();
+            (t_s, x.decode(d).unwrap(), y.decode(d).unwrap())
+        })
+        .collect();
+    let from_origin = |(_, x, y): &(f64, f64, f64)| x.hypot(*y);
+    let between = |a: f64, b: f64| positions.iter().filter(move |p| p.0 > a && p.0 < b);
+    // Moving at 5 s: refused, the pose goes on away from the origin.
+    let after_moving: Vec<_> = between(moving_s as f64, moving_s as f64 + 1.0).collect();
+    assert!(!after_moving.is_empty());
+    assert!(
+        after_moving.iter().all(|p| from_origin(p) > 0.3),
+        "{after_moving:?}"
+    );
+    // Standing, but the wrong arming code: refused too.
+    let before_reset: Vec<_> = between(unarmed_s as f64, still_s as f64).collect();
+    assert!(!before_reset.is_empty());
+    let end_of_drive = from_origin(before_reset[before_reset.len() - 1]);
+    assert!(
+        end_of_drive > 0.01,
+        "the circle's end is {end_of_drive} m off"
+    );
+    // Standing and armed: the pose is the origin from then on.
+    let after: Vec<_> = between(still_s as f64, f64::INFINITY).collect();
+    assert!(after.len() > 5, "{after:?}");
+    assert!(after.iter().all(|p| from_origin(p) < 1e-9), "{after:?}");
+    assert_eq!(out.summary.state.pose(), canodom_fusion::Pose::default());
+    println!(
+        "RESET_POSE: refused while moving and unarmed; at standstill the pose moved {end_of_drive:.4} m to the origin"
+    );
+}
+
+#[tokio::test(start_paused = true)]
 async fn odom_cmd_publishes_on_demand() {
     let path = crate::util::rc_car_toml();
     let text = std::fs::read_to_string(&path)
@@ -361,9 +443,9 @@ async fn odom_cmd_publishes_on_demand() {
     let out = drive_against_daemon(
         Arc::clone(&config),
         PathKind::Circle,
-        Some(Disturb::PublishNow {
-            at: Duration::from_secs(5),
+        Some(Disturb::OdomCmd {
             base,
+            commands: vec![(Duration::from_secs(5), odom_cmd(1, 0, 0))],
         }),
     )
     .await;

@@ -15,7 +15,9 @@ canodom --log-format json run --config car.toml\n\n\
 Reads the configured wheel and steering messages (kernel filters, kernel timestamps), checks \
 DLC, rolling counters, checksums and timeouts, runs the EKF, and publishes ODOM_POSITION, \
 ODOM_MOTION and ODOM_QUALITY (dbc/canodom.dbc, at output.base_id) at output.pose_rate_hz. \
-An ODOM_CMD frame with ODOM_REQUEST=1 publishes at once. The interface going down, away or \
+An ODOM_CMD frame with ODOM_REQUEST=1 publishes at once; ODOM_REQUEST=2 (RESET_POSE, with the \
+arming code when one is configured) moves the pose to the origin if the vehicle stands still. \
+The interface going down, away or \
 bus-off is retried with backoff. SIGINT/SIGTERM stop it cleanly; under systemd it sends \
 READY, WATCHDOG and STOPPING (see dist/canodom.service)."
 )]
