@@ -369,11 +369,10 @@ async fn bus_off_reopens_the_interface() {
 
 #[tokio::test(start_paused = true)]
 async fn reset_pose_moves_the_origin_at_standstill_and_is_refused_while_moving() {
-    let path = crate::util::rc_car_toml();
-    let text = std::fs::read_to_string(&path)
-        .unwrap()
-        .replace("# arming_code = 0xA5", "arming_code = 0xA5");
-    let config = Arc::new(Config::from_toml(&text, &path).unwrap());
+    let config = Arc::new(crate::util::rc_car_with(
+        "# arming_code = 0xA5",
+        "arming_code = 0xA5",
+    ));
     assert_eq!(config.calibration.arming_code, Some(0xA5));
     let base = config.output.base_id;
     let (moving_s, unarmed_s, still_s) = (5, 150, 151);
@@ -434,11 +433,10 @@ async fn reset_pose_moves_the_origin_at_standstill_and_is_refused_while_moving()
 
 #[tokio::test(start_paused = true)]
 async fn odom_cmd_publishes_on_demand() {
-    let path = crate::util::rc_car_toml();
-    let text = std::fs::read_to_string(&path)
-        .unwrap()
-        .replace("pose_rate_hz = 50.0", "pose_rate_hz = 0.01");
-    let config = Arc::new(Config::from_toml(&text, &path).unwrap());
+    let config = Arc::new(crate::util::rc_car_with(
+        "pose_rate_hz = 50.0",
+        "pose_rate_hz = 0.01",
+    ));
     let base = config.output.base_id;
     let out = drive_against_daemon(
         Arc::clone(&config),

@@ -23,6 +23,14 @@ pub fn rc_car() -> Config {
     Config::load(&rc_car_toml()).unwrap()
 }
 
+/// The rc_car example with one line of it replaced (which must be there).
+pub fn rc_car_with(line: &str, replacement: &str) -> Config {
+    let path = rc_car_toml();
+    let text = std::fs::read_to_string(&path).unwrap();
+    assert!(text.contains(line), "rc_car.toml lost {line:?}");
+    Config::from_toml(&text.replace(line, replacement), &path).unwrap()
+}
+
 /// A simulated drive as a candump log (bytes) and its truth CSV.
 pub fn simulated_log(config: &Config, path: PathKind, seed: u64) -> (Vec<u8>, String) {
     let mut sim = simulator(config, path, None, seed, false).unwrap();
