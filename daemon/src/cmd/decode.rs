@@ -127,7 +127,7 @@ pub fn decode(
         line.extend_from_slice(b", \"iface\": ");
         write_json_str(&mut line, record.iface);
         line.extend_from_slice(b", \"id\": ");
-        push_u32(&mut line, raw);
+        line.extend_from_slice(itoa::Buffer::new().format(raw).as_bytes());
         line.extend_from_slice(if extended {
             b", \"extended\": true, \"name\": "
         } else {
@@ -175,21 +175,6 @@ pub fn write_json_number(out: &mut Vec<u8>, v: f64) {
     }
 }
 
-/// `value` in decimal, as `{}` writes it, without the formatting machinery.
-fn push_u32(out: &mut Vec<u8>, mut value: u32) {
-    let mut digits = [0u8; 10];
-    let mut i = digits.len();
-    loop {
-        i -= 1;
-        digits[i] = b'0' + (value % 10) as u8;
-        value /= 10;
-        if value == 0 {
-            break;
-        }
-    }
-    out.extend_from_slice(&digits[i..]);
-}
-
 /// A JSON string with the escapes RFC 8259 requires.
 pub fn write_json_str(out: &mut Vec<u8>, s: &str) {
     out.push(b'"');
@@ -233,14 +218,5 @@ mod tests {
         let mut out = Vec::new();
         write_json_number(&mut out, f64::NAN);
         assert_eq!(out, b"null");
-    }
-
-    #[test]
-    fn ids_are_written_as_display_writes_them() {
-        for v in [0, 7, 10, 0x7FF, 99_999, 0x1FFF_FFFF, u32::MAX] {
-            let mut out = Vec::new();
-            push_u32(&mut out, v);
-            assert_eq!(out, v.to_string().as_bytes());
-        }
     }
 }
