@@ -66,20 +66,21 @@ pub struct SimulateArgs {
     /// The path stays the default speed's: the driver's noise and the servo lag scale to the same
     /// size per metre and the car reaches its speed in the same time, so a faster drive is the
     /// same drive played faster.
-    #[arg(long, value_parser = parse_speed)]
+    #[arg(long, value_parser = parse_positive)]
     pub speed_mps: Option<f64>,
     /// Drive the runs the daemon's guided calibration asks for on --iface (see below).
     #[arg(long, requires = "iface", conflicts_with_all = ["log", "truth", "laps", "slip"])]
     pub follow_calibration: bool,
     /// With --follow-calibration: the track corner radius, m, instead of the one heard in START_SESSION.
-    #[arg(long, requires = "follow_calibration", value_parser = parse_speed)]
+    #[arg(long, requires = "follow_calibration", value_parser = parse_positive)]
     pub track_radius: Option<f64>,
     /// With --follow-calibration: stop after this many seconds whatever happens.
-    #[arg(long, default_value_t = 900.0, value_parser = parse_speed)]
+    #[arg(long, default_value_t = 900.0, value_parser = parse_positive)]
     pub time_limit_s: f64,
 }
 
-fn parse_speed(s: &str) -> Result<f64, String> {
+/// A positive, finite number (speeds, radii, time limits).
+fn parse_positive(s: &str) -> Result<f64, String> {
     match s.parse::<f64>() {
         Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
         _ => Err(format!("expected a positive number, got `{s}`")),
@@ -97,22 +98,7 @@ pub fn simulator(
     seed: u64,
     slip: bool,
 ) -> anyhow::Result<Simulator> {
-    simulator_laps(config, path, true_params, seed, slip, 1)
-}
-
-/// [`simulator`] driving the path `laps` times ([`PathKind::plan_laps`]).
-///
-/// # Errors
-/// Bad true-parameter file, or the fusion crate refused the drive.
-pub fn simulator_laps(
-    config: &Config,
-    path: PathKind,
-    true_params: Option<&std::path::Path>,
-    seed: u64,
-    slip: bool,
-    laps: u32,
-) -> anyhow::Result<Simulator> {
-    simulator_at(config, path, true_params, seed, slip, laps, None)
+    simulator_at(config, path, true_params, seed, slip, 1, None)
 }
 
 /// The true vehicle: the configuration's nominal one changed by `true_params`.
@@ -129,7 +115,8 @@ pub fn true_vehicle(
     })
 }
 
-/// [`simulator_laps`] at `speed_mps` (`None`: the simulator's default).
+/// [`simulator`] driving the path `laps` times ([`PathKind::plan_laps`]) at
+/// `speed_mps` (`None`: the simulator's default).
 ///
 /// # Errors
 /// Bad true-parameter file, or the fusion crate refused the drive.
