@@ -27,6 +27,23 @@ pub enum PathKind {
     Random,
 }
 
+/// Corner radius of the calibration track the simulated 1:10 car drives, m.
+const TRACK_RADIUS_M: f64 = 0.78;
+
+/// How much larger the paths are for a road car (speed inputs) than for a
+/// 1:10 car (tick inputs).
+const ROAD_SCALE: f64 = 20.0;
+
+/// The corner radius of the simulated calibration track (`--path track-*`):
+/// 0.78 m for a 1:10 car, 20 times that at road scale.
+pub fn track_radius_m(road_scale: bool) -> f64 {
+    if road_scale {
+        TRACK_RADIUS_M * ROAD_SCALE
+    } else {
+        TRACK_RADIUS_M
+    }
+}
+
 impl PathKind {
     /// The plan, sized for the vehicle: metres for a 1:10 car (ticks), tens of
     /// metres for a road car (speeds).
@@ -44,10 +61,10 @@ impl PathKind {
     /// # Errors
     /// The fusion crate refused the plan (zero laps among others).
     pub fn plan_laps(self, road_scale: bool, seed: u64, laps: u32) -> canodom_fusion::Result<Plan> {
-        let k = if road_scale { 20.0 } else { 1.0 };
+        let k = if road_scale { ROAD_SCALE } else { 1.0 };
         match self {
-            Self::TrackCw => Plan::track(0.78 * k, Direction::Cw, laps),
-            Self::TrackCcw => Plan::track(0.78 * k, Direction::Ccw, laps),
+            Self::TrackCw => Plan::track(track_radius_m(road_scale), Direction::Cw, laps),
+            Self::TrackCcw => Plan::track(track_radius_m(road_scale), Direction::Ccw, laps),
             Self::Circle => Plan::circle(1.0 * k, Direction::Ccw, f64::from(laps)),
             Self::FigureEight => Plan::figure_eight(1.0 * k),
             Self::Random if road_scale => Plan::road_drive(seed),

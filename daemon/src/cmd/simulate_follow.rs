@@ -171,10 +171,10 @@ impl Vehicle {
 
 /// The default track of the vehicle's scale (the `simulate --path track-*` one).
 fn default_radius_m(config: &Config) -> f64 {
-    match config.signals.wheel_kind {
-        crate::config::WheelKind::Ticks => 0.78,
-        crate::config::WheelKind::Speed(_) => 0.78 * 20.0,
-    }
+    crate::vehicle::track_radius_m(matches!(
+        config.signals.wheel_kind,
+        crate::config::WheelKind::Speed(_)
+    ))
 }
 
 /// One lap of the track (`Plan::track`) driven by a driver who knows the
