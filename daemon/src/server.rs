@@ -552,6 +552,8 @@ struct OdomCommands {
     request: SignalHandle,
     arming: SignalHandle,
     counter: SignalHandle,
+    /// ODOM_CMD's CRC-8 (canodom.dbc's layout, the rc-car one).
+    crc: Checksum,
     arming_code: Option<u8>,
     last_counter: Option<u64>,
 }
@@ -562,6 +564,7 @@ impl OdomCommands {
             request: own_db.signal("ODOM_CMD.ODOM_REQUEST")?,
             arming: own_db.signal("ODOM_CMD.ARMING_CODE")?,
             counter: own_db.signal("ODOM_CMD.COUNTER")?,
+            crc: Checksum::rc_car(),
             arming_code,
             last_counter: None,
         })
@@ -570,7 +573,7 @@ impl OdomCommands {
     /// Checks a frame in the order the DBC states: CRC, counter, then what
     /// it asks. A frame with a bad CRC does not move the counter on.
     fn judge(&mut self, data: &[u8], standstill: bool) -> Result<OdomRequest, OdomRefusal> {
-        if !Checksum::rc_car().verify(data).unwrap_or(false) {
+        if !self.crc.verify(data).unwrap_or(false) {
             return Err(OdomRefusal::BadChecksum);
         }
         let counter = self.counter.raw(data).ok_or(OdomRefusal::BadChecksum)?;
