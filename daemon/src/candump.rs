@@ -117,6 +117,50 @@ pub struct Record<'a> {
     pub direction: Option<Direction>,
 }
 
+/// A classical data frame read from a log line, with its time: what nearly
+/// every line of a real log holds, in a third of a [`Record`]'s size (a
+/// [`CanFrame`] carries a 64-byte FD payload buffer). For readers that hand
+/// frames on in bulk, such as replay's batches between threads.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ClassicData {
+    /// Receive time.
+    pub timestamp: Timestamp,
+    /// The identifier.
+    pub id: CanId,
+    /// Payload length, at most [`CLASSIC_MAX_LEN`].
+    len: u8,
+    /// The payload, zero past `len`.
+    data: [u8; CLASSIC_MAX_LEN],
+}
+
+impl ClassicData {
+    /// The payload bytes.
+    #[inline]
+    pub fn payload(&self) -> &[u8] {
+        &self.data[..usize::from(self.len)]
+    }
+
+    /// The same frame as a [`CanFrame`].
+    pub fn frame(&self) -> CanFrame {
+        match CanFrame::new_data(self.id, self.payload()) {
+            Ok(frame) => frame,
+            // `len` is at most CLASSIC_MAX_LEN by construction.
+            Err(_) => unreachable!("a classical payload of at most 8 bytes"),
+        }
+    }
+}
+
+/// What [`LogReader::next_compact`] read: the common line as a
+/// [`ClassicData`], anything else (FD, remote and error frames, directions)
+/// as a whole [`Record`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Compact<'a> {
+    /// A classical data frame.
+    Classic(ClassicData),
+    /// Any other record.
+    Record(Record<'a>),
+}
+
 /// Why a line is not a valid record. Each has a stable snake_case name
 /// ([`Reason::as_str`]) for statistics.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -308,26 +352,52 @@ impl<R: Read> LogReader<R> {
     /// [`ReadError::Malformed`] for a bad line, after which the reader is
     /// positioned on the next line; [`ReadError::Io`] when reading fails.
     pub fn next_record(&mut self) -> Result<Option<Record<'_>>, ReadError> {
-        if let Some(line) = parse_common(&self.buf[self.start..self.end], self.iface.as_bytes()) {
-            if !line.known_iface {
-                let name = &self.buf[self.start + line.iface.start..self.start + line.iface.end];
-                // `parse_common` checked it is printable ASCII.
-                let Ok(name) = std::str::from_utf8(name) else {
-                    return self.next_record_general();
-                };
-                self.iface.clear();
-                self.iface.push_str(name);
-            }
-            self.start += line.consumed;
-            self.line_no += 1;
+        if let Some(classic) = self.next_common() {
             return Ok(Some(Record {
-                timestamp: line.timestamp,
+                timestamp: classic.timestamp,
                 iface: &self.iface,
-                frame: line.frame,
+                frame: classic.frame(),
                 direction: None,
             }));
         }
         self.next_record_general()
+    }
+
+    /// As [`Self::next_record`], the common line without building a
+    /// [`CanFrame`] (the interface name is not returned for it: it is
+    /// [`Self::iface`] after the call).
+    ///
+    /// # Errors
+    /// As [`Self::next_record`].
+    #[inline]
+    pub fn next_compact(&mut self) -> Result<Option<Compact<'_>>, ReadError> {
+        if let Some(classic) = self.next_common() {
+            return Ok(Some(Compact::Classic(classic)));
+        }
+        Ok(self.next_record_general()?.map(Compact::Record))
+    }
+
+    /// The interface name of the last line [`Self::next_compact`] returned
+    /// as [`Compact::Classic`].
+    pub fn iface(&self) -> &str {
+        &self.iface
+    }
+
+    /// The next line if it has the common shape ([`parse_common`]), consumed.
+    #[inline]
+    fn next_common(&mut self) -> Option<ClassicData> {
+        let line = parse_common(&self.buf[self.start..self.end], self.iface.as_bytes())?;
+        if !line.known_iface {
+            let name = &self.buf[self.start + line.iface.start..self.start + line.iface.end];
+            // `parse_common` checked it is printable ASCII; else the general
+            // parser judges the line.
+            let name = std::str::from_utf8(name).ok()?;
+            self.iface.clear();
+            self.iface.push_str(name);
+        }
+        self.start += line.consumed;
+        self.line_no += 1;
+        Some(line.classic)
     }
 
     /// [`Self::next_record`] for any line: finds its end, skips blank lines
@@ -498,12 +568,11 @@ impl Cursor<'_> {
 
 /// What the fast path found: the record's parts and the line's length.
 struct Common {
-    timestamp: Timestamp,
+    classic: ClassicData,
     /// Where the interface name lies in the text.
     iface: std::ops::Range<usize>,
     /// Whether the name is `known_iface` (otherwise it differs).
     known_iface: bool,
-    frame: CanFrame,
     /// Bytes up to and with the line's `\n`.
     consumed: usize,
 }
@@ -663,12 +732,16 @@ fn parse_common(text: &[u8], known_iface: &[u8]) -> Option<Common> {
         b'\r' if text.get(end + 1) == Some(&b'\n') => end + 2,
         _ => return None,
     };
-    let frame = CanFrame::new_data(id, &data[..len]).ok()?;
     Some(Common {
-        timestamp,
+        classic: ClassicData {
+            timestamp,
+            id,
+            // `payload` stops at CLASSIC_MAX_LEN bytes.
+            len: len as u8,
+            data,
+        },
         iface: iface_start..q,
         known_iface: known,
-        frame,
         consumed,
     })
 }
@@ -1369,7 +1442,8 @@ mod tests {
     #[test]
     fn common_lines_take_the_fast_path_and_others_do_not() {
         let fast = |s: &str| {
-            parse_common(format!("{s}\n").as_bytes(), b"").map(|c| (c.timestamp, c.frame))
+            parse_common(format!("{s}\n").as_bytes(), b"")
+                .map(|c| (c.classic.timestamp, c.classic.frame()))
         };
         let r = parse("(1700000000.123456) vcan0 123#DEADBEEF").unwrap();
         assert_eq!(
@@ -1605,10 +1679,10 @@ mod tests {
                 let Ok(general) = general else {
                     return Err(TestCaseError::fail(format!("fast path accepted {:?}", String::from_utf8_lossy(&out))));
                 };
-                prop_assert_eq!(general.timestamp, c.timestamp);
+                prop_assert_eq!(general.timestamp, c.classic.timestamp);
                 prop_assert_eq!(c.known_iface, general.iface == known);
                 prop_assert_eq!(general.iface.as_bytes(), &out[c.iface]);
-                prop_assert_eq!(general.frame, c.frame);
+                prop_assert_eq!(general.frame, c.classic.frame());
                 prop_assert_eq!(general.direction, None);
                 prop_assert_eq!(c.consumed, text.len() - 2);
             } else if mutation.is_none() && dir.is_none() && micros < 1_000_000_000_000_000_000

@@ -445,9 +445,22 @@ impl Pipeline {
     /// Offers one frame received at `t`; returns the filter step it caused.
     /// Never panics, whatever the frame holds.
     pub fn push(&mut self, t: Timestamp, frame: &CanFrame) -> Option<Step> {
+        if matches!(frame.kind(), FrameKind::Data { .. } | FrameKind::Fd { .. }) {
+            return self.push_data(t, frame.id(), frame.data());
+        }
         self.stats.frames += 1;
-        let kind = frame.kind();
-        let idx = match frame.id() {
+        self.stats.add(if self.input_index(frame.id()).is_some() {
+            Reject::NotData
+        } else {
+            Reject::UnknownId
+        });
+        None
+    }
+
+    /// The index into `inputs` of the message with this id.
+    #[inline]
+    fn input_index(&self, id: crate::frame::CanId) -> Option<usize> {
+        match id {
             crate::frame::CanId::Standard(s) => self
                 .standard_inputs
                 .get(usize::from(s))
@@ -455,16 +468,22 @@ impl Pipeline {
             crate::frame::CanId::Extended(e) => FrameId::extended(e)
                 .ok()
                 .and_then(|id| find(&self.inputs, id)),
-        };
-        let Some(idx) = idx else {
+        }
+    }
+
+    /// [`Self::push`] for a data frame (classical or FD) with payload `data`,
+    /// for callers that hold frames without a [`CanFrame`] (replay's batches).
+    pub fn push_data(
+        &mut self,
+        t: Timestamp,
+        id: crate::frame::CanId,
+        data: &[u8],
+    ) -> Option<Step> {
+        self.stats.frames += 1;
+        let Some(idx) = self.input_index(id) else {
             self.stats.add(Reject::UnknownId);
             return None;
         };
-        if !matches!(kind, FrameKind::Data { .. } | FrameKind::Fd { .. }) {
-            self.stats.add(Reject::NotData);
-            return None;
-        }
-        let data = frame.data();
         let t_us = t.as_micros();
         let input = &mut self.inputs[idx];
         if let Some(reason) = Self::check(input, data, t_us) {

@@ -10,6 +10,7 @@ use canodom::pipeline::Pipeline;
 use canodom::stats::Reject;
 use canodom::vehicle::PathKind;
 use proptest::prelude::*;
+use std::fmt::Write as _;
 
 const REAR: CanId = CanId::Standard(0x100);
 
@@ -245,6 +246,59 @@ fn log_with_garbage_lines() {
     // The cut last line is a short frame at worst, counted, never used.
     assert!(b.stats.get(Reject::Truncated) <= 1);
     assert_eq!(clean_csv, dirty_csv);
+}
+
+#[test]
+fn other_frame_kinds_in_a_log_replay_as_the_pipeline_sees_them() {
+    // Replay hands the common line to its filter thread in a compact form
+    // and every other kind of record as a whole frame: interleaved, both
+    // must reach the pipeline in log order, as one loop over the log does.
+    let config = rc_car();
+    let (log, _) = simulated_log(&config, PathKind::Circle, 5);
+    let text = String::from_utf8(log).unwrap();
+    let mut mixed = String::new();
+    for (i, line) in text.lines().enumerate() {
+        let t = line.split(' ').next().unwrap();
+        let other = match i % 7 {
+            // Remote frame on the rear wheels' id, FD frame on it (data,
+            // used as such), error frame, a frame with a direction, an
+            // extended id no message has.
+            1 => format!("{t} vcan0 100#R"),
+            2 if i % 3 == 0 => format!("{t} vcan0 100##0{}", &line[line.len() - 16..]),
+            3 => format!("{t} vcan0 20000080#0000000000000000"),
+            4 => format!("{line} R"),
+            5 => format!("{t} vcan0 1ABCDEF0#01"),
+            _ => String::new(),
+        };
+        mixed.push_str(line);
+        mixed.push('\n');
+        if !other.is_empty() {
+            mixed.push_str(&other);
+            mixed.push('\n');
+        }
+    }
+    let mut csv = Vec::new();
+    let summary = replay(&config, mixed.as_bytes(), &mut csv, &mut std::io::sink()).unwrap();
+
+    let mut reference = Pipeline::new(&config).unwrap();
+    let mut expected = format!("{}\n", canodom::cmd::replay::CSV_HEADER);
+    let mut reader = canodom::candump::LogReader::new(mixed.as_bytes());
+    while let Some(record) = reader.next_record().unwrap() {
+        if let Some(s) = reference.push(record.timestamp, &record.frame) {
+            let (f, o) = (s.fused, s.odometry);
+            writeln!(
+                expected,
+                "{},{},{},{},{},{},{}",
+                s.t_s, f.x_m, f.y_m, f.heading_rad, o.x_m, o.y_m, o.heading_rad
+            )
+            .unwrap();
+        }
+    }
+    println!("mixed kinds: {}", summary.stats);
+    assert!(summary.stats.get(Reject::NotData) > 0 && summary.stats.get(Reject::UnknownId) > 0);
+    assert_eq!(summary.stats, *reference.stats());
+    assert_eq!(summary.state, *reference.state());
+    assert_eq!(String::from_utf8(csv).unwrap(), expected);
 }
 
 fn arb_frame() -> impl Strategy<Value = (u64, CanFrame)> {

@@ -2,7 +2,7 @@
 //! log's timestamps, as fast as the machine goes; one CSV row per filter step.
 
 use crate::candump::Timestamp;
-use crate::candump::{LogReader, MalformedCounts, ReadError};
+use crate::candump::{ClassicData, Compact, LogReader, MalformedCounts, ReadError};
 use crate::config::Config;
 use crate::float_text::{push_f64, push_seconds};
 use crate::frame::CanFrame;
@@ -118,10 +118,21 @@ const BATCHES: usize = 4;
 /// CSV values of the filter steps they caused out, and their text when the
 /// filter thread had time to write it.
 struct Batch {
-    records: Vec<(Timestamp, CanFrame)>,
+    records: Vec<Entry>,
+    /// The frames of [`Entry::Other`], in order.
+    others: Vec<(Timestamp, CanFrame)>,
     rows: Vec<[f64; 7]>,
     /// `rows` as CSV lines, or empty: then the reading thread writes them.
     text: Vec<u8>,
+}
+
+/// One record of a [`Batch`]: a classical data frame in place (a third of
+/// a [`CanFrame`]'s size, so a third of the bytes crossing between the
+/// threads), any other frame in [`Batch::others`].
+enum Entry {
+    Classic(ClassicData),
+    /// Index into [`Batch::others`].
+    Other(usize),
 }
 
 /// Appends `rows` to `text` as CSV lines.
@@ -168,8 +179,15 @@ pub fn replay(
             while let Some(mut batch) = waiting.take() {
                 batch.rows.clear();
                 batch.text.clear();
-                for (t, frame) in &batch.records {
-                    if let Some(s) = pipeline.push(*t, frame) {
+                for entry in &batch.records {
+                    let step = match entry {
+                        Entry::Classic(c) => pipeline.push_data(c.timestamp, c.id, c.payload()),
+                        Entry::Other(i) => batch
+                            .others
+                            .get(*i)
+                            .and_then(|(t, frame)| pipeline.push(*t, frame)),
+                    };
+                    if let Some(s) = step {
                         batch.rows.push([
                             s.t_s,
                             s.fused.x_m,
@@ -228,6 +246,7 @@ fn feed<R: Read>(
     let mut spare: Vec<Batch> = (0..BATCHES)
         .map(|_| Batch {
             records: Vec::with_capacity(BATCH_RECORDS),
+            others: Vec::new(),
             rows: Vec::with_capacity(BATCH_RECORDS),
             text: Vec::new(),
         })
@@ -261,9 +280,14 @@ fn feed<R: Read>(
             b
         };
         batch.records.clear();
+        batch.others.clear();
         while batch.records.len() < BATCH_RECORDS {
-            match reader.next_record() {
-                Ok(Some(r)) => batch.records.push((r.timestamp, r.frame)),
+            match reader.next_compact() {
+                Ok(Some(Compact::Classic(c))) => batch.records.push(Entry::Classic(c)),
+                Ok(Some(Compact::Record(r))) => {
+                    batch.records.push(Entry::Other(batch.others.len()));
+                    batch.others.push((r.timestamp, r.frame));
+                }
                 Ok(None) => {
                     at_end = true;
                     break;
