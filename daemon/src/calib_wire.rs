@@ -807,7 +807,7 @@ impl CalibWire {
 
     /// Whether byte 7 of an 8-byte payload is its CRC-8.
     pub fn checksum_ok(&self, data: &[u8]) -> bool {
-        data.len() >= 8 && self.crc.verify(data).unwrap_or(false)
+        data.len() >= 8 && self.crc.is_valid(data)
     }
 
     fn seal(&self, which: usize, counter: u8, mut buf: [u8; 8]) -> [u8; 8] {

@@ -570,7 +570,7 @@ impl Pipeline {
             return Some(Reject::WrongDlc);
         }
         if let Some(c) = &input.checksum
-            && !c.verify(data).unwrap_or(false)
+            && !c.is_valid(data)
         {
             return Some(Reject::BadChecksum);
         }

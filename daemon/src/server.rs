@@ -573,7 +573,7 @@ impl OdomCommands {
     /// Checks a frame in the order the DBC states: CRC, counter, then what
     /// it asks. A frame with a bad CRC does not move the counter on.
     fn judge(&mut self, data: &[u8], standstill: bool) -> Result<OdomRequest, OdomRefusal> {
-        if !self.crc.verify(data).unwrap_or(false) {
+        if !self.crc.is_valid(data) {
             return Err(OdomRefusal::BadChecksum);
         }
         let counter = self.counter.raw(data).ok_or(OdomRefusal::BadChecksum)?;
