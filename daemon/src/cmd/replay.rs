@@ -261,7 +261,13 @@ fn feed<R: Read>(
         if batch.text.is_empty() {
             push_rows(&mut text, &batch.rows);
         } else {
-            text.extend_from_slice(&batch.text);
+            // Written as it is (a batch's text is over `WRITE_BYTES` but for
+            // the odd short batch), not copied behind `text` first.
+            if !text.is_empty() {
+                out.write_all(&text)?;
+                text.clear();
+            }
+            return out.write_all(&batch.text);
         }
         if text.len() >= WRITE_BYTES {
             out.write_all(&text)?;
