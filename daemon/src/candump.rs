@@ -364,8 +364,7 @@ impl<R: Read> LogReader<R> {
     }
 
     /// As [`Self::next_record`], the common line without building a
-    /// [`CanFrame`] (the interface name is not returned for it: it is
-    /// [`Self::iface`] after the call).
+    /// [`CanFrame`] and without its interface name.
     ///
     /// # Errors
     /// As [`Self::next_record`].
@@ -375,12 +374,6 @@ impl<R: Read> LogReader<R> {
             return Ok(Some(Compact::Classic(classic)));
         }
         Ok(self.next_record_general()?.map(Compact::Record))
-    }
-
-    /// The interface name of the last line [`Self::next_compact`] returned
-    /// as [`Compact::Classic`].
-    pub fn iface(&self) -> &str {
-        &self.iface
     }
 
     /// The next line if it has the common shape ([`parse_common`]), consumed.
