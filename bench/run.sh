@@ -70,10 +70,9 @@ rate() { awk -v n="$1" -v t="$2" 'BEGIN{ printf "%.0f", n / t }'; }
 
 echo "== timing ($runs runs each)" >&2
 # What timing a process costs here (date, /usr/bin/time, fork and exec):
-# ~5 ms on this host, a third of `wc -l`'s own time, so it is subtracted
+# ~4-5 ms on this host, a third of `wc -l`'s own time, so it is subtracted
 # from every wall time below (best of $runs runs of `true`).
-for _ in $(seq "$runs"); do time_once noop true; done
-overhead=${best_wall[noop]}
+best_of noop true; overhead=$wall
 # `wc -l` and replay alternate, so both meet the same load (on a shared
 # host it changes within seconds and moved `wc -l` alone 0.010-0.020 s):
 # the ratio of the best times, and the median of the run-by-run ratios.
