@@ -45,7 +45,7 @@ pub fn push_f64(out: &mut Vec<u8>, value: f64) {
 
 /// Appends `t_s` exactly as [`push_f64`] would, in a few dozen instructions
 /// instead of a few hundred when `t_s` is the `f64` nearest to a whole
-/// number of microseconds, as replay's times from log timestamps mostly are.
+/// number of microseconds, as replay's times from log timestamps are.
 ///
 /// Why the text of `n / 10⁶` is then `{}`'s: it reads back as `t_s` (that
 /// is what "nearest" means), and no other decimal with as few digits does,
@@ -207,8 +207,9 @@ mod tests {
 
     #[test]
     fn seconds_from_micros_match_display() {
-        // Replay's times: (t_us - t0) as f64 * 1e-6, over the first 3 s
-        // µs by µs and sparser up to 11.6 days, plus the values around them.
+        // Times as a product n · 1e-6 (replay's were, before they became
+        // n / 10⁶), over the first 3 s µs by µs and sparser up to 11.6 days,
+        // plus the values around them: whichever path each takes, `{}`'s text.
         let mut fast = 0;
         let mut check = |n: i64| {
             let t = n as f64 * 1e-6;

@@ -96,6 +96,15 @@ fn simulate_decode_replay_round_trip() {
         csv.lines().next().unwrap(),
         "t_s,x_m,y_m,heading_rad,odo_x_m,odo_y_m,odo_heading_rad"
     );
+    // Times are the log's microseconds as written: `0.07`, never the
+    // `0.06999999999999999` of a product by 1e-6.
+    let long_time = csv.lines().skip(1).find(|l| {
+        let t_s = l.split(',').next().unwrap_or("");
+        t_s.split('.')
+            .nth(1)
+            .is_some_and(|fraction| fraction.len() > 6)
+    });
+    assert_eq!(long_time, None);
     let rows = csv_rows(&csv);
     let t = csv_rows(&std::fs::read_to_string(&truth).unwrap());
     let (a, b) = (rows.last().unwrap(), t.last().unwrap());
