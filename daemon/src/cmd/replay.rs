@@ -4,7 +4,7 @@
 use crate::candump::Timestamp;
 use crate::candump::{ClassicData, Compact, LogReader, MalformedCounts, ReadError};
 use crate::config::Config;
-use crate::float_text::{push_f64, push_seconds};
+use crate::float_text::{push_comma_f64s, push_seconds};
 use crate::frame::CanFrame;
 use crate::pipeline::{Pipeline, Step};
 use crate::stats::Stats;
@@ -141,10 +141,7 @@ enum Entry {
 fn push_rows(text: &mut Vec<u8>, rows: &[[f64; 7]]) {
     for [t_s, values @ ..] in rows {
         push_seconds(text, *t_s);
-        for &v in values {
-            text.push(b',');
-            push_f64(text, v);
-        }
+        push_comma_f64s(text, values);
         text.push(b'\n');
     }
 }
@@ -290,6 +287,11 @@ fn feed<R: Read>(
         batch.records.clear();
         batch.others.clear();
         while batch.records.len() < BATCH_RECORDS {
+            // The common line first, then any other (or the end, or an error).
+            if let Some(c) = reader.next_classic() {
+                batch.records.push(Entry::Classic(c));
+                continue;
+            }
             match reader.next_compact() {
                 Ok(Some(Compact::Classic(c))) => batch.records.push(Entry::Classic(c)),
                 Ok(Some(Compact::Record(r))) => {
