@@ -77,38 +77,44 @@ fn fast_text(buffer: &mut zmij::Buffer, value: f64) -> Option<&[u8]> {
         .then_some(text)
 }
 
-/// Appends `t_s` exactly as [`push_f64`] would, in a few dozen instructions
-/// instead of a few hundred when `t_s` is the `f64` nearest to a whole
-/// number of microseconds, as replay's times from log timestamps are.
+/// Appends the time `micros / 10⁶` s exactly as [`push_f64`] appends the
+/// `f64` nearest to it (`micros as f64 / 1e6`, how replay's times are
+/// made), straight from the integer: a few dozen instructions, no float to
+/// take apart.
 ///
-/// Why the text of `n / 10⁶` is then `{}`'s: it reads back as `t_s` (that
-/// is what "nearest" means), and no other decimal with as few digits does,
-/// because below 10⁹ s the `f64` spacing is under 10⁻⁶ and any such decimal
-/// lies on the 10⁻⁶ grid too, at least 10⁻⁶ away. Everything else (and a
-/// product `n · 1e-6` that rounded away from `n / 10⁶`) goes to [`push_f64`].
-pub fn push_seconds(out: &mut Vec<u8>, t_s: f64) {
-    if t_s.is_sign_positive() && t_s < 1e9 {
-        let micros = (t_s * 1e6).round();
-        // `micros` is a whole number below 2⁵³: exact, and so is this division's rounding.
-        if micros / 1e6 == t_s {
-            let n = micros as u64;
-            let mut whole = itoa::Buffer::new();
-            out.extend_from_slice(whole.format(n / 1_000_000).as_bytes());
-            let mut fraction = (n % 1_000_000) as u32;
-            if fraction != 0 {
-                let mut digits = [b'0'; 7];
-                digits[0] = b'.';
-                for d in digits[1..].iter_mut().rev() {
-                    *d = b'0' + (fraction % 10) as u8;
-                    fraction /= 10;
-                }
-                let end = digits.iter().rposition(|&d| d != b'0').map_or(0, |i| i + 1);
-                out.extend_from_slice(&digits[..end]);
-            }
-            return;
-        }
+/// Why the text of `n / 10⁶` is `{}`'s for that `f64`: it reads back as it
+/// (that is what "nearest" means), and no other decimal with as few digits
+/// does, because below 10⁹ s the `f64` spacing is under 10⁻⁶ and any such
+/// decimal lies on the 10⁻⁶ grid too, at least 10⁻⁶ away. Beyond 10⁹ s,
+/// `{}` itself.
+pub fn push_micros_as_seconds(out: &mut Vec<u8>, micros: i64) {
+    let magnitude = micros.unsigned_abs();
+    if magnitude >= 1_000_000_000_000_000 {
+        push_f64(out, micros as f64 / 1e6);
+        return;
     }
-    push_f64(out, t_s);
+    if micros < 0 {
+        out.push(b'-');
+    }
+    push_micros_text(out, magnitude);
+}
+
+/// `micros / 10⁶` as a shortest decimal: whole seconds, then up to six
+/// digits after a point, trailing zeros dropped (`12.5`, `3`, `0.000001`).
+fn push_micros_text(out: &mut Vec<u8>, micros: u64) {
+    let mut whole = itoa::Buffer::new();
+    out.extend_from_slice(whole.format(micros / 1_000_000).as_bytes());
+    let mut fraction = (micros % 1_000_000) as u32;
+    if fraction != 0 {
+        let mut digits = [b'0'; 7];
+        digits[0] = b'.';
+        for d in digits[1..].iter_mut().rev() {
+            *d = b'0' + (fraction % 10) as u8;
+            fraction /= 10;
+        }
+        let end = digits.iter().rposition(|&d| d != b'0').map_or(0, |i| i + 1);
+        out.extend_from_slice(&digits[..end]);
+    }
 }
 
 /// Most digits after the point zmij's fixed layout can have: 4 zeros
@@ -245,44 +251,38 @@ mod tests {
         assert!(tie_possible(1_658_206_780_088_562.2, 1));
     }
 
-    fn seconds(v: f64) -> String {
-        let mut out = Vec::new();
-        push_seconds(&mut out, v);
-        String::from_utf8(out).unwrap()
+    #[test]
+    fn micros_as_seconds_match_display_over_days() {
+        // The first 3 s µs by µs, then sparser up to 11.6 days, both signs.
+        let sparse = (3_000_000..1_000_000_000_000).step_by(999_983);
+        for micros in (0..3_000_000).chain(sparse) {
+            for m in [micros, -micros] {
+                let mut out = Vec::new();
+                push_micros_as_seconds(&mut out, m);
+                let expected = format!("{}", m as f64 / 1e6);
+                assert_eq!(String::from_utf8(out).unwrap(), expected, "{m}");
+            }
+        }
     }
 
     #[test]
-    fn seconds_from_micros_match_display() {
-        // Times as a product n · 1e-6 (replay's were, before they became
-        // n / 10⁶), over the first 3 s µs by µs and sparser up to 11.6 days,
-        // plus the values around them: whichever path each takes, `{}`'s text.
-        let mut fast = 0;
-        let mut check = |n: i64| {
-            let t = n as f64 * 1e-6;
-            for v in [t, t.next_up(), t.next_down()] {
-                assert_eq!(seconds(v), format!("{v}"), "bits {:#x}", v.to_bits());
-            }
-            fast += usize::from(n as f64 / 1e6 == t);
-        };
-        for n in 0..3_000_000 {
-            check(n);
-        }
-        for n in (3_000_000..1_000_000_000_000).step_by(999_983) {
-            check(n);
-        }
-        // Most take the fast path (the rest are products rounded away from n/10⁶).
-        assert!(fast > 2_000_000, "{fast}");
-        for v in [
-            -0.0,
-            -1.0,
-            1e9,
-            1e9 - 1e-6,
-            999_999_999.999_999,
-            0.1 + 0.2,
-            1e-7,
-            f64::NAN,
+    fn micros_as_seconds_at_the_edges() {
+        for micros in [
+            0,
+            1,
+            -1,
+            10_000,
+            -500_000,
+            999_999_999_999_999,
+            -999_999_999_999_999,
+            1_000_000_000_000_000,
+            i64::MAX,
+            i64::MIN,
         ] {
-            assert_eq!(seconds(v), format!("{v}"), "{v:e}");
+            let mut out = Vec::new();
+            push_micros_as_seconds(&mut out, micros);
+            let expected = format!("{}", micros as f64 / 1e6);
+            assert_eq!(String::from_utf8(out).unwrap(), expected, "{micros}");
         }
     }
 
@@ -312,11 +312,16 @@ mod tests {
         }
 
         #[test]
-        fn any_f64_as_seconds_matches_display(bits in any::<u64>(), micros in 0u64..1_000_000_000_000_000) {
-            let v = f64::from_bits(bits);
-            prop_assert_eq!(seconds(v), format!("{}", v));
-            let t = micros as f64 * 1e-6;
-            prop_assert_eq!(seconds(t), format!("{}", t));
+        fn micros_as_seconds_match_display_of_the_quotient(
+            micros in prop_oneof![
+                -1_000_000_000_000_000_000i64..1_000_000_000_000_000_000,
+                -2_000_000_000_000_000i64..2_000_000_000_000_000,
+                -10_000_000i64..10_000_000,
+            ]
+        ) {
+            let mut out = Vec::new();
+            push_micros_as_seconds(&mut out, micros);
+            prop_assert_eq!(String::from_utf8(out).unwrap(), format!("{}", micros as f64 / 1e6));
         }
     }
 }

@@ -43,6 +43,9 @@ use canodom_fusion::{Pose, SteeringMap, VehicleParams, Wheel, WheelSet};
 pub struct Step {
     /// Seconds since the first input frame.
     pub t_s: f64,
+    /// The same time in whole microseconds, as the timestamps count it
+    /// (`t_s` is this divided by 10⁶): exact, for writing it as text.
+    pub t_us: i64,
     /// The fused pose (heading unwrapped: total turn).
     pub fused: Pose,
     /// Rear-wheel-only odometry (heading unwrapped).
@@ -544,7 +547,8 @@ impl Pipeline {
         // Divided, not multiplied by 1e-6: the quotient is the double nearest
         // the exact time, so it prints as `0.07`, where the product printed
         // `0.06999999999999999` in 3 of 10 rows (and took the slow text path).
-        let t_s = (t_us as i64 - t0 as i64) as f64 / 1e6;
+        let t_rel_us = t_us as i64 - t0 as i64;
+        let t_s = t_rel_us as f64 / 1e6;
         self.last_t_us = self.last_t_us.max(t_us);
         if let Some(phi) = steer_rad {
             self.steer_rad = Some(phi);
@@ -559,7 +563,7 @@ impl Pipeline {
         if rear {
             let rl = self.wheel(Wheel::RearLeft, t_s, raws.rear_left) * self.rear_scale.0;
             let rr = self.wheel(Wheel::RearRight, t_s, raws.rear_right) * self.rear_scale.1;
-            return self.step(t_s, t_us, rl, rr);
+            return self.step(t_s, t_rel_us, t_us, rl, rr);
         }
         None
     }
@@ -615,7 +619,7 @@ impl Pipeline {
         step.distance_m
     }
 
-    fn step(&mut self, t_s: f64, t_us: u64, rl: f64, rr: f64) -> Option<Step> {
+    fn step(&mut self, t_s: f64, t_rel_us: i64, t_us: u64, rl: f64, rr: f64) -> Option<Step> {
         let front_fresh = self.role_fresh(t_us, |i| i.front);
         let steer_fresh = self.role_fresh(t_us, |i| i.steering);
         let input = OdometryInput {
@@ -666,6 +670,7 @@ impl Pipeline {
         let rev = |m: f64, w: Wheel| m / (std::f64::consts::PI * self.params.wheel_diameter_m(w));
         let step = Step {
             t_s,
+            t_us: t_rel_us,
             fused,
             odometry: self.odometry,
             rear_rev: (rev(rl, Wheel::RearLeft), rev(rr, Wheel::RearRight)),

@@ -4,7 +4,7 @@
 use crate::candump::Timestamp;
 use crate::candump::{ClassicData, Compact, LogReader, MalformedCounts, ReadError};
 use crate::config::Config;
-use crate::float_text::{push_comma_f64s, push_seconds};
+use crate::float_text::{push_comma_f64s, push_micros_as_seconds};
 use crate::frame::CanFrame;
 use crate::pipeline::{Pipeline, Step};
 use crate::stats::Stats;
@@ -123,7 +123,7 @@ struct Batch {
     records: Vec<Entry>,
     /// The frames of [`Entry::Other`], in order.
     others: Vec<(Timestamp, CanFrame)>,
-    rows: Vec<[f64; 7]>,
+    rows: Vec<Row>,
     /// `rows` as CSV lines, or empty: then the reading thread writes them.
     text: Vec<u8>,
 }
@@ -137,11 +137,19 @@ enum Entry {
     Other(usize),
 }
 
+/// One CSV row: the step's time in microseconds since the first frame
+/// (written from the integer: exact, and no float to take apart) and the
+/// six pose values.
+struct Row {
+    t_us: i64,
+    values: [f64; 6],
+}
+
 /// Appends `rows` to `text` as CSV lines.
-fn push_rows(text: &mut Vec<u8>, rows: &[[f64; 7]]) {
-    for [t_s, values @ ..] in rows {
-        push_seconds(text, *t_s);
-        push_comma_f64s(text, values);
+fn push_rows(text: &mut Vec<u8>, rows: &[Row]) {
+    for row in rows {
+        push_micros_as_seconds(text, row.t_us);
+        push_comma_f64s(text, &row.values);
         text.push(b'\n');
     }
 }
@@ -187,15 +195,17 @@ pub fn replay(
                             .and_then(|(t, frame)| pipeline.push(*t, frame)),
                     };
                     if let Some(s) = step {
-                        batch.rows.push([
-                            s.t_s,
-                            s.fused.x_m,
-                            s.fused.y_m,
-                            s.fused.heading_rad,
-                            s.odometry.x_m,
-                            s.odometry.y_m,
-                            s.odometry.heading_rad,
-                        ]);
+                        batch.rows.push(Row {
+                            t_us: s.t_us,
+                            values: [
+                                s.fused.x_m,
+                                s.fused.y_m,
+                                s.fused.heading_rad,
+                                s.odometry.x_m,
+                                s.odometry.y_m,
+                                s.odometry.heading_rad,
+                            ],
+                        });
                     }
                 }
                 waiting = filter_in.try_recv().ok();
