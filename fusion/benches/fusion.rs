@@ -15,7 +15,10 @@ fn params() -> VehicleParams {
 }
 
 fn input(p: &VehicleParams, slip: f64) -> OdometryInput {
-    let phi = 0.2;
+    input_at(p, slip, 0.2)
+}
+
+fn input_at(p: &VehicleParams, slip: f64, phi: f64) -> OdometryInput {
     let [g_rl, g_rr, g_fl, g_fr] = wheel_distance_factors(p, phi);
     let ds = 0.001;
     OdometryInput {
@@ -61,6 +64,7 @@ fn ekf_step(c: &mut Criterion) {
     });
     // The default cadence: 49 predictions and one correction per 50 samples.
     let default = Ekf::new(EkfConfig::new(p)).unwrap_or_else(|e| panic!("{e}"));
+    // The steering angle held (the filter reuses what it derived from it).
     g.bench_function("step, default cadence (per sample)", |b| {
         let inp = input(&p, 0.0);
         let mut st = State::origin();
@@ -70,6 +74,23 @@ fn ekf_step(c: &mut Criterion) {
                 .unwrap_or_else(|e| panic!("{e}"));
         });
     });
+    // A new steering angle every sample: the tangent and square roots anew.
+    g.bench_function(
+        "step, default cadence, steering changing every sample",
+        |b| {
+            let inputs: Vec<_> = (0..64)
+                .map(|k| input_at(&p, 0.0, 0.2 + 1e-4 * f64::from(k)))
+                .collect();
+            let mut st = State::origin();
+            let mut k = 0;
+            b.iter(|| {
+                k = (k + 1) % inputs.len();
+                st = default
+                    .step(black_box(&st), black_box(&inputs[k]))
+                    .unwrap_or_else(|e| panic!("{e}"));
+            });
+        },
+    );
     g.finish();
 }
 
