@@ -96,15 +96,11 @@ pub fn push_micros_as_seconds(out: &mut Vec<u8>, micros: i64) {
     if micros < 0 {
         out.push(b'-');
     }
-    push_micros_text(out, magnitude);
-}
-
-/// `micros / 10⁶` as a shortest decimal: whole seconds, then up to six
-/// digits after a point, trailing zeros dropped (`12.5`, `3`, `0.000001`).
-fn push_micros_text(out: &mut Vec<u8>, micros: u64) {
+    // Whole seconds, then up to six digits after a point, trailing zeros
+    // dropped (`12.5`, `3`, `0.000001`).
     let mut whole = itoa::Buffer::new();
-    out.extend_from_slice(whole.format(micros / 1_000_000).as_bytes());
-    let mut fraction = (micros % 1_000_000) as u32;
+    out.extend_from_slice(whole.format(magnitude / 1_000_000).as_bytes());
+    let mut fraction = (magnitude % 1_000_000) as u32;
     if fraction != 0 {
         let mut digits = [b'0'; 7];
         digits[0] = b'.';

@@ -545,8 +545,8 @@ impl Pipeline {
         let t0 = *self.t0_us.get_or_insert(t_us);
         // Signed: a log's timestamps may go backwards; the decoders judge that.
         // Divided, not multiplied by 1e-6: the quotient is the double nearest
-        // the exact time, so it prints as `0.07`, where the product printed
-        // `0.06999999999999999` in 3 of 10 rows (and took the slow text path).
+        // the exact time (`0.07`, where the product was 0.06999999999999999
+        // in 3 of 10 steps), and `Step::t_us` is then its exact source.
         let t_rel_us = t_us as i64 - t0 as i64;
         let t_s = t_rel_us as f64 / 1e6;
         self.last_t_us = self.last_t_us.max(t_us);
