@@ -150,17 +150,6 @@ impl ClassicData {
     }
 }
 
-/// What [`LogReader::next_compact`] read: the common line as a
-/// [`ClassicData`], anything else (FD, remote and error frames, directions)
-/// as a whole [`Record`].
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Compact<'a> {
-    /// A classical data frame.
-    Classic(ClassicData),
-    /// Any other record.
-    Record(Record<'a>),
-}
-
 /// Why a line is not a valid record. Each has a stable snake_case name
 /// ([`Reason::as_str`]) for statistics.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -363,25 +352,13 @@ impl<R: Read> LogReader<R> {
         self.next_record_general()
     }
 
-    /// As [`Self::next_record`], the common line without building a
-    /// [`CanFrame`] and without its interface name.
-    ///
-    /// # Errors
-    /// As [`Self::next_record`].
-    #[inline]
-    pub fn next_compact(&mut self) -> Result<Option<Compact<'_>>, ReadError> {
-        if let Some(classic) = self.next_common() {
-            return Ok(Some(Compact::Classic(classic)));
-        }
-        Ok(self.next_record_general()?.map(Compact::Record))
-    }
-
     /// The next line if it is a classical data frame of the common shape
-    /// (nearly every line of a real log), consumed; `None` leaves the line
-    /// (any other kind, a malformed one, one not yet read whole, the end)
-    /// to [`Self::next_compact`], which returns the same as this for such
-    /// a line. A bulk reader calls this first: the record is built where
-    /// the caller stores it, not returned through memory.
+    /// (nearly every line of a real log), consumed, without building a
+    /// [`CanFrame`] or its interface name; `None` leaves the line (any other
+    /// kind, a malformed one, one not yet read whole, the end) to
+    /// [`Self::next_record_general`]. A bulk reader alternates the two:
+    /// together they read what [`Self::next_record`] reads, and the common
+    /// record is built where the caller stores it, not returned through memory.
     // `always` (perf): as a call, the caller copied the record from the
     // stack right after this wrote it there field by field, and each copy
     // stalled on store forwarding (a third of replay's feeding loop).
@@ -409,9 +386,14 @@ impl<R: Read> LogReader<R> {
         Some(line.classic)
     }
 
-    /// [`Self::next_record`] for any line: finds its end, skips blank lines
-    /// and enforces [`MAX_LINE_BYTES`], then parses with [`parse_line`].
-    fn next_record_general(&mut self) -> Result<Option<Record<'_>>, ReadError> {
+    /// [`Self::next_record`] without its fast path, for any line: finds its
+    /// end, skips blank lines and enforces [`MAX_LINE_BYTES`], then parses
+    /// with [`parse_line`]. For a bulk reader after [`Self::next_classic`]
+    /// returned `None` (trying the fast path again would only fail again).
+    ///
+    /// # Errors
+    /// As [`Self::next_record`].
+    pub fn next_record_general(&mut self) -> Result<Option<Record<'_>>, ReadError> {
         let (line_start, len) = loop {
             let window_end = self.end.min(self.start + MAX_LINE_BYTES + 1);
             let window = &self.buf[self.start..window_end];

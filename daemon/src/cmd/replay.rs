@@ -2,7 +2,7 @@
 //! log's timestamps, as fast as the machine goes; one CSV row per filter step.
 
 use crate::candump::Timestamp;
-use crate::candump::{ClassicData, Compact, LogReader, MalformedCounts, ReadError};
+use crate::candump::{ClassicData, LogReader, MalformedCounts, ReadError};
 use crate::config::Config;
 use crate::float_text::{push_comma_f64s, push_micros_as_seconds};
 use crate::frame::CanFrame;
@@ -302,9 +302,8 @@ fn feed<R: Read>(
                 batch.records.push(Entry::Classic(c));
                 continue;
             }
-            match reader.next_compact() {
-                Ok(Some(Compact::Classic(c))) => batch.records.push(Entry::Classic(c)),
-                Ok(Some(Compact::Record(r))) => {
+            match reader.next_record_general() {
+                Ok(Some(r)) => {
                     batch.records.push(Entry::Other(batch.others.len()));
                     batch.others.push((r.timestamp, r.frame));
                 }
