@@ -14,18 +14,33 @@
 # A guest that hangs, panics or prints no summary fails the run.
 #
 # Environment:
-#   VCAN_VM_TIMEOUT_S   time limit for the whole guest run (default 540 s)
-#   VCAN_SCENARIO_TIMEOUT_S  time limit per scenario inside the guest (default 150 s)
+#   VCAN_VM_TIMEOUT_S   time limit for the whole guest run (default 540 s, plus any
+#                       VCAN_LOAD_S beyond 30)
+#   VCAN_SCENARIO_TIMEOUT_S  time limit per scenario inside the guest (default 150 s, plus
+#                       any VCAN_LOAD_S beyond 30)
 #   VCAN_FILTER         only scenarios whose name contains this text
 #   VCAN_WORK_DIR       where the initramfs and console log go (default target/vcan-vm)
+#   VCAN_LOAD_S         seconds of full bus load in the hostile-bus scenario (default 30;
+#                       issue 8's live-cost figure is taken at 60), passed into the guest
 set -euo pipefail
 
 here=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
 root=$(cd "$here/.." && pwd)
 work=${VCAN_WORK_DIR:-$root/target/vcan-vm}
-vm_timeout_s=${VCAN_VM_TIMEOUT_S:-540}
-scenario_timeout_s=${VCAN_SCENARIO_TIMEOUT_S:-150}
 filter=${VCAN_FILTER:-}
+load_s=${VCAN_LOAD_S:-30}
+case "$load_s" in
+    ''|*[!0-9]*) load_s=0 ;;
+    *) load_s=$(( 10#$load_s )) ;;  # '060' is sixty, not octal
+esac
+if [ "$load_s" -le 0 ]; then
+    echo "vcan-vm: VCAN_LOAD_S must be a whole number of seconds above 0, not '${VCAN_LOAD_S}'" >&2
+    exit 2
+fi
+# A longer load lengthens the hostile scenario, and with it the whole run.
+extra_load_s=$(( load_s > 30 ? load_s - 30 : 0 ))
+vm_timeout_s=${VCAN_VM_TIMEOUT_S:-$(( 540 + extra_load_s ))}
+scenario_timeout_s=${VCAN_SCENARIO_TIMEOUT_S:-$(( 150 + extra_load_s ))}
 packages=(qemu-system-x86 linux-image-amd64 busybox-static can-utils cpio)
 
 say() { printf 'vcan-vm: %s\n' "$*" >&2; }
@@ -123,7 +138,7 @@ for m in can can-raw can-dev vcan vxcan can-gw; do
     insmod /modules/\$m.ko || echo "vcan-vm: insmod \$m failed"
 done
 export HOME=/tmp PATH=/bin:/sbin CANODOM_BIN=/bin/canodom CANODOM_SHARED_DBC=/work/shared/dbc \
-    CANODOM_REPO=/work/main RUST_BACKTRACE=0
+    CANODOM_REPO=/work/main VCAN_LOAD_S=$load_s RUST_BACKTRACE=0
 echo "vcan-vm: guest up after \$(cut -d' ' -f1 /proc/uptime) s"
 passed=0; failed=0
 for bin in /scenarios/*; do

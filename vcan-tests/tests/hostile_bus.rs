@@ -18,16 +18,18 @@
 //!
 //! Duration: `VCAN_LOAD_S` seconds of load (default 30, the issue 7 figure;
 //! issue 8 asks 60, which with the rest of the suite stays under the 10
-//! minutes only on an idle machine: set `VCAN_LOAD_S=60` to measure it).
+//! minutes only on an idle machine: `VCAN_LOAD_S=60 bash vcan-tests/run-vm.sh`
+//! measures it; the script passes the variable into the guest).
 #![cfg(feature = "vcan")]
 #![allow(clippy::unwrap_used, clippy::too_many_lines)]
 
 use canodom::candump::parse_line;
 use canodom::frame::{CanFrame, CanId};
+use canodom::state_file;
 use canodom_dbc::Checksum;
 use canodom_vcan_tests::{
-    PoseDecoder, Spawned, canodom_bin, canodom_replay, metric, read_candump, read_csv, repo_file,
-    run, scratch_dir, wait_until,
+    PoseDecoder, Spawned, angle_diff, canodom_bin, canodom_replay, metric, read_candump, read_csv,
+    repo_file, run, scratch_dir, wait_until,
 };
 use nix::errno::Errno;
 use nix::sys::socket::{MsgFlags, MultiHeaders, sendmmsg};
@@ -269,27 +271,19 @@ fn vm_hwm_kb(pid: u32) -> u64 {
 }
 
 /// A number after `"key":` in the state file (pretty JSON).
-fn json_num(text: &str, key: &str) -> f64 {
-    let pat = format!("\"{key}\":");
-    let at = text.find(&pat).unwrap_or_else(|| panic!("{key} in {text}")) + pat.len();
-    let v: String = text[at..]
-        .trim_start()
-        .chars()
-        .take_while(|c| c.is_ascii_digit() || matches!(c, '-' | '.' | 'e' | 'E' | '+'))
-        .collect();
-    v.parse().unwrap_or_else(|e| panic!("{key}: {v:?}: {e}"))
-}
-
 fn percentile(sorted: &[u64], p: f64) -> u64 {
     sorted[((sorted.len() - 1) as f64 * p).round() as usize]
 }
 
 #[test]
 fn hostile_bus_at_8000_fps_rejects_counted_exactly_no_drops_then_sigterm_saves_the_state() {
-    let load_s: u64 = std::env::var("VCAN_LOAD_S")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(30);
+    // run-vm.sh passes VCAN_LOAD_S in; a value that does not parse fails the
+    // scenario rather than quietly measuring the default 30 s.
+    let load_s: u64 = std::env::var("VCAN_LOAD_S").map_or(30, |v| {
+        v.parse()
+            .unwrap_or_else(|e| panic!("VCAN_LOAD_S: {v:?}: {e}"))
+    });
+    println!("vcan-metric: load_s = {load_s}");
     let dir = scratch_dir("hostile").unwrap();
     let config = repo_file("vcan-tests/fixtures/rc_car_hostile.toml");
     let full = dir.join("full.log");
@@ -376,23 +370,27 @@ fn hostile_bus_at_8000_fps_rejects_counted_exactly_no_drops_then_sigterm_saves_t
          real time (is the host busy?); the counts below assume frames arrive when they are due"
     );
 
-    // The state file: complete, and the daemon's exact counts.
-    let text = read(&state);
-    assert!(text.ends_with("}\n"), "state file incomplete:\n{text}");
-    let n = |k: &str| json_num(&text, k) as u64;
-    metric("state_frames", n("frames"));
+    // The state file: complete (it parses, every field there), and the
+    // daemon's exact counts.
+    let saved = state_file::load(&state).unwrap_or_else(|e| panic!("{e}:\n{}", read(&state)));
+    let rejects = &saved.stats.rejects;
+    let reject = |k: &str| {
+        *rejects
+            .get(k)
+            .unwrap_or_else(|| panic!("no reject count {k:?} in {rejects:?}"))
+    };
+    metric("state_frames", saved.stats.frames);
     metric("expected_frames_on_input_ids", exp.on_input_ids);
     metric("expected_truncated", exp.truncated);
     metric("expected_bad_checksum", exp.bad_checksum);
     metric("expected_bad_counter", exp.bad_counter);
     assert_eq!(
-        n("frames"),
-        exp.on_input_ids,
-        "frames on the daemon's ids: {text}"
+        saved.stats.frames, exp.on_input_ids,
+        "frames on the daemon's ids: {saved:?}"
     );
-    assert_eq!(n("truncated"), exp.truncated, "{text}");
-    assert_eq!(n("bad_checksum"), exp.bad_checksum, "{text}");
-    assert_eq!(n("bad_counter"), exp.bad_counter, "{text}");
+    assert_eq!(reject("truncated"), exp.truncated, "{rejects:?}");
+    assert_eq!(reject("bad_checksum"), exp.bad_checksum, "{rejects:?}");
+    assert_eq!(reject("bad_counter"), exp.bad_counter, "{rejects:?}");
     for k in [
         "wrong_dlc",
         "unknown_id",
@@ -400,9 +398,9 @@ fn hostile_bus_at_8000_fps_rejects_counted_exactly_no_drops_then_sigterm_saves_t
         "non_finite",
         "filter_error",
     ] {
-        assert_eq!(n(k), 0, "{k}: {text}");
+        assert_eq!(reject(k), 0, "{k}: {rejects:?}");
     }
-    assert_eq!(n("frames_lost"), 0, "{text}");
+    assert_eq!(saved.frames_lost, 0, "{saved:?}");
     let drops_line = log
         .lines()
         .rev()
@@ -414,8 +412,8 @@ fn hostile_bus_at_8000_fps_rejects_counted_exactly_no_drops_then_sigterm_saves_t
         .unwrap_or_else(|| panic!("{drops_line}"));
     metric("daemon_kernel_drops", kernel_drops);
     assert_eq!(kernel_drops, 0);
-    metric("wheel_gap", n("wheel_gap"));
-    metric("wheel_fault", n("wheel_fault"));
+    metric("wheel_gap", reject("wheel_gap"));
+    metric("wheel_fault", reject("wheel_fault"));
 
     // Poses: decoded, valid once trusted, and exactly replay's.
     let (rec, malformed) = read_candump(&dir.join("bus.log")).unwrap();
@@ -446,16 +444,20 @@ fn hostile_bus_at_8000_fps_rejects_counted_exactly_no_drops_then_sigterm_saves_t
         last.encodes(row[1], row[2], row[3]),
         "daemon's last pose {last:?} vs replay {row:?}"
     );
-    let (sx, sy, sh) = (
-        json_num(&text, "x_m"),
-        json_num(&text, "y_m"),
-        json_num(&text, "heading_rad"),
-    );
+    // Replay's heading is the total turn, as the state's unwrapped one; the
+    // state's `heading_rad` is the same angle in (−π, π] (past half a turn
+    // of the drive the two differ by whole turns).
+    let pose = saved
+        .pose
+        .unwrap_or_else(|| panic!("no pose saved: {saved:?}"));
     assert!(
-        (sx - row[1]).abs() < 1e-5 && (sy - row[2]).abs() < 1e-5 && (sh - row[3]).abs() < 1e-4,
-        "state pose ({sx}, {sy}, {sh}) vs replay {row:?}"
+        (pose.x_m - row[1]).abs() < 1e-5
+            && (pose.y_m - row[2]).abs() < 1e-5
+            && (pose.heading_unwrapped_rad - row[3]).abs() < 1e-4
+            && angle_diff(pose.heading_rad, row[3]).abs() < 1e-4,
+        "state pose {pose:?} vs replay {row:?}"
     );
-    assert_eq!(n("steps"), rows.len() as u64, "{replay_err}");
+    assert_eq!(saved.stats.steps, rows.len() as u64, "{replay_err}");
     // And against the simulator's truth at the end of the drive.
     let truth = read_csv(&truth_path).unwrap();
     let t = truth
@@ -468,7 +470,7 @@ fn hostile_bus_at_8000_fps_rejects_counted_exactly_no_drops_then_sigterm_saves_t
         .take_while(|w| w[1][0] <= t[0])
         .map(|w| (w[1][1] - w[0][1]).hypot(w[1][2] - w[0][2]))
         .sum();
-    let end_m = (sx - t[1]).hypot(sy - t[2]);
+    let end_m = (pose.x_m - t[1]).hypot(pose.y_m - t[2]);
     metric("hostile_path_m", format!("{path_m:.2}"));
     metric("hostile_end_error_m", format!("{end_m:.4}"));
     assert!(
