@@ -294,6 +294,7 @@ pub async fn run<C: Connector>(
         publish_on_update: config.output.publish_on_update,
         cmd_id,
         odom_commands,
+        odom_refusals: OdomRefusals::default(),
         notifier,
         observers,
         clock: None,
@@ -520,6 +521,9 @@ impl<C: Connector> LinkTask<C> {
 /// What a checked `ODOM_CMD` asks for.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum OdomRequest {
+    /// NONE: nothing (a sender that transmits ODOM_CMD cyclically sends
+    /// this between requests).
+    Nothing,
     /// Publish the pose now.
     PublishNow,
     /// Move the pose to the origin (the vehicle stands still).
@@ -541,9 +545,51 @@ enum OdomRefusal {
     /// RESET_POSE while the vehicle moves: the origin would be a blur.
     #[error("RESET_POSE while the vehicle moves")]
     Moving,
-    /// An `ODOM_REQUEST` value this daemon does not know (0 is NONE).
-    #[error("request {0} is not one of PUBLISH_NOW (1), RESET_POSE (2)")]
+    /// An `ODOM_REQUEST` value this daemon does not know.
+    #[error("request {0} is not one of NONE (0), PUBLISH_NOW (1), RESET_POSE (2)")]
     Unknown(u64),
+}
+
+impl OdomRefusal {
+    /// Kinds of refusal, for [`OdomRefusals`].
+    const KINDS: usize = 5;
+
+    /// This refusal's kind, `0..KINDS`, whatever counter or request it carries.
+    fn kind(self) -> usize {
+        match self {
+            Self::BadChecksum => 0,
+            Self::RepeatedCounter(_) => 1,
+            Self::BadArmingCode => 2,
+            Self::Moving => 3,
+            Self::Unknown(_) => 4,
+        }
+    }
+}
+
+/// Refused `ODOM_CMD` frames: all counted (the DBC promises that frames
+/// failing a check are dropped and counted), but each kind logged only the
+/// first time in a statistics period, so a sender that gets every frame
+/// wrong at bus rate cannot flood the log.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+struct OdomRefusals {
+    /// Refusals since start.
+    total: u64,
+    /// The kinds already logged in this period.
+    logged: [bool; OdomRefusal::KINDS],
+}
+
+impl OdomRefusals {
+    /// Counts `refusal`; true when it is the first of its kind this period
+    /// and so is to be logged.
+    fn count(&mut self, refusal: OdomRefusal) -> bool {
+        self.total += 1;
+        !std::mem::replace(&mut self.logged[refusal.kind()], true)
+    }
+
+    /// A statistics line was written: every kind may be logged again.
+    fn new_period(&mut self) {
+        self.logged = [false; OdomRefusal::KINDS];
+    }
 }
 
 /// The checks of `ODOM_CMD` (pure: frame bytes in, decision out).
@@ -581,6 +627,7 @@ impl OdomCommands {
             return Err(OdomRefusal::RepeatedCounter(counter));
         }
         match self.request.raw(data).ok_or(OdomRefusal::BadChecksum)? {
+            0 => Ok(OdomRequest::Nothing),
             1 => Ok(OdomRequest::PublishNow),
             2 if self
                 .arming_code
@@ -607,6 +654,7 @@ struct PipelineTask<Tx> {
     publish_on_update: bool,
     cmd_id: CanId,
     odom_commands: OdomCommands,
+    odom_refusals: OdomRefusals,
     notifier: Option<Notifier>,
     observers: Observers,
     /// Last frame's bus timestamp and when it arrived: the pose flags are
@@ -664,8 +712,10 @@ impl<Tx: FrameSink + Clone> PipelineTask<Tx> {
                         fps = format!("{:.1}", (s.frames - last_stats.frames) as f64 / secs),
                         stats = %s, lost = self.lost, poses = self.published,
                         outages = self.outages.load(Ordering::Relaxed),
+                        odom_cmd_refused = self.odom_refusals.total,
                         "statistics"
                     );
+                    self.odom_refusals.new_period();
                     last_stats = s;
                     last_stats_at = Instant::now();
                 }
@@ -684,7 +734,11 @@ impl<Tx: FrameSink + Clone> PipelineTask<Tx> {
         if let Some(n) = &self.notifier {
             let _ = n.stopping();
         }
-        info!(stats = %self.pipeline.stats(), "pipeline stopped");
+        info!(
+            stats = %self.pipeline.stats(),
+            odom_cmd_refused = self.odom_refusals.total,
+            "pipeline stopped"
+        );
         Summary {
             stats: *self.pipeline.stats(),
             state: *self.pipeline.state(),
@@ -753,18 +807,28 @@ impl<Tx: FrameSink + Clone> PipelineTask<Tx> {
     }
 
     /// `ODOM_CMD`: PUBLISH_NOW publishes at once; RESET_POSE moves the pose
-    /// to the origin (at standstill) and publishes it; anything refused is
-    /// logged with its reason.
+    /// to the origin (at standstill) and publishes it; NONE does nothing;
+    /// anything refused is counted, and logged with its reason (see
+    /// [`OdomRefusals`]).
     async fn command(&mut self, t: Timestamp, frame: &CanFrame) {
         let standstill = self.live.is_standstill(t);
         match self.odom_commands.judge(frame.data(), standstill) {
+            Ok(OdomRequest::Nothing) => {}
             Ok(OdomRequest::PublishNow) => self.publish().await,
             Ok(OdomRequest::ResetPose) => {
                 self.pipeline.reset_pose();
                 info!("pose reset to the origin by ODOM_CMD RESET_POSE");
                 self.publish().await;
             }
-            Err(refusal) => warn!(%refusal, "ODOM_CMD ignored"),
+            Err(refusal) => {
+                if self.odom_refusals.count(refusal) {
+                    warn!(
+                        %refusal,
+                        refused_since_start = self.odom_refusals.total,
+                        "ODOM_CMD ignored (more of this kind are only counted until the next statistics line)"
+                    );
+                }
+            }
         }
     }
 
@@ -907,6 +971,16 @@ mod tests {
             open.judge(&odom_cmd(7, 0, 3), true),
             Err(OdomRefusal::Unknown(7))
         );
+        // NONE, as a cyclic sender sends between requests: nothing to do,
+        // nothing refused (moving or not), and it takes its counter.
+        assert_eq!(
+            open.judge(&odom_cmd(0, 0, 5), false),
+            Ok(OdomRequest::Nothing)
+        );
+        assert_eq!(
+            open.judge(&odom_cmd(0, 0, 5), false),
+            Err(OdomRefusal::RepeatedCounter(5))
+        );
         let mut bad = odom_cmd(2, 0, 4);
         bad[7] ^= 1;
         assert_eq!(open.judge(&bad, true), Err(OdomRefusal::BadChecksum));
@@ -931,6 +1005,28 @@ mod tests {
             armed.judge(&odom_cmd(1, 0, 2), false),
             Ok(OdomRequest::PublishNow)
         );
+    }
+
+    #[test]
+    fn odom_refusals_are_all_counted_and_each_kind_logged_once_a_period() {
+        let mut refusals = OdomRefusals::default();
+        // A sender with a broken CRC at bus rate: one line, every frame counted.
+        let logged = (0..1000)
+            .filter(|_| refusals.count(OdomRefusal::BadChecksum))
+            .count();
+        assert_eq!((logged, refusals.total), (1, 1000));
+        // Another kind in the same period is news; its counter value is not a kind.
+        assert!(refusals.count(OdomRefusal::RepeatedCounter(3)));
+        assert!(!refusals.count(OdomRefusal::RepeatedCounter(4)));
+        assert!(refusals.count(OdomRefusal::Moving));
+        assert!(refusals.count(OdomRefusal::BadArmingCode));
+        assert!(refusals.count(OdomRefusal::Unknown(9)));
+        assert!(!refusals.count(OdomRefusal::Unknown(10)));
+        // After a statistics line each kind is logged again; the total runs on.
+        refusals.new_period();
+        assert!(refusals.count(OdomRefusal::BadChecksum));
+        assert!(!refusals.count(OdomRefusal::BadChecksum));
+        assert_eq!(refusals.total, 1008);
     }
 
     #[test]
