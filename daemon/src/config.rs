@@ -187,6 +187,8 @@ struct RawCalibration {
     max_steer_offset_deg: f64,
     max_tread_std_m: f64,
     max_ratio_std: f64,
+    max_steer_gain_std_rel: f64,
+    max_steer_offset_std_deg: f64,
     ack_timeout_ms: u64,
     writeback_retries: u32,
     max_history: usize,
@@ -204,6 +206,10 @@ impl Default for RawCalibration {
             max_steer_offset_deg: 10.0,
             max_tread_std_m: 0.005,
             max_ratio_std: 0.002,
+            // §10's reference fit: rms 0.07°, gain within 0.2 %; these are
+            // several times that, so only a fit whose arcs disagree fails.
+            max_steer_gain_std_rel: 0.02,
+            max_steer_offset_std_deg: 0.5,
             ack_timeout_ms: 500,
             writeback_retries: 3,
             max_history: crate::persist::DEFAULT_MAX_HISTORY,
@@ -316,6 +322,12 @@ pub struct CalibrationConfig {
     pub max_tread_std_m: f64,
     /// Largest diameter-ratio standard deviation a commit accepts (default 0.002).
     pub max_ratio_std: f64,
+    /// Largest steering-gain standard deviation a steering commit accepts,
+    /// relative to the nominal gain as `CALIB_STATUS` shows it (default 0.02).
+    pub max_steer_gain_std_rel: f64,
+    /// Largest steering-offset standard deviation a steering commit
+    /// accepts, rad (configured in degrees; default 0.5°).
+    pub max_steer_offset_std_rad: f64,
     /// How long to wait for `CALIB_ACK` after sending `CALIB_PARAMS` (default 500 ms).
     pub ack_timeout: std::time::Duration,
     /// Resends after the first without an ACK before the write-back fails (default 3).
@@ -906,6 +918,16 @@ impl Validator<'_> {
             bounds,
             max_tread_std_m: self.positive("calibration.max_tread_std_m", c.max_tread_std_m)?,
             max_ratio_std: self.positive("calibration.max_ratio_std", c.max_ratio_std)?,
+            max_steer_gain_std_rel: self.positive(
+                "calibration.max_steer_gain_std_rel",
+                c.max_steer_gain_std_rel,
+            )?,
+            max_steer_offset_std_rad: self
+                .positive(
+                    "calibration.max_steer_offset_std_deg",
+                    c.max_steer_offset_std_deg,
+                )?
+                .to_radians(),
             ack_timeout: std::time::Duration::from_millis(c.ack_timeout_ms),
             writeback_retries: c.writeback_retries,
             max_history: c.max_history.max(1),

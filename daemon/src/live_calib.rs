@@ -784,7 +784,7 @@ impl LiveCalibration {
     }
 
     /// Commits a steering fit the way a rear result is committed: bounds,
-    /// stored, applied at standstill, written back.
+    /// uncertainty limits, stored, applied at standstill, written back.
     fn commit_steering(&mut self, t_s: f64, out: &mut Vec<Output>) -> Reason {
         let Some(fit) = self.steering.as_ref().and_then(|s| s.fit.clone()) else {
             return Reason::NothingToCommit;
@@ -795,6 +795,15 @@ impl LiveCalibration {
         let values = self.steering_values(&fit);
         if self.config.bounds.check(&values).is_err() {
             return Reason::OutOfBounds;
+        }
+        // The figures the operator saw on the result pages.
+        let (gain_std, offset_std_rad) = Self::fit_std(&fit);
+        let gain_std_rel = gain_std / self.nominal.steering().gain.abs();
+        let uncertain = |std: f64, max: f64| std.is_nan() || std > max;
+        if uncertain(gain_std_rel, self.config.max_steer_gain_std_rel)
+            || uncertain(offset_std_rad, self.config.max_steer_offset_std_rad)
+        {
+            return Reason::UncertaintyTooHigh;
         }
         let mut file = self.file.clone();
         let created = t_s.max(0.0) as u64;
@@ -1585,5 +1594,57 @@ mod tests {
         assert_eq!(params_sent(&w, &out), vec![2; 4]);
         assert_eq!(stored.lock().unwrap().len(), 1);
         assert_eq!(live.file().current.as_ref().unwrap().version, 2);
+    }
+
+    #[test]
+    fn a_steering_fit_whose_arcs_disagree_is_refused_as_too_uncertain() {
+        let c = config();
+        let nominal = *Pipeline::new(&c).unwrap().params();
+        let n = nominal.steering();
+        let (mut live, w, stored) = core(&c, calibrated(&nominal), false);
+        let _ = live.on_command(
+            at(0),
+            &cmd(&w, w.encode_command(Command::StartSteering, 0, 1)),
+        );
+        // Each arc driven by a map 2° off the last the other way (a sloppy
+        // steering linkage): within the ±10° bounds, but no line fits them.
+        let mut ms = 0;
+        for (u, offset_deg) in [(-20.0, 2.0), (-8.0, -2.0), (5.0, 2.0), (18.0, -2.0)] {
+            let truth = nominal
+                .with_steering(SteeringMap {
+                    gain: n.gain,
+                    offset_rad: n.offset_rad + f64::to_radians(offset_deg),
+                })
+                .unwrap();
+            drive_arc(&mut live, &truth, u, &mut ms);
+        }
+        let out = live.on_command(at(ms), &cmd(&w, w.encode_command(Command::Compute, 0, 2)));
+        assert_eq!(counts(&w, &out).cmd_reason, Reason::None);
+        let offset_std_rad = out
+            .iter()
+            .find_map(|o| match o {
+                Output::Send(f) if f.id() == w.status_id() => match w.decode_status(f.data()) {
+                    Ok((
+                        StatusPage::ResultExtra {
+                            steer_offset_std_rad,
+                            ..
+                        },
+                        _,
+                    )) => Some(steer_offset_std_rad),
+                    _ => None,
+                },
+                _ => None,
+            })
+            .expect("steering result page");
+        assert!(
+            offset_std_rad > c.calibration.max_steer_offset_std_rad,
+            "offset std {:.3}°",
+            offset_std_rad.to_degrees()
+        );
+        let out = live.on_command(at(ms), &cmd(&w, w.encode_command(Command::Commit, 0, 3)));
+        assert_eq!(counts(&w, &out).cmd_reason, Reason::UncertaintyTooHigh);
+        assert!(stored.lock().unwrap().is_empty(), "nothing stored");
+        assert!(!out.iter().any(|o| matches!(o, Output::Apply(..))));
+        assert_eq!(live.file().current.as_ref().unwrap().version, 1);
     }
 }
