@@ -1083,24 +1083,31 @@ mod tests {
     }
 
     /// Status page 1 among the outputs.
+    /// The CALIB_STATUS pages among `out`, decoded, in order.
+    fn status_pages<'a>(
+        w: &'a CalibWire,
+        out: &'a [Output],
+    ) -> impl Iterator<Item = StatusPage> + 'a {
+        out.iter().filter_map(|o| match o {
+            Output::Send(f) if f.id() == w.status_id() => {
+                w.decode_status(f.data()).ok().map(|(page, _)| page)
+            }
+            _ => None,
+        })
+    }
+
     fn counts(w: &CalibWire, out: &[Output]) -> Counts {
-        out.iter()
-            .find_map(|o| match o {
-                Output::Send(f) if f.id() == w.status_id() => match w.decode_status(f.data()) {
-                    Ok((StatusPage::Counts(c), _)) => Some(c),
-                    _ => None,
-                },
+        status_pages(w, out)
+            .find_map(|page| match page {
+                StatusPage::Counts(c) => Some(c),
                 _ => None,
             })
             .expect("status page 1")
     }
 
     fn progress(w: &CalibWire, out: &[Output]) -> Option<Progress> {
-        out.iter().find_map(|o| match o {
-            Output::Send(f) if f.id() == w.status_id() => match w.decode_status(f.data()) {
-                Ok((StatusPage::Progress(p), _)) => Some(p),
-                _ => None,
-            },
+        status_pages(w, out).find_map(|page| match page {
+            StatusPage::Progress(p) => Some(p),
             _ => None,
         })
     }
@@ -1545,20 +1552,13 @@ mod tests {
         let out = live.on_command(at(ms), &cmd(&w, w.encode_command(Command::Compute, 0, 2)));
         assert_eq!(counts(&w, &out).cmd_reason, Reason::None);
         assert_eq!(progress(&w, &out).unwrap().state, State::Computed);
-        let (wire_gain, wire_offset_rad) = out
-            .iter()
-            .find_map(|o| match o {
-                Output::Send(f) if f.id() == w.status_id() => match w.decode_status(f.data()) {
-                    Ok((
-                        StatusPage::ResultSteering {
-                            steer_gain,
-                            steer_offset_rad,
-                            ..
-                        },
-                        _,
-                    )) => Some((steer_gain, steer_offset_rad)),
-                    _ => None,
-                },
+        let (wire_gain, wire_offset_rad) = status_pages(&w, &out)
+            .find_map(|page| match page {
+                StatusPage::ResultSteering {
+                    steer_gain,
+                    steer_offset_rad,
+                    ..
+                } => Some((steer_gain, steer_offset_rad)),
                 _ => None,
             })
             .expect("steering result page");
@@ -1620,19 +1620,12 @@ mod tests {
         }
         let out = live.on_command(at(ms), &cmd(&w, w.encode_command(Command::Compute, 0, 2)));
         assert_eq!(counts(&w, &out).cmd_reason, Reason::None);
-        let offset_std_rad = out
-            .iter()
-            .find_map(|o| match o {
-                Output::Send(f) if f.id() == w.status_id() => match w.decode_status(f.data()) {
-                    Ok((
-                        StatusPage::ResultExtra {
-                            steer_offset_std_rad,
-                            ..
-                        },
-                        _,
-                    )) => Some(steer_offset_std_rad),
-                    _ => None,
-                },
+        let offset_std_rad = status_pages(&w, &out)
+            .find_map(|page| match page {
+                StatusPage::ResultExtra {
+                    steer_offset_std_rad,
+                    ..
+                } => Some(steer_offset_std_rad),
                 _ => None,
             })
             .expect("steering result page");
