@@ -41,4 +41,5 @@ pub mod sd_notify;
 pub mod server;
 pub mod state_file;
 pub mod stats;
+pub mod steering_report;
 pub mod vehicle;

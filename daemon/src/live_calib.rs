@@ -24,7 +24,7 @@ use crate::candump::Timestamp;
 use crate::config::CalibrationConfig;
 use crate::frame::CanFrame;
 use crate::persist::{ParamFile, ParamValues};
-use crate::report::CalibrationReport;
+use crate::report::{CalibrationReport, Report, SteeringReport};
 use canodom_calib::CalibrationResult;
 use canodom_calib::RearParams;
 use canodom_calib::run::{InputFault, RevSample, Run};
@@ -74,8 +74,8 @@ pub enum Output {
     /// Put this set (version ≥ 1) into the running odometry now (the vehicle
     /// stands still).
     Apply(u16, ParamValues),
-    /// Write this report of a committed session (version, report).
-    Report(u16, Box<CalibrationReport>),
+    /// Write this report of a committed session or steering map (version, report).
+    Report(u16, Box<Report>),
 }
 
 /// The parameter write-back in progress.
@@ -623,7 +623,12 @@ impl LiveCalibration {
         if let Some((track, runs)) = self.computed_from.take() {
             out.push(Output::Report(
                 version,
-                Box::new(CalibrationReport::build(&result, track, &runs, &[])),
+                Box::new(Report::Rear(CalibrationReport::build(
+                    &result,
+                    track,
+                    &runs,
+                    &[],
+                ))),
             ));
         }
         self.adopt(t_s, version, values, out);
@@ -799,6 +804,7 @@ impl LiveCalibration {
         // The figures the operator saw on the result pages.
         let (gain_std, offset_std_rad) = Self::fit_std(&fit);
         let gain_std_rel = gain_std / self.nominal.steering().gain.abs();
+        let before = self.current_values();
         let uncertain = |std: f64, max: f64| std.is_nan() || std > max;
         if uncertain(gain_std_rel, self.config.max_steer_gain_std_rel)
             || uncertain(offset_std_rad, self.config.max_steer_offset_std_rad)
@@ -816,6 +822,18 @@ impl LiveCalibration {
         }
         self.file = file;
         self.steering = None;
+        out.push(Output::Report(
+            version,
+            Box::new(Report::Steering(SteeringReport::build(
+                &fit,
+                SteeringMap {
+                    gain: before.steering_gain,
+                    offset_rad: before.steering_offset_rad,
+                },
+                gain_std_rel,
+                offset_std_rad,
+            ))),
+        ));
         self.adopt(t_s, version, values, out);
         Reason::None
     }
@@ -1594,6 +1612,21 @@ mod tests {
         assert_eq!(params_sent(&w, &out), vec![2; 4]);
         assert_eq!(stored.lock().unwrap().len(), 1);
         assert_eq!(live.file().current.as_ref().unwrap().version, 2);
+        // Its report, for version 2: the arcs, the fitted map, the one before.
+        let report = out
+            .iter()
+            .find_map(|o| match o {
+                Output::Report(2, r) => match r.as_ref() {
+                    Report::Steering(s) => Some(s),
+                    Report::Rear(_) => None,
+                },
+                _ => None,
+            })
+            .expect("steering report");
+        assert_eq!(report.arcs.len(), 4);
+        assert_eq!(report.calibrated.gain, values.steering_gain);
+        assert_eq!(report.before.gain, n.gain);
+        assert!(report.rms_rad < 1e-3, "{report:?}");
     }
 
     #[test]

@@ -16,8 +16,10 @@
 //! `fsync` of the directory), so a reader, or a crash, never sees half a
 //! report. [`CalibrationReport::build`] is pure; only [`write_report`] does
 //! I/O, which is why the live daemon can build a report on commit and hand
-//! the writing to a blocking task.
+//! the writing to a blocking task. A committed steering map has its own
+//! report ([`SteeringReport`]), written the same way.
 
+pub use crate::steering_report::SteeringReport;
 use canodom_calib::methods::centroids;
 use canodom_calib::{CalibrationResult, Direction, Method, RearParams, Run, Track};
 use canodom_fusion::Pose;
@@ -690,6 +692,65 @@ fn write_durable(path: &Path, text: &str) -> Result<(), ReportError> {
     })
 }
 
+/// A report as the two files of its directory: what [`write_report`] writes.
+pub trait ReportFiles {
+    /// The numbers, as JSON text.
+    ///
+    /// # Errors
+    /// A value serde cannot write.
+    fn json(&self) -> Result<String, ReportError>;
+    /// The picture, as SVG text.
+    ///
+    /// # Errors
+    /// The plot cannot be drawn.
+    fn svg(&self) -> Result<String, ReportError>;
+}
+
+impl ReportFiles for CalibrationReport {
+    fn json(&self) -> Result<String, ReportError> {
+        self.to_json()
+    }
+    fn svg(&self) -> Result<String, ReportError> {
+        self.to_svg()
+    }
+}
+
+impl ReportFiles for SteeringReport {
+    fn json(&self) -> Result<String, ReportError> {
+        self.to_json()
+    }
+    fn svg(&self) -> Result<String, ReportError> {
+        self.to_svg()
+    }
+}
+
+/// The report of a committed live calibration: of the rear parameters or
+/// of the steering map.
+#[derive(Debug, Clone, PartialEq)]
+// It travels boxed (`live_calib::Output::Report`), so the sizes do not matter.
+#[allow(clippy::large_enum_variant)]
+pub enum Report {
+    /// Tread and wheel diameters (the track runs).
+    Rear(CalibrationReport),
+    /// The steering map (the constant-command arcs).
+    Steering(SteeringReport),
+}
+
+impl ReportFiles for Report {
+    fn json(&self) -> Result<String, ReportError> {
+        match self {
+            Self::Rear(r) => r.json(),
+            Self::Steering(r) => r.json(),
+        }
+    }
+    fn svg(&self) -> Result<String, ReportError> {
+        match self {
+            Self::Rear(r) => r.svg(),
+            Self::Steering(r) => r.svg(),
+        }
+    }
+}
+
 /// Writes `calibration.svg` and `calibration.json` into `dir` (created if
 /// missing), each atomically; returns their paths (SVG, JSON).
 ///
@@ -697,14 +758,14 @@ fn write_durable(path: &Path, text: &str) -> Result<(), ReportError> {
 /// The directory or a file cannot be written, or the plot cannot be drawn.
 pub fn write_report(
     dir: &Path,
-    report: &CalibrationReport,
+    report: &impl ReportFiles,
 ) -> Result<(PathBuf, PathBuf), ReportError> {
     std::fs::create_dir_all(dir).map_err(|source| ReportError::Io {
         path: dir.to_path_buf(),
         source,
     })?;
-    let svg = report.to_svg()?;
-    let json = report.to_json()?;
+    let svg = report.svg()?;
+    let json = report.json()?;
     let (svg_path, json_path) = (dir.join(SVG_NAME), dir.join(JSON_NAME));
     write_durable(&svg_path, &svg)?;
     write_durable(&json_path, &json)?;

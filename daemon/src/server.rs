@@ -857,7 +857,7 @@ impl<Tx: FrameSink + Clone> PipelineTask<Tx> {
                     let dir = self.report_root.join(version.to_string());
                     // SVG rendering is file work: keep it off the frame path.
                     tokio::task::spawn_blocking(move || {
-                        match crate::report::write_report(&dir, &report) {
+                        match crate::report::write_report(&dir, &*report) {
                             Ok((svg, _)) => {
                                 info!(report = %svg.display(), "calibration report written");
                             }
