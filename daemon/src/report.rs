@@ -365,9 +365,7 @@ impl CalibrationReport {
     /// A value serde cannot write (a non-finite number is written as null,
     /// so in practice none).
     pub fn to_json(&self) -> Result<String, ReportError> {
-        let mut s = serde_json::to_string(self)?;
-        s.push('\n');
-        Ok(s)
+        json_line(self)
     }
 
     /// The picture as SVG text.
@@ -375,14 +373,7 @@ impl CalibrationReport {
     /// # Errors
     /// [`ReportError::Plot`] when plotters refuses to draw.
     pub fn to_svg(&self) -> Result<String, ReportError> {
-        let mut svg = String::new();
-        {
-            let root = SVGBackend::with_string(&mut svg, (SVG_W, SVG_H)).into_drawing_area();
-            draw(self, &root).map_err(|e| ReportError::Plot(e.to_string()))?;
-            root.present()
-                .map_err(|e| ReportError::Plot(e.to_string()))?;
-        }
-        Ok(svg)
+        svg_text((SVG_W, SVG_H), |root| draw(self, root))
     }
 }
 
@@ -399,7 +390,8 @@ const TOP_H: u32 = 660;
 const MARGIN: u32 = 12;
 const LABEL_AREA: u32 = 45;
 
-type PlotResult = Result<(), Box<dyn std::error::Error>>;
+/// What drawing with plotters returns (its errors are generic over the backend).
+pub(crate) type PlotResult = Result<(), Box<dyn std::error::Error>>;
 
 /// Axis ranges centred on the data with equal metres per pixel on both axes.
 fn equal_aspect(
@@ -682,6 +674,28 @@ fn draw_ends(
         ))?;
     }
     Ok(())
+}
+
+/// `value` as one line of JSON (compact: a rear report's paths make it long).
+pub(crate) fn json_line(value: &impl Serialize) -> Result<String, ReportError> {
+    let mut s = serde_json::to_string(value)?;
+    s.push('\n');
+    Ok(s)
+}
+
+/// The SVG text of a `(width, height)` picture that `draw` paints.
+pub(crate) fn svg_text(
+    size_px: (u32, u32),
+    draw: impl FnOnce(&DrawingArea<SVGBackend<'_>, Shift>) -> PlotResult,
+) -> Result<String, ReportError> {
+    let mut svg = String::new();
+    {
+        let root = SVGBackend::with_string(&mut svg, size_px).into_drawing_area();
+        draw(&root).map_err(|e| ReportError::Plot(e.to_string()))?;
+        root.present()
+            .map_err(|e| ReportError::Plot(e.to_string()))?;
+    }
+    Ok(svg)
 }
 
 /// Writes `text` to `path` durably and atomically ([`crate::atomic_file`]).

@@ -7,7 +7,7 @@
 //! [`SteeringReport::build`] is pure; [`crate::report::write_report`] writes
 //! it (atomically, like the rear report).
 
-use crate::report::{AFTER_COLOUR, BEFORE_COLOUR, ReportError};
+use crate::report::{AFTER_COLOUR, BEFORE_COLOUR, PlotResult, ReportError, json_line, svg_text};
 use canodom_calib::steering::SteeringFit;
 use canodom_fusion::SteeringMap;
 use plotters::prelude::*;
@@ -111,9 +111,7 @@ impl SteeringReport {
     /// # Errors
     /// A value serde cannot write (in practice none).
     pub fn to_json(&self) -> Result<String, ReportError> {
-        let mut s = serde_json::to_string(self)?;
-        s.push('\n');
-        Ok(s)
+        json_line(self)
     }
 
     /// Angle against command: the arcs as dots, the fitted line and the map
@@ -122,15 +120,7 @@ impl SteeringReport {
     /// # Errors
     /// [`ReportError::Plot`] when plotters refuses to draw.
     pub fn to_svg(&self) -> Result<String, ReportError> {
-        let mut svg = String::new();
-        {
-            let root = SVGBackend::with_string(&mut svg, (SVG_W, SVG_H)).into_drawing_area();
-            self.draw(&root)
-                .map_err(|e| ReportError::Plot(e.to_string()))?;
-            root.present()
-                .map_err(|e| ReportError::Plot(e.to_string()))?;
-        }
-        Ok(svg)
+        svg_text((SVG_W, SVG_H), |root| self.draw(root))
     }
 
     fn draw(&self, root: &DrawingArea<SVGBackend<'_>, plotters::coord::Shift>) -> PlotResult {
@@ -221,8 +211,6 @@ impl SteeringReport {
 
 const SVG_W: u32 = 900;
 const SVG_H: u32 = 600;
-
-type PlotResult = Result<(), Box<dyn std::error::Error>>;
 
 #[cfg(test)]
 mod tests {
