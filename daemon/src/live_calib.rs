@@ -33,7 +33,7 @@ use canodom_calib::steering::{
     ArcEstimate, ArcOptions, SteeringFit, SteeringProvenance, estimate_arc, fit_steering,
 };
 use canodom_calib::track::{Direction, Track};
-use canodom_fusion::{Pose, SteeringMap, VehicleParams, Wheel};
+use canodom_fusion::{Pose, VehicleParams, Wheel};
 
 /// Status period while a session is active, s (10 Hz).
 const ACTIVE_STATUS_S: f64 = 0.1;
@@ -226,12 +226,7 @@ impl LiveCalibration {
                 v.rear_left_diameter_m,
                 v.rear_right_diameter_m,
             )
-            .and_then(|p| {
-                p.with_steering(SteeringMap {
-                    gain: v.steering_gain,
-                    offset_rad: v.steering_offset_rad,
-                })
-            })
+            .and_then(|p| p.with_steering(v.steering_map()))
             .unwrap_or(self.nominal)
     }
 
@@ -802,15 +797,14 @@ impl LiveCalibration {
             return Reason::OutOfBounds;
         }
         // The figures the operator saw on the result pages.
-        let (gain_std, offset_std_rad) = Self::fit_std(&fit);
-        let gain_std_rel = gain_std / self.nominal.steering().gain.abs();
-        let before = self.current_values();
+        let (gain_std_rel, offset_std_rad) = self.steering_uncertainty(&fit);
         let uncertain = |std: f64, max: f64| std.is_nan() || std > max;
-        if uncertain(gain_std_rel, self.config.max_steer_gain_std_rel)
+        if uncertain(gain_std_rel.abs(), self.config.max_steer_gain_std_rel)
             || uncertain(offset_std_rad, self.config.max_steer_offset_std_rad)
         {
             return Reason::UncertaintyTooHigh;
         }
+        let before = self.current_values().steering_map();
         let mut file = self.file.clone();
         let created = t_s.max(0.0) as u64;
         let version = file
@@ -826,16 +820,21 @@ impl LiveCalibration {
             version,
             Box::new(Report::Steering(SteeringReport::build(
                 &fit,
-                SteeringMap {
-                    gain: before.steering_gain,
-                    offset_rad: before.steering_offset_rad,
-                },
-                gain_std_rel,
+                before,
+                gain_std_rel.abs(),
                 offset_std_rad,
             ))),
         ));
         self.adopt(t_s, version, values, out);
         Reason::None
+    }
+
+    /// The fit's uncertainty as the result pages show it and a commit judges
+    /// it: the gain's standard deviation relative to the nominal gain (as the
+    /// gain itself goes on the wire), the offset's in radians.
+    fn steering_uncertainty(&self, fit: &SteeringFit) -> (f64, f64) {
+        let (gain_std, offset_std_rad) = Self::fit_std(fit);
+        (gain_std / self.nominal.steering().gain, offset_std_rad)
     }
 
     /// Standard deviations of the fit's gain and offset (least squares,
@@ -936,12 +935,11 @@ impl LiveCalibration {
         }
         if let Some(fit) = self.steering.as_ref().and_then(|s| s.fit.as_ref()) {
             let (steer_gain, steer_offset_rad) = self.wire_steering(&self.steering_values(fit));
-            let (gain_std, offset_std_rad) = Self::fit_std(fit);
+            let (gain_std_rel, offset_std_rad) = self.steering_uncertainty(fit);
             pages.extend([
                 StatusPage::ResultSteering {
                     steer_gain,
-                    // Relative to the nominal gain, as the gain itself.
-                    steer_gain_std: gain_std / self.nominal.steering().gain,
+                    steer_gain_std: gain_std_rel,
                     steer_offset_rad,
                 },
                 StatusPage::ResultExtra {
@@ -1050,7 +1048,7 @@ mod tests {
     use super::*;
     use crate::config::Config;
     use crate::pipeline::Pipeline;
-    use canodom_fusion::VehicleParams;
+    use canodom_fusion::{SteeringMap, VehicleParams};
     use std::sync::{Arc, Mutex};
 
     type Stored = Arc<Mutex<Vec<ParamFile>>>;
@@ -1100,7 +1098,6 @@ mod tests {
         CalibWire::frame(w.cmd_id(), &data).unwrap()
     }
 
-    /// Status page 1 among the outputs.
     /// The CALIB_STATUS pages among `out`, decoded, in order.
     fn status_pages<'a>(
         w: &'a CalibWire,
@@ -1114,6 +1111,7 @@ mod tests {
         })
     }
 
+    /// Status page 1 among the outputs.
     fn counts(w: &CalibWire, out: &[Output]) -> Counts {
         status_pages(w, out)
             .find_map(|page| match page {

@@ -48,6 +48,14 @@ impl ParamValues {
         self.rear_right_diameter_m / self.rear_left_diameter_m
     }
 
+    /// The steering map of this set.
+    pub fn steering_map(&self) -> canodom_fusion::SteeringMap {
+        canodom_fusion::SteeringMap {
+            gain: self.steering_gain,
+            offset_rad: self.steering_offset_rad,
+        }
+    }
+
     fn fields(&self) -> [(&'static str, f64); 5] {
         [
             ("rear_tread_m", self.rear_tread_m),

@@ -387,10 +387,7 @@ impl Pipeline {
                     v.rear_left_diameter_m,
                     v.rear_right_diameter_m,
                 )?
-                .with_steering(SteeringMap {
-                    gain: v.steering_gain,
-                    offset_rad: v.steering_offset_rad,
-                })?,
+                .with_steering(v.steering_map())?,
         };
         let ekf = Ekf::new(canodom_fusion::ekf::EkfConfig {
             params,
