@@ -729,15 +729,6 @@ impl ReportFiles for CalibrationReport {
     }
 }
 
-impl ReportFiles for SteeringReport {
-    fn json(&self) -> Result<String, ReportError> {
-        self.to_json()
-    }
-    fn svg(&self) -> Result<String, ReportError> {
-        self.to_svg()
-    }
-}
-
 /// The report of a committed live calibration: of the rear parameters or
 /// of the steering map.
 #[derive(Debug, Clone, PartialEq)]

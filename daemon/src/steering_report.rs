@@ -7,7 +7,9 @@
 //! [`SteeringReport::build`] is pure; [`crate::report::write_report`] writes
 //! it (atomically, like the rear report).
 
-use crate::report::{AFTER_COLOUR, BEFORE_COLOUR, PlotResult, ReportError, json_line, svg_text};
+use crate::report::{
+    AFTER_COLOUR, BEFORE_COLOUR, PlotResult, ReportError, ReportFiles, json_line, svg_text,
+};
 use canodom_calib::steering::SteeringFit;
 use canodom_fusion::SteeringMap;
 use plotters::prelude::*;
@@ -106,23 +108,6 @@ impl SteeringReport {
         }
     }
 
-    /// The report as JSON, one line.
-    ///
-    /// # Errors
-    /// A value serde cannot write (in practice none).
-    pub fn to_json(&self) -> Result<String, ReportError> {
-        json_line(self)
-    }
-
-    /// Angle against command: the arcs as dots, the fitted line and the map
-    /// used before, in degrees.
-    ///
-    /// # Errors
-    /// [`ReportError::Plot`] when plotters refuses to draw.
-    pub fn to_svg(&self) -> Result<String, ReportError> {
-        svg_text((SVG_W, SVG_H), |root| self.draw(root))
-    }
-
     fn draw(&self, root: &DrawingArea<SVGBackend<'_>, plotters::coord::Shift>) -> PlotResult {
         root.fill(&WHITE)?;
         let (u0, u1) = self
@@ -209,6 +194,17 @@ impl SteeringReport {
     }
 }
 
+/// JSON: one line; SVG: angle against command, the arcs as dots, the fitted
+/// line and the map used before, in degrees.
+impl ReportFiles for SteeringReport {
+    fn json(&self) -> Result<String, ReportError> {
+        json_line(self)
+    }
+    fn svg(&self) -> Result<String, ReportError> {
+        svg_text((SVG_W, SVG_H), |root| self.draw(root))
+    }
+}
+
 const SVG_W: u32 = 900;
 const SVG_H: u32 = 600;
 
@@ -257,10 +253,10 @@ mod tests {
             assert!((r.residual_rad - (a.steer_angle_rad - line)).abs() < 1e-12);
         }
         assert!(report.arcs[1].residual_rad > 0.1f64.to_radians());
-        let json: serde_json::Value = serde_json::from_str(&report.to_json().unwrap()).unwrap();
+        let json: serde_json::Value = serde_json::from_str(&report.json().unwrap()).unwrap();
         assert_eq!(json["arcs"].as_array().map(Vec::len), Some(4));
         assert_eq!(json["calibrated"]["gain"], fit.gain);
-        let svg = report.to_svg().unwrap();
+        let svg = report.svg().unwrap();
         // Four arcs and the legend's dot.
         assert_eq!(svg.matches("<circle").count(), 5, "{svg}");
         assert!(svg.contains("fitted map") && svg.contains("map used while driving"));
