@@ -32,7 +32,7 @@ use crate::frame::{CanFrame, FrameKind};
 use crate::stats::{Reject, Stats};
 use canodom_dbc::{Checksum, CounterCheck, CounterStatus, FrameId, SignalHandle};
 use canodom_fusion::ekf::{Ekf, OdometryInput, State};
-use canodom_fusion::odometry::rear_increment;
+use canodom_fusion::odometry::{PoseIntegrator, rear_increment};
 use canodom_fusion::wheel::{
     InputConfig, InputFault, SpeedDecoder, SpeedIntegration, TickDecoder, WheelStep,
 };
@@ -219,7 +219,7 @@ pub struct Pipeline {
     /// the ~0.7 kB state is copied once per step, not four times.
     states: [State; 2],
     current: usize,
-    odometry: Pose,
+    odometry: PoseIntegrator,
     t0_us: Option<u64>,
     last_t_us: u64,
     front_acc_m: (f64, f64),
@@ -349,7 +349,7 @@ impl Pipeline {
             ekf: Ekf::new(config.ekf)?,
             states: [State::origin(); 2],
             current: 0,
-            odometry: Pose::default(),
+            odometry: PoseIntegrator::default(),
             t0_us: None,
             last_t_us: 0,
             front_acc_m: (0.0, 0.0),
@@ -410,7 +410,7 @@ impl Pipeline {
     /// and the statistics are kept. Meant for standstill (the caller checks).
     pub fn reset_pose(&mut self) {
         self.states[self.current] = self.states[self.current].rebased_at_origin();
-        self.odometry = Pose::default();
+        self.odometry = PoseIntegrator::default();
         if let Some(step) = &mut self.last_step {
             step.fused = Pose::default();
             step.odometry = Pose::default();
@@ -653,7 +653,7 @@ impl Pipeline {
             self.stats.steps_without_front += 1;
         }
         if let Ok(inc) = rear_increment(&self.params, rl, rr) {
-            self.odometry = self.odometry.advanced(inc);
+            self.odometry.advance(inc);
         }
         self.stats.steps += 1;
         let fused = self.states[self.current].pose_unwrapped();
@@ -669,7 +669,7 @@ impl Pipeline {
             t_s,
             t_us: t_rel_us,
             fused,
-            odometry: self.odometry,
+            odometry: self.odometry.pose(),
             rear_rev: (rev(rl, Wheel::RearLeft), rev(rr, Wheel::RearRight)),
             steer_signal: self.steer_signal,
         };

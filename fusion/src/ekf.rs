@@ -52,6 +52,7 @@ use crate::error::{Error, Result, require_non_negative, require_positive};
 use crate::odometry::wheel_distance_factors;
 use crate::odometry::{Increment, Pose};
 use crate::params::VehicleParams;
+use crate::rotation::{SMALL_ANGLE_RAD, advance_heading, small_sin_cos};
 use crate::{Wheel, WheelSet, wrap_angle};
 use nalgebra::{Matrix2, Matrix3, Vector3};
 
@@ -579,37 +580,6 @@ fn propagate_with(
     let p_new = Mat3::new(m00, m01, m02, m01, m11, m12, m02, m12, m22);
     let w_new = Vec3::new(w.x + d * c, w.y + d * s, w.z + inc.dtheta_rad);
     (w_new, p_new)
-}
-
-/// Below this an angle's sine and cosine come from [`small_sin_cos`]'s series.
-const SMALL_ANGLE_RAD: f64 = 0.01;
-
-/// `(sin, cos)` of a small angle by its Taylor series (exact to rounding for
-/// |x| ≤ 0.01), falling back to the library call for larger ones.
-fn small_sin_cos(x: f64) -> (f64, f64) {
-    if x.abs() > SMALL_ANGLE_RAD {
-        return x.sin_cos();
-    }
-    // Products by constant reciprocals: the divisions by 6, 20, … were
-    // fourteen divisions a step (the compiler may not turn them into products).
-    // The cosine's x⁸/8! term (< 3e-21 here) is below half an ulp of 1.
-    let x2 = x * x;
-    let sin = x * (1.0 - x2 * (1.0 / 6.0) * (1.0 - x2 * (1.0 / 20.0) * (1.0 - x2 * (1.0 / 42.0))));
-    let cos = 1.0 - x2 * 0.5 * (1.0 - x2 * (1.0 / 12.0) * (1.0 - x2 * (1.0 / 30.0)));
-    (sin, cos)
-}
-
-/// Given `(cos θ, sin θ)` of a window heading and a step turning `Δθ`,
-/// returns `(sin m, cos m)` of the mid heading `m = θ + Δθ/2` and
-/// `(cos, sin)` of `θ + Δθ`, by rotation instead of trigonometric calls
-/// (they dominate a step's cost). One Newton step keeps the pair on the
-/// unit circle however long the window.
-fn advance_heading((c, s): (f64, f64), dtheta_rad: f64) -> ((f64, f64), (f64, f64)) {
-    let (sh, ch) = small_sin_cos(0.5 * dtheta_rad);
-    let (s_m, c_m) = (s * ch + c * sh, c * ch - s * sh);
-    let (s_full, c_full) = (s_m * ch + c_m * sh, c_m * ch - s_m * sh);
-    let norm = 1.5 - 0.5 * (c_full * c_full + s_full * s_full);
-    ((s_m, c_m), (c_full * norm, s_full * norm))
 }
 
 /// `(cos, sin)` of the anchor heading after it turned by `turn_rad` from the
@@ -1269,28 +1239,6 @@ mod tests {
     }
 
     proptest! {
-        #[test]
-        fn small_sin_cos_matches_the_library(x in -0.012f64..0.012) {
-            let (s, c) = small_sin_cos(x);
-            let (es, ec) = x.sin_cos();
-            prop_assert!((s - es).abs() <= 2.0 * f64::EPSILON * es.abs(), "{s} vs {es}");
-            prop_assert!((c - ec).abs() <= 2.0 * f64::EPSILON, "{c} vs {ec}");
-        }
-
-        #[test]
-        fn rotated_headings_match_trigonometry(steps in prop::collection::vec(-0.05f64..0.05, 1..500)) {
-            let mut cs = (1.0, 0.0);
-            let mut theta = 0.0f64;
-            for dth in steps {
-                let ((s_m, c_m), next) = advance_heading(cs, dth);
-                let (es, ec) = (theta + 0.5 * dth).sin_cos();
-                prop_assert!((s_m - es).abs() < 1e-12 && (c_m - ec).abs() < 1e-12);
-                theta += dth;
-                cs = next;
-            }
-            prop_assert!((cs.0 - theta.cos()).abs() < 1e-12 && (cs.1 - theta.sin()).abs() < 1e-12);
-        }
-
         #[test]
         fn structured_composition_equals_the_general_form(
             la in prop::collection::vec(-1.0f64..1.0, 6), lw in prop::collection::vec(-1.0f64..1.0, 6),

@@ -25,6 +25,7 @@ pub mod ekf;
 pub mod error;
 pub mod odometry;
 pub mod params;
+mod rotation;
 pub mod sim;
 pub mod wheel;
 
