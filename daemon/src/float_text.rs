@@ -38,6 +38,98 @@ pub fn push_comma_f64s<const N: usize>(out: &mut Vec<u8>, values: &[f64; N]) {
     }
 }
 
+/// Appends one CSV line: `micros` as [`push_micros_as_seconds`] writes it,
+/// `,` and each of `values` as [`push_comma_f64s`] writes them, and `\n`.
+///
+/// The same bytes as those calls, assembled on the stack and appended with
+/// one copy: copied field by field into the `Vec`, each of the seven short
+/// texts of a replay row was a call to `memcpy` plus a capacity check.
+pub fn push_csv_row<const N: usize>(out: &mut Vec<u8>, micros: i64, values: &[f64; N]) {
+    const { assert!(N <= 8, "a row's fields must fit ROW_BYTES") };
+    let mut buffers: [zmij::Buffer; N] = std::array::from_fn(|_| zmij::Buffer::new());
+    let mut formatted = buffers.iter_mut().zip(values);
+    let texts: [Option<&[u8]>; N] = std::array::from_fn(|_| {
+        formatted
+            .next()
+            .and_then(|(buffer, &value)| fast_text(buffer, value))
+    });
+    let mut row = [0u8; ROW_BYTES];
+    let Some(mut at) = put_micros_as_seconds(&mut row, micros) else {
+        return push_csv_row_slowly(out, micros, values);
+    };
+    for text in texts {
+        let Some(text) = text else {
+            return push_csv_row_slowly(out, micros, values);
+        };
+        row[at] = b',';
+        at = put(&mut row, at + 1, text);
+    }
+    row[at] = b'\n';
+    out.extend_from_slice(&row[..=at]);
+}
+
+/// [`push_csv_row`] field by field, for rows with a value off the fast path.
+#[cold]
+fn push_csv_row_slowly<const N: usize>(out: &mut Vec<u8>, micros: i64, values: &[f64; N]) {
+    push_micros_as_seconds(out, micros);
+    push_comma_f64s(out, values);
+    out.push(b'\n');
+}
+
+/// Room for a row of [`push_csv_row`]: a time of at most 17 bytes, eight
+/// fields of at most 25 (`,`, sign, `0.0000` and 17 digits), the newline and
+/// the 16 bytes [`put`] may write past a text's end.
+const ROW_BYTES: usize = 17 + 8 * 25 + 1 + 16;
+
+/// Copies `text` (at most 24 bytes, as [`fast_text`]'s are) to `row` at
+/// `at` in two fixed-size moves, overlapping, instead of a `memcpy` call
+/// sized at run time; returns the end.
+#[inline]
+fn put(row: &mut [u8; ROW_BYTES], at: usize, text: &[u8]) -> usize {
+    let n = text.len();
+    if (16..=32).contains(&n) {
+        row[at..at + 16].copy_from_slice(&text[..16]);
+        row[at + n - 16..at + n].copy_from_slice(&text[n - 16..]);
+    } else if (8..16).contains(&n) {
+        row[at..at + 8].copy_from_slice(&text[..8]);
+        row[at + n - 8..at + n].copy_from_slice(&text[n - 8..]);
+    } else {
+        row[at..at + n].copy_from_slice(text);
+    }
+    at + n
+}
+
+/// [`push_micros_as_seconds`]'s text written to `row` from its start;
+/// returns its end, or `None` beyond 10⁹ s (then that function's `{}`).
+#[inline]
+fn put_micros_as_seconds(row: &mut [u8; ROW_BYTES], micros: i64) -> Option<usize> {
+    let magnitude = micros.unsigned_abs();
+    if magnitude >= 1_000_000_000_000_000 {
+        return None;
+    }
+    row[0] = b'-';
+    let at = usize::from(micros < 0);
+    let mut whole = itoa::Buffer::new();
+    let at = put(row, at, whole.format(magnitude / 1_000_000).as_bytes());
+    let mut fraction = (magnitude % 1_000_000) as u32;
+    if fraction == 0 {
+        return Some(at);
+    }
+    // `.` and six digits, written whole; the end drops trailing zeros.
+    let mut digits = [b'0'; 8];
+    digits[0] = b'.';
+    for d in digits[1..7].iter_mut().rev() {
+        *d = b'0' + (fraction % 10) as u8;
+        fraction /= 10;
+    }
+    row[at..at + 8].copy_from_slice(&digits);
+    let end = digits[..7]
+        .iter()
+        .rposition(|&d| d != b'0')
+        .map_or(0, |i| i + 1);
+    Some(at + end)
+}
+
 /// `text` if the fast path produced one, else `value` through `{}`.
 #[inline]
 fn push_text_or_display(out: &mut Vec<u8>, text: Option<&[u8]>, value: f64) {
@@ -282,7 +374,124 @@ mod tests {
         }
     }
 
+    /// The row as the field-by-field functions write it.
+    fn row_by_fields<const N: usize>(micros: i64, values: &[f64; N]) -> Vec<u8> {
+        let mut out = b"earlier text".to_vec();
+        push_micros_as_seconds(&mut out, micros);
+        push_comma_f64s(&mut out, values);
+        out.push(b'\n');
+        out
+    }
+
+    fn row(micros: i64, values: &[f64]) -> Vec<u8> {
+        let mut out = b"earlier text".to_vec();
+        match values.len() {
+            0 => push_csv_row(&mut out, micros, &[0.0f64; 0]),
+            1 => push_csv_row(&mut out, micros, &[values[0]]),
+            _ => push_csv_row(&mut out, micros, &<[f64; 8]>::try_from(values).unwrap()),
+        }
+        out
+    }
+
+    #[test]
+    fn csv_rows_at_the_edges_equal_their_fields() {
+        // Texts of every length `put` is given (3..=24 bytes, checked), the
+        // longest time, the slow paths (exponents, NaN, ties, beyond 10⁹ s),
+        // and rows of 0, 1 and 8 values.
+        let mut lengths: Vec<f64> = Vec::new();
+        for digits in 1..=17 {
+            let significand = &"12345678901234567"[..digits];
+            for point in 0..=digits {
+                let whole = format!("{}.{}", &significand[..point], &significand[point..]);
+                lengths.push(format!("0{whole}0").parse().unwrap());
+            }
+            for zeros in 0..=4 {
+                let text = format!("0.{}{significand}", "0".repeat(zeros));
+                lengths.push(text.parse().unwrap());
+            }
+        }
+        lengths.extend(lengths.clone().iter().map(|v| -v));
+        let covered: std::collections::BTreeSet<usize> = lengths
+            .iter()
+            .filter_map(|&v| fast_text(&mut zmij::Buffer::new(), v).map(<[u8]>::len))
+            .collect();
+        // (Whole numbers, the only texts under 3 bytes, go to `{}`.)
+        assert_eq!(covered, (3..=24).collect(), "fast-path text lengths");
+        lengths.extend([
+            0.0,
+            -0.0,
+            1.0,
+            -7.0,
+            0.5,
+            12.25,
+            -0.125,
+            1234.5678,
+            0.1,
+            -0.3,
+            1e-5,
+            -1.234_567_890_123_456_7e-5,
+            123_456_789.123_456_7,
+            -9_999_999_999_999_998.0,
+            std::f64::consts::PI,
+            -std::f64::consts::E,
+            1e16,
+            1e300,
+            f64::NAN,
+            f64::NEG_INFINITY,
+            5e-324,
+            1_658_206_780_088_562.2,
+            0.012_345_678_901_234_5,
+            -0.000_012_345_678_901_234_56,
+        ]);
+        for micros in [
+            0,
+            1,
+            -1,
+            999_999,
+            -120_500_000,
+            999_999_999_999_999,
+            -999_999_999_999_999,
+            1_000_000_000_000_000,
+            i64::MIN,
+            i64::MAX,
+        ] {
+            assert_eq!(
+                row(micros, &[]),
+                row_by_fields(micros, &[0.0f64; 0]),
+                "{micros}"
+            );
+            for &v in &lengths {
+                assert_eq!(
+                    row(micros, &[v]),
+                    row_by_fields(micros, &[v]),
+                    "{micros} {v:e}"
+                );
+            }
+            for window in lengths.windows(8) {
+                let values = <[f64; 8]>::try_from(window).unwrap();
+                assert_eq!(
+                    row(micros, window),
+                    row_by_fields(micros, &values),
+                    "{micros} {values:?}"
+                );
+            }
+        }
+    }
+
     proptest! {
+        #[test]
+        fn csv_rows_equal_their_fields(
+            micros in prop_oneof![any::<i64>(), -10_000_000_000i64..10_000_000_000],
+            values in prop::array::uniform8(prop_oneof![
+                any::<u64>().prop_map(f64::from_bits),
+                -1e3f64..1e3,
+                -1e-3f64..1e-3,
+                (-1_000_000i64..1_000_000).prop_map(|n| n as f64 * 0.5),
+            ])
+        ) {
+            prop_assert_eq!(row(micros, &values), row_by_fields(micros, &values));
+        }
+
         #[test]
         fn any_f64_matches_display(bits in any::<u64>()) {
             let v = f64::from_bits(bits);

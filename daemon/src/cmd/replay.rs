@@ -4,7 +4,7 @@
 use crate::candump::Timestamp;
 use crate::candump::{ClassicData, LogReader, MalformedCounts, ReadError};
 use crate::config::Config;
-use crate::float_text::{push_comma_f64s, push_micros_as_seconds};
+use crate::float_text::push_csv_row;
 use crate::frame::CanFrame;
 use crate::pipeline::{Pipeline, Step};
 use crate::stats::Stats;
@@ -148,9 +148,7 @@ struct Row {
 /// Appends `rows` to `text` as CSV lines.
 fn push_rows(text: &mut Vec<u8>, rows: &[Row]) {
     for row in rows {
-        push_micros_as_seconds(text, row.t_us);
-        push_comma_f64s(text, &row.values);
-        text.push(b'\n');
+        push_csv_row(text, row.t_us, &row.values);
     }
 }
 
