@@ -76,12 +76,14 @@ best_of noop true; overhead=$wall
 # `wc -l` and replay alternate, so both meet the same load (on a shared
 # host it changes within seconds and moved `wc -l` alone 0.010-0.020 s):
 # the ratio of the best times, and the median of the run-by-run ratios.
-ratios=()
+ratios=(); wc_walls=(); rp_walls=()
 for _ in $(seq "$runs"); do
-    time_once wc wc -l "$log"; w_wc=$last_wall
-    time_once replay "$bin" replay --config "$config" "$log" --out /dev/null
+    time_once wc wc -l "$log"; w_wc=$last_wall; wc_walls+=("$last_wall")
+    time_once replay "$bin" replay --config "$config" "$log" --out /dev/null; rp_walls+=("$last_wall")
     ratios+=("$(awk -v a="$last_wall" -v b="$w_wc" 'BEGIN{printf "%.2f", a / b}')")
 done
+# min / median / max of a list of numbers: which of the two moved between runs.
+spread() { printf '%s\n' "$@" | sort -n | awk '{a[NR] = $1} END {printf "%s / %s / %s", a[1], a[int((NR + 1) / 2)], a[NR]}'; }
 wc_wall=${best_wall[wc]}; wc_cpu=${best_cpu[wc]}; wc_rss=${best_rss[wc]}
 rp_wall=${best_wall[replay]}; rp_cpu=${best_cpu[replay]}; rp_rss=${best_rss[replay]}
 pair_median=$(printf '%s\n' "${ratios[@]}" | sort -n | awk '{a[NR] = $1} END {print a[int((NR + 1) / 2)]}')
@@ -132,6 +134,7 @@ micro=$(
     echo "| replay / cantools loop (frame rate) | $(ratio "$rp_fps" "$ct_fps")x | ≥ 50x |"
     echo "| replay time / \`wc -l\` time (best / best) | $(ratio "$rp_wall" "$wc_wall")x | ≤ 10x |"
     echo "| the same, median of the $runs run-by-run ratios (alternating runs) | ${pair_median}x | ≤ 10x |"
+    echo "| (wall s over the $runs runs, min / median / max: \`wc -l\` $(spread "${wc_walls[@]}"), replay $(spread "${rp_walls[@]}")) | | |"
     echo "| decode / cantools loop (frame rate) | $(ratio "$dc_fps" "$ct_fps")x | ≥ 10x |"
     echo "| decode / \`cantools decode\` command | $(ratio "$dc_fps" "$cc_fps")x | |"
     echo
