@@ -76,13 +76,15 @@ fn push_csv_row_slowly<const N: usize>(out: &mut Vec<u8>, micros: i64, values: &
     out.push(b'\n');
 }
 
-/// Room for a row of [`push_csv_row`]: a time of at most 17 bytes, eight
-/// fields of at most 25 (`,`, sign, `0.0000` and 17 digits), the newline and
-/// the 16 bytes [`put`] may write past a text's end.
-const ROW_BYTES: usize = 17 + 8 * 25 + 1 + 16;
+/// Room for the longest row of [`push_csv_row`]: a time of 17 bytes (sign,
+/// nine digits of seconds below 10⁹ s, `.` and six digits; its fraction is
+/// written as eight bytes, one past its end, which the next field covers),
+/// eight fields of 25 (`,`, sign, `0.0000` and 17 digits) and the newline.
+/// An index past it would panic, not corrupt: the longest row is tested.
+const ROW_BYTES: usize = 17 + 8 * 25 + 1;
 
-/// Copies `text` (at most 24 bytes, as [`fast_text`]'s are) to `row` at
-/// `at` in two fixed-size moves, overlapping, instead of a `memcpy` call
+/// Copies `text` to `row` at `at`, from 8 to 32 bytes (the texts here have
+/// 3 to 24) in two fixed-size moves, overlapping, instead of a `memcpy` call
 /// sized at run time; returns the end.
 #[inline]
 fn put(row: &mut [u8; ROW_BYTES], at: usize, text: &[u8]) -> usize {
@@ -391,6 +393,21 @@ mod tests {
             _ => push_csv_row(&mut out, micros, &<[f64; 8]>::try_from(values).unwrap()),
         }
         out
+    }
+
+    #[test]
+    fn the_longest_row_fits() {
+        // 24 bytes: sign, `0.0000` and 17 significant digits.
+        let longest = -0.000_012_345_678_901_234_567;
+        let mut text = zmij::Buffer::new();
+        assert_eq!(fast_text(&mut text, longest).map(<[u8]>::len), Some(24));
+        let mut out = Vec::new();
+        push_csv_row(&mut out, -999_999_999_999_999, &[longest; 8]);
+        assert_eq!(out.len(), ROW_BYTES);
+        assert_eq!(
+            out,
+            row_by_fields(-999_999_999_999_999, &[longest; 8])[12..]
+        );
     }
 
     #[test]
