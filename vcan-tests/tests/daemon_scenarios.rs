@@ -442,11 +442,38 @@ fn canplayer_replay_of_a_log_gives_the_poses_of_canodom_replay() {
     let last = poses.samples.last().unwrap();
     let row = offline.last().unwrap();
     let apart_m = (last.x_m - row[1]).hypot(last.y_m - row[2]);
+    let apart_rad = angle_diff(last.heading_rad, row[3]);
     assert_eq!(
         timing_faults, 0,
         "wheel increments refused on arrival time: {recorded_err}"
     );
-    assert_final_pose(&poses.samples, &offline, "replay of the played log");
+    // The fused pose also depends on which windows had trusted front wheels
+    // and steering: when the emulated guest stalls the player past the
+    // inputs' timeout, trust is earned again over the next frames and those
+    // windows go without the front correction, as they should on a bus that
+    // fell silent. With the same such steps the pose is the same to the
+    // frame's resolution; with more, it drifts by what the skipped
+    // corrections would have moved (2026-11-24, two runs in five: 12 such
+    // steps live against 4 offline, headings 0.06 and 0.14 mrad apart after
+    // 20 s, past half the frame's 0.1 mrad step, so the strict check failed).
+    let untrusted_live = stat(&recorded_err, "steps_without_front");
+    let untrusted_offline = stat(&offline_err, "steps_without_front");
+    if untrusted_live == untrusted_offline {
+        assert_final_pose(&poses.samples, &offline, "replay of the played log");
+    } else {
+        assert!(
+            apart_m < 0.005 && apart_rad.abs() < 0.002,
+            "daemon's last pose {last:?} is {apart_m} m, {apart_rad} rad from replay of the \
+             played log {row:?} ({untrusted_live} steps without front live, {untrusted_offline} \
+             offline)"
+        );
+    }
+    metric("canplayer_steps_without_front_live", untrusted_live);
+    metric("canplayer_steps_without_front_offline", untrusted_offline);
+    metric(
+        "canplayer_end_heading_apart_from_offline_replay_rad",
+        format!("{apart_rad:.5}"),
+    );
     metric("canplayer_poses", poses.samples.len());
     metric("canplayer_max_lag_steps", max_lag);
     metric(
