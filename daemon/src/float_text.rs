@@ -89,8 +89,10 @@ fn put(row: &mut [u8; ROW_BYTES], at: usize, text: &[u8]) -> usize {
     at + n
 }
 
-/// [`push_micros_as_seconds`]'s text written to `row` from its start;
-/// returns its end, or `None` beyond 10⁹ s (then that function's `{}`).
+/// [`push_micros_as_seconds`]'s text written to `row` from its start:
+/// whole seconds, then up to six digits after a point, trailing zeros
+/// dropped (`12.5`, `3`, `0.000001`); returns its end, or `None` from 10⁹ s
+/// on (then that function's `{}`).
 #[inline]
 fn put_micros_as_seconds(row: &mut [u8; ROW_BYTES], micros: i64) -> Option<usize> {
     let magnitude = micros.unsigned_abs();
@@ -170,28 +172,10 @@ fn fast_text(buffer: &mut zmij::Buffer, value: f64) -> Option<&[u8]> {
 /// decimal lies on the 10⁻⁶ grid too, at least 10⁻⁶ away. Beyond 10⁹ s,
 /// `{}` itself.
 pub fn push_micros_as_seconds(out: &mut Vec<u8>, micros: i64) {
-    let magnitude = micros.unsigned_abs();
-    if magnitude >= 1_000_000_000_000_000 {
-        push_f64(out, micros as f64 / 1e6);
-        return;
-    }
-    if micros < 0 {
-        out.push(b'-');
-    }
-    // Whole seconds, then up to six digits after a point, trailing zeros
-    // dropped (`12.5`, `3`, `0.000001`).
-    let mut whole = itoa::Buffer::new();
-    out.extend_from_slice(whole.format(magnitude / 1_000_000).as_bytes());
-    let mut fraction = (magnitude % 1_000_000) as u32;
-    if fraction != 0 {
-        let mut digits = [b'0'; 7];
-        digits[0] = b'.';
-        for d in digits[1..].iter_mut().rev() {
-            *d = b'0' + (fraction % 10) as u8;
-            fraction /= 10;
-        }
-        let end = digits.iter().rposition(|&d| d != b'0').map_or(0, |i| i + 1);
-        out.extend_from_slice(&digits[..end]);
+    let mut row = [0u8; ROW_BYTES];
+    match put_micros_as_seconds(&mut row, micros) {
+        Some(end) => out.extend_from_slice(&row[..end]),
+        None => push_f64(out, micros as f64 / 1e6),
     }
 }
 
