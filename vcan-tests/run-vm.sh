@@ -151,6 +151,9 @@ for bin in /scenarios/*; do
             passed=\$((passed+1)); verdict=PASS
         else
             failed=\$((failed+1)); verdict=FAIL
+            # The panic's message first: the tail below is often the logs a
+            # scenario prints after it fails, which pushed the message out.
+            grep -A6 'panicked at' /tmp/out.txt | head -n 24 | sed "s/^/  ! /"
             sed "s/^/  | /" /tmp/out.txt | tail -n 40
         fi
         # -o: libtest prints a test's name without a newline, so its first metric shares that line.
