@@ -26,7 +26,7 @@
 use canodom::candump::parse_line;
 use canodom::frame::{CanFrame, CanId};
 use canodom::state_file;
-use canodom_dbc::Checksum;
+use canodom_dbc::{Checksum, CounterCheck, CounterStatus};
 use canodom_vcan_tests::{
     PoseDecoder, Spawned, angle_diff, canodom_bin, canodom_replay, metric, read_candump, read_csv,
     repo_file, run, scratch_dir, wait_until,
@@ -496,7 +496,8 @@ fn hostile_bus_at_8000_fps_rejects_counted_exactly_no_drops_then_sigterm_saves_t
     // counter against the last one that passed the CRC), and the count of
     // steps this finds must be the daemon's.
     let crc = Checksum::rc_car();
-    let mut last_counter: Option<u8> = None;
+    // COUNTER: the 4 bits from bit 48 of WHEEL_ENC_REAR.
+    let mut counter = CounterCheck::new(4).unwrap();
     let mut steps_on_bus = 0u64;
     let mut lat: Vec<u64> = Vec::new();
     let mut pending: Option<u64> = None;
@@ -507,10 +508,10 @@ fn hostile_bus_at_8000_fps_rejects_counted_exactly_no_drops_then_sigterm_saves_t
                 if d.len() != 8 || !crc.verify(d).unwrap_or(false) {
                     continue;
                 }
-                // COUNTER: bits 48..52 of WHEEL_ENC_REAR.
-                let counter = d[6] & 0x0F;
-                let in_sequence = last_counter.is_none_or(|c| counter == (c + 1) % 16);
-                last_counter = Some(counter);
+                let in_sequence = !matches!(
+                    counter.observe(u64::from(d[6] & 0x0F)),
+                    CounterStatus::Gap { .. }
+                );
                 if in_sequence {
                     steps_on_bus += 1;
                     if pending.is_none() {
