@@ -114,6 +114,7 @@ micro=$(
     CARGO_TARGET_DIR=$target cargo bench -q -p canodom-dbc --bench decode -- "${crit_args[@]}" 2>/dev/null | grep '^test '
     CARGO_TARGET_DIR=$target cargo bench -q -p canodom-fusion --bench fusion -- "${crit_args[@]}" 2>/dev/null | grep '^test '
     CARGO_TARGET_DIR=$target cargo bench -q -p canodom --bench candump -- "${crit_args[@]}" 2>/dev/null | grep '^test '
+    CARGO_TARGET_DIR=$target cargo bench -q -p canodom --bench csv_rows -- "${crit_args[@]}" 2>/dev/null | grep '^test '
 )
 
 {
@@ -138,7 +139,7 @@ micro=$(
     echo "| decode / cantools loop (frame rate) | $(ratio "$dc_fps" "$ct_fps")x | ≥ 10x |"
     echo "| decode / \`cantools decode\` command | $(ratio "$dc_fps" "$cc_fps")x | |"
     echo
-    echo "## Criterion microbenchmarks (codec, filter, candump parser; 1 s each)"
+    echo "## Criterion microbenchmarks (codec, filter, candump parser, CSV rows; 1 s each)"
     echo
     echo '```'
     echo "$micro"
