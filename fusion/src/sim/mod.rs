@@ -21,6 +21,7 @@
 //! [`PathFollowing::NONE`], [`SteeringSensor::EXACT`] and [`SlipConfig::NONE`]
 //! the run is exact: the car drives the plan's geometry to rounding error.
 
+pub mod family;
 pub mod plan;
 
 pub use plan::{Direction, Plan, Segment};
@@ -62,6 +63,9 @@ pub struct PathFollowing {
     pub speed_noise: OuNoise,
     /// First-order lag of the steering servo (0 = instantaneous).
     pub servo_lag_s: f64,
+    /// Fastest the road-wheel angle can change (a driver turning the wheel,
+    /// or a rate-limited actuator); `f64::INFINITY` lets it jump.
+    pub steer_rate_limit_rad_per_s: f64,
 }
 
 impl PathFollowing {
@@ -70,6 +74,7 @@ impl PathFollowing {
         steer_noise_rad: OuNoise::OFF,
         speed_noise: OuNoise::OFF,
         servo_lag_s: 0.0,
+        steer_rate_limit_rad_per_s: f64::INFINITY,
     };
 
     /// §9's driver: OU noise of 0.15° steering and 1 % speed (2 s), 0.15 s servo lag.
@@ -83,7 +88,45 @@ impl PathFollowing {
             tau_s: 2.0,
         },
         servo_lag_s: 0.15,
+        steer_rate_limit_rad_per_s: f64::INFINITY,
     };
+}
+
+/// How the tyres turn the steering angle into motion. Kinematic (the
+/// default) means no lateral slip: the car drives the Ackermann geometry.
+/// A real car's tyres need slip angles to carry lateral force, so at
+/// lateral acceleration `a_y` it turns less than the kinematic path
+/// (understeer) and its rear axle slides sideways (a sideslip angle at the
+/// rear axle); the linear single-track model's steady state gives both as
+/// gradients in `a_y`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TyreModel {
+    /// Understeer gradient `K_us`: the path curvature is
+    /// `tan φ / (L + K_us v²)`, radians of road-wheel angle per m/s² of
+    /// lateral acceleration (0.0025 ≈ 1.4°/g, a typical passenger car).
+    pub understeer_rad_per_mps2: f64,
+    /// Rear-axle sideslip per m/s² of lateral acceleration, radians: the
+    /// rear axle's velocity points `−k·a_y` off the heading (outwards).
+    pub rear_sideslip_rad_per_mps2: f64,
+}
+
+impl TyreModel {
+    /// No lateral slip: the kinematic Ackermann car.
+    pub const KINEMATIC: Self = Self {
+        understeer_rad_per_mps2: 0.0,
+        rear_sideslip_rad_per_mps2: 0.0,
+    };
+
+    /// A mid-size passenger car: 1.4°/g understeer, 0.25° of rear sideslip
+    /// per m/s² (1.1° at 4.3 m/s², a 15 m circle at 8 m/s).
+    pub const PASSENGER_CAR: Self = Self {
+        understeer_rad_per_mps2: 0.0025,
+        rear_sideslip_rad_per_mps2: 0.0044,
+    };
+
+    fn is_kinematic(&self) -> bool {
+        self.understeer_rad_per_mps2 == 0.0 && self.rear_sideslip_rad_per_mps2 == 0.0
+    }
 }
 
 /// The error of the steering measurement the vehicle reports. All angles are
@@ -185,6 +228,9 @@ pub struct WheelOutput {
     /// Start the counters at random values (so tests cross the wrap point);
     /// otherwise at 0.
     pub random_counter_start: bool,
+    /// Speeds below this (m/s) are reported as 0, as many production
+    /// wheel-speed sensors do below about 2 km/h (0 = none). Ticks are exact.
+    pub zero_below_mps: f64,
 }
 
 impl WheelOutput {
@@ -194,6 +240,7 @@ impl WheelOutput {
         speed_unit: SpeedUnit::MetresPerSecond,
         speed_quantum: 0.0,
         random_counter_start: true,
+        zero_below_mps: 0.0,
     };
     /// Speeds in km/h quantised to 0.01 (the Toyota file's `WHEEL_SPEEDS`).
     pub const ROAD_CAR: Self = Self {
@@ -201,6 +248,7 @@ impl WheelOutput {
         speed_unit: SpeedUnit::KilometresPerHour,
         speed_quantum: 0.01,
         random_counter_start: true,
+        zero_below_mps: 0.0,
     };
 }
 
@@ -228,6 +276,8 @@ pub struct SimConfig {
     pub slip: SlipConfig,
     /// How wheels are reported.
     pub wheel_output: WheelOutput,
+    /// Tyre slip angles (kinematic by default).
+    pub tyres: TyreModel,
 }
 
 impl SimConfig {
@@ -245,6 +295,7 @@ impl SimConfig {
             steering_sensor: SteeringSensor::EXACT,
             slip: SlipConfig::NONE,
             wheel_output: WheelOutput::RC_CAR,
+            tyres: TyreModel::KINEMATIC,
         }
     }
 
@@ -275,6 +326,7 @@ impl SimConfig {
             steering_sensor,
             slip: SlipConfig::NONE,
             wheel_output: WheelOutput::ROAD_CAR,
+            tyres: TyreModel::KINEMATIC,
         }
     }
 
@@ -287,6 +339,33 @@ impl SimConfig {
         non_negative("standstill_s", self.standstill_s)?;
         let pf = &self.path_following;
         non_negative("servo_lag_s", pf.servo_lag_s)?;
+        if pf.steer_rate_limit_rad_per_s.is_nan() || pf.steer_rate_limit_rad_per_s <= 0.0 {
+            return Err(Error::InvalidConfig {
+                name: "steer_rate_limit_rad_per_s",
+                reason: format!(
+                    "must be > 0 (or infinite), got {}",
+                    pf.steer_rate_limit_rad_per_s
+                ),
+            });
+        }
+        non_negative("zero_below_mps", self.wheel_output.zero_below_mps)?;
+        for (name, v) in [
+            (
+                "understeer_rad_per_mps2",
+                self.tyres.understeer_rad_per_mps2,
+            ),
+            (
+                "rear_sideslip_rad_per_mps2",
+                self.tyres.rear_sideslip_rad_per_mps2,
+            ),
+        ] {
+            if !v.is_finite() {
+                return Err(Error::InvalidConfig {
+                    name,
+                    reason: format!("must be finite, got {v}"),
+                });
+            }
+        }
         for (name, ou) in [
             ("steer_noise_rad", pf.steer_noise_rad),
             ("speed_noise", pf.speed_noise),
@@ -408,6 +487,8 @@ enum Phase {
     Before(u64),
     Moving,
     After(u64),
+    /// At rest at a [`Segment::Stop`]: steps stood so far, steps to stand.
+    Paused(u64, u64),
     Done,
 }
 
@@ -445,6 +526,14 @@ pub struct Simulator {
     slip_left_s: WheelSet<f64>,
     slip_ratio: WheelSet<f64>,
     slip_events: u32,
+    /// +1 forwards, −1 reversing.
+    direction: f64,
+    /// The plan's stops in order: position along the plan, duration, reverse.
+    stops: Vec<(f64, f64, bool)>,
+    /// How many of `stops` the car has made.
+    stops_done: usize,
+    /// The plan's speed marks in order: position along the plan, speed.
+    speed_marks: Vec<(f64, f64)>,
 }
 
 impl Simulator {
@@ -507,7 +596,22 @@ impl Simulator {
             slip_left_s: WheelSet::splat(0.0),
             slip_ratio: WheelSet::splat(0.0),
             slip_events: 0,
+            direction: 1.0,
+            stops: Vec::new(),
+            stops_done: 0,
+            speed_marks: Vec::new(),
         };
+        let mut at_m = 0.0;
+        for seg in &sim.plan.segments {
+            match *seg {
+                Segment::Stop {
+                    duration_s,
+                    reverse,
+                } => sim.stops.push((at_m, duration_s, reverse)),
+                Segment::Speed { speed_mps } => sim.speed_marks.push((at_m, speed_mps)),
+                _ => at_m += seg.length_m(),
+            }
+        }
         // At rest the wheels point where the first segment asks, as a driver would.
         let first = sim.command_for(0.0)?;
         sim.steer_command = first;
@@ -536,7 +640,12 @@ impl Simulator {
         match seg.steer_at(segment_s_m) {
             Steer::Signal(u) => Ok(u),
             Steer::Curvature(kappa) => {
-                let phi = (self.cfg.true_params.wheelbase_m() * kappa).atan();
+                // The driver follows the road: with understeer they steer as
+                // much more as the car needs at this speed.
+                let v = self.speed_cmd_mps;
+                let effective_wheelbase_m = self.cfg.true_params.wheelbase_m()
+                    + self.cfg.tyres.understeer_rad_per_mps2 * v * v;
+                let phi = (effective_wheelbase_m * kappa).atan();
                 self.cfg
                     .driver_steering
                     .unwrap_or(self.cfg.true_params.steering())
@@ -567,6 +676,7 @@ impl Simulator {
             .ticks_f
             .map(|w, t| (t.floor() as i64 as u64).wrapping_add(offset[w]) & mask);
         let wheel_speed = self.wheel_speed_mps.map(|_, v| {
+            let v = if v.abs() < out.zero_below_mps { 0.0 } else { v };
             let v = out.speed_unit.from_mps(v);
             if out.speed_quantum > 0.0 {
                 (v / out.speed_quantum).round() * out.speed_quantum
@@ -615,30 +725,63 @@ impl Simulator {
     }
 
     /// Moves the car by `ds_m` of rear-axle path with a constant road-wheel angle.
-    fn roll(&mut self, ds_m: f64, phi_rad: f64) {
+    /// The path curvature of the rear-axle centre, its sideslip angle and
+    /// each wheel's rolled distance per metre of that path, at road-wheel
+    /// angle `phi_rad` and speed `v_mps`. Kinematic tyres give `tan φ / L`,
+    /// 0 and the `g_i` of §3 exactly; with slip angles the wheels' speeds
+    /// are the body's velocity at each contact point projected on the
+    /// wheel's rolling direction (Ackermann wheel angles).
+    fn motion(&self, phi_rad: f64, v_mps: f64) -> (f64, f64, WheelSet<f64>) {
         let p = &self.cfg.true_params;
-        let kappa = phi_rad.tan() / p.wheelbase_m();
+        let l = p.wheelbase_m();
+        if self.cfg.tyres.is_kinematic() {
+            let [g_rl, g_rr, g_fl, g_fr] = wheel_distance_factors(p, phi_rad);
+            let g = WheelSet {
+                rear_left: g_rl,
+                rear_right: g_rr,
+                front_left: g_fl,
+                front_right: g_fr,
+            };
+            return (phi_rad.tan() / l, 0.0, g);
+        }
+        let t = self.cfg.tyres;
+        let tan_phi = phi_rad.tan();
+        let kappa = tan_phi / (l + t.understeer_rad_per_mps2 * v_mps * v_mps);
+        let beta = -t.rear_sideslip_rad_per_mps2 * v_mps * v_mps * kappa;
+        let (vy, vx) = beta.sin_cos();
+        let (half_b, half_bf) = (0.5 * p.rear_tread_m(), 0.5 * p.front_tread_m());
+        // Ackermann wheel angles of the kinematic geometry for this φ.
+        let kappa_k = tan_phi / l;
+        let front = |side: f64| {
+            let delta = (l * kappa_k).atan2(1.0 - side * kappa_k * half_bf);
+            let (sd, cd) = delta.sin_cos();
+            (vx - side * kappa * half_bf) * cd + (vy + kappa * l) * sd
+        };
+        let g = WheelSet {
+            rear_left: vx - kappa * half_b,
+            rear_right: vx + kappa * half_b,
+            front_left: front(1.0),
+            front_right: front(-1.0),
+        };
+        (kappa, beta, g)
+    }
+
+    fn roll(&mut self, ds_m: f64, phi_rad: f64, v_mps: f64) {
+        let (kappa, beta, g) = self.motion(phi_rad, v_mps);
         let dtheta = kappa * ds_m;
-        // Exact arc: the chord is ds·sinc(dθ/2) along the mid heading.
         let half = 0.5 * dtheta;
         let sinc = if half.abs() < 1e-4 {
             1.0 - half * half / 6.0
         } else {
             half.sin() / half
         };
-        let mid = self.pose.heading_rad + half;
+        let mid = self.pose.heading_rad + half + beta;
         let (s, c) = mid.sin_cos();
         self.pose.x_m += ds_m * sinc * c;
         self.pose.y_m += ds_m * sinc * s;
         self.pose.heading_rad += dtheta;
-        self.distance_m += ds_m;
-        let [g_rl, g_rr, g_fl, g_fr] = wheel_distance_factors(p, phi_rad);
-        let g = WheelSet {
-            rear_left: g_rl,
-            rear_right: g_rr,
-            front_left: g_fl,
-            front_right: g_fr,
-        };
+        self.distance_m += ds_m.abs();
+        let p = &self.cfg.true_params;
         for w in Wheel::ALL {
             let true_m = ds_m * g[w];
             let reported_m = true_m * (1.0 + self.slip_ratio[w]);
@@ -652,11 +795,18 @@ impl Simulator {
     fn drive(&mut self) -> Result<()> {
         let dt = self.dt_s;
         let a = self.cfg.accel_mps2;
-        let remaining_m = self.plan_length_m - self.plan_s_m;
+        // The car stops at the next stop mark, or at the plan's end.
+        let stop = self.stops.get(self.stops_done).copied();
+        let stop_at_m = stop.map_or(self.plan_length_m, |(at_m, _, _)| at_m);
+        let remaining_m = stop_at_m - self.plan_s_m;
         let v0 = self.speed_cmd_mps;
-        let mut v1 = (v0 + a * dt)
-            .min(self.cfg.speed_mps)
-            .min((2.0 * a * remaining_m).sqrt());
+        let target_mps = self.target_speed_mps();
+        let mut v1 = if v0 > target_mps {
+            (v0 - a * dt).max(target_mps)
+        } else {
+            (v0 + a * dt).min(target_mps)
+        }
+        .min((2.0 * a * remaining_m).sqrt());
         // The plan is indexed by the distance actually driven: a driver steers
         // by where they are on the track and stops at the end mark, so speed
         // noise changes the timing, not the geometry. (Indexed by time, 1 %
@@ -671,6 +821,7 @@ impl Simulator {
             step_m = remaining_m.max(0.0);
             v1 = 0.0;
         }
+        let v_mean_mps = 0.5 * (v0 + v1) * speed_factor;
         self.speed_cmd_mps = v1;
         let steer_noise = self.steer_noise.step(&mut self.rng);
         self.step_slip();
@@ -694,7 +845,14 @@ impl Simulator {
             } else {
                 phi_cmd
             };
-            let phi_mean = if self.servo_alpha_per_s.is_finite() {
+            let rate = self.cfg.path_following.steer_rate_limit_rad_per_s;
+            let phi_new = if rate.is_finite() {
+                let most = rate * piece_dt;
+                phi_old + (phi_new - phi_old).clamp(-most, most)
+            } else {
+                phi_new
+            };
+            let phi_mean = if self.servo_alpha_per_s.is_finite() || rate.is_finite() {
                 0.5 * (phi_old + phi_new)
             } else {
                 phi_cmd
@@ -705,7 +863,7 @@ impl Simulator {
                 });
             }
             self.steer_angle_rad = phi_new;
-            self.roll(piece_m, phi_mean);
+            self.roll(self.direction * piece_m, phi_mean, v_mean_mps);
             self.segment_s_m += piece_m;
             self.plan_s_m += piece_m;
             left_m -= piece_m;
@@ -718,14 +876,8 @@ impl Simulator {
         }
         // Instantaneous wheel speeds at the end of the step.
         let v_true = v1 * speed_factor;
-        let [g_rl, g_rr, g_fl, g_fr] =
-            wheel_distance_factors(&self.cfg.true_params, self.steer_angle_rad);
-        let g = WheelSet {
-            rear_left: g_rl,
-            rear_right: g_rr,
-            front_left: g_fl,
-            front_right: g_fr,
-        };
+        let (_, _, g) = self.motion(self.steer_angle_rad, v_true);
+        let v_true = self.direction * v_true;
         let ratio = self.slip_ratio;
         // An ECU turns rotation into speed with one tyre size for all wheels:
         // take the four wheels' mean, so a tyre larger than the others reads fast.
@@ -733,9 +885,35 @@ impl Simulator {
         let mean_d = 0.25 * (d.rear_left + d.rear_right + d.front_left + d.front_right);
         self.wheel_speed_mps = g.map(|w, gi| v_true * gi * (1.0 + ratio[w]) * mean_d / d[w]);
         if last_step {
-            self.phase = Phase::After(0);
+            self.phase = match stop {
+                Some((_, duration_s, reverse)) => {
+                    self.stops_done += 1;
+                    if reverse {
+                        self.direction = -self.direction;
+                    }
+                    Phase::Paused(0, (duration_s * self.cfg.rate_hz).round() as u64)
+                }
+                None => Phase::After(0),
+            };
         }
         Ok(())
+    }
+
+    /// The cruising speed asked for here: the last speed mark passed (the
+    /// configuration's speed before any), or less where a lower mark ahead
+    /// needs braking now to be met.
+    fn target_speed_mps(&self) -> f64 {
+        let a = self.cfg.accel_mps2;
+        let mut target = self.cfg.speed_mps;
+        for &(at_m, speed_mps) in &self.speed_marks {
+            if at_m <= self.plan_s_m {
+                target = speed_mps;
+            } else {
+                let reachable = speed_mps.mul_add(speed_mps, 2.0 * a * (at_m - self.plan_s_m));
+                target = target.min(reachable.sqrt());
+            }
+        }
+        target
     }
 
     /// The next sample, or an error if the plan asks for an impossible
@@ -763,6 +941,15 @@ impl Simulator {
                 };
             }
             Phase::Moving => self.drive()?,
+            Phase::Paused(k, steps) => {
+                self.step_slip();
+                self.wheel_speed_mps = WheelSet::splat(0.0);
+                self.phase = if k + 1 >= steps {
+                    Phase::Moving
+                } else {
+                    Phase::Paused(k + 1, steps)
+                };
+            }
             Phase::After(k) => {
                 self.step_slip();
                 self.wheel_speed_mps = WheelSet::splat(0.0);

@@ -64,6 +64,23 @@ pub enum Segment {
         /// Distance to drive with it.
         length_m: f64,
     },
+    /// A stop (no length): the car brakes to rest exactly here, stands for
+    /// `duration_s`, then drives on, backwards if `reverse` flips the
+    /// direction of travel (stop-and-go, manoeuvring). Reversed segments are
+    /// driven with the steering their curvature asks for, so their heading
+    /// change has the opposite sign of [`Segment::turn_rad`].
+    Stop {
+        /// Time at rest.
+        duration_s: f64,
+        /// Flip the direction of travel after the stop.
+        reverse: bool,
+    },
+    /// A speed change (no length): from here on the car cruises at
+    /// `speed_mps` (it brakes ahead of the mark to reach a lower speed there).
+    Speed {
+        /// The new cruising speed of the rear-axle centre.
+        speed_mps: f64,
+    },
 }
 
 /// What the car is asked to steer on a piece of path.
@@ -86,13 +103,16 @@ impl Segment {
                 radius_m,
                 angle_rad,
             } => radius_m * angle_rad.abs(),
+            Segment::Stop { .. } | Segment::Speed { .. } => 0.0,
         }
     }
 
     /// The intended steering at `s_m` metres into the segment.
     pub(crate) fn steer_at(&self, s_m: f64) -> Steer {
         match *self {
-            Segment::Straight { .. } => Steer::Curvature(0.0),
+            Segment::Straight { .. } | Segment::Stop { .. } | Segment::Speed { .. } => {
+                Steer::Curvature(0.0)
+            }
             Segment::Arc {
                 radius_m,
                 angle_rad,
@@ -115,7 +135,7 @@ impl Segment {
     /// whose turn depends on the vehicle's true steering map).
     pub fn turn_rad(&self) -> Option<f64> {
         match *self {
-            Segment::Straight { .. } => Some(0.0),
+            Segment::Straight { .. } | Segment::Stop { .. } | Segment::Speed { .. } => Some(0.0),
             Segment::Arc { angle_rad, .. } => Some(angle_rad),
             Segment::Ramp {
                 from_curvature_per_m,
@@ -156,6 +176,15 @@ impl Segment {
             Segment::Command { signal, .. } if !signal.is_finite() => {
                 Err(bad("command signal", signal))
             }
+            Segment::Stop { duration_s, .. } if !(duration_s.is_finite() && duration_s >= 0.0) => {
+                Err(Error::InvalidConfig {
+                    name: "stop duration_s",
+                    reason: format!("must be finite and >= 0, got {duration_s}"),
+                })
+            }
+            Segment::Speed { speed_mps } if !(speed_mps.is_finite() && speed_mps > 0.0) => {
+                Err(bad("speed speed_mps", speed_mps))
+            }
             _ => Ok(()),
         }
     }
@@ -182,6 +211,12 @@ impl Plan {
         }
         for s in &segments {
             s.validate()?;
+        }
+        if !segments.iter().any(|s| s.length_m() > 0.0) {
+            return Err(Error::InvalidConfig {
+                name: "plan",
+                reason: "has no segment with a length".into(),
+            });
         }
         Ok(Self { segments })
     }
