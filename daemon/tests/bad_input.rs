@@ -195,7 +195,12 @@ fn nan_float_signals() {
     assert_eq!(p.stats().get(Reject::NonFinite), nan_count);
     let pose = p.state().pose();
     assert!(pose.x_m.is_finite() && pose.y_m.is_finite() && pose.heading_rad.is_finite());
-    assert!(pose.x_m > 0.9 && pose.heading_rad > 0.0, "{pose:?}");
+    assert!(pose.x_m > 0.9, "{pose:?}");
+    // The finite 2° angles reached the filter: against wheels that drive
+    // straight it learns them as the sensor's offset (the default fuses the
+    // front through the gate only, so they do not turn the pose).
+    let offset = p.state().steer_offset_rad();
+    assert!(offset > 0.5f64.to_radians(), "{offset}");
 }
 
 #[test]

@@ -3,7 +3,7 @@
 //! ground-truth vehicle simulator that judges every other crate's tests.
 //!
 //! No I/O, no async, no clock: time arrives as timestamps in arguments.
-//! Conventions follow `shared/docs/calibration-math.md` §2: the pose is the
+//! Conventions follow `docs/calibration-math.md` §2 (in the repository): the pose is the
 //! rear-axle centre `(x, y, θ)`, θ counter-clockwise, left turns positive,
 //! the right wheel on the vehicle's −y side.
 //!

@@ -9,12 +9,14 @@
 // Helpers of a test harness: a failure to set up is a test failure.
 #![allow(clippy::unwrap_used)]
 
-use canodom_fusion::ekf::{CorrectionForm, Ekf, EkfConfig, FrontHeading, OdometryInput, State};
+mod common;
+
+use canodom_fusion::ekf::{CorrectionForm, Ekf, EkfConfig, FrontHeading};
 use canodom_fusion::sim::{
-    Direction, OuNoise, Plan, Run, SimConfig, SlipConfig, SlipWheels, SteeringSensor, simulate,
+    Direction, OuNoise, Plan, SimConfig, SlipConfig, SlipWheels, SteeringSensor, simulate,
 };
-use canodom_fusion::wheel::{InputConfig, SpeedDecoder, SpeedIntegration, SpeedUnit, TickDecoder};
-use canodom_fusion::{Pose, SteeringMap, VehicleParams, Wheel, WheelSet};
+use canodom_fusion::{Pose, SteeringMap, VehicleParams, WheelSet};
+use common::{Wheels, replay};
 
 const DEG: f64 = std::f64::consts::PI / 180.0;
 
@@ -39,80 +41,6 @@ fn road_car() -> VehicleParams {
         },
     )
     .unwrap()
-}
-
-/// Where the wheel distances come from.
-enum Wheels {
-    Ticks(Vec<TickDecoder>),
-    Speeds(Vec<SpeedDecoder>),
-}
-
-impl Wheels {
-    fn ticks(p: &VehicleParams, bits: u32) -> Self {
-        Wheels::Ticks(
-            Wheel::ALL
-                .iter()
-                .map(|w| {
-                    TickDecoder::new(bits, p.tick_distance_m(*w, 1.0), InputConfig::RC_CAR).unwrap()
-                })
-                .collect(),
-        )
-    }
-
-    fn speeds() -> Self {
-        let cfg = InputConfig {
-            nominal_period_s: 0.01,
-            ..InputConfig::ROAD_CAR
-        };
-        Wheels::Speeds(
-            (0..4)
-                .map(|_| {
-                    SpeedDecoder::new(
-                        SpeedUnit::KilometresPerHour,
-                        SpeedIntegration::Trapezoid,
-                        cfg,
-                    )
-                    .unwrap()
-                })
-                .collect(),
-        )
-    }
-
-    fn distances(&mut self, s: &canodom_fusion::sim::Sample) -> WheelSet<f64> {
-        let mut out = WheelSet::splat(0.0);
-        for (k, w) in Wheel::ALL.iter().enumerate() {
-            let step = match self {
-                Wheels::Ticks(d) => d[k].push(s.t_s, s.ticks[*w]),
-                Wheels::Speeds(d) => d[k].push(s.t_s, s.wheel_speed[*w]),
-            };
-            assert_eq!(
-                step.fault, None,
-                "the simulator's wheels must decode cleanly"
-            );
-            out[*w] = step.distance_m;
-        }
-        out
-    }
-}
-
-/// Runs every filter over one simulated run; returns each filter's final state.
-fn replay(run: &Run, nominal: &VehicleParams, mut wheels: Wheels, filters: &[Ekf]) -> Vec<State> {
-    let mut states = vec![State::origin(); filters.len()];
-    for (k, s) in run.samples.iter().enumerate() {
-        let wheel_m = wheels.distances(s);
-        if k == 0 {
-            continue;
-        }
-        let input = OdometryInput {
-            wheel_m,
-            front_valid: true,
-            steer_angle_rad: nominal.steering().angle_rad(s.steer_signal),
-        };
-        for (st, f) in states.iter_mut().zip(filters) {
-            *st = f.step(st, &input).unwrap();
-        }
-    }
-    states
 }
 
 fn err_sq(est: Pose, truth: Pose) -> f64 {
@@ -181,6 +109,8 @@ fn variants(p: VehicleParams) -> Vec<(&'static str, Ekf)> {
         gate_threshold: None,
         // Without a gate, slips would teach the offset learner nonsense.
         steer_offset_drift_rad: None,
+        front_scale_sigma: 0.0,
+        blend_accepted: true,
         ..default
     };
     let default_no_gate = EkfConfig {
@@ -195,6 +125,7 @@ fn variants(p: VehicleParams) -> Vec<(&'static str, Ekf)> {
     };
     let wheel_diff = EkfConfig {
         front_heading: FrontHeading::WheelDifference,
+        blend_accepted: true,
         ..default
     };
     let ekf = |c| Ekf::new(c).unwrap();
@@ -326,6 +257,7 @@ fn beyond_the_bar(p: VehicleParams, sensor: SteeringSensor) {
         Ekf::new(EkfConfig::rear_only(p)).unwrap(),
         Ekf::new(EkfConfig {
             front_heading: FrontHeading::WheelDifference,
+            blend_accepted: true,
             ..EkfConfig::new(p)
         })
         .unwrap(),
