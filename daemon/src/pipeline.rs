@@ -31,7 +31,7 @@ use crate::config::{Config, InputsConfig, WheelKind};
 use crate::frame::{CanFrame, FrameKind};
 use crate::stats::{Reject, Stats};
 use canodom_dbc::{Checksum, CounterCheck, CounterStatus, FrameId, SignalHandle};
-use canodom_fusion::ekf::{Ekf, OdometryInput, State};
+use canodom_fusion::ekf::{Ekf, OdometryInput, State, WindowOutcome};
 use canodom_fusion::odometry::{PoseIntegrator, rear_increment};
 use canodom_fusion::wheel::{
     InputConfig, InputFault, SpeedDecoder, SpeedIntegration, TickDecoder, WheelStep,
@@ -56,6 +56,9 @@ pub struct Step {
     /// The latest steering signal `u` as the vehicle reports it (before the
     /// steering map), if any arrived yet.
     pub steer_signal: Option<f64>,
+    /// What the filter's correction window did at this step
+    /// ([`WindowOutcome::Open`] when the step did not close one).
+    pub correction: WindowOutcome,
 }
 
 /// Validity flags of a pose sample.
@@ -630,7 +633,6 @@ impl Pipeline {
             steer_angle_rad: self.steer_rad.unwrap_or(0.0),
         };
         self.front_acc_m = (0.0, 0.0);
-        let before = self.states[self.current].stats;
         let [a, b] = &mut self.states;
         let (prev, next) = if self.current == 0 {
             (&*a, b)
@@ -642,12 +644,24 @@ impl Pipeline {
             return None;
         }
         self.current ^= 1;
-        let after = self.states[self.current].stats;
-        let rejected = (after.rejected_used_front + after.rejected_kept_rear)
-            - (before.rejected_used_front + before.rejected_kept_rear);
-        if rejected > 0 {
+        let state = &self.states[self.current];
+        let correction = state.last_window;
+        if matches!(
+            correction,
+            WindowOutcome::RejectedKeptRear | WindowOutcome::RejectedUsedFront
+        ) {
             self.latched.gate_reject = true;
-            self.stats.add_n(Reject::GateReject, rejected);
+            self.stats.add(Reject::GateReject);
+            if correction == WindowOutcome::RejectedKeptRear {
+                self.stats.gate.kept_rear += 1;
+            } else {
+                self.stats.gate.used_front += 1;
+            }
+            for w in Wheel::ALL {
+                if state.slip_flags[w] {
+                    self.stats.gate.blamed[w] += 1;
+                }
+            }
         }
         if !input.front_valid {
             self.stats.steps_without_front += 1;
@@ -672,6 +686,7 @@ impl Pipeline {
             odometry: self.odometry.pose(),
             rear_rev: (rev(rl, Wheel::RearLeft), rev(rr, Wheel::RearRight)),
             steer_signal: self.steer_signal,
+            correction,
         };
         self.last_step = Some(step);
         Some(step)
@@ -796,6 +811,54 @@ mod tests {
                 .pose_output(fr.last().unwrap().0)
                 .flags
                 .nominal_params
+        );
+    }
+
+    #[test]
+    fn gate_decisions_are_reported_per_step_per_action_and_per_wheel() {
+        let c = config();
+        let plan = PathKind::Circle.plan(false, 1).unwrap();
+        let mut sim_cfg = sim_config(&c, c.params);
+        sim_cfg.slip = canodom_fusion::sim::SlipConfig {
+            rate_per_s: 0.3,
+            ..canodom_fusion::sim::SlipConfig::paper(canodom_fusion::sim::SlipWheels::Rear)
+        };
+        let sim = Simulator::new(&sim_cfg, &plan, 3).unwrap();
+        let mut enc = SampleEncoder::new(&c);
+        let mut p = Pipeline::new(&c).unwrap();
+        let mut buf = Vec::new();
+        let mut outcomes = std::collections::HashMap::<WindowOutcome, u64>::new();
+        for s in sim {
+            buf.clear();
+            enc.encode(&s, &mut buf);
+            let t = Timestamp::from_micros(1_000_000 + (s.t_s * 1e6).round() as u64);
+            for f in &buf {
+                if let Some(step) = p.push(t, f) {
+                    *outcomes.entry(step.correction).or_default() += 1;
+                }
+            }
+        }
+        let s = *p.stats();
+        let count = |o| outcomes.get(&o).copied().unwrap_or(0);
+        assert!(count(WindowOutcome::Accepted) > 0, "{outcomes:?}");
+        assert!(s.gate.used_front > 0, "{s}");
+        assert_eq!(count(WindowOutcome::RejectedUsedFront), s.gate.used_front);
+        assert_eq!(count(WindowOutcome::RejectedKeptRear), s.gate.kept_rear);
+        let blamed = s.gate.blamed;
+        let total = blamed.rear_left + blamed.rear_right + blamed.front_left + blamed.front_right;
+        assert_eq!(total, s.get(Reject::GateReject), "{s}");
+        // Only rear wheels slipped: the consensus blames them.
+        assert!(
+            blamed.rear_left + blamed.rear_right > 2 * (blamed.front_left + blamed.front_right),
+            "{s}"
+        );
+        assert_eq!(
+            count(WindowOutcome::Open)
+                + s.gate.used_front
+                + s.gate.kept_rear
+                + count(WindowOutcome::Accepted)
+                + count(WindowOutcome::NoFront),
+            s.steps
         );
     }
 

@@ -2,6 +2,7 @@
 //! why. One array indexed by [`Reject`], so adding a reason cannot forget a
 //! place that prints them.
 
+use canodom_fusion::{Wheel, WheelSet};
 use std::fmt;
 
 /// Why a frame (or a part of it) was not used.
@@ -80,7 +81,21 @@ pub struct Stats {
     pub steps: u64,
     /// Steps without a valid front window (front or steering stale).
     pub steps_without_front: u64,
+    /// The gate's rejections by what they did and which wheel they blamed.
+    pub gate: GateCounts,
     rejects: [u64; Reject::ALL.len()],
+}
+
+/// The EKF gate's rejections: by the action taken and by the wheel the
+/// consensus blamed (`GateReject` counts them all).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct GateCounts {
+    /// Rejections that kept the rear increment (a front wheel blamed).
+    pub kept_rear: u64,
+    /// Rejections that took the front increment (a rear wheel blamed).
+    pub used_front: u64,
+    /// Rejections by the wheel blamed.
+    pub blamed: WheelSet<u64>,
 }
 
 impl Stats {
@@ -118,13 +133,53 @@ impl fmt::Display for Stats {
         for (r, n) in self.nonzero() {
             write!(f, " {}={n}", r.as_str())?;
         }
+        let g = &self.gate;
+        if g.kept_rear + g.used_front > 0 {
+            write!(
+                f,
+                " gate_kept_rear={} gate_used_front={} gate_blamed=",
+                g.kept_rear, g.used_front
+            )?;
+            for (k, w) in Wheel::ALL.iter().enumerate() {
+                let sep = if k == 0 { "" } else { "," };
+                write!(f, "{sep}{}:{}", wheel_short(*w), g.blamed[*w])?;
+            }
+        }
         Ok(())
+    }
+}
+
+/// `rl`, `rr`, `fl`, `fr`.
+fn wheel_short(w: Wheel) -> &'static str {
+    match w {
+        Wheel::RearLeft => "rl",
+        Wheel::RearRight => "rr",
+        Wheel::FrontLeft => "fl",
+        Wheel::FrontRight => "fr",
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn gate_counts_print_by_action_and_wheel_only_when_any() {
+        let mut s = Stats::default();
+        assert!(!s.to_string().contains("gate_"));
+        s.add_n(Reject::GateReject, 3);
+        s.gate.kept_rear = 1;
+        s.gate.used_front = 2;
+        s.gate.blamed.rear_right = 2;
+        s.gate.blamed.front_left = 1;
+        let line = s.to_string();
+        assert!(
+            line.ends_with(
+                "gate_reject=3 gate_kept_rear=1 gate_used_front=2 gate_blamed=rl:0,rr:2,fl:1,fr:0"
+            ),
+            "{line}"
+        );
+    }
 
     #[test]
     fn display_lists_nonzero_reasons() {

@@ -293,8 +293,15 @@ fn other_frame_kinds_in_a_log_replay_as_the_pipeline_sees_them() {
             let (f, o) = (s.fused, s.odometry);
             writeln!(
                 expected,
-                "{},{},{},{},{},{},{}",
-                s.t_s, f.x_m, f.y_m, f.heading_rad, o.x_m, o.y_m, o.heading_rad
+                "{},{},{},{},{},{},{},{}",
+                s.t_s,
+                f.x_m,
+                f.y_m,
+                f.heading_rad,
+                o.x_m,
+                o.y_m,
+                o.heading_rad,
+                s.correction.as_str()
             )
             .unwrap();
         }

@@ -1,6 +1,6 @@
 //! Every command through the real binary.
 
-use crate::util::{csv_rows, manifest, rc_car_toml, tmp_dir};
+use crate::util::{csv_corrections, csv_rows, manifest, rc_car_toml, tmp_dir};
 use std::io::Write as _;
 use std::process::{Command, Output};
 
@@ -94,7 +94,17 @@ fn simulate_decode_replay_round_trip() {
     let csv = std::fs::read_to_string(&pose).unwrap();
     assert_eq!(
         csv.lines().next().unwrap(),
-        "t_s,x_m,y_m,heading_rad,odo_x_m,odo_y_m,odo_heading_rad"
+        "t_s,x_m,y_m,heading_rad,odo_x_m,odo_y_m,odo_heading_rad,correction"
+    );
+    // One correction a window (50 steps) and nothing in between.
+    let corrections = csv_corrections(&csv);
+    let closed = corrections.iter().filter(|c| !c.is_empty()).count();
+    assert!(closed > 0 && closed * 45 < corrections.len(), "{closed}");
+    assert!(
+        corrections
+            .iter()
+            .all(|c| ["", "accepted", "kept_rear", "used_front", "no_front"].contains(&c.as_str())),
+        "{corrections:?}"
     );
     // Times are the log's microseconds as written: `0.07`, never the
     // `0.06999999999999999` of a product by 1e-6.

@@ -50,11 +50,30 @@ pub fn frames_of(log: &[u8]) -> Vec<(Timestamp, CanFrame)> {
     out
 }
 
-/// Parses a CSV with a header into rows of floats.
+/// Parses a CSV with a header into rows of floats; replay's text column
+/// `correction` is left out.
 pub fn csv_rows(text: &str) -> Vec<Vec<f64>> {
+    let text_column = text
+        .lines()
+        .next()
+        .and_then(|h| h.split(',').position(|name| name == "correction"));
     text.lines()
         .skip(1)
-        .map(|l| l.split(',').map(|v| v.parse().unwrap()).collect())
+        .map(|l| {
+            l.split(',')
+                .enumerate()
+                .filter(|(k, _)| Some(*k) != text_column)
+                .map(|(_, v)| v.parse().unwrap())
+                .collect()
+        })
+        .collect()
+}
+
+/// The `correction` column of replay's CSV, one entry a row.
+pub fn csv_corrections(text: &str) -> Vec<String> {
+    text.lines()
+        .skip(1)
+        .map(|l| l.rsplit(',').next().unwrap_or("").to_string())
         .collect()
 }
 

@@ -317,6 +317,38 @@ pub struct OdometryInput {
     pub steer_angle_rad: f64,
 }
 
+/// What happened at a step's correction window, if the step closed one.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+pub enum WindowOutcome {
+    /// The step did not close a window (most steps).
+    #[default]
+    Open,
+    /// The window closed without a correction: rear-only form.
+    RearOnly,
+    /// The window closed without a correction: a front sample was missing.
+    NoFront,
+    /// The gate let the correction through.
+    Accepted,
+    /// The gate rejected it and the rear increment was kept (a front wheel slipped).
+    RejectedKeptRear,
+    /// The gate rejected it and the front increment was used (a rear wheel slipped).
+    RejectedUsedFront,
+}
+
+impl WindowOutcome {
+    /// Short snake-case name for logs and CSV columns (`""` for [`WindowOutcome::Open`]).
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Open => "",
+            Self::RearOnly => "rear_only",
+            Self::NoFront => "no_front",
+            Self::Accepted => "accepted",
+            Self::RejectedKeptRear => "kept_rear",
+            Self::RejectedUsedFront => "used_front",
+        }
+    }
+}
+
 /// How the corrections went.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct GateStats {
@@ -362,6 +394,9 @@ pub struct State {
     pub slip_flags: WheelSet<bool>,
     /// `d²` of the most recent correction (NaN-free; 0 before the first).
     pub last_mahalanobis_sq: f64,
+    /// What this step's window did ([`WindowOutcome::Open`] unless the
+    /// step closed one); the wheel blamed on a rejection is in `slip_flags`.
+    pub last_window: WindowOutcome,
     steer_offset_rad: f64,
     /// Variance of the offset estimate; 0 until the first update (the prior
     /// is the configuration's `steer_bias_sigma_rad`).
@@ -470,6 +505,7 @@ impl State {
             slip_counts: WheelSet::splat(0),
             slip_flags: WheelSet::splat(false),
             last_mahalanobis_sq: 0.0,
+            last_window: WindowOutcome::Open,
             steer_offset_rad: 0.0,
             steer_offset_var: 0.0,
             front_scale: 1.0,
@@ -915,6 +951,7 @@ impl Ekf {
     /// The body of [`Ekf::step`], on a copy of the previous state.
     #[inline]
     fn advance(&self, st: &mut State, input: &OdometryInput) -> Result<()> {
+        st.last_window = WindowOutcome::Open;
         let w = &input.wheel_m;
         let phi = input.steer_angle_rad;
         // One test on the sum in the common case; the slow path names the culprit.
@@ -1013,9 +1050,11 @@ impl Ekf {
             }
             form => {
                 let (w, p_w) = if matches!(form, CorrectionForm::RearOnly) {
+                    st.last_window = WindowOutcome::RearOnly;
                     (st.rear_w, st.p_rear_w)
                 } else if !st.window_front_ok {
                     st.stats.skipped_no_front += 1;
+                    st.last_window = WindowOutcome::NoFront;
                     (st.rear_w, st.p_rear_w)
                 } else {
                     st.stats.corrections += 1;
@@ -1110,13 +1149,16 @@ impl Ekf {
             };
             return Ok(if use_front {
                 st.stats.rejected_used_front += 1;
+                st.last_window = WindowOutcome::RejectedUsedFront;
                 (st.front_w, p_front)
             } else {
                 st.stats.rejected_kept_rear += 1;
+                st.last_window = WindowOutcome::RejectedKeptRear;
                 (st.rear_w, st.p_rear_w)
             });
         }
         st.stats.accepted += 1;
+        st.last_window = WindowOutcome::Accepted;
         if let Some(drift) = self.cfg.steer_offset_drift_rad {
             // ν_θ ≈ (b − b̂)·v_θ + noise, the noise being the windows' own
             // heading variances (without the bias term).
@@ -1174,9 +1216,11 @@ impl Ekf {
             // Rejected: the literal z is a whole trajectory, not a window, so
             // the only sound action is to keep the prediction.
             st.stats.rejected_kept_rear += 1;
+            st.last_window = WindowOutcome::RejectedKeptRear;
             (x_prior, p_prior, st.rear_w.z)
         } else {
             st.stats.accepted += 1;
+            st.last_window = WindowOutcome::Accepted;
             let K = p_prior * S_inv;
             let dx = K * nu;
             let x = Vec3::new(

@@ -300,20 +300,27 @@ pub fn read_candump(path: &Path) -> Result<(Vec<Logged>, u64), String> {
 }
 
 /// Reads a CSV of numbers with one header line (the truth of `canodom
-/// simulate --truth`, the poses of `canodom replay --out`).
+/// simulate --truth`, the poses of `canodom replay --out`); the text column
+/// `correction` of replay's CSV is left out.
 ///
 /// # Errors
 /// Unreadable file or a field that is not a number.
 pub fn read_csv(path: &Path) -> Result<Vec<Vec<f64>>, String> {
     let text = std::fs::read_to_string(path)
         .map_err(|e| format!("cannot read {}: {e}", path.display()))?;
+    let text_column = text
+        .lines()
+        .next()
+        .and_then(|header| header.split(',').position(|name| name == "correction"));
     text.lines()
         .skip(1)
         .filter(|l| !l.trim().is_empty())
         .enumerate()
         .map(|(i, line)| {
             line.split(',')
-                .map(|f| {
+                .enumerate()
+                .filter(|(k, _)| Some(*k) != text_column)
+                .map(|(_, f)| {
                     f.trim()
                         .parse::<f64>()
                         .map_err(|e| format!("{} row {}: {f:?}: {e}", path.display(), i + 2))
@@ -324,7 +331,8 @@ pub fn read_csv(path: &Path) -> Result<Vec<Vec<f64>>, String> {
 }
 
 /// Runs `canodom replay` of `log` and returns its pose rows
-/// (`t_s,x_m,y_m,heading_rad,odo_x_m,odo_y_m,odo_heading_rad`) and its stderr.
+/// (`t_s,x_m,y_m,heading_rad,odo_x_m,odo_y_m,odo_heading_rad`; the
+/// `correction` column left out) and its stderr.
 ///
 /// # Errors
 /// The command failed or its CSV cannot be read.

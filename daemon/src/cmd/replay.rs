@@ -9,13 +9,14 @@ use crate::frame::CanFrame;
 use crate::pipeline::{Pipeline, Step};
 use crate::stats::Stats;
 use anyhow::Context as _;
+use canodom_fusion::ekf::WindowOutcome;
 use std::fmt::Write as _;
 use std::io::{Read, Write};
 use std::path::PathBuf;
 use std::sync::mpsc;
 
 /// The CSV header `replay` writes.
-pub const CSV_HEADER: &str = "t_s,x_m,y_m,heading_rad,odo_x_m,odo_y_m,odo_heading_rad";
+pub const CSV_HEADER: &str = "t_s,x_m,y_m,heading_rad,odo_x_m,odo_y_m,odo_heading_rad,correction";
 
 /// Arguments of `replay`.
 #[derive(Debug, clap::Args)]
@@ -24,7 +25,11 @@ pub const CSV_HEADER: &str = "t_s,x_m,y_m,heading_rad,odo_x_m,odo_y_m,odo_headin
 canodom replay --config rc_car.toml drive.log --out pose.csv\n\n\
 The CSV has one row per filter step (one per rear-wheel frame): seconds since the first input \
 frame, the fused pose, then rear-wheel-only odometry; both start at (0, 0, 0) at the first \
-wheel sample, headings are unwrapped (total turn, radians). Statistics go to stderr."
+wheel sample, headings are unwrapped (total turn, radians). The last column says what the \
+filter's correction window did at that step: empty inside a window; `accepted` (front and rear \
+agree: the rear increment is kept), `kept_rear` or `used_front` (the gate rejected the window \
+and blamed a front or a rear wheel), `no_front` (front wheels or steering stale). Statistics \
+go to stderr, with the gate's rejections by action and by the wheel blamed."
 )]
 pub struct ReplayArgs {
     /// The configuration file (the same one `run` uses).
@@ -143,12 +148,19 @@ enum Entry {
 struct Row {
     t_us: i64,
     values: [f64; 6],
+    correction: WindowOutcome,
 }
 
 /// Appends `rows` to `text` as CSV lines.
 fn push_rows(text: &mut Vec<u8>, rows: &[Row]) {
     for row in rows {
         push_csv_row(text, row.t_us, &row.values);
+        // The text column after the numbers: the row's newline becomes
+        // `,tag\n` (two pushes; the number row keeps its single copy).
+        text.pop();
+        text.push(b',');
+        text.extend_from_slice(row.correction.as_str().as_bytes());
+        text.push(b'\n');
     }
 }
 
@@ -203,6 +215,7 @@ pub fn replay(
                                 s.odometry.y_m,
                                 s.odometry.heading_rad,
                             ],
+                            correction: s.correction,
                         });
                     }
                 }
