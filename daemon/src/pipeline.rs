@@ -631,6 +631,7 @@ impl Pipeline {
             },
             front_valid: front_fresh && steer_fresh && self.steer_rad.is_some(),
             steer_angle_rad: self.steer_rad.unwrap_or(0.0),
+            zero_is_floor: matches!(self.decoders, Decoders::Speed(_)),
         };
         self.front_acc_m = (0.0, 0.0);
         let [a, b] = &mut self.states;

@@ -85,6 +85,8 @@ fn replay(
             wheel_m,
             front_valid: true,
             steer_angle_rad: params.steering().angle_rad(s.steer_signal),
+            // The demo's car has tick encoders: a zero step is quantisation.
+            zero_is_floor: false,
         };
         for (st, f) in states.iter_mut().zip(filters) {
             *st = f.step(st, &input)?;

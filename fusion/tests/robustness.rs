@@ -21,23 +21,39 @@ mod common;
 use canodom_fusion::ekf::{Ekf, EkfConfig, State};
 use canodom_fusion::sim::family::{self, Drive};
 use canodom_fusion::sim::{SlipConfig, SlipWheels, simulate};
-use common::{Wheels, replay};
+use common::{Wheels, replay, replay_with};
 
-/// Rear-only and the default filter over one drive: (distance, rear-only
-/// end error, fused end error, fused final state).
-fn judge(drive: &Drive, wheels: Wheels) -> (f64, f64, f64, State) {
+/// One drive judged: its distance, the end errors of plain rear-only
+/// odometry, of rear-only with the sensor-floor fill (the same wheel
+/// information the filter has), and of the default filter, and the
+/// filter's final state.
+struct Judged {
+    distance_m: f64,
+    rear_plain_m: f64,
+    rear_m: f64,
+    fused_m: f64,
+    state: State,
+}
+
+fn judge(drive: &Drive, wheels: impl Fn() -> Wheels) -> Judged {
     let run = simulate(&drive.sim, &drive.plan, drive.seed).unwrap();
-    let filters = [
-        Ekf::new(EkfConfig::rear_only(drive.nominal)).unwrap(),
-        Ekf::new(EkfConfig::new(drive.nominal)).unwrap(),
-    ];
-    let states = replay(&run, &drive.nominal, wheels, &filters);
+    let rear = Ekf::new(EkfConfig::rear_only(drive.nominal)).unwrap();
+    let fused = Ekf::new(EkfConfig::new(drive.nominal)).unwrap();
+    let plain = replay_with(&run, &drive.nominal, wheels(), &[rear], false)[0];
+    let [filled, state] = replay(&run, &drive.nominal, wheels(), &[rear, fused])[..] else {
+        unreachable!("two filters give two states")
+    };
     let err = |st: &State| {
         let p = st.pose();
         (p.x_m - run.true_end.x_m).hypot(p.y_m - run.true_end.y_m)
     };
-    let distance_m = run.samples.last().unwrap().true_distance_m;
-    (distance_m, err(&states[0]), err(&states[1]), states[1])
+    Judged {
+        distance_m: run.samples.last().unwrap().true_distance_m,
+        rear_plain_m: err(&plain),
+        rear_m: err(&filled),
+        fused_m: err(&state),
+        state,
+    }
 }
 
 fn rejections(st: &State) -> u64 {
@@ -46,9 +62,11 @@ fn rejections(st: &State) -> u64 {
 
 /// What a no-slip family gave, as fractions of each drive's distance.
 struct FamilyResult {
+    /// Largest fused − rear-only (with the same wheel information).
     worst_excess: f64,
     worst_fused: f64,
-    mean_rear: f64,
+    /// Mean of plain rear-only odometry, without the sensor-floor fill.
+    mean_rear_plain: f64,
     mean_fused: f64,
     rejections_per_km: f64,
 }
@@ -60,48 +78,54 @@ fn car_family(
     seeds: u64,
 ) -> FamilyResult {
     let (mut worst_excess, mut worst_fused, mut km, mut rejected) = (f64::MIN, 0.0f64, 0.0, 0);
-    let (mut sum_rear, mut sum_fused) = (0.0, 0.0);
-    let mut failures = Vec::new();
+    let (mut sum_rear_plain, mut sum_rear, mut sum_fused) = (0.0, 0.0, 0.0);
+    let mut over = Vec::new();
     for seed in 0..seeds {
         let drive = make(seed).unwrap();
-        let (d, rear, fused, st) = judge(&drive, Wheels::speeds());
-        let excess = (fused - rear) / d;
+        let j = judge(&drive, Wheels::speeds);
+        let d = j.distance_m;
+        let excess = (j.fused_m - j.rear_m) / d;
         worst_excess = worst_excess.max(excess);
-        worst_fused = worst_fused.max(fused / d);
-        sum_rear += rear / d;
-        sum_fused += fused / d;
+        worst_fused = worst_fused.max(j.fused_m / d);
+        sum_rear_plain += j.rear_plain_m / d;
+        sum_rear += j.rear_m / d;
+        sum_fused += j.fused_m / d;
         km += d / 1000.0;
-        rejected += rejections(&st);
+        rejected += rejections(&j.state);
         if seed < 6 || excess > 0.0005 {
             println!(
-                "{name} drive {seed:3}: {d:5.0} m, rear-only {rear:5.2} m, fused {fused:5.2} m ({:.3} %), \
-                 gate rejections {} (front used {}, rear kept {}), learnt offset {:.3}°",
-                100.0 * fused / d,
-                rejections(&st),
-                st.stats.rejected_used_front,
-                st.stats.rejected_kept_rear,
-                st.steer_offset_rad().to_degrees()
+                "{name} drive {seed:3}: {d:5.0} m, rear-only {:5.2} m (plain {:5.2} m), fused {:5.2} m \
+                 ({:.3} %), gate rejections {} (front used {}, rear kept {}), learnt offset {:.3}°",
+                j.rear_m,
+                j.rear_plain_m,
+                j.fused_m,
+                100.0 * j.fused_m / d,
+                rejections(&j.state),
+                j.state.stats.rejected_used_front,
+                j.state.stats.rejected_kept_rear,
+                j.state.steer_offset_rad().to_degrees()
             );
         }
         if excess > 0.0005 {
-            failures.push(seed);
+            over.push(seed);
         }
     }
     let n = seeds as f64;
     let result = FamilyResult {
         worst_excess,
         worst_fused,
-        mean_rear: sum_rear / n,
+        mean_rear_plain: sum_rear_plain / n,
         mean_fused: sum_fused / n,
         rejections_per_km: rejected as f64 / km,
     };
     println!(
         "{name}: {seeds} drives, {km:.1} km: worst fused − rear-only {:+.3} % of distance, worst fused {:.3} %, \
-         mean rear-only {:.3} %, mean fused {:.3} %, gate rejections {rejected} = {:.2} per km; \
-         drives over rear-only + 0.05 %: {failures:?}",
+         mean plain rear-only {:.3} %, with the floor fill {:.3} %, fused {:.3} %, gate rejections {rejected} = \
+         {:.2} per km; drives over rear-only + 0.05 %: {over:?}",
         100.0 * worst_excess,
         100.0 * worst_fused,
-        100.0 * result.mean_rear,
+        100.0 * result.mean_rear_plain,
+        100.0 * sum_rear / n,
         100.0 * result.mean_fused,
         result.rejections_per_km
     );
@@ -128,20 +152,28 @@ fn full_size_car_no_slip_never_worse_than_rear_only() {
     );
 }
 
-/// In town the sensors' 2 km/h floor defeats both estimators: the inner
-/// wheels drop to 0 first when stopping and crawling, so rear-only drifts
-/// (about 1 % of the distance) and the gate sees wheels that disagree with
-/// nothing slipping (40 rejections per km). What holds today is the mean:
-/// fused no worse than rear-only over the family. The per-drive bar of the
-/// open road is not met here; see the fusion crate's robustness notes.
+/// In town the sensors' 2 km/h floor costs both estimators: the inner
+/// wheels drop to 0 first when stopping, and crawling below the floor loses
+/// its distance altogether. The filter fills a wheel at the floor from the
+/// others (`OdometryInput::zero_is_floor`), which takes the gate's false
+/// alarms down from 40 to 4 per km; what crawling loses stays lost. Bars:
+/// fused better than plain rear-only on average, and on every drive at most
+/// rear-only's (with the same fill) plus 0.1 % of the distance (the open
+/// road's 0.05 % is missed on 4 drives of 200, by single gate decisions in
+/// drives already 1 % off).
 #[test]
-fn urban_car_stop_go_reverse_crawl_no_worse_than_rear_only_on_average() {
+fn urban_car_stop_go_reverse_crawl_no_worse_than_rear_only() {
     let r = car_family("urban", family::urban_car, 200);
     assert!(
-        r.mean_fused <= r.mean_rear,
-        "mean fused {} vs rear-only {}",
+        r.mean_fused < r.mean_rear_plain,
+        "mean fused {} vs plain rear-only {}",
         r.mean_fused,
-        r.mean_rear
+        r.mean_rear_plain
+    );
+    assert!(
+        r.worst_excess <= 0.001,
+        "fused exceeds rear-only by {}",
+        r.worst_excess
     );
 }
 
@@ -150,11 +182,11 @@ fn rc_family(slip: SlipWheels, seeds: u64) -> (f64, f64) {
     let mut rejected = 0;
     for seed in 0..seeds {
         let drive = family::rc_car(seed, SlipConfig::paper(slip)).unwrap();
-        let wheels = Wheels::ticks(&drive.nominal, drive.sim.wheel_output.counter_bits);
-        let (_, rear, fused, st) = judge(&drive, wheels);
-        rear_sq += rear * rear;
-        fused_sq += fused * fused;
-        rejected += rejections(&st);
+        let bits = drive.sim.wheel_output.counter_bits;
+        let j = judge(&drive, || Wheels::ticks(&drive.nominal, bits));
+        rear_sq += j.rear_m * j.rear_m;
+        fused_sq += j.fused_m * j.fused_m;
+        rejected += rejections(&j.state);
     }
     let n = seeds as f64;
     let (rear, fused) = (rear_sq / n, fused_sq / n);

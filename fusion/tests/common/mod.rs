@@ -63,12 +63,21 @@ impl Wheels {
     }
 }
 
-/// Runs every filter over one simulated run; returns each filter's final state.
-pub fn replay(
+/// Runs every filter over one simulated run; returns each filter's final
+/// state. Wheel-speed sensors report 0 below their floor and encoders' zero
+/// steps are quantisation, so `zero_is_floor` follows the wheels' kind.
+pub fn replay(run: &Run, nominal: &VehicleParams, wheels: Wheels, filters: &[Ekf]) -> Vec<State> {
+    let zero_is_floor = matches!(wheels, Wheels::Speeds(_));
+    replay_with(run, nominal, wheels, filters, zero_is_floor)
+}
+
+/// [`replay`] with the inputs' `zero_is_floor` given.
+pub fn replay_with(
     run: &Run,
     nominal: &VehicleParams,
     mut wheels: Wheels,
     filters: &[Ekf],
+    zero_is_floor: bool,
 ) -> Vec<State> {
     let mut states = vec![State::origin(); filters.len()];
     for (k, s) in run.samples.iter().enumerate() {
@@ -80,6 +89,7 @@ pub fn replay(
             wheel_m,
             front_valid: true,
             steer_angle_rad: nominal.steering().angle_rad(s.steer_signal),
+            zero_is_floor,
         };
         for (st, f) in states.iter_mut().zip(filters) {
             *st = f.step(st, &input).unwrap();
