@@ -7,7 +7,7 @@
 use crate::config::{Config, SteeringKind, WheelKind};
 use crate::frame::{CanFrame, CanId};
 use canodom_dbc::{Checksum, SignalHandle};
-use canodom_fusion::sim::{Direction, Plan, SimConfig, SteeringSensor, WheelOutput};
+use canodom_fusion::sim::{Direction, Plan, SimConfig, SteeringSensor, WheelOutput, family};
 use canodom_fusion::{SteeringMap, VehicleParams, Wheel};
 use serde::Deserialize;
 use std::path::Path;
@@ -25,6 +25,14 @@ pub enum PathKind {
     FigureEight,
     /// A random smooth drive (seeded).
     Random,
+    /// A drive of the fusion tests' full-size family (seeded, road cars
+    /// only): a 30 m straight, full circles of 10–20 m radius left and
+    /// right, eight constant-curvature segments; tyre slip angles, a
+    /// steering bias, steering that jumps or turns at a finite rate.
+    FullSize,
+    /// A town drive of the same family (seeded, road cars only): stops,
+    /// reversing, crawling below the wheel-speed sensors' 2 km/h floor.
+    Town,
 }
 
 /// Corner radius of the calibration track the simulated 1:10 car drives, m.
@@ -69,7 +77,30 @@ impl PathKind {
             Self::FigureEight => Plan::figure_eight(1.0 * k),
             Self::Random if road_scale => Plan::road_drive(seed),
             Self::Random => Plan::random_drive(seed, 20.0 * f64::from(laps), 0.5),
+            Self::FullSize | Self::Town => Ok(self.family_drive(seed)?.plan),
         }
+    }
+
+    /// The family drive of [`PathKind::FullSize`] and [`PathKind::Town`]
+    /// (its plan, and the tyres, driver and sensor errors it was drawn
+    /// with); an error for the other kinds.
+    ///
+    /// # Errors
+    /// Not a family kind, or the fusion crate refused the drive.
+    pub fn family_drive(self, seed: u64) -> canodom_fusion::Result<family::Drive> {
+        match self {
+            Self::FullSize => family::full_size_car(seed),
+            Self::Town => family::urban_car(seed),
+            _ => Err(canodom_fusion::Error::InvalidConfig {
+                name: "path",
+                reason: "only full-size and town drives come from a family".into(),
+            }),
+        }
+    }
+
+    /// Whether the drive comes from a fusion-test family (road cars only).
+    pub fn is_family(self) -> bool {
+        matches!(self, Self::FullSize | Self::Town)
     }
 }
 

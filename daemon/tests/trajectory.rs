@@ -66,3 +66,37 @@ fn toyota_road_drive_replay_follows_the_truth() {
     let config = Config::load(&crate::util::toyota_toml()).unwrap();
     check(&config, PathKind::Random, 1, 0.0005 * 660.0, 0.01);
 }
+
+/// The fusion tests' full-size family through the whole daemon path (Toyota
+/// DBC, frames, decoders, pipeline): on each drive the fused end error is at
+/// most rear-only's plus 0.05 % of the distance, and at most 0.15 % of it.
+#[test]
+fn toyota_full_size_family_fused_never_worse_than_rear_only() {
+    let config = Config::load(&crate::util::toyota_toml()).unwrap();
+    for seed in 0..4 {
+        let (log, truth_csv) = simulated_log(&config, PathKind::FullSize, seed);
+        let mut csv = Vec::new();
+        let summary = replay(&config, &log[..], &mut csv, &mut std::io::sink()).unwrap();
+        let rows = csv_rows(&String::from_utf8(csv).unwrap());
+        let truth = csv_rows(&truth_csv);
+        let distance_m: f64 = truth
+            .windows(2)
+            .map(|w| (w[1][1] - w[0][1]).hypot(w[1][2] - w[0][2]))
+            .sum();
+        let (last, t) = (rows.last().unwrap(), truth.last().unwrap());
+        let fused = (last[1] - t[1]).hypot(last[2] - t[2]);
+        let rear = (last[4] - t[1]).hypot(last[5] - t[2]);
+        println!(
+            "full-size seed {seed}: {distance_m:.0} m, rear-only {rear:.2} m, fused {fused:.2} m; {}",
+            summary.stats
+        );
+        assert!(
+            fused <= rear + 0.0005 * distance_m,
+            "seed {seed}: {fused} vs {rear}"
+        );
+        assert!(
+            fused <= 0.0015 * distance_m,
+            "seed {seed}: {fused} m of {distance_m} m"
+        );
+    }
+}

@@ -8,7 +8,7 @@ use crate::config::{Config, WheelKind};
 use crate::frame::CanFrame;
 use crate::vehicle::{PathKind, SampleEncoder, TrueParamsFile, sim_config};
 use canodom_fusion::VehicleParams;
-use canodom_fusion::sim::{Sample, Simulator, SlipConfig, SlipWheels};
+use canodom_fusion::sim::{Sample, Simulator, SlipConfig, SlipWheels, SteeringSensor};
 use std::io::Write;
 use std::path::PathBuf;
 
@@ -31,7 +31,8 @@ The vehicle is the configuration's nominal one unless --true-params gives a TOML
 wheelbase_m, rear_tread_m, front_tread_m, rear_left_diameter_m, rear_right_diameter_m, \
 front_left_diameter_m, front_right_diameter_m, steering_gain_factor, steering_offset_deg.\n\
 Paths are sized for a 1:10 car with tick inputs (track radius 0.78 m) and 20x larger for a road car \
-with speed inputs. The truth CSV has t_s,x_m,y_m,heading_rad of the rear-axle centre per sample."
+with speed inputs. `full-size` and `town` (road cars only) are the drives the fusion tests judge the \
+filter on, drawn from --seed: tyre slip angles, a steering bias, stops, reversing, crawling. The truth CSV has t_s,x_m,y_m,heading_rad of the rear-axle centre per sample."
 )]
 pub struct SimulateArgs {
     /// The configuration file: DBC, signals, checks, nominal vehicle.
@@ -130,6 +131,28 @@ pub fn simulator_at(
     speed_mps: Option<f64>,
 ) -> anyhow::Result<Simulator> {
     let mut cfg = sim_config(config, true_vehicle(config, true_params)?);
+    if path.is_family() {
+        anyhow::ensure!(
+            matches!(config.signals.wheel_kind, WheelKind::Speed(_)),
+            "--path {} is a road car's drive: it needs wheel-speed inputs (wheel_kind = \"speed\")",
+            if path == PathKind::Town {
+                "town"
+            } else {
+                "full-size"
+            }
+        );
+        // The family's world on the configured vehicle: its tyres, driver,
+        // speeds and steering errors; the DBC's quantisation stays.
+        let drive = path.family_drive(seed)?;
+        cfg.tyres = drive.sim.tyres;
+        cfg.path_following = drive.sim.path_following;
+        cfg.speed_mps = drive.sim.speed_mps;
+        cfg.steering_sensor = SteeringSensor {
+            quantum: cfg.steering_sensor.quantum,
+            ..drive.sim.steering_sensor
+        };
+        cfg.wheel_output.zero_below_mps = drive.sim.wheel_output.zero_below_mps;
+    }
     if let Some(v) = speed_mps {
         set_speed(&mut cfg, v);
     }
