@@ -129,6 +129,31 @@ impl TyreModel {
     }
 }
 
+/// The vehicle's yaw-rate sensor (an ESC's gyro): `scale · ω + bias + white`,
+/// quantised. Production sensors have biases of tenths of a degree per
+/// second that drift with temperature, and a scale error of a per cent.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct YawRateSensor {
+    /// Constant bias, rad/s.
+    pub bias_radps: f64,
+    /// Scale factor (1 = exact).
+    pub scale: f64,
+    /// White noise per sample, rad/s.
+    pub white_sigma_radps: f64,
+    /// Quantisation step, rad/s (0 = none).
+    pub quantum_radps: f64,
+}
+
+impl YawRateSensor {
+    /// A perfect sensor.
+    pub const EXACT: Self = Self {
+        bias_radps: 0.0,
+        scale: 1.0,
+        white_sigma_radps: 0.0,
+        quantum_radps: 0.0,
+    };
+}
+
 /// The error of the steering measurement the vehicle reports. All angles are
 /// road-wheel radians; the result is converted to the signal through the true
 /// steering map and then quantised in signal units.
@@ -278,6 +303,8 @@ pub struct SimConfig {
     pub wheel_output: WheelOutput,
     /// Tyre slip angles (kinematic by default).
     pub tyres: TyreModel,
+    /// The yaw-rate sensor's errors (exact by default).
+    pub yaw_rate_sensor: YawRateSensor,
 }
 
 impl SimConfig {
@@ -296,6 +323,7 @@ impl SimConfig {
             slip: SlipConfig::NONE,
             wheel_output: WheelOutput::RC_CAR,
             tyres: TyreModel::KINEMATIC,
+            yaw_rate_sensor: YawRateSensor::EXACT,
         }
     }
 
@@ -327,6 +355,7 @@ impl SimConfig {
             slip: SlipConfig::NONE,
             wheel_output: WheelOutput::ROAD_CAR,
             tyres: TyreModel::KINEMATIC,
+            yaw_rate_sensor: YawRateSensor::EXACT,
         }
     }
 
@@ -349,6 +378,17 @@ impl SimConfig {
             });
         }
         non_negative("zero_below_mps", self.wheel_output.zero_below_mps)?;
+        let y = &self.yaw_rate_sensor;
+        non_negative("yaw white_sigma_radps", y.white_sigma_radps)?;
+        non_negative("yaw quantum_radps", y.quantum_radps)?;
+        for (name, v) in [("yaw bias_radps", y.bias_radps), ("yaw scale", y.scale)] {
+            if !v.is_finite() {
+                return Err(Error::InvalidConfig {
+                    name,
+                    reason: format!("must be finite, got {v}"),
+                });
+            }
+        }
         for (name, v) in [
             (
                 "understeer_rad_per_mps2",
@@ -436,6 +476,10 @@ pub struct Sample {
     pub wheel_distance_m: WheelSet<f64>,
     /// Which wheels are slipping at this sample.
     pub slipping: WheelSet<bool>,
+    /// The measured yaw rate (bias, scale, noise, quantisation), rad/s.
+    pub yaw_rate_radps: f64,
+    /// Ground truth: the yaw rate over the last period, rad/s.
+    pub true_yaw_rate_radps: f64,
 }
 
 /// A finished run: all samples and the truth at its end.
@@ -526,6 +570,8 @@ pub struct Simulator {
     slip_left_s: WheelSet<f64>,
     slip_ratio: WheelSet<f64>,
     slip_events: u32,
+    /// The true yaw rate over the last period.
+    yaw_rate_radps: f64,
     /// +1 forwards, −1 reversing.
     direction: f64,
     /// The plan's stops in order: position along the plan, duration, reverse.
@@ -596,6 +642,7 @@ impl Simulator {
             slip_left_s: WheelSet::splat(0.0),
             slip_ratio: WheelSet::splat(0.0),
             slip_events: 0,
+            yaw_rate_radps: 0.0,
             direction: 1.0,
             stops: Vec::new(),
             stops_done: 0,
@@ -685,6 +732,17 @@ impl Simulator {
             }
         });
         let slip_left = self.slip_left_s;
+        let y = self.cfg.yaw_rate_sensor;
+        // Drawn only for a noisy sensor, so other runs keep their random sequence.
+        let yaw_white = if y.white_sigma_radps > 0.0 {
+            y.white_sigma_radps * self.rng.sample::<f64, _>(StandardNormal)
+        } else {
+            0.0
+        };
+        let mut yaw_rate_radps = y.scale * self.yaw_rate_radps + y.bias_radps + yaw_white;
+        if y.quantum_radps > 0.0 {
+            yaw_rate_radps = (yaw_rate_radps / y.quantum_radps).round() * y.quantum_radps;
+        }
         Sample {
             t_s: self.step as f64 * self.dt_s,
             ticks,
@@ -697,6 +755,8 @@ impl Simulator {
             true_wheel_distance_m: self.true_wheel_m,
             wheel_distance_m: self.wheel_m,
             slipping: slip_left.map(|_, t| t > 0.0),
+            yaw_rate_radps,
+            true_yaw_rate_radps: self.yaw_rate_radps,
         }
     }
 
@@ -940,8 +1000,13 @@ impl Simulator {
                     Phase::Before(k + 1)
                 };
             }
-            Phase::Moving => self.drive()?,
+            Phase::Moving => {
+                let heading_before = self.pose.heading_rad;
+                self.drive()?;
+                self.yaw_rate_radps = (self.pose.heading_rad - heading_before) / self.dt_s;
+            }
             Phase::Paused(k, steps) => {
+                self.yaw_rate_radps = 0.0;
                 self.step_slip();
                 self.wheel_speed_mps = WheelSet::splat(0.0);
                 self.phase = if k + 1 >= steps {
@@ -951,6 +1016,7 @@ impl Simulator {
                 };
             }
             Phase::After(k) => {
+                self.yaw_rate_radps = 0.0;
                 self.step_slip();
                 self.wheel_speed_mps = WheelSet::splat(0.0);
                 if k >= self.standstill_steps {

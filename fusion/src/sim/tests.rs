@@ -356,3 +356,32 @@ fn bad_configs_are_errors() {
     let tight = Plan::circle(0.01, Direction::Ccw, 1.0).unwrap();
     assert!(simulate(&SimConfig::noise_free(rc_true()), &tight, 0).is_err());
 }
+
+#[test]
+fn yaw_rate_sensor_reads_scale_times_truth_plus_bias() {
+    let p = VehicleParams::nominal(2.7, 1.55, 0.65, 100).unwrap();
+    let mut cfg = SimConfig::road_car(p, SteeringSensor::EXACT);
+    cfg.path_following = PathFollowing::NONE;
+    cfg.yaw_rate_sensor = YawRateSensor {
+        bias_radps: 0.01,
+        scale: 1.02,
+        ..YawRateSensor::EXACT
+    };
+    let run = simulate(&cfg, &Plan::circle(20.0, Direction::Ccw, 0.5).unwrap(), 1).unwrap();
+    let mid = &run.samples[run.samples.len() / 2];
+    // Halfway round a 20 m circle at 8 m/s: ω = v/R = 0.4 rad/s.
+    assert!(
+        (mid.true_yaw_rate_radps - 0.4).abs() < 1e-9,
+        "{}",
+        mid.true_yaw_rate_radps
+    );
+    assert!((mid.yaw_rate_radps - (1.02 * 0.4 + 0.01)).abs() < 1e-9);
+    // At rest it reads its bias alone.
+    assert_eq!(run.samples[0].yaw_rate_radps, 0.01);
+    let turned: f64 = run
+        .samples
+        .iter()
+        .map(|s| s.true_yaw_rate_radps * 0.01)
+        .sum();
+    assert!((turned - std::f64::consts::PI).abs() < 1e-9, "{turned}");
+}
