@@ -110,6 +110,10 @@ struct RawSignals {
     steering_fine: Option<String>,
     wheel_kind: String,
     steering_kind: String,
+    /// The car's yaw-rate sensor (`KINEMATICS.YAW_RATE` on a Toyota), optional.
+    yaw_rate: Option<String>,
+    /// +1 when the signal reads a left turn positive (ISO 8855), −1 when right.
+    yaw_rate_sign: Option<i64>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -263,6 +267,18 @@ pub struct Signals {
     pub steering_kind: SteeringKind,
     /// Counter width of tick signals (the signal's size in bits).
     pub tick_bits: u32,
+    /// The yaw-rate sensor, if configured.
+    pub yaw_rate: Option<YawRateSignal>,
+}
+
+/// A resolved yaw-rate signal.
+#[derive(Clone, Copy, Debug)]
+pub struct YawRateSignal {
+    /// The signal.
+    pub signal: InputSignal,
+    /// Radians per second, left positive, per unit of the signal (the DBC
+    /// unit's conversion times `yaw_rate_sign`).
+    pub radps_per_unit: f64,
 }
 
 /// Integrity checks of one input message.
@@ -581,6 +597,50 @@ impl Validator<'_> {
                 ));
             }
         };
+        let yaw_rate = match &s.yaw_rate {
+            None => {
+                if s.yaw_rate_sign.is_some() {
+                    return Err(self.err(
+                        "signals.yaw_rate_sign",
+                        "signals.yaw_rate beside it",
+                        "a sign without a yaw-rate signal",
+                    ));
+                }
+                None
+            }
+            Some(path) => {
+                let signal = self.signal(&db, "signals.yaw_rate", path)?;
+                let unit = unit_of(&signal);
+                let per_unit = match unit.to_ascii_lowercase().as_str() {
+                    "deg/s" | "°/s" | "degree/s" | "degrees/s" | "dps" => {
+                        std::f64::consts::PI / 180.0
+                    }
+                    "rad/s" | "radps" => 1.0,
+                    _ => {
+                        return Err(self.err(
+                            "signals.yaw_rate",
+                            "a yaw-rate signal whose DBC unit is deg/s or rad/s",
+                            format!("{path} with unit {unit:?}"),
+                        ));
+                    }
+                };
+                let sign = match s.yaw_rate_sign {
+                    None | Some(1) => 1.0,
+                    Some(-1) => -1.0,
+                    Some(other) => {
+                        return Err(self.err(
+                            "signals.yaw_rate_sign",
+                            "1 (left turn positive) or -1 (right turn positive)",
+                            other,
+                        ));
+                    }
+                };
+                Some(YawRateSignal {
+                    signal,
+                    radps_per_unit: per_unit * sign,
+                })
+            }
+        };
         let steer_unit = unit_of(&steering);
         let rad_per_unit = match steer_unit.to_ascii_lowercase().as_str() {
             "deg" | "degree" | "degrees" | "°" => std::f64::consts::PI / 180.0,
@@ -840,6 +900,7 @@ impl Validator<'_> {
                 wheel_kind,
                 steering_kind,
                 tick_bits,
+                yaw_rate,
             },
             checks,
             inputs,

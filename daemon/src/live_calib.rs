@@ -213,6 +213,8 @@ impl LiveCalibration {
                     rear_right_diameter_m: self.nominal.wheel_diameter_m(Wheel::RearRight),
                     steering_gain: steer.gain,
                     steering_offset_rad: steer.offset_rad,
+                    yaw_rate_bias_radps: None,
+                    yaw_rate_scale: None,
                 }
             },
             |s| s.values,
@@ -1065,6 +1067,8 @@ mod tests {
             rear_right_diameter_m: 0.0915,
             steering_gain: 1f64.to_radians(),
             steering_offset_rad: 0.0,
+            yaw_rate_bias_radps: None,
+            yaw_rate_scale: None,
         }
     }
 
@@ -1480,6 +1484,8 @@ mod tests {
                 rear_right_diameter_m: nominal.wheel_diameter_m(Wheel::RearRight),
                 steering_gain: steer.gain,
                 steering_offset_rad: steer.offset_rad,
+                yaw_rate_bias_radps: None,
+                yaw_rate_scale: None,
             },
             "exact",
             1,

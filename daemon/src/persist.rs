@@ -21,6 +21,9 @@ use std::path::{Path, PathBuf};
 /// Version of the file layout written by this code.
 pub const FORMAT_VERSION: u32 = 1;
 
+/// The largest yaw-rate bias a set may carry, rad/s (5°/s).
+pub const YAW_BIAS_MAX_RADPS: f64 = 5.0 * std::f64::consts::PI / 180.0;
+
 /// Default number of previous sets kept for rollback.
 pub const DEFAULT_MAX_HISTORY: usize = 10;
 
@@ -40,6 +43,13 @@ pub struct ParamValues {
     pub steering_gain: f64,
     /// Road-wheel angle offset.
     pub steering_offset_rad: f64,
+    /// The yaw-rate sensor's bias (measured = scale · true + bias), rad/s:
+    /// from a drive calibration with position fixes; absent otherwise.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub yaw_rate_bias_radps: Option<f64>,
+    /// The yaw-rate sensor's scale, with the bias.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub yaw_rate_scale: Option<f64>,
 }
 
 impl ParamValues {
@@ -64,6 +74,17 @@ impl ParamValues {
             ("steering_gain", self.steering_gain),
             ("steering_offset_rad", self.steering_offset_rad),
         ]
+    }
+
+    /// The optional values that are present (a set written before they
+    /// existed checks as it did).
+    fn optional_fields(&self) -> impl Iterator<Item = (&'static str, f64)> {
+        [
+            ("yaw_rate_bias_radps", self.yaw_rate_bias_radps),
+            ("yaw_rate_scale", self.yaw_rate_scale),
+        ]
+        .into_iter()
+        .filter_map(|(name, v)| v.map(|v| (name, v)))
     }
 }
 
@@ -93,6 +114,10 @@ impl ParamSet {
         for (_, v) in self.values.fields() {
             digest.update(&v.to_bits().to_le_bytes());
         }
+        for (name, v) in self.values.optional_fields() {
+            digest.update(name.as_bytes());
+            digest.update(&v.to_bits().to_le_bytes());
+        }
         digest.finalize()
     }
 }
@@ -108,6 +133,10 @@ pub struct ParamBounds {
     pub steering_gain: (f64, f64),
     /// Steering offset range, rad.
     pub steering_offset_rad: (f64, f64),
+    /// Yaw-rate bias range, rad/s.
+    pub yaw_rate_bias_radps: (f64, f64),
+    /// Yaw-rate scale range.
+    pub yaw_rate_scale: (f64, f64),
 }
 
 impl ParamBounds {
@@ -125,6 +154,10 @@ impl ParamBounds {
             diameter_m: span(nominal_diameter_m),
             steering_gain: span(1.0),
             steering_offset_rad: (-max_offset_rad, max_offset_rad),
+            // A production gyro: biases of tenths of a degree per second,
+            // a few per cent of scale; beyond these it is broken.
+            yaw_rate_bias_radps: (-YAW_BIAS_MAX_RADPS, YAW_BIAS_MAX_RADPS),
+            yaw_rate_scale: (0.8, 1.2),
         }
     }
 
@@ -140,7 +173,16 @@ impl ParamBounds {
             self.steering_gain,
             self.steering_offset_rad,
         ];
-        for ((field, value), (min, max)) in values.fields().into_iter().zip(ranges) {
+        let optional = values.optional_fields().map(|(field, value)| {
+            let range = if field == "yaw_rate_scale" {
+                self.yaw_rate_scale
+            } else {
+                self.yaw_rate_bias_radps
+            };
+            ((field, value), range)
+        });
+        for ((field, value), (min, max)) in values.fields().into_iter().zip(ranges).chain(optional)
+        {
             // `!(a <= b)` also catches NaN.
             if !(value >= min && value <= max) {
                 return Err(BoundsError {
@@ -480,6 +522,8 @@ mod tests {
             rear_right_diameter_m: 0.09 + 1e-6 * wave,
             steering_gain: 1.0 + 1e-3 * (k / 7.0).sin(),
             steering_offset_rad: 0.01 * (k / 3.0).cos() / 3.0,
+            yaw_rate_bias_radps: None,
+            yaw_rate_scale: None,
         }
     }
 
@@ -518,6 +562,64 @@ mod tests {
             text.contains("[current]") && text.contains("[[history]]"),
             "{text}"
         );
+        fs::remove_dir_all(dir).unwrap();
+    }
+
+    #[test]
+    fn yaw_rate_values_round_trip_are_checked_and_bounded() {
+        let dir = temp_dir("yaw");
+        let path = dir.join("params.toml");
+        let mut file = ParamFile::default();
+        // A set written before the yaw-rate values existed keeps its checksum.
+        let old = ParamSet {
+            version: 1,
+            created_unix_s: 5,
+            method: "exact".into(),
+            values: values(1),
+        };
+        let with_yaw = ParamValues {
+            yaw_rate_bias_radps: Some(-0.007),
+            yaw_rate_scale: Some(1.01),
+            ..values(2)
+        };
+        assert_ne!(
+            ParamSet {
+                values: with_yaw,
+                ..old.clone()
+            }
+            .checksum(),
+            old.checksum()
+        );
+        file.commit(values(1), "exact", 5, 10);
+        file.commit(with_yaw, "drive", 6, 10);
+        store(&path, &file).unwrap();
+        let text = fs::read_to_string(&path).unwrap();
+        assert!(text.contains("yaw_rate_bias_radps = -0.007"), "{text}");
+        assert_eq!(load(&path, &bounds()).unwrap(), file);
+        // Edited: refused by its checksum.
+        fs::write(
+            &path,
+            text.replace("yaw_rate_scale = 1.01", "yaw_rate_scale = 1.02"),
+        )
+        .unwrap();
+        assert!(matches!(
+            load(&path, &bounds()),
+            Err(PersistError::Checksum { .. })
+        ));
+        // A gyro bias beyond 5°/s is a broken sensor, not a calibration.
+        let mut far = ParamFile::default();
+        far.commit(
+            ParamValues {
+                yaw_rate_bias_radps: Some(0.1),
+                ..with_yaw
+            },
+            "drive",
+            7,
+            10,
+        );
+        store(&path, &far).unwrap();
+        let err = load(&path, &bounds()).unwrap_err();
+        assert!(err.to_string().contains("yaw_rate_bias_radps"), "{err}");
         fs::remove_dir_all(dir).unwrap();
     }
 

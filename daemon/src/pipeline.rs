@@ -31,7 +31,13 @@ use crate::config::{Config, InputsConfig, WheelKind};
 use crate::frame::{CanFrame, FrameKind};
 use crate::stats::{Reject, Stats};
 use canodom_dbc::{Checksum, CounterCheck, CounterStatus, FrameId, SignalHandle};
-use canodom_fusion::ekf::{Ekf, OdometryInput, State, WindowOutcome};
+use canodom_fusion::ekf::{Ekf, Learnt, LearntPair, OdometryInput, State, WindowOutcome};
+
+/// A wheel message's silence, in periods, past which a frame was lost.
+const LOST_FRAME_PERIODS: f64 = 1.9;
+
+/// How sure the filter starts of a calibrated yaw-rate bias, rad/s (0.1°/s).
+const CALIBRATED_YAW_BIAS_SIGMA_RADPS: f64 = 0.1 * std::f64::consts::PI / 180.0;
 use canodom_fusion::odometry::{PoseIntegrator, rear_increment};
 use canodom_fusion::wheel::{
     InputConfig, InputFault, SpeedDecoder, SpeedIntegration, TickDecoder, WheelStep,
@@ -184,6 +190,8 @@ impl Health {
 }
 
 /// Per-message state: checks and which roles it carries.
+// Each role flag is independent (one message may carry several roles).
+#[allow(clippy::struct_excessive_bools)]
 #[derive(Clone, Debug)]
 struct Input {
     id: FrameId,
@@ -191,6 +199,7 @@ struct Input {
     rear: bool,
     front: bool,
     steering: bool,
+    yaw: bool,
     counter: Option<(SignalHandle, CounterCheck)>,
     checksum: Option<Checksum>,
     health: Health,
@@ -209,6 +218,13 @@ pub struct Pipeline {
     wheels: WheelSet<SignalHandle>,
     steering: SignalHandle,
     steering_fine: Option<SignalHandle>,
+    /// The yaw-rate signal and its rad/s (left positive) per unit.
+    yaw_signal: Option<(SignalHandle, f64)>,
+    /// The latest yaw rate, rad/s, its scale corrected.
+    yaw_radps: Option<f64>,
+    /// The yaw-rate sensor's scale in use (1, or calibrated): measured =
+    /// scale · true + bias; the filter learns the bias.
+    yaw_scale: f64,
     steer_map: SteeringMap,
     params: VehicleParams,
     inputs: Vec<Input>,
@@ -254,7 +270,7 @@ const STANDARD_IDS: usize = 1 << 11;
 fn standard_table(inputs: &[Input]) -> Box<[u8; STANDARD_IDS]> {
     let mut table = Box::new([0u8; STANDARD_IDS]);
     for (i, input) in inputs.iter().enumerate() {
-        // At most three inputs (one per role), so `i + 1` fits a u8.
+        // At most four inputs (one per role), so `i + 1` fits a u8.
         if let FrameId::Standard(id) = input.id
             && let Ok(slot) = u8::try_from(i + 1)
         {
@@ -262,6 +278,49 @@ fn standard_table(inputs: &[Input]) -> Box<[u8; STANDARD_IDS]> {
         }
     }
     table
+}
+
+/// The four wheel decoders of the configured kind, each told its message's period.
+fn wheel_decoders(config: &Config) -> Result<Decoders, canodom_fusion::Error> {
+    let s = &config.signals;
+    let db = &config.db;
+    let period = |idx: usize| {
+        db.messages()[idx]
+            .cycle_time_ms()
+            .filter(|&ms| ms > 0)
+            .map_or(config.inputs.default_period_s, |ms| ms as f64 / 1000.0)
+    };
+    let input_cfg = |idx: usize| InputConfig {
+        nominal_period_s: period(idx),
+        gap_factor: 1.5,
+        max_wheel_speed_mps: config.inputs.max_wheel_speed_mps,
+    };
+    let rear_cfg = input_cfg(s.wheels.rear_left.message_index);
+    let front_cfg = input_cfg(s.wheels.front_left.message_index);
+    let params = config.params;
+    let cfg_of = |w: Wheel| if w.is_rear() { rear_cfg } else { front_cfg };
+    let decoders = match s.wheel_kind {
+        WheelKind::Ticks => {
+            let mk =
+                |w: Wheel| TickDecoder::new(s.tick_bits, params.tick_distance_m(w, 1.0), cfg_of(w));
+            Decoders::Ticks(Box::new(WheelSet {
+                rear_left: mk(Wheel::RearLeft)?,
+                rear_right: mk(Wheel::RearRight)?,
+                front_left: mk(Wheel::FrontLeft)?,
+                front_right: mk(Wheel::FrontRight)?,
+            }))
+        }
+        WheelKind::Speed(unit) => {
+            let mk = |w: Wheel| SpeedDecoder::new(unit, SpeedIntegration::Trapezoid, cfg_of(w));
+            Decoders::Speed(Box::new(WheelSet {
+                rear_left: mk(Wheel::RearLeft)?,
+                rear_right: mk(Wheel::RearRight)?,
+                front_left: mk(Wheel::FrontLeft)?,
+                front_right: mk(Wheel::FrontRight)?,
+            }))
+        }
+    };
+    Ok(decoders)
 }
 
 impl Pipeline {
@@ -274,7 +333,7 @@ impl Pipeline {
         let s = &config.signals;
         let db = &config.db;
         let mut inputs: Vec<Input> = Vec::new();
-        let mut role = |idx: usize, rear: bool, front: bool, steering: bool| {
+        let mut role = |idx: usize, rear: bool, front: bool, steering: bool, yaw: bool| {
             let m = &db.messages()[idx];
             let pos = if let Some(p) = find(&inputs, m.id()) {
                 p
@@ -286,6 +345,7 @@ impl Pipeline {
                     rear: false,
                     front: false,
                     steering: false,
+                    yaw: false,
                     counter: check
                         .and_then(|c| c.counter)
                         .and_then(|h| CounterCheck::new(h.size()).ok().map(|cc| (h, cc))),
@@ -298,52 +358,24 @@ impl Pipeline {
             i.rear |= rear;
             i.front |= front;
             i.steering |= steering;
+            i.yaw |= yaw;
         };
-        role(s.wheels.rear_left.message_index, true, false, false);
-        role(s.wheels.front_left.message_index, false, true, false);
-        role(s.steering.message_index, false, false, true);
-        let period = |idx: usize| {
-            db.messages()[idx]
-                .cycle_time_ms()
-                .filter(|&ms| ms > 0)
-                .map_or(config.inputs.default_period_s, |ms| ms as f64 / 1000.0)
-        };
-        let input_cfg = |idx: usize| InputConfig {
-            nominal_period_s: period(idx),
-            gap_factor: 1.5,
-            max_wheel_speed_mps: config.inputs.max_wheel_speed_mps,
-        };
-        let rear_cfg = input_cfg(s.wheels.rear_left.message_index);
-        let front_cfg = input_cfg(s.wheels.front_left.message_index);
+        role(s.wheels.rear_left.message_index, true, false, false, false);
+        role(s.wheels.front_left.message_index, false, true, false, false);
+        role(s.steering.message_index, false, false, true, false);
+        if let Some(y) = &s.yaw_rate {
+            role(y.signal.message_index, false, false, false, true);
+        }
+        let decoders = wheel_decoders(config)?;
         let params = config.params;
-        let cfg_of = |w: Wheel| if w.is_rear() { rear_cfg } else { front_cfg };
-        let decoders = match s.wheel_kind {
-            WheelKind::Ticks => {
-                let mk = |w: Wheel| {
-                    TickDecoder::new(s.tick_bits, params.tick_distance_m(w, 1.0), cfg_of(w))
-                };
-                Decoders::Ticks(Box::new(WheelSet {
-                    rear_left: mk(Wheel::RearLeft)?,
-                    rear_right: mk(Wheel::RearRight)?,
-                    front_left: mk(Wheel::FrontLeft)?,
-                    front_right: mk(Wheel::FrontRight)?,
-                }))
-            }
-            WheelKind::Speed(unit) => {
-                let mk = |w: Wheel| SpeedDecoder::new(unit, SpeedIntegration::Trapezoid, cfg_of(w));
-                Decoders::Speed(Box::new(WheelSet {
-                    rear_left: mk(Wheel::RearLeft)?,
-                    rear_right: mk(Wheel::RearRight)?,
-                    front_left: mk(Wheel::FrontLeft)?,
-                    front_right: mk(Wheel::FrontRight)?,
-                }))
-            }
-        };
         Ok(Self {
             inputs_cfg: config.inputs,
             wheels: s.wheels.map(|_, w| w.handle),
             steering: s.steering.handle,
             steering_fine: s.steering_fine,
+            yaw_signal: s.yaw_rate.map(|y| (y.signal.handle, y.radps_per_unit)),
+            yaw_radps: None,
+            yaw_scale: 1.0,
             steer_map: params.steering(),
             params,
             standard_inputs: standard_table(&inputs),
@@ -405,6 +437,24 @@ impl Pipeline {
         self.params = params;
         self.steer_map = params.steering();
         self.param_version = set.map(|(v, _)| v);
+        let (_, values) = set.unzip();
+        self.yaw_scale = values.and_then(|v| v.yaw_rate_scale).unwrap_or(1.0);
+        if let Some(bias) = values.and_then(|v| v.yaw_rate_bias_radps) {
+            // The calibrated bias as the filter's prior, as sure as a drive
+            // calibration gets (a tenth of a degree per second); the rear
+            // diameters were calibrated with it, so their error starts at 0.
+            let state = &mut self.states[self.current];
+            let learnt = Learnt {
+                yaw_bias: Some(LearntPair {
+                    yaw_bias_radps: bias,
+                    yaw_bias_sigma_radps: CALIBRATED_YAW_BIAS_SIGMA_RADPS,
+                    rear_ratio_err: 0.0,
+                    rear_ratio_sigma: self.ekf.config().rear_ratio_sigma,
+                }),
+                ..state.learnt()
+            };
+            *state = state.with_learnt(&learnt);
+        }
         Ok(())
     }
 
@@ -500,8 +550,12 @@ impl Pipeline {
             return None;
         }
         // Every configured signal of this message must be finite before any is used.
-        let (rear, front, steering) = (input.rear, input.front, input.steering);
+        let (rear, front, steering, yaw) = (input.rear, input.front, input.steering, input.yaw);
         let val = |h: &SignalHandle| h.decode(data).unwrap_or(f64::NAN);
+        let yaw_radps = match (&self.yaw_signal, yaw) {
+            (Some((h, per_unit)), true) => Some(val(h) * per_unit),
+            _ => None,
+        };
         let mut steer_signal = None;
         if steering {
             let u = val(&self.steering) + self.steering_fine.as_ref().map_or(0.0, val);
@@ -525,6 +579,7 @@ impl Pipeline {
         };
         let speeds = raws.map(|_, (_, v)| v);
         if steer_signal.is_some_and(|u| !u.is_finite())
+            || yaw_radps.is_some_and(|w| !w.is_finite())
             || !(speeds.rear_left.is_finite()
                 && speeds.rear_right.is_finite()
                 && speeds.front_left.is_finite()
@@ -540,7 +595,19 @@ impl Pipeline {
             self.stats.add(Reject::SteerRange);
             return None;
         }
-        self.inputs[idx].health.good(t_us, &self.inputs_cfg);
+        let health = &mut self.inputs[idx].health;
+        // A wheel frame after a silence long enough that one must have been
+        // lost: two periods, less a margin for the jitter of timestamps (a
+        // logger's batches: the RAV4 recording's 11.2 ms period shows
+        // intervals of 17 ms at the 90th percentile, with nothing lost).
+        if (rear || front)
+            && health.last_good_us.is_some_and(|last| {
+                t_us.saturating_sub(last) as f64 > LOST_FRAME_PERIODS * health.period_s * 1e6
+            })
+        {
+            self.stats.add(Reject::WheelGap);
+        }
+        health.good(t_us, &self.inputs_cfg);
         self.stats.used += 1;
         let t0 = *self.t0_us.get_or_insert(t_us);
         // Signed: a log's timestamps may go backwards; the decoders judge that.
@@ -553,6 +620,9 @@ impl Pipeline {
         if let Some(phi) = steer_rad {
             self.steer_rad = Some(phi);
             self.steer_signal = steer_signal;
+        }
+        if let Some(w) = yaw_radps {
+            self.yaw_radps = Some(w / self.yaw_scale);
         }
         if front {
             let fl = self.wheel(Wheel::FrontLeft, t_s, raws.front_left);
@@ -612,8 +682,9 @@ impl Pipeline {
             Decoders::Speed(d) => wheel_mut(d, w).push(t_s, value),
         };
         match step.fault {
-            None => {}
-            Some(InputFault::MissedSamples { .. }) => self.stats.add(Reject::WheelGap),
+            // Judged once per frame against the message's learnt period
+            // (`push_data`): the decoders know only the nominal one.
+            None | Some(InputFault::MissedSamples { .. }) => {}
             Some(_) => self.stats.add(Reject::WheelFault),
         }
         step.distance_m
@@ -632,6 +703,8 @@ impl Pipeline {
             front_valid: front_fresh && steer_fresh && self.steer_rad.is_some(),
             steer_angle_rad: self.steer_rad.unwrap_or(0.0),
             zero_is_floor: matches!(self.decoders, Decoders::Speed(_)),
+            yaw_rate_radps: self.yaw_radps.filter(|_| self.role_fresh(t_us, |i| i.yaw)),
+            dt_s: self.last_step.map_or(0.0, |prev| (t_s - prev.t_s).max(0.0)),
         };
         self.front_acc_m = (0.0, 0.0);
         let [a, b] = &mut self.states;
@@ -646,6 +719,8 @@ impl Pipeline {
         }
         self.current ^= 1;
         let state = &self.states[self.current];
+        self.stats.gate.yaw_over_rear = state.stats.yaw_over_rear;
+        self.stats.gate.yaw_refused = state.stats.yaw_refused;
         let correction = state.last_window;
         if matches!(
             correction,
@@ -789,6 +864,8 @@ mod tests {
             rear_right_diameter_m: 0.09 * 1.01,
             steering_gain: steer.gain,
             steering_offset_rad: steer.offset_rad,
+            yaw_rate_bias_radps: None,
+            yaw_rate_scale: None,
         };
         calibrated.apply_params(Some((4, &set))).unwrap();
         for (t, f) in &fr {

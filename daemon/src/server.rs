@@ -931,6 +931,8 @@ mod tests {
             rear_right_diameter_m: 0.0915,
             steering_gain: 1f64.to_radians(),
             steering_offset_rad: 0.0,
+            yaw_rate_bias_radps: None,
+            yaw_rate_scale: None,
         }
     }
 

@@ -26,7 +26,10 @@ pub enum Reject {
     SteerRange,
     /// A wheel decoder refused the sample (time backwards, duplicate, implausible jump).
     WheelFault,
-    /// A wheel decoder saw missed samples (the sample was still integrated).
+    /// A wheel frame came after a silence of more than 1.9 of the message's
+    /// periods (learnt, or `GenMsgCycleTime`): a frame was probably lost. The
+    /// frame was still used: a speed integrates over the real interval, and
+    /// a counter's increment spans it.
     WheelGap,
     /// The EKF gate rejected a correction window.
     GateReject,
@@ -96,6 +99,11 @@ pub struct GateCounts {
     pub used_front: u64,
     /// Rejections by the wheel blamed.
     pub blamed: WheelSet<u64>,
+    /// Samples whose heading came from the yaw-rate sensor alone: it and the
+    /// rear wheels disagreed and the steering sided with it.
+    pub yaw_over_rear: u64,
+    /// Samples whose yaw rate was refused: it disagreed with the wheels.
+    pub yaw_refused: u64,
 }
 
 impl Stats {
@@ -144,6 +152,13 @@ impl fmt::Display for Stats {
                 let sep = if k == 0 { "" } else { "," };
                 write!(f, "{sep}{}:{}", wheel_short(*w), g.blamed[*w])?;
             }
+        }
+        if g.yaw_over_rear + g.yaw_refused > 0 {
+            write!(
+                f,
+                " yaw_over_rear={} yaw_refused={}",
+                g.yaw_over_rear, g.yaw_refused
+            )?;
         }
         Ok(())
     }

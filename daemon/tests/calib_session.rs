@@ -162,6 +162,8 @@ async fn a_driven_session_commits_the_true_parameters_and_writes_them_back() {
             rear_right_diameter_m: dr_nom,
             steering_gain: steer.gain,
             steering_offset_rad: steer.offset_rad,
+            yaw_rate_bias_radps: None,
+            yaw_rate_scale: None,
         },
         "nominal",
         1,

@@ -75,3 +75,37 @@ fn out_of_range_values() {
     let e = error_for(|t| t.replace("interface = \"vcan0\"", "interface = \"a/b\""));
     assert!(e.contains("can.interface"), "{e}");
 }
+
+#[test]
+fn yaw_rate_signal_takes_its_unit_from_the_dbc_and_its_sign_from_the_config() {
+    let path = crate::util::toyota_toml();
+    let text = std::fs::read_to_string(&path).unwrap();
+    let with = |extra: &str| {
+        let t = text.replace(
+            "steering_kind = \"steering_wheel\"",
+            &format!("steering_kind = \"steering_wheel\"\n{extra}"),
+        );
+        Config::from_toml(&t, &path)
+    };
+    // KINEMATICS.YAW_RATE is in deg/s: one unit is π/180 rad/s.
+    let c = with("yaw_rate = \"KINEMATICS.YAW_RATE\"").unwrap();
+    let y = c.signals.yaw_rate.unwrap();
+    assert!((y.radps_per_unit - 1f64.to_radians()).abs() < 1e-15);
+    let c = with("yaw_rate = \"KINEMATICS.YAW_RATE\"\nyaw_rate_sign = -1").unwrap();
+    assert!((c.signals.yaw_rate.unwrap().radps_per_unit + 1f64.to_radians()).abs() < 1e-15);
+    let e = with("yaw_rate = \"KINEMATICS.YAW_RATE\"\nyaw_rate_sign = 2")
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("signals.yaw_rate_sign") && e.contains("-1"),
+        "{e}"
+    );
+    // ACCEL_Y is in m/s^2, not a rate.
+    let e = with("yaw_rate = \"KINEMATICS.ACCEL_Y\"")
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("signals.yaw_rate") && e.contains("deg/s"), "{e}");
+    let e = with("yaw_rate_sign = 1").unwrap_err().to_string();
+    assert!(e.contains("signals.yaw_rate_sign"), "{e}");
+    assert!(Config::load(&path).unwrap().signals.yaw_rate.is_none());
+}

@@ -31,6 +31,8 @@ fn input_at(p: &VehicleParams, slip: f64, phi: f64) -> OdometryInput {
         front_valid: true,
         steer_angle_rad: phi,
         zero_is_floor: true,
+        yaw_rate_radps: None,
+        dt_s: 0.01,
     }
 }
 

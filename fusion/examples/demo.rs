@@ -87,6 +87,8 @@ fn replay(
             steer_angle_rad: params.steering().angle_rad(s.steer_signal),
             // The demo's car has tick encoders: a zero step is quantisation.
             zero_is_floor: false,
+            yaw_rate_radps: None,
+            dt_s: 0.0,
         };
         for (st, f) in states.iter_mut().zip(filters) {
             *st = f.step(st, &input)?;

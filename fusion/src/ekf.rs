@@ -174,6 +174,19 @@ pub struct EkfConfig {
     /// covariance. Without it a distance mismatch in a curve leaks into the
     /// heading through the window's geometry. 0 = off.
     pub front_scale_sigma: f64,
+    /// The yaw-rate sensor's white noise per sample, rad/s (quantisation
+    /// included): the weight of its heading against the rear wheels'.
+    pub yaw_sigma_radps: f64,
+    /// Random walk of the yaw-rate sensor's bias, rad/s per √s: how fast
+    /// the learnt bias may follow a drift (temperature).
+    pub yaw_bias_walk_radps: f64,
+    /// Prior standard deviation of the yaw-rate bias when nothing was learnt
+    /// or calibrated, rad/s.
+    pub yaw_bias_sigma_radps: f64,
+    /// Prior standard deviation of the rear diameter ratio's relative error
+    /// (the rear wheels' heading is off by `e·d/b` per step), learnt with
+    /// the yaw-rate bias when the speed varies or the car stands.
+    pub rear_ratio_sigma: f64,
     /// Blend the front into windows the gate accepts (the Kalman update);
     /// when false an accepted window keeps the rear increment, and the front
     /// acts only through the gate, against slips.
@@ -240,6 +253,10 @@ impl EkfConfig {
             steer_sigma_rad: 0.5f64.to_radians(),
             steer_bias_sigma_rad: 5f64.to_radians(),
             front_scale_sigma: 0.01,
+            yaw_sigma_radps: 0.005,
+            yaw_bias_walk_radps: 1e-4,
+            yaw_bias_sigma_radps: 1f64.to_radians(),
+            rear_ratio_sigma: 1e-3,
             blend_accepted: false,
             correct_every: 50,
             gate_threshold: Some(CHI2_3_99),
@@ -286,6 +303,10 @@ impl EkfConfig {
         require_positive("steer_sigma_rad", self.steer_sigma_rad)?;
         require_non_negative("steer_bias_sigma_rad", self.steer_bias_sigma_rad)?;
         require_non_negative("front_scale_sigma", self.front_scale_sigma)?;
+        require_positive("yaw_sigma_radps", self.yaw_sigma_radps)?;
+        require_non_negative("yaw_bias_walk_radps", self.yaw_bias_walk_radps)?;
+        require_positive("yaw_bias_sigma_radps", self.yaw_bias_sigma_radps)?;
+        require_positive("rear_ratio_sigma", self.rear_ratio_sigma)?;
         if self.correct_every == 0 {
             return Err(Error::InvalidConfig {
                 name: "correct_every",
@@ -326,6 +347,13 @@ pub struct OdometryInput {
     /// the others through the steering geometry. False for tick encoders,
     /// whose zero steps are quantisation that the next tick makes up.
     pub zero_is_floor: bool,
+    /// The yaw-rate sensor, rad/s, left positive, its scale corrected but
+    /// not its bias (the filter learns that); `None` without one or while it
+    /// is stale.
+    pub yaw_rate_radps: Option<f64>,
+    /// Time since the previous sample, s (integrates the yaw rate; 0 when
+    /// unknown, which leaves the yaw rate out of the step).
+    pub dt_s: f64,
 }
 
 /// What happened at a step's correction window, if the step closed one.
@@ -373,6 +401,13 @@ pub struct GateStats {
     pub rejected_kept_rear: u64,
     /// Windows not corrected because a front sample was missing.
     pub skipped_no_front: u64,
+    /// Samples where the yaw-rate sensor and the rear wheels disagreed and
+    /// the steering sided with the yaw rate (a rear wheel slipped): the
+    /// heading came from the yaw rate alone.
+    pub yaw_over_rear: u64,
+    /// Samples where they disagreed and the yaw rate was refused (no
+    /// steering to side with it, or the steering sided with the wheels).
+    pub yaw_refused: u64,
 }
 
 /// The filter's state after a step. `Copy`, fixed-size: no allocation.
@@ -412,6 +447,13 @@ pub struct State {
     /// Variance of the offset estimate; 0 until the first update (the prior
     /// is the configuration's `steer_bias_sigma_rad`).
     steer_offset_var: f64,
+    /// The yaw-rate sensor's bias and the rear ratio's relative error, with
+    /// their 2×2 covariance `[pbb, pbe, pee]`; `yaw_learnt` false until the
+    /// first yaw-rate sample sets the prior.
+    yaw_bias_radps: f64,
+    rear_ratio_err: f64,
+    yaw_cov: [f64; 3],
+    yaw_learnt: bool,
     /// Factor applied to the front wheels' distances (learnt, 1 if off).
     front_scale: f64,
     /// Variance of `ln(front_scale)`; 0 until the first update.
@@ -521,6 +563,10 @@ impl State {
             steer_offset_var: 0.0,
             front_scale: 1.0,
             front_scale_var: 0.0,
+            yaw_bias_radps: 0.0,
+            rear_ratio_err: 0.0,
+            yaw_cov: [0.0; 3],
+            yaw_learnt: false,
             window_rear_m: 0.0,
             window_front_m: 0.0,
             steer_terms: SteerTerms::NONE,
@@ -549,6 +595,10 @@ impl State {
             steer_offset_var: self.steer_offset_var,
             front_scale: self.front_scale,
             front_scale_var: self.front_scale_var,
+            yaw_bias_radps: self.yaw_bias_radps,
+            rear_ratio_err: self.rear_ratio_err,
+            yaw_cov: self.yaw_cov,
+            yaw_learnt: self.yaw_learnt,
             ..Self::origin()
         }
     }
@@ -587,6 +637,58 @@ impl State {
         self.steer_offset_rad
     }
 
+    /// What the filter has learnt about the vehicle, to keep across a
+    /// restart ([`State::with_learnt`]).
+    pub fn learnt(&self) -> Learnt {
+        Learnt {
+            steer_offset_rad: self.steer_offset_rad,
+            steer_offset_sigma_rad: self.steer_offset_var.sqrt(),
+            front_scale: self.front_scale,
+            front_scale_sigma: self.front_scale_var.sqrt(),
+            yaw_bias: self.yaw_learnt.then(|| LearntPair {
+                yaw_bias_radps: self.yaw_bias_radps,
+                yaw_bias_sigma_radps: self.yaw_cov[0].sqrt(),
+                rear_ratio_err: self.rear_ratio_err,
+                rear_ratio_sigma: self.yaw_cov[2].sqrt(),
+            }),
+        }
+    }
+
+    /// This state with `learnt` restored (from a state file, or from a
+    /// calibration). A σ of 0 means "not learnt": the configuration's prior
+    /// is used. The caller bounds the values first.
+    #[must_use]
+    pub fn with_learnt(&self, learnt: &Learnt) -> Self {
+        let mut st = *self;
+        st.steer_offset_rad = learnt.steer_offset_rad;
+        st.steer_offset_var = learnt.steer_offset_sigma_rad * learnt.steer_offset_sigma_rad;
+        st.front_scale = learnt.front_scale;
+        st.front_scale_var = learnt.front_scale_sigma * learnt.front_scale_sigma;
+        st.steer_terms = SteerTerms::NONE;
+        if let Some(y) = learnt.yaw_bias {
+            st.yaw_bias_radps = y.yaw_bias_radps;
+            st.rear_ratio_err = y.rear_ratio_err;
+            st.yaw_cov = [
+                y.yaw_bias_sigma_radps * y.yaw_bias_sigma_radps,
+                0.0,
+                y.rear_ratio_sigma * y.rear_ratio_sigma,
+            ];
+            st.yaw_learnt = true;
+        }
+        st
+    }
+
+    /// The learnt yaw-rate bias, rad/s (0 before any yaw-rate sample).
+    pub fn yaw_bias_radps(&self) -> f64 {
+        self.yaw_bias_radps
+    }
+
+    /// The learnt relative error of the rear diameter ratio (0 before any
+    /// yaw-rate sample): the rear wheels' heading is corrected by `e·d/b`.
+    pub fn rear_ratio_err(&self) -> f64 {
+        self.rear_ratio_err
+    }
+
     /// The learnt factor applied to the front wheels' distances; 1 unless
     /// [`EkfConfig::front_scale_drift`] is set.
     pub fn front_scale(&self) -> f64 {
@@ -601,6 +703,34 @@ impl State {
             heading_rad: self.front_alone.z,
         }
     }
+}
+
+/// What a filter learns about its vehicle online, kept across restarts.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Learnt {
+    /// The steering sensor's offset, road-wheel radians.
+    pub steer_offset_rad: f64,
+    /// Its standard deviation (0: not learnt).
+    pub steer_offset_sigma_rad: f64,
+    /// The front wheels' distance factor.
+    pub front_scale: f64,
+    /// Its standard deviation (0: not learnt).
+    pub front_scale_sigma: f64,
+    /// The yaw-rate bias and rear ratio error, once a yaw-rate sensor was seen.
+    pub yaw_bias: Option<LearntPair>,
+}
+
+/// The yaw-rate sensor's bias and the rear ratio's error, learnt together.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LearntPair {
+    /// Bias of the yaw-rate sensor, rad/s.
+    pub yaw_bias_radps: f64,
+    /// Its standard deviation.
+    pub yaw_bias_sigma_radps: f64,
+    /// Relative error of the rear diameter ratio.
+    pub rear_ratio_err: f64,
+    /// Its standard deviation.
+    pub rear_ratio_sigma: f64,
 }
 
 /// The filter: a validated configuration and pure step functions.
@@ -993,11 +1123,18 @@ impl Ekf {
             w
         };
         // As odometry::rear_increment, with 1/b precomputed (inputs checked above).
-        let rear = Increment {
+        let mut rear = Increment {
             distance_m: 0.5 * (w.rear_right + w.rear_left),
             dtheta_rad: (w.rear_right - w.rear_left) * self.k.inv_rear_tread,
         };
-        let q = self.q_rear(w.rear_left, w.rear_right);
+        let mut q = self.q_rear(w.rear_left, w.rear_right);
+        if let Some(omega) = input.yaw_rate_radps
+            && input.dt_s > 0.0
+            && omega.is_finite()
+            && input.dt_s.is_finite()
+        {
+            self.fuse_yaw_rate(st, input, w, omega, &mut rear, &mut q);
+        }
         let (sin_m, cos_m);
         ((sin_m, cos_m), st.rear_cs) = advance_heading(st.rear_cs, rear.dtheta_rad);
         (st.rear_w, st.p_rear_w) = propagate_with(&st.rear_w, &st.p_rear_w, rear, &q, sin_m, cos_m);
@@ -1055,6 +1192,109 @@ impl Ekf {
             });
         }
         Ok(())
+    }
+
+    /// The heading increment from the rear wheels and the yaw-rate sensor
+    /// together, and what the sample teaches about the sensor's bias and the
+    /// rear ratio's error (a two-state Kalman filter on `z = ω − Δθ_rear/Δt
+    /// = b + e·v/b_t`: at a standstill only the bias shows, with the speed
+    /// varying both do). The two headings are gated against each other; when
+    /// they disagree the steering's kinematic yaw rate decides which to keep
+    /// (a slipping rear wheel, or a faulty sensor).
+    fn fuse_yaw_rate(
+        &self,
+        st: &mut State,
+        input: &OdometryInput,
+        w: &WheelSet<f64>,
+        omega: f64,
+        rear: &mut Increment,
+        q: &mut Matrix2<f64>,
+    ) {
+        let cfg = &self.cfg;
+        let dt = input.dt_s;
+        if !st.yaw_learnt {
+            st.yaw_cov = [
+                cfg.yaw_bias_sigma_radps * cfg.yaw_bias_sigma_radps,
+                0.0,
+                cfg.rear_ratio_sigma * cfg.rear_ratio_sigma,
+            ];
+            st.yaw_learnt = true;
+        }
+        st.yaw_cov[0] += cfg.yaw_bias_walk_radps * cfg.yaw_bias_walk_radps * dt;
+        let ib = self.k.inv_rear_tread;
+        let d = rear.distance_m;
+        let still = w.rear_left == 0.0 && w.rear_right == 0.0;
+        let r_white = cfg.yaw_sigma_radps * cfg.yaw_sigma_radps;
+        // z = b + h·e with h = v/b_t; the rear wheels' own noise joins R.
+        let h = d * ib / dt;
+        let var_rear_step = q[(1, 1)];
+        let z = omega - rear.dtheta_rad / dt;
+        let [pbb, _, pee] = st.yaw_cov;
+        if still {
+            // Standing: the car does not turn, whatever the sensor says.
+            rear.dtheta_rad = 0.0;
+            q[(1, 1)] = 0.0;
+            q[(0, 1)] = 0.0;
+            q[(1, 0)] = 0.0;
+            Self::update_yaw(st, z, 0.0, r_white);
+            return;
+        }
+        let heading_rear = rear.dtheta_rad + st.rear_ratio_err * d * ib;
+        let var_rear = var_rear_step + pee * (d * ib) * (d * ib);
+        let heading_yaw = (omega - st.yaw_bias_radps) * dt;
+        let var_yaw = (r_white + pbb) * dt * dt;
+        let gap = heading_yaw - heading_rear;
+        let gate = 5.0 * (var_rear + var_yaw).sqrt();
+        let (heading, var) = if gap.abs() <= gate {
+            let s = var_rear + var_yaw;
+            Self::update_yaw(st, z, h, r_white + var_rear_step / (dt * dt));
+            (
+                (var_rear * heading_yaw + var_yaw * heading_rear) / s,
+                var_rear * var_yaw / s,
+            )
+        } else {
+            // Which one the steering's yaw rate sides with (without one,
+            // the gyro: wheels slip far more often than gyros fail).
+            let yaw_wins = if input.front_valid {
+                let heading_steer = d * st.steer_terms.tan_phi * self.k.inv_wheelbase;
+                (heading_yaw - heading_steer).abs() < (heading_rear - heading_steer).abs()
+            } else {
+                true
+            };
+            if yaw_wins {
+                st.stats.yaw_over_rear += 1;
+                (heading_yaw, var_yaw)
+            } else {
+                st.stats.yaw_refused += 1;
+                (heading_rear, var_rear)
+            }
+        };
+        rear.dtheta_rad = heading;
+        q[(1, 1)] = var;
+        q[(0, 1)] = 0.0;
+        q[(1, 0)] = 0.0;
+    }
+
+    /// One scalar measurement `z = b + h·e` (variance `r`) of the yaw-rate
+    /// bias `b` and the rear ratio error `e`.
+    fn update_yaw(st: &mut State, z: f64, h: f64, r: f64) {
+        let [pbb, pbe, pee] = st.yaw_cov;
+        let innovation = z - (st.yaw_bias_radps + h * st.rear_ratio_err);
+        // P Hᵀ with H = [1, h].
+        let (ph_b, ph_e) = (pbb + h * pbe, pbe + h * pee);
+        let s = ph_b + h * ph_e + r;
+        if !(s > 0.0 && s.is_finite()) {
+            return;
+        }
+        let (k_b, k_e) = (ph_b / s, ph_e / s);
+        st.yaw_bias_radps += k_b * innovation;
+        st.rear_ratio_err += k_e * innovation;
+        // P − K S Kᵀ, kept symmetric and its diagonal positive.
+        st.yaw_cov = [
+            (pbb - k_b * k_b * s).max(1e-16),
+            pbe - k_b * k_e * s,
+            (pee - k_e * k_e * s).max(1e-16),
+        ];
     }
 
     /// `w` with each wheel that reads exactly 0 beside a wheel that moves
@@ -1369,6 +1609,8 @@ mod tests {
             front_valid: true,
             steer_angle_rad: phi,
             zero_is_floor: false,
+            yaw_rate_radps: None,
+            dt_s: 0.0,
         }
     }
 

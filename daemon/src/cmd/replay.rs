@@ -22,7 +22,8 @@ pub const CSV_HEADER: &str = "t_s,x_m,y_m,heading_rad,odo_x_m,odo_y_m,odo_headin
 #[derive(Debug, clap::Args)]
 #[command(
     after_help = "Example:\n  canodom simulate --config rc_car.toml --log drive.log --truth truth.csv\n  \
-canodom replay --config rc_car.toml drive.log --out pose.csv\n\n\
+canodom replay --config rc_car.toml drive.log --out pose.csv\n  \
+canodom replay --config car.toml --params params.toml drive.log --out pose.csv\n\n\
 The CSV has one row per filter step (one per rear-wheel frame): seconds since the first input \
 frame, the fused pose, then rear-wheel-only odometry; both start at (0, 0, 0) at the first \
 wheel sample, headings are unwrapped (total turn, radians). The last column says what the \
@@ -40,6 +41,11 @@ pub struct ReplayArgs {
     /// Where to write the CSV (standard output when absent).
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// A calibrated parameter file (written by `calibrate --out`, or the
+    /// daemon's `param_file`): its current set is used from the first frame,
+    /// as `run` uses it. Checksums and the configuration's bounds are checked.
+    #[arg(long)]
+    pub params: Option<PathBuf>,
 }
 
 /// What a replay did.
@@ -63,6 +69,26 @@ pub struct ReplaySummary {
 /// Configuration, unreadable log, write failure.
 pub fn execute(args: &ReplayArgs) -> anyhow::Result<()> {
     let config = Config::load(&args.config)?;
+    let params = match &args.params {
+        None => None,
+        Some(path) => {
+            let file = crate::persist::load(path, &config.calibration.bounds)
+                .with_context(|| "--params".to_string())?;
+            let set = file.current.with_context(|| {
+                format!(
+                    "--params {}: the file has no current set (rolled back to nominal)",
+                    path.display()
+                )
+            })?;
+            eprintln!(
+                "replay: parameters version {} ({}) from {}",
+                set.version,
+                set.method,
+                path.display()
+            );
+            Some(set)
+        }
+    };
     let mut input = super::open_input(&args.log, "replay")
         .with_context(|| format!("{}", args.log.display()))?;
     let started = std::time::Instant::now();
@@ -70,12 +96,24 @@ pub fn execute(args: &ReplayArgs) -> anyhow::Result<()> {
         let file = std::fs::File::create(path)
             .with_context(|| format!("cannot create {}", path.display()))?;
         let mut w = std::io::BufWriter::with_capacity(WRITE_BYTES, file);
-        let s = replay(&config, &mut input, &mut w, &mut std::io::stderr())?;
+        let s = replay_with(
+            &config,
+            params.as_ref(),
+            &mut input,
+            &mut w,
+            &mut std::io::stderr(),
+        )?;
         w.flush()?;
         s
     } else {
         let mut w = std::io::BufWriter::with_capacity(WRITE_BYTES, std::io::stdout().lock());
-        let s = replay(&config, &mut input, &mut w, &mut std::io::stderr())?;
+        let s = replay_with(
+            &config,
+            params.as_ref(),
+            &mut input,
+            &mut w,
+            &mut std::io::stderr(),
+        )?;
         w.flush()?;
         s
     };
@@ -185,7 +223,26 @@ pub fn replay(
     out: &mut impl Write,
     diag: &mut impl Write,
 ) -> anyhow::Result<ReplaySummary> {
+    replay_with(config, None, input, out, diag)
+}
+
+/// [`replay`] with a calibrated parameter set in use from the first frame.
+///
+/// # Errors
+/// Pipeline construction, a set the filter refuses, I/O.
+pub fn replay_with(
+    config: &Config,
+    params: Option<&crate::persist::ParamSet>,
+    input: impl Read,
+    out: &mut impl Write,
+    diag: &mut impl Write,
+) -> anyhow::Result<ReplaySummary> {
     let mut pipeline = Pipeline::new(config)?;
+    if let Some(set) = params {
+        pipeline
+            .apply_params(Some((set.version, &set.values)))
+            .with_context(|| format!("parameter set version {}", set.version))?;
+    }
     let mut reader = LogReader::new(input);
     writeln!(out, "{CSV_HEADER}")?;
     let (to_filter, filter_in) = mpsc::channel::<Batch>();

@@ -75,9 +75,31 @@ pub fn replay(run: &Run, nominal: &VehicleParams, wheels: Wheels, filters: &[Ekf
 pub fn replay_with(
     run: &Run,
     nominal: &VehicleParams,
+    wheels: Wheels,
+    filters: &[Ekf],
+    zero_is_floor: bool,
+) -> Vec<State> {
+    replay_full(run, nominal, wheels, filters, zero_is_floor, false)
+}
+
+/// [`replay`] with the yaw-rate sensor's samples fed to the filters.
+pub fn replay_yaw(
+    run: &Run,
+    nominal: &VehicleParams,
+    wheels: Wheels,
+    filters: &[Ekf],
+) -> Vec<State> {
+    let zero_is_floor = matches!(wheels, Wheels::Speeds(_));
+    replay_full(run, nominal, wheels, filters, zero_is_floor, true)
+}
+
+fn replay_full(
+    run: &Run,
+    nominal: &VehicleParams,
     mut wheels: Wheels,
     filters: &[Ekf],
     zero_is_floor: bool,
+    yaw: bool,
 ) -> Vec<State> {
     let mut states = vec![State::origin(); filters.len()];
     for (k, s) in run.samples.iter().enumerate() {
@@ -90,6 +112,8 @@ pub fn replay_with(
             front_valid: true,
             steer_angle_rad: nominal.steering().angle_rad(s.steer_signal),
             zero_is_floor,
+            yaw_rate_radps: yaw.then_some(s.yaw_rate_radps),
+            dt_s: s.t_s - run.samples[k - 1].t_s,
         };
         for (st, f) in states.iter_mut().zip(filters) {
             *st = f.step(st, &input).unwrap();
