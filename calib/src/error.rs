@@ -42,6 +42,59 @@ pub enum Error {
         /// θ_odo − Θ of that run.
         turn_error_rad: f64,
     },
+    /// A drive calibration got too few position fixes (in all, or left in
+    /// segments long enough to use).
+    #[error("not enough position fixes: {got} {what}, at least {needed} needed")]
+    NotEnoughFixes {
+        /// Which fixes were counted, in words.
+        what: &'static str,
+        /// How many there were.
+        got: usize,
+        /// How many the estimator needs.
+        needed: usize,
+    },
+    /// A drive calibration got fewer than two odometry samples.
+    #[error("not enough odometry samples: {got}, at least 2 needed")]
+    NotEnoughSamples {
+        /// How many there were.
+        got: usize,
+    },
+    /// A value of a drive sample or a fix is not finite.
+    #[error("{what} {index}: `{field}` is not finite ({value})")]
+    NotFinite {
+        /// "sample" or "fix".
+        what: &'static str,
+        /// Its index in the input.
+        index: usize,
+        /// The field, with its unit.
+        field: &'static str,
+        /// The rejected value.
+        value: f64,
+    },
+    /// Times of samples or fixes do not strictly increase.
+    #[error("{what} {index}: time {t_s} s does not follow the previous one ({previous_s} s)")]
+    NotIncreasing {
+        /// "sample" or "fix".
+        what: &'static str,
+        /// Index of the offending entry.
+        index: usize,
+        /// Its time.
+        t_s: f64,
+        /// The previous entry's time.
+        previous_s: f64,
+    },
+    /// A fix lies outside the time span the odometry samples cover.
+    #[error("fix {index} at {t_s} s lies outside the samples' span {first_s}..{last_s} s")]
+    FixOutsideSamples {
+        /// Index of the fix.
+        index: usize,
+        /// Its time.
+        t_s: f64,
+        /// The first sample's time.
+        first_s: f64,
+        /// The last sample's time.
+        last_s: f64,
+    },
     /// A vehicle parameter set could not be built from the result.
     #[error(transparent)]
     Fusion(#[from] canodom_fusion::Error),

@@ -12,6 +12,8 @@
 //! - [`methods`]: the paper's closed form, the heading law and the exact
 //!   Levenberg–Marquardt refinement, all returning a [`CalibrationResult`].
 //! - [`steering`]: the steering map φ = k·u + c from constant-command arcs (§10).
+//! - [`drive`]: rear wheels, steering map and yaw-rate sensor from an
+//!   ordinary drive with sparse position fixes (least squares over the drive).
 //! - [`session`]: the guided-session state machine the daemon drives.
 //! - [`synth`]: a noise-free run generator for tests and benchmarks.
 //!
@@ -63,6 +65,7 @@
 //! # }
 //! ```
 
+pub mod drive;
 pub mod error;
 pub mod methods;
 pub mod run;

@@ -1,0 +1,1415 @@
+//! Calibration from ordinary driving with sparse position fixes (issue #23).
+//!
+//! The vehicle drives wherever it drives; a position source (GNSS, a
+//! surveyed marker, a motion-capture system) gives the rear-axle centre's
+//! position now and then, optionally with a heading. From that and the
+//! odometry samples the estimator fits, by least squares over the whole
+//! drive, the rear wheels' speed scale and diameter ratio, the steering
+//! map's offset and gain correction, and the yaw-rate sensor's bias and
+//! scale.
+//!
+//! # Model
+//!
+//! Three dead reckonings run over the samples, all with distance from the
+//! rear wheels, `d = (k_R d_R + k_L d_L)/2` with `k_R = s·2r/(1+r)` and
+//! `k_L = s·2/(1+r)` (speed scale `s`, ratio correction `r`), and with the
+//! heading from
+//! - (R) the rear wheels: `Δθ = (k_R d_R − k_L d_L)/b`;
+//! - (Y) the yaw rate: `Δθ = (ω_meas − bias)/scale · Δt`;
+//! - (S) the steering: `Δθ = d·tan(gain·φ̄ + offset)/L`, `φ̄` the mean of the
+//!   interval's two ends.
+//!
+//! Each is integrated with the mid-point heading (`calibration-math.md` §3).
+//! A sample's distances and yaw rate describe the interval since the
+//! previous sample; its steering angle is the angle at its time.
+//!
+//! The drive is split into segments of at most
+//! [`DriveOptions::max_segment_s`] and [`DriveOptions::max_segment_fixes`],
+//! so that a heading error cannot grow into a large nonlinearity. Each
+//! segment starts at its first fix with an unknown start position (shared by
+//! the sources) and an unknown start heading per source (nuisance
+//! parameters); the vehicle parameters are shared by all segments. A fix's
+//! position residual is the reckoned pose, interpolated linearly to the
+//! fix's time, minus the fix; a fix with a heading adds a heading residual.
+//! Weak priors around the values in use (see [`PriorSigmas`]) regularise
+//! what the drive cannot tell.
+//!
+//! # Fit
+//!
+//! Levenberg–Marquardt on the stacked residuals, each source's position and
+//! heading residuals weighted by their own σ, which is re-estimated from the
+//! residuals (variance components). The fit is started on the first 10 s of
+//! every segment and the window doubled until it holds the whole segment
+//! (continuation), so it starts near a solution even when a yaw-rate bias
+//! turns the reckoning by tens of degrees over a full segment.
+//!
+//! # Uncertainty
+//!
+//! The residuals are neither independent in time (a heading error integrates
+//! into a smooth position error) nor across sources (the three reckonings
+//! are compared with the same fixes and share the wheel distances). The
+//! reported σ therefore comes from a sandwich: `H⁻¹ (S + P) H⁻¹`, where `H`
+//! is the Gauss–Newton matrix, `P` the priors' information and `S` the sum
+//! over fixes of the outer products of each fix's score (all sources' rows at
+//! that fix added, so cross-source correlation is counted), each row's score
+//! scaled by its group's integrated autocorrelation time `τ` (the variance
+//! factor of the mean of an autocorrelated series: `τ = 1 + 2 Σ ρ_l`, summed
+//! while the pooled autocorrelation ρ_l of the residual series stays
+//! positive; the number of effectively independent fixes is `n/τ`), and by
+//! `N/(N − p)` for the parameters fitted.
+//!
+//! A parameter is observable when its posterior σ is below
+//! [`DriveOptions::observable_ratio`] of its prior σ; one that is not is
+//! reported at its value in use, and the others are refitted with it held
+//! there, so the reported set is consistent.
+
+use crate::error::{Error, Result, positive};
+use nalgebra::{DMatrix, DVector};
+use std::f64::consts::PI;
+
+/// One odometry sample of an ordinary drive, as the daemon's pipeline
+/// produces it (one per rear-wheel frame, ~10-100 Hz).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DriveSample {
+    /// Time on the fixes' clock.
+    pub t_s: f64,
+    /// Rear-left distance since the previous sample, with the parameters in use.
+    pub rear_left_m: f64,
+    /// Rear-right distance since the previous sample, with the parameters in use.
+    pub rear_right_m: f64,
+    /// Road-wheel angle through the steering map in use (left positive), at `t_s`.
+    pub steer_angle_rad: Option<f64>,
+    /// Yaw-rate sensor as measured (rad/s, left positive), uncorrected: the
+    /// mean over the interval since the previous sample.
+    pub yaw_rate_radps: Option<f64>,
+}
+
+/// A position fix of the rear-axle centre in a local metric frame (x
+/// east/forward, y left), its time on the samples' clock.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Fix {
+    /// Time on the samples' clock.
+    pub t_s: f64,
+    /// Position, x.
+    pub x_m: f64,
+    /// Position, y.
+    pub y_m: f64,
+    /// The vehicle's heading (CCW from +x), when the source gives one.
+    pub heading_rad: Option<f64>,
+}
+
+/// The geometry in use.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DriveModel {
+    /// Rear tread (distance between the rear wheels' contact points).
+    pub rear_tread_m: f64,
+    /// Wheelbase (rear axle to front axle).
+    pub wheelbase_m: f64,
+}
+
+/// One estimated parameter.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Estimate {
+    /// The estimate; the value in use (1 or 0) when not observable.
+    pub value: f64,
+    /// Its posterior standard deviation.
+    pub sigma: f64,
+    /// Whether the drive told this parameter (posterior σ well below the
+    /// prior σ). When false the daemon keeps the value in use.
+    pub observable: bool,
+}
+
+/// The result of [`calibrate_drive`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DriveCalibration {
+    /// Multiplies the mean of the two rear distances (both rear diameters) — 1 = unchanged.
+    pub speed_scale: Estimate,
+    /// Right/left rear distance ratio correction: k_R/k_L (k_R = s·2r/(1+r),
+    /// k_L = s·2/(1+r)) — 1 = unchanged.
+    pub rear_ratio: Estimate,
+    /// φ_true = steer_gain · φ_measured + steer_offset_rad (None when no
+    /// sample had steering).
+    pub steer_offset_rad: Option<Estimate>,
+    /// See `steer_offset_rad`.
+    pub steer_gain: Option<Estimate>,
+    /// The sensor model: ω_measured = yaw_scale · ω_true + yaw_bias_radps
+    /// (None without yaw-rate samples).
+    pub yaw_bias_radps: Option<Estimate>,
+    /// See `yaw_bias_radps`.
+    pub yaw_scale: Option<Estimate>,
+    /// Fixes used (those in segments of at least three fixes).
+    pub fixes_used: usize,
+    /// Distance driven over the used segments, with the fitted scale.
+    pub distance_m: f64,
+    /// The RMS position residual at the fixes after the fit of each heading
+    /// source (rear wheels, yaw rate, steering), metres; None for a source
+    /// without data.
+    pub residual_rms_m: [Option<f64>; 3],
+}
+
+/// Prior standard deviations around the values in use.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PriorSigmas {
+    /// Speed scale (relative).
+    pub speed_scale: f64,
+    /// Rear ratio correction (relative).
+    pub rear_ratio: f64,
+    /// Steering offset, radians.
+    pub steer_offset_rad: f64,
+    /// Steering gain correction (relative).
+    pub steer_gain: f64,
+    /// Yaw-rate bias, rad/s.
+    pub yaw_bias_radps: f64,
+    /// Yaw-rate scale (relative).
+    pub yaw_scale: f64,
+}
+
+impl Default for PriorSigmas {
+    /// 5 %, 1 %, 2°, 20 %, 1°/s, 10 %.
+    fn default() -> Self {
+        Self {
+            speed_scale: 0.05,
+            rear_ratio: 0.01,
+            steer_offset_rad: 2.0 * PI / 180.0,
+            steer_gain: 0.2,
+            yaw_bias_radps: PI / 180.0,
+            yaw_scale: 0.1,
+        }
+    }
+}
+
+/// Settings of [`calibrate_drive_with`]; [`calibrate_drive`] uses the defaults.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DriveOptions {
+    /// Longest segment, from its first fix to its last.
+    pub max_segment_s: f64,
+    /// Most fixes in one segment.
+    pub max_segment_fixes: usize,
+    /// Priors around the values in use.
+    pub priors: PriorSigmas,
+    /// A parameter is observable when posterior σ < this × prior σ.
+    pub observable_ratio: f64,
+}
+
+impl Default for DriveOptions {
+    /// Segments of at most 60 s and 60 fixes, the default priors, observable below 0.3.
+    fn default() -> Self {
+        Self {
+            max_segment_s: 60.0,
+            max_segment_fixes: 60,
+            priors: PriorSigmas::default(),
+            observable_ratio: 0.3,
+        }
+    }
+}
+
+/// Fits the vehicle parameters of a drive to its fixes with the default
+/// [`DriveOptions`] (see the module documentation).
+///
+/// # Errors
+/// [`Error::InvalidArgument`] for a bad model, [`Error::NotEnoughSamples`],
+/// [`Error::NotEnoughFixes`] (fewer than 3 fixes, or fewer than 3 left in
+/// usable segments), [`Error::NotFinite`], [`Error::NotIncreasing`],
+/// [`Error::FixOutsideSamples`], and [`Error::Numerical`] when the fit
+/// breaks down.
+pub fn calibrate_drive(
+    samples: &[DriveSample],
+    fixes: &[Fix],
+    model: &DriveModel,
+) -> Result<DriveCalibration> {
+    calibrate_drive_with(samples, fixes, model, &DriveOptions::default())
+}
+
+/// [`calibrate_drive`] with explicit options.
+///
+/// # Errors
+/// As [`calibrate_drive`], and [`Error::InvalidArgument`] for bad options.
+pub fn calibrate_drive_with(
+    samples: &[DriveSample],
+    fixes: &[Fix],
+    model: &DriveModel,
+    options: &DriveOptions,
+) -> Result<DriveCalibration> {
+    let problem = Problem::new(samples, fixes, model, options)?;
+    problem.solve()
+}
+
+// ---------------------------------------------------------------------------
+// Parameter layout
+
+/// Global parameters: speed scale, rear ratio, steer offset, steer gain,
+/// yaw bias, yaw scale.
+const N_GLOBAL: usize = 6;
+const SPEED: usize = 0;
+const RATIO: usize = 1;
+const OFFSET: usize = 2;
+const GAIN: usize = 3;
+const BIAS: usize = 4;
+const SCALE: usize = 5;
+/// Values in use (the priors' means).
+const IN_USE: [f64; N_GLOBAL] = [1.0, 1.0, 0.0, 1.0, 0.0, 1.0];
+/// Per segment: start x, start y, start heading of each source.
+const N_LOCAL: usize = 5;
+
+const REAR: usize = 0;
+const YAW: usize = 1;
+const STEER: usize = 2;
+/// The globals each source's reckoning depends on.
+const DEPS: [&[usize]; 3] = [
+    &[SPEED, RATIO],
+    &[SPEED, RATIO, BIAS, SCALE],
+    &[SPEED, RATIO, OFFSET, GAIN],
+];
+/// Central-difference steps of the globals (see `Problem::rows`).
+const FD_STEP: [f64; N_GLOBAL] = [1e-6, 1e-6, 1e-7, 1e-6, 1e-7, 1e-6];
+
+/// Residual groups: `source * 2 + kind`, kind 0 position, 1 heading.
+const N_GROUP: usize = 6;
+const POS_SIGMA_FLOOR_M: f64 = 1e-3;
+const HEADING_SIGMA_FLOOR_RAD: f64 = 1e-4;
+const HEADING_SIGMA_DEFAULT_RAD: f64 = 0.02;
+/// A ridge on the nuisance headings, so a segment that never moved (or a
+/// source without data) keeps a regular normal matrix: 1/(10 rad)².
+const HEADING_RIDGE: f64 = 1e-2;
+
+fn wrap(a: f64) -> f64 {
+    let w = a.rem_euclid(2.0 * PI);
+    if w > PI { w - 2.0 * PI } else { w }
+}
+
+/// Inputs checked and arranged for the reckonings.
+struct Prepared {
+    t: Vec<f64>,
+    dl: Vec<f64>,
+    dr: Vec<f64>,
+    /// Steering angle at each sample, held from the last known value.
+    steer: Option<Vec<f64>>,
+    /// Yaw rate of each sample's interval, held from the last known value.
+    yaw: Option<Vec<f64>>,
+}
+
+/// Fills gaps with the last known value (the first known one before it).
+fn held(values: impl Iterator<Item = Option<f64>>) -> Option<Vec<f64>> {
+    let raw: Vec<Option<f64>> = values.collect();
+    let first = raw.iter().flatten().copied().next()?;
+    let mut last = first;
+    Some(
+        raw.into_iter()
+            .map(|v| {
+                if let Some(v) = v {
+                    last = v;
+                }
+                last
+            })
+            .collect(),
+    )
+}
+
+/// One segment: fixes `fixes` (indices into the fix list, at least three),
+/// the sample range its reckoning needs and each fix's interpolation.
+struct Segment {
+    fixes: Vec<usize>,
+    /// First sample of the reckoning (at or before the first fix).
+    start: usize,
+    /// Per fix: `i`, `frac` with pose = p[i] + frac·(p[i+1] − p[i]).
+    at: Vec<(usize, f64)>,
+}
+
+struct Row {
+    fix: usize,
+    group: usize,
+    /// Residual and derivatives, whitened by the group's σ.
+    r: f64,
+    jac: Vec<(usize, f64)>,
+    /// The residual in its own unit (for the RMS and the σ estimates).
+    raw: f64,
+    segment: usize,
+    /// 0 x, 1 y, 2 heading.
+    component: usize,
+}
+
+struct Problem<'a> {
+    prep: Prepared,
+    fixes: &'a [Fix],
+    model: DriveModel,
+    options: DriveOptions,
+    segments: Vec<Segment>,
+    active: [bool; 3],
+    prior_sigma: [f64; N_GLOBAL],
+}
+
+struct Fit {
+    p: DVector<f64>,
+    sigma: [f64; N_GROUP],
+    /// Globals held at their value in use.
+    fixed: [bool; N_GLOBAL],
+}
+
+impl<'a> Problem<'a> {
+    fn new(
+        samples: &[DriveSample],
+        fixes: &'a [Fix],
+        model: &DriveModel,
+        options: &DriveOptions,
+    ) -> Result<Self> {
+        positive("rear_tread_m", model.rear_tread_m)?;
+        positive("wheelbase_m", model.wheelbase_m)?;
+        positive("max_segment_s", options.max_segment_s)?;
+        positive("observable_ratio", options.observable_ratio)?;
+        let pr = options.priors;
+        let prior_sigma = [
+            positive("priors.speed_scale", pr.speed_scale)?,
+            positive("priors.rear_ratio", pr.rear_ratio)?,
+            positive("priors.steer_offset_rad", pr.steer_offset_rad)?,
+            positive("priors.steer_gain", pr.steer_gain)?,
+            positive("priors.yaw_bias_radps", pr.yaw_bias_radps)?,
+            positive("priors.yaw_scale", pr.yaw_scale)?,
+        ];
+        if options.max_segment_fixes < 3 {
+            return Err(Error::InvalidArgument {
+                name: "max_segment_fixes",
+                value: options.max_segment_fixes as f64,
+                reason: "must be at least 3",
+            });
+        }
+        check(samples, fixes)?;
+        let prep = Prepared {
+            t: samples.iter().map(|s| s.t_s).collect(),
+            dl: samples.iter().map(|s| s.rear_left_m).collect(),
+            dr: samples.iter().map(|s| s.rear_right_m).collect(),
+            steer: held(samples.iter().map(|s| s.steer_angle_rad)),
+            yaw: held(samples.iter().map(|s| s.yaw_rate_radps)),
+        };
+        let mut active = [false; 3];
+        active[REAR] = true;
+        active[YAW] = prep.yaw.is_some();
+        active[STEER] = prep.steer.is_some();
+        let segments = split(&prep.t, fixes, options);
+        let used: usize = segments.iter().map(|s| s.fixes.len()).sum();
+        if used < 3 {
+            return Err(Error::NotEnoughFixes {
+                what: "in segments of at least 3 fixes",
+                got: used,
+                needed: 3,
+            });
+        }
+        Ok(Self {
+            prep,
+            fixes,
+            model: *model,
+            options: *options,
+            segments,
+            active,
+            prior_sigma,
+        })
+    }
+
+    fn n_params(&self) -> usize {
+        N_GLOBAL + N_LOCAL * self.segments.len()
+    }
+
+    /// Poses of source `src` at the first `n` fixes of `seg`, relative to
+    /// the pose at its first fix (that pose at the origin, heading 0).
+    fn reckon(&self, seg: &Segment, src: usize, g: &[f64], n: usize) -> Vec<[f64; 3]> {
+        let prep = &self.prep;
+        let (s, r) = (g[SPEED], g[RATIO]);
+        let k_r = s * 2.0 * r / (1.0 + r);
+        let k_l = s * 2.0 / (1.0 + r);
+        let b = self.model.rear_tread_m;
+        let l = self.model.wheelbase_m;
+        let end = seg.at[n - 1].0 + 1;
+        let mut poses = Vec::with_capacity(end + 1 - seg.start);
+        let (mut x, mut y, mut th) = (0.0, 0.0, 0.0);
+        poses.push([x, y, th]);
+        for k in seg.start + 1..=end {
+            let (dr, dl) = (k_r * prep.dr[k], k_l * prep.dl[k]);
+            let d = 0.5 * (dr + dl);
+            let dth = match (src, &prep.yaw, &prep.steer) {
+                (YAW, Some(w), _) => (w[k] - g[BIAS]) / g[SCALE] * (prep.t[k] - prep.t[k - 1]),
+                (STEER, _, Some(phi)) => {
+                    let mean = 0.5 * (phi[k - 1] + phi[k]);
+                    d * g[GAIN].mul_add(mean, g[OFFSET]).tan() / l
+                }
+                _ => (dr - dl) / b,
+            };
+            let mid = th + 0.5 * dth;
+            x += d * mid.cos();
+            y += d * mid.sin();
+            th += dth;
+            poses.push([x, y, th]);
+        }
+        let pose_at = |&(i, frac): &(usize, f64)| {
+            let (a, b) = (poses[i - seg.start], poses[i + 1 - seg.start]);
+            [0, 1, 2].map(|c| a[c] + frac * (b[c] - a[c]))
+        };
+        let origin = pose_at(&seg.at[0]);
+        let (sn, cs) = (-origin[2]).sin_cos();
+        seg.at[..n]
+            .iter()
+            .map(|at| {
+                let p = pose_at(at);
+                let (dx, dy) = (p[0] - origin[0], p[1] - origin[1]);
+                [cs * dx - sn * dy, sn * dx + cs * dy, p[2] - origin[2]]
+            })
+            .collect()
+    }
+
+    /// How many of the segment's fixes lie within `horizon_s` of its first.
+    fn in_horizon(&self, seg: &Segment, horizon_s: f64) -> usize {
+        let t0 = self.fixes[seg.fixes[0]].t_s;
+        seg.fixes
+            .iter()
+            .take_while(|&&f| self.fixes[f].t_s - t0 <= horizon_s)
+            .count()
+            .max(2)
+            .min(seg.fixes.len())
+    }
+
+    /// All residual rows at `p`, whitened by `sigma`. With `jacobian`, their
+    /// derivatives: the nuisance parameters' analytically (they only move
+    /// and turn the relative reckoning), the globals' by central
+    /// differences of the reckoning. The globals enter through the heading
+    /// chain, a tangent and a division at every sample; one difference per
+    /// global costs two reckonings of the segment, cheap next to a fit over
+    /// the whole drive, and cannot disagree with the reckoning it
+    /// differentiates (steps of 1e-6 relative, 1e-7 rad: truncation and
+    /// rounding both below 1e-7 m on a 60 s segment of a road car).
+    fn rows(&self, fit: &Fit, horizon_s: f64, jacobian: bool) -> Vec<Row> {
+        let p = &fit.p;
+        let g: Vec<f64> = p.rows(0, N_GLOBAL).iter().copied().collect();
+        let mut rows = Vec::new();
+        for (si, seg) in self.segments.iter().enumerate() {
+            let n = self.in_horizon(seg, horizon_s);
+            let base = N_GLOBAL + N_LOCAL * si;
+            let (x0, y0) = (p[base], p[base + 1]);
+            for src in (0..3).filter(|&s| self.active[s]) {
+                let th_col = base + 2 + src;
+                let th0 = p[th_col];
+                let rel = self.reckon(seg, src, &g, n);
+                let mut drel: Vec<(usize, Vec<[f64; 3]>)> = Vec::new();
+                if jacobian {
+                    for &gi in DEPS[src].iter().filter(|&&gi| !fit.fixed[gi]) {
+                        let h = FD_STEP[gi];
+                        let mut gp = g.clone();
+                        gp[gi] += h;
+                        let plus = self.reckon(seg, src, &gp, n);
+                        gp[gi] = g[gi] - h;
+                        let minus = self.reckon(seg, src, &gp, n);
+                        let d = plus
+                            .iter()
+                            .zip(&minus)
+                            .map(|(a, b)| [0, 1, 2].map(|c| (a[c] - b[c]) / (2.0 * h)))
+                            .collect();
+                        drel.push((gi, d));
+                    }
+                }
+                let (sn, cs) = th0.sin_cos();
+                let (sp, sh) = (fit.sigma[src * 2], fit.sigma[src * 2 + 1]);
+                for (j, rj) in rel.iter().enumerate() {
+                    let fix = &self.fixes[seg.fixes[j]];
+                    let px = x0 + cs * rj[0] - sn * rj[1];
+                    let py = y0 + sn * rj[0] + cs * rj[1];
+                    let mut jx = Vec::new();
+                    let mut jy = Vec::new();
+                    if jacobian {
+                        jx.push((base, 1.0 / sp));
+                        jx.push((th_col, (-sn * rj[0] - cs * rj[1]) / sp));
+                        jy.push((base + 1, 1.0 / sp));
+                        jy.push((th_col, (cs * rj[0] - sn * rj[1]) / sp));
+                        for (gi, d) in &drel {
+                            let dj = d[j];
+                            jx.push((*gi, (cs * dj[0] - sn * dj[1]) / sp));
+                            jy.push((*gi, (sn * dj[0] + cs * dj[1]) / sp));
+                        }
+                    }
+                    let fix_index = seg.fixes[j];
+                    for (component, raw, jac) in [(0, px - fix.x_m, jx), (1, py - fix.y_m, jy)] {
+                        rows.push(Row {
+                            fix: fix_index,
+                            group: src * 2,
+                            r: raw / sp,
+                            jac,
+                            raw,
+                            segment: si,
+                            component,
+                        });
+                    }
+                    if let Some(h) = fix.heading_rad {
+                        let raw = wrap(th0 + rj[2] - h);
+                        let mut jac = Vec::new();
+                        if jacobian {
+                            jac.push((th_col, 1.0 / sh));
+                            for (gi, d) in &drel {
+                                jac.push((*gi, d[j][2] / sh));
+                            }
+                        }
+                        rows.push(Row {
+                            fix: fix_index,
+                            group: src * 2 + 1,
+                            r: raw / sh,
+                            jac,
+                            raw,
+                            segment: si,
+                            component: 2,
+                        });
+                    }
+                }
+            }
+        }
+        rows
+    }
+
+    fn prior_cost(&self, fit: &Fit) -> f64 {
+        (0..N_GLOBAL)
+            .filter(|&i| !fit.fixed[i])
+            .map(|i| ((fit.p[i] - IN_USE[i]) / self.prior_sigma[i]).powi(2))
+            .sum()
+    }
+
+    fn cost(&self, fit: &Fit, horizon_s: f64) -> f64 {
+        self.rows(fit, horizon_s, false)
+            .iter()
+            .map(|r| r.r * r.r)
+            .sum::<f64>()
+            + self.prior_cost(fit)
+    }
+
+    /// The Gauss–Newton matrix (data and priors, without ridge) and gradient.
+    fn normal(&self, fit: &Fit, rows: &[Row]) -> (DMatrix<f64>, DVector<f64>) {
+        let n = self.n_params();
+        let mut h = DMatrix::zeros(n, n);
+        let mut grad = DVector::zeros(n);
+        for row in rows {
+            for &(a, ja) in &row.jac {
+                grad[a] += ja * row.r;
+                for &(b, jb) in &row.jac {
+                    h[(a, b)] += ja * jb;
+                }
+            }
+        }
+        for i in 0..N_GLOBAL {
+            if fit.fixed[i] {
+                h[(i, i)] = 1.0;
+                grad[i] = 0.0;
+            } else {
+                let w = 1.0 / self.prior_sigma[i].powi(2);
+                h[(i, i)] += w;
+                grad[i] += w * (fit.p[i] - IN_USE[i]);
+            }
+        }
+        (h, grad)
+    }
+
+    fn with_ridge(&self, mut h: DMatrix<f64>) -> DMatrix<f64> {
+        for si in 0..self.segments.len() {
+            for src in 0..3 {
+                let c = N_GLOBAL + N_LOCAL * si + 2 + src;
+                h[(c, c)] += HEADING_RIDGE;
+            }
+        }
+        h
+    }
+
+    /// Levenberg–Marquardt at fixed σ and horizon.
+    fn levenberg_marquardt(&self, fit: &mut Fit, horizon_s: f64) -> Result<()> {
+        let mut lambda = 1e-3;
+        let mut cost = self.cost(fit, horizon_s);
+        for _ in 0..100 {
+            let rows = self.rows(fit, horizon_s, true);
+            let (h, grad) = self.normal(fit, &rows);
+            let h = self.with_ridge(h);
+            let mut improved = false;
+            for _ in 0..20 {
+                let mut damped = h.clone();
+                for i in 0..damped.nrows() {
+                    damped[(i, i)] += lambda * h[(i, i)];
+                }
+                let step = damped
+                    .cholesky()
+                    .ok_or(Error::Numerical {
+                        context: "drive calibration: normal equations",
+                    })?
+                    .solve(&(-&grad));
+                let trial = Fit {
+                    p: &fit.p + &step,
+                    sigma: fit.sigma,
+                    fixed: fit.fixed,
+                };
+                let trial_cost = self.cost(&trial, horizon_s);
+                if trial_cost.is_finite() && trial_cost <= cost {
+                    // Converged when the step is far below the parameters'
+                    // uncertainty and the cost no longer moves.
+                    let size = (0..step.len())
+                        .map(|i| step[i].abs() * h[(i, i)].sqrt())
+                        .fold(0.0, f64::max);
+                    let done = size < 1e-6 || cost - trial_cost <= 1e-12 * cost.max(1e-300);
+                    fit.p = trial.p;
+                    cost = trial_cost;
+                    lambda = (lambda / 4.0).max(1e-9);
+                    improved = true;
+                    if done {
+                        return Ok(());
+                    }
+                    break;
+                }
+                lambda *= 8.0;
+            }
+            if !improved {
+                // No descent left at any damping: a minimum to rounding.
+                return Ok(());
+            }
+        }
+        Ok(())
+    }
+
+    /// Re-estimates each group's σ from the residuals (variance components).
+    fn update_sigma(&self, fit: &mut Fit, horizon_s: f64) {
+        let rows = self.rows(fit, horizon_s, false);
+        let n_seg = self.segments.len() as f64;
+        for group in 0..N_GROUP {
+            let (src, heading) = (group / 2, group % 2 == 1);
+            if !self.active[src] {
+                continue;
+            }
+            let (n, ssr) = rows
+                .iter()
+                .filter(|r| r.group == group)
+                .fold((0.0, 0.0), |(n, s), r| (n + 1.0, s + r.raw * r.raw));
+            fit.sigma[group] = if heading {
+                if n < 5.0 {
+                    HEADING_SIGMA_DEFAULT_RAD
+                } else {
+                    (ssr / n).sqrt().max(HEADING_SIGMA_FLOOR_RAD)
+                }
+            } else {
+                // Fitted per source: a start heading per segment, a share of
+                // the start position and the source's globals.
+                let k = n_seg * 2.0 + DEPS[src].len() as f64;
+                (ssr / (n - k).max(0.5 * n)).sqrt().max(POS_SIGMA_FLOOR_M)
+            };
+        }
+    }
+
+    /// Start headings of every source and segment by rotating the reckoning
+    /// onto the fixes (the angle of the 2-D Procrustes fit), or from the
+    /// first fix's heading when the segment barely moved.
+    fn init_headings(&self, fit: &mut Fit, horizon_s: f64) {
+        let g: Vec<f64> = fit.p.rows(0, N_GLOBAL).iter().copied().collect();
+        for (si, seg) in self.segments.iter().enumerate() {
+            let n = self.in_horizon(seg, horizon_s);
+            let base = N_GLOBAL + N_LOCAL * si;
+            let f0 = &self.fixes[seg.fixes[0]];
+            fit.p[base] = f0.x_m;
+            fit.p[base + 1] = f0.y_m;
+            for src in 0..3 {
+                let th = if self.active[src] {
+                    let rel = self.reckon(seg, src, &g, n);
+                    let (mut dot, mut cross, mut scale) = (0.0, 0.0, 0.0);
+                    for (j, rj) in rel.iter().enumerate() {
+                        let f = &self.fixes[seg.fixes[j]];
+                        let (fx, fy) = (f.x_m - f0.x_m, f.y_m - f0.y_m);
+                        dot += rj[0] * fx + rj[1] * fy;
+                        cross += rj[0] * fy - rj[1] * fx;
+                        scale += rj[0].hypot(rj[1]) * fx.hypot(fy);
+                    }
+                    if scale > 1.0 {
+                        cross.atan2(dot)
+                    } else {
+                        f0.heading_rad.unwrap_or(0.0)
+                    }
+                } else {
+                    0.0
+                };
+                fit.p[base + 2 + src] = th;
+            }
+        }
+    }
+
+    /// Covariance of the globals (see the module documentation).
+    fn covariance(&self, fit: &Fit) -> Result<DMatrix<f64>> {
+        let rows = self.rows(fit, f64::INFINITY, true);
+        let (h, _) = self.normal(fit, &rows);
+        let h = self.with_ridge(h);
+        let n = h.nrows();
+        let tau = self.autocorrelation_times(&rows);
+        // Per fix, the sum of its rows' scores.
+        let mut scores: Vec<Vec<(usize, f64)>> = vec![Vec::new(); self.fixes.len()];
+        for row in &rows {
+            let w = tau[row.group].sqrt() * row.r;
+            scores[row.fix].extend(row.jac.iter().map(|&(c, j)| (c, j * w)));
+        }
+        let mut s = DMatrix::zeros(n, n);
+        for score in &scores {
+            let mut dense: Vec<(usize, f64)> = Vec::new();
+            for &(c, v) in score {
+                match dense.iter_mut().find(|(d, _)| *d == c) {
+                    Some(e) => e.1 += v,
+                    None => dense.push((c, v)),
+                }
+            }
+            for &(a, va) in &dense {
+                for &(b, vb) in &dense {
+                    s[(a, b)] += va * vb;
+                }
+            }
+        }
+        let n_rows = rows.len() as f64;
+        let n_free = (N_GLOBAL - fit.fixed.iter().filter(|&&f| f).count()) as f64
+            + (3 * self.segments.len()) as f64;
+        s *= n_rows / (n_rows - n_free).max(1.0);
+        for i in 0..N_GLOBAL {
+            s[(i, i)] += if fit.fixed[i] {
+                1.0
+            } else {
+                1.0 / self.prior_sigma[i].powi(2)
+            };
+        }
+        let chol = h.cholesky().ok_or(Error::Numerical {
+            context: "drive calibration: covariance",
+        })?;
+        let mut e = DMatrix::zeros(n, N_GLOBAL);
+        for i in 0..N_GLOBAL {
+            e[(i, i)] = 1.0;
+        }
+        let x = chol.solve(&e);
+        Ok(x.transpose() * s * x)
+    }
+
+    /// Each group's integrated autocorrelation time over its residual
+    /// series (per segment and component, in fix order), at least 1.
+    fn autocorrelation_times(&self, rows: &[Row]) -> [f64; N_GROUP] {
+        let mut tau = [1.0; N_GROUP];
+        for (group, t) in tau.iter_mut().enumerate() {
+            let mut series: Vec<Vec<f64>> = Vec::new();
+            for si in 0..self.segments.len() {
+                for component in 0..3 {
+                    let v: Vec<f64> = rows
+                        .iter()
+                        .filter(|r| r.group == group && r.segment == si && r.component == component)
+                        .map(|r| r.r)
+                        .collect();
+                    if v.len() >= 4 {
+                        series.push(v);
+                    }
+                }
+            }
+            let den: f64 = series.iter().flatten().map(|r| r * r).sum();
+            let longest = series.iter().map(Vec::len).max().unwrap_or(0);
+            if den <= 0.0 {
+                continue;
+            }
+            let mut sum = 0.0;
+            for lag in 1..longest / 2 {
+                let num: f64 = series
+                    .iter()
+                    .filter(|v| v.len() > lag)
+                    .map(|v| v.windows(lag + 1).map(|w| w[0] * w[lag]).sum::<f64>())
+                    .sum();
+                let rho = num / den;
+                if rho <= 0.0 {
+                    break;
+                }
+                sum += rho;
+            }
+            *t = 1.0 + 2.0 * sum;
+        }
+        tau
+    }
+
+    fn fit(&self, fit: &mut Fit) -> Result<()> {
+        let longest = self
+            .segments
+            .iter()
+            .map(|s| self.fixes[s.fixes[s.fixes.len() - 1]].t_s - self.fixes[s.fixes[0]].t_s)
+            .fold(0.0, f64::max);
+        let mut horizon = 10.0_f64;
+        self.init_headings(fit, horizon);
+        loop {
+            let h = if horizon >= longest {
+                f64::INFINITY
+            } else {
+                horizon
+            };
+            self.levenberg_marquardt(fit, h)?;
+            self.update_sigma(fit, h);
+            self.levenberg_marquardt(fit, h)?;
+            if h.is_infinite() {
+                break;
+            }
+            horizon *= 2.0;
+        }
+        for _ in 0..2 {
+            self.update_sigma(fit, f64::INFINITY);
+            self.levenberg_marquardt(fit, f64::INFINITY)?;
+        }
+        Ok(())
+    }
+
+    fn solve(&self) -> Result<DriveCalibration> {
+        let mut p = DVector::zeros(self.n_params());
+        for (i, v) in IN_USE.iter().enumerate() {
+            p[i] = *v;
+        }
+        let mut fit = Fit {
+            p,
+            sigma: [
+                0.5,
+                HEADING_SIGMA_DEFAULT_RAD,
+                0.5,
+                HEADING_SIGMA_DEFAULT_RAD,
+                0.5,
+                HEADING_SIGMA_DEFAULT_RAD,
+            ],
+            fixed: [false; N_GLOBAL],
+        };
+        for (i, fixed) in fit.fixed.iter_mut().enumerate() {
+            *fixed = !self.source_uses(i);
+        }
+        self.fit(&mut fit)?;
+        let cov = self.covariance(&fit)?;
+        let mut sigma: [f64; N_GLOBAL] = std::array::from_fn(|i| cov[(i, i)].max(0.0).sqrt());
+        let observable: [bool; N_GLOBAL] = std::array::from_fn(|i| {
+            !fit.fixed[i] && sigma[i] < self.options.observable_ratio * self.prior_sigma[i]
+        });
+        let hold: Vec<usize> = (0..N_GLOBAL)
+            .filter(|&i| !fit.fixed[i] && !observable[i])
+            .collect();
+        if !hold.is_empty() {
+            for &i in &hold {
+                fit.fixed[i] = true;
+                fit.p[i] = IN_USE[i];
+            }
+            self.fit(&mut fit)?;
+            let cov = self.covariance(&fit)?;
+            for i in (0..N_GLOBAL).filter(|i| observable[*i]) {
+                sigma[i] = cov[(i, i)].max(0.0).sqrt();
+            }
+        }
+        for (i, s) in sigma.iter().enumerate() {
+            crate::error::finite("drive calibration: σ", *s)?;
+            crate::error::finite("drive calibration: estimate", fit.p[i])?;
+        }
+        let est = |i: usize| Estimate {
+            value: fit.p[i],
+            sigma: sigma[i],
+            observable: observable[i],
+        };
+        let rows = self.rows(&fit, f64::INFINITY, false);
+        let residual_rms_m = std::array::from_fn(|src| {
+            self.active[src].then(|| {
+                let (n, ssr) = rows
+                    .iter()
+                    .filter(|r| r.group == src * 2)
+                    .fold((0.0_f64, 0.0_f64), |(n, s), r| (n + 0.5, s + r.raw * r.raw));
+                (ssr / n.max(0.5)).sqrt()
+            })
+        });
+        Ok(DriveCalibration {
+            speed_scale: est(SPEED),
+            rear_ratio: est(RATIO),
+            steer_offset_rad: self.active[STEER].then(|| est(OFFSET)),
+            steer_gain: self.active[STEER].then(|| est(GAIN)),
+            yaw_bias_radps: self.active[YAW].then(|| est(BIAS)),
+            yaw_scale: self.active[YAW].then(|| est(SCALE)),
+            fixes_used: self.segments.iter().map(|s| s.fixes.len()).sum(),
+            distance_m: self.distance_m(&fit),
+            residual_rms_m,
+        })
+    }
+
+    /// Whether an active source's reckoning depends on global `i`.
+    fn source_uses(&self, i: usize) -> bool {
+        (0..3).any(|src| self.active[src] && DEPS[src].contains(&i))
+    }
+
+    /// Distance from the first used fix to the last, gaps between
+    /// segments included.
+    fn distance_m(&self, fit: &Fit) -> f64 {
+        let (s, r) = (fit.p[SPEED], fit.p[RATIO]);
+        let (k_r, k_l) = (s * 2.0 * r / (1.0 + r), s * 2.0 / (1.0 + r));
+        let (Some(first), Some(last)) = (self.segments.first(), self.segments.last()) else {
+            return 0.0;
+        };
+        let end = last.at[last.at.len() - 1].0 + 1;
+        (first.start + 1..=end)
+            .map(|k| (0.5 * (k_r * self.prep.dr[k] + k_l * self.prep.dl[k])).abs())
+            .sum()
+    }
+}
+
+/// Checks the samples and fixes: enough of them, finite, in time order,
+/// every fix within the samples' span.
+fn check(samples: &[DriveSample], fixes: &[Fix]) -> Result<()> {
+    if samples.len() < 2 {
+        return Err(Error::NotEnoughSamples { got: samples.len() });
+    }
+    for (index, s) in samples.iter().enumerate() {
+        let fields = [
+            ("t_s", Some(s.t_s)),
+            ("rear_left_m", Some(s.rear_left_m)),
+            ("rear_right_m", Some(s.rear_right_m)),
+            ("steer_angle_rad", s.steer_angle_rad),
+            ("yaw_rate_radps", s.yaw_rate_radps),
+        ];
+        for (field, value) in fields {
+            if let Some(value) = value.filter(|v| !v.is_finite()) {
+                return Err(Error::NotFinite {
+                    what: "sample",
+                    index,
+                    field,
+                    value,
+                });
+            }
+        }
+        if index > 0 && s.t_s <= samples[index - 1].t_s {
+            return Err(Error::NotIncreasing {
+                what: "sample",
+                index,
+                t_s: s.t_s,
+                previous_s: samples[index - 1].t_s,
+            });
+        }
+    }
+    if fixes.len() < 3 {
+        return Err(Error::NotEnoughFixes {
+            what: "in all",
+            got: fixes.len(),
+            needed: 3,
+        });
+    }
+    let (first_s, last_s) = (samples[0].t_s, samples[samples.len() - 1].t_s);
+    for (index, f) in fixes.iter().enumerate() {
+        let fields = [
+            ("t_s", Some(f.t_s)),
+            ("x_m", Some(f.x_m)),
+            ("y_m", Some(f.y_m)),
+            ("heading_rad", f.heading_rad),
+        ];
+        for (field, value) in fields {
+            if let Some(value) = value.filter(|v| !v.is_finite()) {
+                return Err(Error::NotFinite {
+                    what: "fix",
+                    index,
+                    field,
+                    value,
+                });
+            }
+        }
+        if index > 0 && f.t_s <= fixes[index - 1].t_s {
+            return Err(Error::NotIncreasing {
+                what: "fix",
+                index,
+                t_s: f.t_s,
+                previous_s: fixes[index - 1].t_s,
+            });
+        }
+        if f.t_s < first_s || f.t_s > last_s {
+            return Err(Error::FixOutsideSamples {
+                index,
+                t_s: f.t_s,
+                first_s,
+                last_s,
+            });
+        }
+    }
+    Ok(())
+}
+
+/// Splits the fixes into segments of at most `max_segment_s` and
+/// `max_segment_fixes`; a group of fewer than three fixes joins the previous
+/// segment when the gap allows, else it is dropped.
+fn split(t: &[f64], fixes: &[Fix], options: &DriveOptions) -> Vec<Segment> {
+    let mut groups: Vec<Vec<usize>> = Vec::new();
+    let mut current: Vec<usize> = Vec::new();
+    for (i, f) in fixes.iter().enumerate() {
+        let starts_new = current.first().is_some_and(|&first| {
+            f.t_s - fixes[first].t_s > options.max_segment_s
+                || current.len() >= options.max_segment_fixes
+        });
+        if starts_new {
+            groups.push(std::mem::take(&mut current));
+        }
+        current.push(i);
+    }
+    groups.push(current);
+    // A group of fewer than three fixes joins the one before it when the
+    // gap between them is within the time limit; otherwise it is dropped.
+    let mut merged: Vec<Vec<usize>> = Vec::new();
+    for group in groups {
+        let joins = group.len() < 3
+            && merged.last().is_some_and(|prev: &Vec<usize>| {
+                fixes[group[0]].t_s - fixes[prev[prev.len() - 1]].t_s <= options.max_segment_s
+            });
+        match merged.last_mut() {
+            Some(prev) if joins => prev.extend(group),
+            _ => merged.push(group),
+        }
+    }
+    merged
+        .into_iter()
+        .filter(|g| g.len() >= 3)
+        .map(|fixes_idx| {
+            let at: Vec<(usize, f64)> = fixes_idx
+                .iter()
+                .map(|&f| {
+                    let tf = fixes[f].t_s;
+                    // First sample at or after the fix; the fix lies in
+                    // [t[i], t[i+1]] with i = k − 1 (k ≥ 1).
+                    let k = t.partition_point(|&ts| ts < tf).clamp(1, t.len() - 1);
+                    let i = k - 1;
+                    (i, ((tf - t[i]) / (t[k] - t[i])).clamp(0.0, 1.0))
+                })
+                .collect();
+            Segment {
+                start: at[0].0,
+                fixes: fixes_idx,
+                at,
+            }
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+    use super::*;
+    use proptest::prelude::*;
+
+    const DEG: f64 = PI / 180.0;
+    const MODEL: DriveModel = DriveModel {
+        rear_tread_m: 1.55,
+        wheelbase_m: 2.7,
+    };
+
+    /// The true vehicle against the values in use, in the estimator's terms.
+    #[derive(Debug, Clone, Copy)]
+    struct Truth {
+        g: [f64; N_GLOBAL],
+    }
+
+    const TRUTH: Truth = Truth {
+        g: [1.012, 1.0015, 0.5 * DEG, 0.95, 0.4 * DEG, 1.02],
+    };
+
+    /// A noise-free drive built directly: 2 s at rest, then speed `v` along
+    /// a smooth curvature `kappa(s)`, exact arcs at 50 Hz. The samples carry
+    /// what odometry with the values in use would read; a fix every second
+    /// from the true pose (every fifth with a heading).
+    fn drive(
+        truth: Truth,
+        duration_s: f64,
+        kappa: impl Fn(f64) -> f64,
+    ) -> (Vec<DriveSample>, Vec<Fix>) {
+        let [s, r, offset, gain, bias, scale] = truth.g;
+        let (k_r, k_l) = (s * 2.0 * r / (1.0 + r), s * 2.0 / (1.0 + r));
+        let (b, l) = (MODEL.rear_tread_m, MODEL.wheelbase_m);
+        let dt = 0.02;
+        let steps = (duration_s / dt).round() as usize;
+        let phi_meas = |dist: f64| ((kappa(dist) * l).atan() - offset) / gain;
+        let mut samples = vec![DriveSample {
+            t_s: 0.0,
+            rear_left_m: 0.0,
+            rear_right_m: 0.0,
+            steer_angle_rad: Some(phi_meas(0.0)),
+            yaw_rate_radps: Some(bias),
+        }];
+        let mut fixes = vec![Fix {
+            t_s: 0.0,
+            x_m: 3.0,
+            y_m: -2.0,
+            heading_rad: Some(0.3),
+        }];
+        let (mut x, mut y, mut th, mut dist) = (3.0, -2.0, 0.3, 0.0);
+        for k in 1..=steps {
+            let t = k as f64 * dt;
+            let v = if t < 2.0 { 0.0 } else { (t - 2.0).min(5.0) };
+            let ds = v * dt;
+            let kap = kappa(dist + 0.5 * ds);
+            let dth = kap * ds;
+            let half = 0.5 * dth;
+            let sinc = if half.abs() < 1e-9 {
+                1.0
+            } else {
+                half.sin() / half
+            };
+            x += ds * sinc * (th + half).cos();
+            y += ds * sinc * (th + half).sin();
+            th += dth;
+            dist += ds;
+            samples.push(DriveSample {
+                t_s: t,
+                rear_left_m: ds * (1.0 - kap * b / 2.0) / k_l,
+                rear_right_m: ds * (1.0 + kap * b / 2.0) / k_r,
+                steer_angle_rad: Some(phi_meas(dist)),
+                yaw_rate_radps: Some(scale * dth / dt + bias),
+            });
+            if k % 50 == 0 {
+                fixes.push(Fix {
+                    t_s: t,
+                    x_m: x,
+                    y_m: y,
+                    heading_rad: (k % 250 == 0).then_some(th),
+                });
+            }
+        }
+        (samples, fixes)
+    }
+
+    fn winding(dist: f64) -> f64 {
+        0.04 * (2.0 * PI * dist / 150.0).sin() + 0.01
+    }
+
+    fn assert_recovers(cal: &DriveCalibration, truth: Truth, tol: f64) {
+        let got = [
+            Some(cal.speed_scale),
+            Some(cal.rear_ratio),
+            cal.steer_offset_rad,
+            cal.steer_gain,
+            cal.yaw_bias_radps,
+            cal.yaw_scale,
+        ];
+        for (i, e) in got.iter().enumerate() {
+            let e = e.unwrap();
+            assert!(e.observable, "parameter {i} not observable: {e:?}");
+            assert!(
+                (e.value - truth.g[i]).abs() < tol,
+                "parameter {i}: {} vs {} ({cal:?})",
+                e.value,
+                truth.g[i]
+            );
+        }
+    }
+
+    #[test]
+    fn noise_free_drive_is_recovered_exactly() {
+        let (samples, fixes) = drive(TRUTH, 130.0, winding);
+        let cal = calibrate_drive(&samples, &fixes, &MODEL).unwrap();
+        // Not to rounding: the drive is built with exact arcs and the steering
+        // at the samples, the reckonings use mid-point headings and the mean
+        // steering of an interval (2.5e-6 in the gain here).
+        assert_recovers(&cal, TRUTH, 1e-5);
+        assert_eq!(cal.fixes_used, fixes.len());
+        for rms in cal.residual_rms_m {
+            assert!(rms.unwrap() < 1e-4, "{cal:?}");
+        }
+        // 128 s at 5 m/s after a 5 s ramp from rest.
+        let driven = 5.0 * 123.0 + 12.5;
+        assert!((cal.distance_m - driven).abs() < 0.1, "{}", cal.distance_m);
+    }
+
+    #[test]
+    fn without_steering_or_yaw_rate_those_are_none() {
+        let (mut samples, fixes) = drive(TRUTH, 70.0, winding);
+        for s in &mut samples {
+            s.steer_angle_rad = None;
+            s.yaw_rate_radps = None;
+        }
+        let cal = calibrate_drive(&samples, &fixes, &MODEL).unwrap();
+        assert!(cal.steer_gain.is_none() && cal.steer_offset_rad.is_none());
+        assert!(cal.yaw_bias_radps.is_none() && cal.yaw_scale.is_none());
+        assert_eq!(cal.residual_rms_m[1], None);
+        assert!((cal.speed_scale.value - TRUTH.g[SPEED]).abs() < 1e-6);
+        assert!((cal.rear_ratio.value - TRUTH.g[RATIO]).abs() < 1e-7);
+    }
+
+    #[test]
+    fn steering_sent_at_a_lower_rate_is_held() {
+        let (mut samples, fixes) = drive(TRUTH, 70.0, winding);
+        // Steering in every fifth sample only, as a slower CAN frame.
+        for (k, s) in samples.iter_mut().enumerate() {
+            if k % 5 != 0 {
+                s.steer_angle_rad = None;
+            }
+        }
+        let cal = calibrate_drive(&samples, &fixes, &MODEL).unwrap();
+        let gain = cal.steer_gain.unwrap();
+        assert!(gain.observable);
+        assert!((gain.value - 0.95).abs() < 3e-3, "{gain:?}");
+    }
+
+    #[test]
+    fn a_straight_drive_cannot_tell_steering_gain_or_yaw_scale() {
+        let (samples, fixes) = drive(TRUTH, 70.0, |_| 0.0);
+        let cal = calibrate_drive(&samples, &fixes, &MODEL).unwrap();
+        for e in [cal.steer_gain.unwrap(), cal.yaw_scale.unwrap()] {
+            assert!(!e.observable, "{cal:?}");
+            assert_eq!(e.value, 1.0);
+            assert!(e.sigma > 0.3 * 0.1, "{e:?}");
+        }
+        // What a straight line does tell: the speed scale, the ratio (the
+        // path stays straight), the steering offset and the yaw bias.
+        let bias = cal.yaw_bias_radps.unwrap();
+        assert!(bias.observable && (bias.value - TRUTH.g[BIAS]).abs() < 1e-6);
+        let offset = cal.steer_offset_rad.unwrap();
+        // With the gain held at 1 the offset absorbs gain·φ_meas + offset
+        // − φ_meas at φ_true = 0: offset − (1 − gain)·(−offset/gain).
+        let apparent = TRUTH.g[OFFSET] / TRUTH.g[GAIN];
+        assert!(
+            offset.observable && (offset.value - apparent).abs() < 1e-6,
+            "{offset:?} vs {apparent}"
+        );
+        assert!((cal.rear_ratio.value - TRUTH.g[RATIO]).abs() < 1e-7);
+    }
+
+    #[test]
+    fn bad_input_is_named() {
+        let (samples, fixes) = drive(TRUTH, 20.0, winding);
+        let err = |s: &[DriveSample], f: &[Fix]| calibrate_drive(s, f, &MODEL).unwrap_err();
+        assert_eq!(
+            err(&samples, &[]),
+            Error::NotEnoughFixes {
+                what: "in all",
+                got: 0,
+                needed: 3
+            }
+        );
+        assert!(matches!(
+            err(&samples, &fixes[..2]),
+            Error::NotEnoughFixes { got: 2, .. }
+        ));
+        assert_eq!(
+            err(&samples[..1], &fixes),
+            Error::NotEnoughSamples { got: 1 }
+        );
+        let mut late = fixes.clone();
+        late.push(Fix {
+            t_s: 25.0,
+            ..fixes[0]
+        });
+        let e = err(&samples, &late);
+        assert!(
+            matches!(e, Error::FixOutsideSamples { index, t_s, .. } if index == fixes.len() && t_s == 25.0),
+            "{e}"
+        );
+        assert!(e.to_string().contains("outside the samples' span"), "{e}");
+        let mut nan = samples.clone();
+        nan[7].rear_right_m = f64::NAN;
+        let e = err(&nan, &fixes);
+        assert!(matches!(
+            e,
+            Error::NotFinite {
+                what: "sample",
+                index: 7,
+                field: "rear_right_m",
+                ..
+            }
+        ));
+        assert_eq!(
+            e.to_string(),
+            "sample 7: `rear_right_m` is not finite (NaN)"
+        );
+        let mut inf = samples.clone();
+        inf[3].yaw_rate_radps = Some(f64::INFINITY);
+        assert!(matches!(
+            err(&inf, &fixes),
+            Error::NotFinite {
+                field: "yaw_rate_radps",
+                index: 3,
+                ..
+            }
+        ));
+        let mut bad_fix = fixes.clone();
+        bad_fix[2].heading_rad = Some(f64::NAN);
+        assert!(matches!(
+            err(&samples, &bad_fix),
+            Error::NotFinite {
+                what: "fix",
+                index: 2,
+                field: "heading_rad",
+                ..
+            }
+        ));
+        let mut back = samples.clone();
+        back[10].t_s = back[9].t_s;
+        assert!(matches!(
+            err(&back, &fixes),
+            Error::NotIncreasing {
+                what: "sample",
+                index: 10,
+                ..
+            }
+        ));
+        let mut swapped = fixes.clone();
+        swapped.swap(1, 2);
+        assert!(matches!(
+            err(&samples, &swapped),
+            Error::NotIncreasing {
+                what: "fix",
+                index: 2,
+                ..
+            }
+        ));
+        let bad_model = DriveModel {
+            wheelbase_m: 0.0,
+            ..MODEL
+        };
+        assert!(matches!(
+            calibrate_drive(&samples, &fixes, &bad_model),
+            Err(Error::InvalidArgument {
+                name: "wheelbase_m",
+                ..
+            })
+        ));
+    }
+
+    #[test]
+    fn segments_respect_their_limits_and_drop_what_is_too_short() {
+        let t: Vec<f64> = (0..=2000).map(|k| f64::from(k) * 0.1).collect();
+        let fix = |t_s: f64| Fix {
+            t_s,
+            x_m: 0.0,
+            y_m: 0.0,
+            heading_rad: None,
+        };
+        // 1 Hz for 130 s: 60 + 60 + 11 fixes.
+        let fixes: Vec<Fix> = (0..=130).map(|k| fix(f64::from(k))).collect();
+        let segs = split(&t, &fixes, &DriveOptions::default());
+        let sizes: Vec<usize> = segs.iter().map(|s| s.fixes.len()).collect();
+        assert_eq!(sizes, [60, 60, 11]);
+        // A remainder of two joins its neighbour; two lone fixes after a
+        // long gap are dropped.
+        let mut fixes: Vec<Fix> = (0..=61).map(|k| fix(f64::from(k))).collect();
+        fixes.extend([fix(150.0), fix(151.0)]);
+        let segs = split(&t, &fixes, &DriveOptions::default());
+        let sizes: Vec<usize> = segs.iter().map(|s| s.fixes.len()).collect();
+        assert_eq!(sizes, [62]);
+        let (i, frac) = segs[0].at[61];
+        assert_eq!(i, 609);
+        assert!((frac - 1.0).abs() < 1e-9 || frac.abs() < 1e-9);
+        // Interpolation between samples.
+        let segs = split(
+            &t,
+            &[fix(0.0), fix(0.25), fix(0.5)],
+            &DriveOptions::default(),
+        );
+        assert_eq!(segs[0].at[1].0, 2);
+        assert!((segs[0].at[1].1 - 0.5).abs() < 1e-9);
+        assert_eq!(segs[0].start, 0);
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig { cases: 6, ..ProptestConfig::default() })]
+        /// Any truth within the priors' reach is recovered from a noise-free
+        /// drive, whatever the fixes' frame.
+        #[test]
+        fn any_truth_is_recovered(
+            s in 0.97..1.03_f64,
+            r in 0.997..1.003_f64,
+            offset_deg in -1.5..1.5_f64,
+            gain in 0.85..1.15_f64,
+            bias_deg in -0.8..0.8_f64,
+            scale in 0.93..1.07_f64,
+            turn in -PI..PI,
+        ) {
+            let truth = Truth { g: [s, r, offset_deg * DEG, gain, bias_deg * DEG, scale] };
+            let (samples, mut fixes) = drive(truth, 90.0, winding);
+            let (sn, cs) = turn.sin_cos();
+            for f in &mut fixes {
+                (f.x_m, f.y_m) = (cs * f.x_m - sn * f.y_m + 100.0, sn * f.x_m + cs * f.y_m);
+                f.heading_rad = f.heading_rad.map(|h| wrap(h + turn));
+            }
+            let cal = calibrate_drive(&samples, &fixes, &MODEL).unwrap();
+            assert_recovers(&cal, truth, 1e-5);
+        }
+    }
+}
