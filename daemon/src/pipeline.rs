@@ -458,6 +458,12 @@ impl Pipeline {
         Ok(())
     }
 
+    /// Puts what an earlier run learnt (checked by the caller) into the filter.
+    pub fn restore_learnt(&mut self, learnt: &Learnt) {
+        let state = &mut self.states[self.current];
+        *state = state.with_learnt(learnt);
+    }
+
     /// Moves the odometry frame to where the vehicle stands: the fused and
     /// the rear-only pose restart at the origin; what the filter has learnt
     /// and the statistics are kept. Meant for standstill (the caller checks).

@@ -139,6 +139,10 @@ pub struct Observers {
     pub steps: Option<watch::Sender<Option<Step>>>,
     /// Receives the pipeline statistics after every frame batch.
     pub stats: Option<watch::Sender<Stats>>,
+    /// What a previous run learnt (its state file), put into the filter
+    /// before the first frame. Not an observer: it rides here until the
+    /// daemon's start-up options get a struct of their own.
+    pub restore_learnt: Option<canodom_fusion::ekf::Learnt>,
 }
 
 enum LinkEvent {
@@ -239,6 +243,9 @@ pub async fn run<C: Connector>(
     let mut pipeline = Pipeline::new(&config)?;
     let nominal = *pipeline.params();
     apply_param_file(&mut pipeline, &config.calibration);
+    if let Some(learnt) = &observers.restore_learnt {
+        pipeline.restore_learnt(learnt);
+    }
     let live = live_calibration(&config, nominal)?;
     let (calib_cmd_id, calib_ack_id) = (config.calibration.command_id, live.1);
     let encoder = PoseEncoder::new(config.output.base_id)?;

@@ -161,6 +161,161 @@ pub struct SavedState {
     pub outages: u64,
     /// The parameters in use.
     pub params: SavedParams,
+    /// What the filter learnt about the vehicle online; `run --state-file`
+    /// restores it at the next start (absent in files of older versions).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub learnt: Option<SavedLearnt>,
+}
+
+/// What the filter learnt online, as saved (see [`canodom_fusion::ekf::Learnt`]).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SavedLearnt {
+    /// The steering sensor's offset, road-wheel radians.
+    pub steer_offset_rad: f64,
+    /// Its standard deviation (0: not learnt yet).
+    pub steer_offset_sigma_rad: f64,
+    /// The front wheels' distance factor.
+    pub front_scale: f64,
+    /// Its standard deviation (0: not learnt yet).
+    pub front_scale_sigma: f64,
+    /// The yaw-rate sensor's bias, rad/s (with a yaw-rate sensor only).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub yaw_bias_radps: Option<f64>,
+    /// Its standard deviation.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub yaw_bias_sigma_radps: Option<f64>,
+    /// The rear diameter ratio's relative error.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rear_ratio_err: Option<f64>,
+    /// Its standard deviation.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rear_ratio_sigma: Option<f64>,
+}
+
+/// The largest learnt values a restart takes back: beyond them a saved
+/// value is damaged or learnt from nonsense (openpilot has shipped both
+/// bugs), and the filter starts from its priors instead.
+pub mod learnt_bounds {
+    /// Steering offset, road-wheel radians (5°).
+    pub const STEER_OFFSET_RAD: f64 = 5.0 * std::f64::consts::PI / 180.0;
+    /// Front distance factor's distance from 1 (5 %).
+    pub const FRONT_SCALE: f64 = 0.05;
+    /// Yaw-rate bias, rad/s (5°/s).
+    pub const YAW_BIAS_RADPS: f64 = crate::persist::YAW_BIAS_MAX_RADPS;
+    /// Rear ratio error (1 %).
+    pub const REAR_RATIO_ERR: f64 = 0.01;
+}
+
+/// A saved learnt value a restart refuses.
+#[derive(Clone, Copy, Debug, PartialEq, thiserror::Error)]
+#[error("saved {name} = {value} is outside ±{bound} (or not finite)")]
+pub struct LearntOutOfBounds {
+    /// The value's name as in the file.
+    pub name: &'static str,
+    /// The saved value.
+    pub value: f64,
+    /// The bound it broke.
+    pub bound: f64,
+}
+
+impl SavedLearnt {
+    /// What `state` learnt.
+    pub fn from_state(state: &canodom_fusion::ekf::State) -> Self {
+        let l = state.learnt();
+        Self {
+            steer_offset_rad: l.steer_offset_rad,
+            steer_offset_sigma_rad: l.steer_offset_sigma_rad,
+            front_scale: l.front_scale,
+            front_scale_sigma: l.front_scale_sigma,
+            yaw_bias_radps: l.yaw_bias.map(|y| y.yaw_bias_radps),
+            yaw_bias_sigma_radps: l.yaw_bias.map(|y| y.yaw_bias_sigma_radps),
+            rear_ratio_err: l.yaw_bias.map(|y| y.rear_ratio_err),
+            rear_ratio_sigma: l.yaw_bias.map(|y| y.rear_ratio_sigma),
+        }
+    }
+
+    /// The values to restore, each checked against [`learnt_bounds`] (and
+    /// every standard deviation finite and not negative).
+    ///
+    /// # Errors
+    /// [`LearntOutOfBounds`] naming the first value refused.
+    pub fn checked(&self) -> Result<canodom_fusion::ekf::Learnt, LearntOutOfBounds> {
+        use learnt_bounds as b;
+        let within = |name: &'static str, value: f64, center: f64, bound: f64| {
+            if (value - center).abs() <= bound {
+                Ok(value)
+            } else {
+                Err(LearntOutOfBounds { name, value, bound })
+            }
+        };
+        let sigma = |name: &'static str, value: f64| {
+            if value.is_finite() && value >= 0.0 {
+                Ok(value)
+            } else {
+                Err(LearntOutOfBounds {
+                    name,
+                    value,
+                    bound: f64::INFINITY,
+                })
+            }
+        };
+        let yaw = match (
+            self.yaw_bias_radps,
+            self.yaw_bias_sigma_radps,
+            self.rear_ratio_err,
+            self.rear_ratio_sigma,
+        ) {
+            (Some(bias), Some(bias_sigma), Some(err), Some(err_sigma)) => {
+                Some(canodom_fusion::ekf::LearntPair {
+                    yaw_bias_radps: within("yaw_bias_radps", bias, 0.0, b::YAW_BIAS_RADPS)?,
+                    yaw_bias_sigma_radps: sigma("yaw_bias_sigma_radps", bias_sigma)?,
+                    rear_ratio_err: within("rear_ratio_err", err, 0.0, b::REAR_RATIO_ERR)?,
+                    rear_ratio_sigma: sigma("rear_ratio_sigma", err_sigma)?,
+                })
+            }
+            _ => None,
+        };
+        Ok(canodom_fusion::ekf::Learnt {
+            steer_offset_rad: within(
+                "steer_offset_rad",
+                self.steer_offset_rad,
+                0.0,
+                b::STEER_OFFSET_RAD,
+            )?,
+            steer_offset_sigma_rad: sigma("steer_offset_sigma_rad", self.steer_offset_sigma_rad)?,
+            front_scale: within("front_scale", self.front_scale, 1.0, b::FRONT_SCALE)?,
+            front_scale_sigma: sigma("front_scale_sigma", self.front_scale_sigma)?,
+            yaw_bias: yaw,
+        })
+    }
+}
+
+/// What a start takes from a previous run's state file.
+#[derive(Debug)]
+pub enum Restored {
+    /// No file: a first start.
+    Nothing,
+    /// The learnt values, checked.
+    Learnt(canodom_fusion::ekf::Learnt),
+    /// The file is damaged, of another version, or a value is out of
+    /// bounds: the filter starts from its priors (the caller warns).
+    Refused(String),
+}
+
+/// The learnt values of the state file at `path`, if it exists and they pass.
+pub fn restore(path: &Path) -> Restored {
+    match load(path) {
+        Err(StateFileError::Io { source, .. }) if source.kind() == std::io::ErrorKind::NotFound => {
+            Restored::Nothing
+        }
+        Err(e) => Restored::Refused(e.to_string()),
+        Ok(saved) => match saved.learnt.map(|l| l.checked()) {
+            None => Restored::Nothing,
+            Some(Ok(learnt)) => Restored::Learnt(learnt),
+            Some(Err(e)) => Restored::Refused(format!("{}: {e}", path.display())),
+        },
+    }
 }
 
 impl SavedState {
@@ -209,6 +364,7 @@ impl SavedState {
                 steering_gain: steering.gain,
                 steering_offset_rad: steering.offset_rad,
             },
+            learnt: Some(SavedLearnt::from_state(&summary.state)),
         }
     }
 }
@@ -394,6 +550,7 @@ mod tests {
                 steering_gain: 1.0,
                 steering_offset_rad: 0.0,
             },
+            learnt: None,
         };
         save(&path, &state).unwrap();
         // The temporary name is taken by a directory: the write fails and
@@ -413,5 +570,118 @@ mod tests {
         let e = load(&path).unwrap_err();
         assert!(e.to_string().contains("format_version 7"), "{e}");
         fs::remove_dir_all(dir).unwrap();
+    }
+
+    fn learnt(offset_deg: f64, yaw_bias_dps: Option<f64>) -> SavedLearnt {
+        SavedLearnt {
+            steer_offset_rad: offset_deg.to_radians(),
+            steer_offset_sigma_rad: 0.001,
+            front_scale: 1.002,
+            front_scale_sigma: 1e-4,
+            yaw_bias_radps: yaw_bias_dps.map(f64::to_radians),
+            yaw_bias_sigma_radps: yaw_bias_dps.map(|_| 1e-4),
+            rear_ratio_err: yaw_bias_dps.map(|_| -4e-4),
+            rear_ratio_sigma: yaw_bias_dps.map(|_| 1e-4),
+        }
+    }
+
+    #[test]
+    fn learnt_values_are_restored_within_bounds_and_refused_beyond() {
+        let ok = learnt(0.3, Some(-0.4)).checked().unwrap();
+        assert!((ok.steer_offset_rad - 0.3f64.to_radians()).abs() < 1e-15);
+        let y = ok.yaw_bias.unwrap();
+        assert!((y.yaw_bias_radps + 0.4f64.to_radians()).abs() < 1e-15);
+        assert_eq!(y.rear_ratio_err, -4e-4);
+        assert!(learnt(0.3, None).checked().unwrap().yaw_bias.is_none());
+        // A steering offset of 7°, a 6°/s gyro bias, a 6 % front scale, a NaN:
+        // damaged or learnt from nonsense; each is named.
+        for (bad, name) in [
+            (learnt(7.0, None), "steer_offset_rad"),
+            (learnt(0.3, Some(6.0)), "yaw_bias_radps"),
+            (
+                SavedLearnt {
+                    front_scale: 1.06,
+                    ..learnt(0.0, None)
+                },
+                "front_scale",
+            ),
+            (
+                SavedLearnt {
+                    steer_offset_sigma_rad: f64::NAN,
+                    ..learnt(0.0, None)
+                },
+                "steer_offset_sigma_rad",
+            ),
+            (
+                SavedLearnt {
+                    rear_ratio_err: Some(0.02),
+                    ..learnt(0.0, Some(0.1))
+                },
+                "rear_ratio_err",
+            ),
+        ] {
+            let e = bad.checked().unwrap_err();
+            assert_eq!(e.name, name, "{e}");
+        }
+    }
+
+    #[test]
+    fn restore_takes_back_what_a_run_saved_and_refuses_a_damaged_file() {
+        let dir = scratch("restore");
+        let path = dir.join("state.json");
+        assert!(matches!(restore(&path), Restored::Nothing));
+        fs::write(&path, "{ not json").unwrap();
+        assert!(matches!(restore(&path), Restored::Refused(_)));
+        let mut state = serde_json::from_str::<SavedState>(&format!(
+            r#"{{"format_version":{FORMAT_VERSION},"saved_at_unix_us":1,"interface":"vcan0","config":"c.toml","pose":null,
+            "covariance":{{"pos_std_m":0.0,"heading_std_rad":0.0,"p":[[0,0,0],[0,0,0],[0,0,0]]}},
+            "stats":{{"frames":0,"used":0,"steps":0,"steps_without_front":0,"rejects":{{}}}},
+            "poses_published":0,"frames_lost":0,"connections":1,"outages":0,
+            "params":{{"wheelbase_m":0.26,"rear_tread_m":0.3,"front_tread_m":0.3,"rear_left_diameter_m":0.09,
+            "rear_right_diameter_m":0.09,"front_left_diameter_m":0.09,"front_right_diameter_m":0.09,
+            "steering_gain":1.0,"steering_offset_rad":0.0}}}}"#
+        ))
+        .unwrap();
+        // A file of the version before learnt values: nothing to restore.
+        save(&path, &state).unwrap();
+        assert!(matches!(restore(&path), Restored::Nothing));
+        state.learnt = Some(learnt(0.5, Some(-0.42)));
+        save(&path, &state).unwrap();
+        let Restored::Learnt(l) = restore(&path) else {
+            panic!("not restored")
+        };
+        assert_eq!(Some(l), state.learnt.unwrap().checked().ok());
+        state.learnt = Some(learnt(9.0, None));
+        save(&path, &state).unwrap();
+        let Restored::Refused(why) = restore(&path) else {
+            panic!("restored an out-of-bounds offset")
+        };
+        assert!(
+            why.contains("steer_offset_rad") && why.contains("state.json"),
+            "{why}"
+        );
+        // What the filter learnt goes back into it as it was.
+        let st = canodom_fusion::ekf::State::origin().with_learnt(&l);
+        assert_eq!(SavedLearnt::from_state(&st), learnt(0.5, Some(-0.42)));
+        fs::remove_dir_all(dir).unwrap();
+    }
+
+    #[tokio::test]
+    async fn the_daemon_starts_from_the_restored_learnt_values_and_saves_them() {
+        let config = Arc::new(config());
+        let restored = learnt(0.5, None).checked().unwrap();
+        let daemon = InProcessDaemon::spawn(
+            Arc::clone(&config),
+            1024,
+            Observers {
+                restore_learnt: Some(restored),
+                ..Observers::default()
+            },
+        );
+        tokio::time::sleep(Duration::from_millis(20)).await;
+        let summary = daemon.stop().await.unwrap();
+        assert_eq!(summary.state.learnt(), restored);
+        let saved = SavedState::new(&config, &summary);
+        assert_eq!(saved.learnt, Some(learnt(0.5, None)));
     }
 }

@@ -133,6 +133,7 @@ async fn demo_async(
         Observers {
             steps: Some(steps_tx),
             stats: Some(stats_tx),
+            restore_learnt: None,
         },
     );
     // Let the daemon open its endpoint before the vehicle starts.

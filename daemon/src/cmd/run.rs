@@ -5,7 +5,7 @@ use crate::config::Config;
 use crate::server::{Observers, SocketCan};
 use std::path::PathBuf;
 use std::sync::Arc;
-use tracing::info;
+use tracing::{info, warn};
 
 /// Arguments of `run`.
 #[derive(Debug, clap::Args)]
@@ -26,7 +26,10 @@ pub struct RunArgs {
     #[arg(long)]
     pub config: PathBuf,
     /// On stopping, write the end state here (JSON, atomically): last pose,
-    /// covariance, statistics, parameters (see `canodom::state_file`).
+    /// covariance, statistics, parameters and what the filter learnt
+    /// (steering offset, yaw-rate bias, ...); at start, take the learnt
+    /// values back from it (refused with a warning if damaged or out of
+    /// bounds). See `canodom::state_file`.
     #[arg(long)]
     pub state_file: Option<PathBuf>,
 }
@@ -40,6 +43,20 @@ pub fn execute(args: &RunArgs) -> anyhow::Result<()> {
     let connector = SocketCan {
         iface: config.interface.clone(),
     };
+    let restore_learnt = args.state_file.as_deref().and_then(|path| {
+        use crate::state_file::{Restored, restore};
+        match restore(path) {
+            Restored::Nothing => None,
+            Restored::Learnt(learnt) => {
+                info!(path = %path.display(), "learnt values restored from the state file");
+                Some(learnt)
+            }
+            Restored::Refused(why) => {
+                warn!(path = %path.display(), cause = %why, "learnt values not restored; the filter starts from its priors");
+                None
+            }
+        }
+    });
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()?;
@@ -47,7 +64,10 @@ pub fn execute(args: &RunArgs) -> anyhow::Result<()> {
         Arc::clone(&config),
         connector,
         shutdown_signal(),
-        Observers::default(),
+        Observers {
+            restore_learnt,
+            ..Observers::default()
+        },
     ))?;
     if let Some(path) = &args.state_file {
         crate::state_file::save(path, &crate::state_file::SavedState::new(&config, &summary))?;
