@@ -286,6 +286,26 @@ struct Prepared {
     steer: Option<Vec<f64>>,
     /// Yaw rate of each sample's interval, held from the last known value.
     yaw: Option<Vec<f64>>,
+    /// White noise of each input signal per value, `[unused, yaw, steer]`.
+    noise: [f64; 3],
+}
+
+/// The white noise of a signal from its values in order: the robust σ
+/// (1.4826 × median absolute value) of second differences, divided by √6.
+/// Second differences cancel the signal's own trends and the median ignores
+/// its kinks (a step of the yaw rate, a steering ramp's ends); what remains
+/// is noise and quantisation, which integrate into a heading random walk.
+fn white_noise(values: impl Iterator<Item = Option<f64>>) -> f64 {
+    let v: Vec<f64> = values.flatten().collect();
+    let mut d2: Vec<f64> = v
+        .windows(3)
+        .map(|w| (w[2] - 2.0 * w[1] + w[0]).abs())
+        .collect();
+    if d2.is_empty() {
+        return 0.0;
+    }
+    d2.sort_by(f64::total_cmp);
+    1.4826 * d2[d2.len() / 2] / 6.0_f64.sqrt()
 }
 
 /// Fills gaps with the last known value (the first known one before it).
@@ -379,6 +399,11 @@ impl<'a> Problem<'a> {
             dr: samples.iter().map(|s| s.rear_right_m).collect(),
             steer: held(samples.iter().map(|s| s.steer_angle_rad)),
             yaw: held(samples.iter().map(|s| s.yaw_rate_radps)),
+            noise: [
+                0.0,
+                white_noise(samples.iter().map(|s| s.yaw_rate_radps)),
+                white_noise(samples.iter().map(|s| s.steer_angle_rad)),
+            ],
         };
         let mut active = [false; 3];
         active[REAR] = true;
@@ -408,36 +433,47 @@ impl<'a> Problem<'a> {
         N_GLOBAL + N_LOCAL * self.segments.len()
     }
 
-    /// Poses of source `src` at the first `n` fixes of `seg`, relative to
-    /// the pose at its first fix (that pose at the origin, heading 0).
-    fn reckon(&self, seg: &Segment, src: usize, g: &[f64], n: usize) -> Vec<[f64; 3]> {
+    /// The heading increment of sample `k`'s interval and its distance.
+    fn increment(&self, src: usize, g: &[f64], k: usize) -> (f64, f64) {
         let prep = &self.prep;
         let (s, r) = (g[SPEED], g[RATIO]);
-        let k_r = s * 2.0 * r / (1.0 + r);
-        let k_l = s * 2.0 / (1.0 + r);
-        let b = self.model.rear_tread_m;
-        let l = self.model.wheelbase_m;
-        let end = seg.at[n - 1].0 + 1;
+        let (dr, dl) = (
+            s * 2.0 * r / (1.0 + r) * prep.dr[k],
+            s * 2.0 / (1.0 + r) * prep.dl[k],
+        );
+        let d = 0.5 * (dr + dl);
+        let dth = match (src, &prep.yaw, &prep.steer) {
+            (YAW, Some(w), _) => (w[k] - g[BIAS]) / g[SCALE] * (prep.t[k] - prep.t[k - 1]),
+            (STEER, _, Some(phi)) => {
+                let mean = 0.5 * (phi[k - 1] + phi[k]);
+                d * g[GAIN].mul_add(mean, g[OFFSET]).tan() / self.model.wheelbase_m
+            }
+            _ => (dr - dl) / self.model.rear_tread_m,
+        };
+        (d, dth)
+    }
+
+    /// The reckoning of `src` from sample `seg.start` (at the origin) to
+    /// sample `end`, mid-point heading.
+    fn path(&self, seg: &Segment, src: usize, g: &[f64], end: usize) -> Vec<[f64; 3]> {
         let mut poses = Vec::with_capacity(end + 1 - seg.start);
         let (mut x, mut y, mut th) = (0.0, 0.0, 0.0);
         poses.push([x, y, th]);
         for k in seg.start + 1..=end {
-            let (dr, dl) = (k_r * prep.dr[k], k_l * prep.dl[k]);
-            let d = 0.5 * (dr + dl);
-            let dth = match (src, &prep.yaw, &prep.steer) {
-                (YAW, Some(w), _) => (w[k] - g[BIAS]) / g[SCALE] * (prep.t[k] - prep.t[k - 1]),
-                (STEER, _, Some(phi)) => {
-                    let mean = 0.5 * (phi[k - 1] + phi[k]);
-                    d * g[GAIN].mul_add(mean, g[OFFSET]).tan() / l
-                }
-                _ => (dr - dl) / b,
-            };
+            let (d, dth) = self.increment(src, g, k);
             let mid = th + 0.5 * dth;
             x += d * mid.cos();
             y += d * mid.sin();
             th += dth;
             poses.push([x, y, th]);
         }
+        poses
+    }
+
+    /// Poses of source `src` at the first `n` fixes of `seg`, relative to
+    /// the pose at its first fix (that pose at the origin, heading 0).
+    fn reckon(&self, seg: &Segment, src: usize, g: &[f64], n: usize) -> Vec<[f64; 3]> {
+        let poses = self.path(seg, src, g, seg.at[n - 1].0 + 1);
         let pose_at = |&(i, frac): &(usize, f64)| {
             let (a, b) = (poses[i - seg.start], poses[i + 1 - seg.start]);
             [0, 1, 2].map(|c| a[c] + frac * (b[c] - a[c]))
@@ -753,6 +789,7 @@ impl<'a> Problem<'a> {
                 }
             }
         }
+        self.add_input_noise(fit, &rows, &mut s);
         let n_rows = rows.len() as f64;
         let n_free = (N_GLOBAL - fit.fixed.iter().filter(|&&f| f).count()) as f64
             + (3 * self.segments.len()) as f64;
@@ -773,6 +810,120 @@ impl<'a> Problem<'a> {
         }
         let x = chol.solve(&e);
         Ok(x.transpose() * s * x)
+    }
+
+    /// Adds to the score covariance `s` what the yaw-rate and steering
+    /// signals' white noise does to the fit. The residual rows cannot show
+    /// it: noise on every sample integrates into a heading random walk whose
+    /// slow part the fit takes for a bias or a start heading. A heading
+    /// error `δ` entering at sample `k` moves every later fix `j` of the
+    /// segment by `δ·J(p_j − p_k)` (J: a quarter turn) and its heading by
+    /// `δ`, so it changes the whitened score by `δ·u_k`; with the input's
+    /// noise σ per sample and `c_k = ∂Δθ_k/∂input`, `s` gains
+    /// `Σ_k σ² c_k² u_k u_kᵀ`. (A signal held over several samples, sent
+    /// at a lower rate, is counted as if each sample were new: a small
+    /// underestimate.)
+    fn add_input_noise(&self, fit: &Fit, rows: &[Row], s: &mut DMatrix<f64>) {
+        let g: Vec<f64> = fit.p.rows(0, N_GLOBAL).iter().copied().collect();
+        for (si, seg) in self.segments.iter().enumerate() {
+            let base = N_GLOBAL + N_LOCAL * si;
+            let local = |c: usize| if c < N_GLOBAL { c } else { c - base + N_GLOBAL };
+            let global = |c: usize| if c < N_GLOBAL { c } else { c - N_GLOBAL + base };
+            for src in [YAW, STEER] {
+                let sigma_in = self.prep.noise[src];
+                if !self.active[src] || sigma_in <= 0.0 {
+                    continue;
+                }
+                // Whitened derivatives of each fix's rows, per unit of
+                // position (x, y) and heading.
+                let n = seg.fixes.len();
+                let mut per_fix = vec![[[0.0; N_GLOBAL + N_LOCAL]; 3]; n];
+                for row in rows
+                    .iter()
+                    .filter(|r| r.segment == si && r.group / 2 == src)
+                {
+                    let Ok(j) = seg.fixes.binary_search(&row.fix) else {
+                        continue;
+                    };
+                    let unit = 1.0 / fit.sigma[row.group];
+                    for &(c, v) in &row.jac {
+                        per_fix[j][row.component][local(c)] += v * unit;
+                    }
+                }
+                // World poses of the reckoning at every sample.
+                let end = seg.at[n - 1].0 + 1;
+                let path = self.path(seg, src, &g, end);
+                let (i0, f0) = seg.at[0];
+                let (a, b) = (path[i0 - seg.start], path[i0 + 1 - seg.start]);
+                let origin: [f64; 3] = [0, 1, 2].map(|c| a[c] + f0 * (b[c] - a[c]));
+                let turn = fit.p[base + 2 + src] - origin[2];
+                let (sn, cs) = turn.sin_cos();
+                let world = |p: &[f64; 3]| {
+                    let (dx, dy) = (p[0] - origin[0], p[1] - origin[1]);
+                    (
+                        fit.p[base] + cs * dx - sn * dy,
+                        fit.p[base + 1] + sn * dx + cs * dy,
+                    )
+                };
+                let fix_pos: Vec<(f64, f64)> = seg
+                    .at
+                    .iter()
+                    .map(|&(i, f)| {
+                        let (a, b) = (path[i - seg.start], path[i + 1 - seg.start]);
+                        world(&[0, 1, 2].map(|c| a[c] + f * (b[c] - a[c])))
+                    })
+                    .collect();
+                // Suffix sums over the fixes after sample k: u_k = A + y_k·Bx − x_k·By.
+                let mut acc = [[0.0; N_GLOBAL + N_LOCAL]; 3];
+                let mut local_s = [[0.0; N_GLOBAL + N_LOCAL]; N_GLOBAL + N_LOCAL];
+                let mut j = n;
+                for k in (i0 + 1..=end).rev() {
+                    while j > 1 && seg.at[j - 1].0 >= k {
+                        j -= 1;
+                        let (xj, yj) = fix_pos[j];
+                        for c in 0..N_GLOBAL + N_LOCAL {
+                            let [jx, jy, jh] = [0, 1, 2].map(|m| per_fix[j][m][c]);
+                            acc[0][c] += -jx * yj + jy * xj + jh;
+                            acc[1][c] += jx;
+                            acc[2][c] += jy;
+                        }
+                    }
+                    if j >= n {
+                        continue;
+                    }
+                    let ck = if src == YAW {
+                        (self.prep.t[k] - self.prep.t[k - 1]) / g[SCALE]
+                    } else {
+                        let phi = self
+                            .prep
+                            .steer
+                            .as_ref()
+                            .map_or(0.0, |p| 0.5 * (p[k - 1] + p[k]));
+                        let (d, _) = self.increment(src, &g, k);
+                        let sec = 1.0 / g[GAIN].mul_add(phi, g[OFFSET]).cos();
+                        d * g[GAIN] * sec * sec / self.model.wheelbase_m
+                    };
+                    let w = (sigma_in * ck).powi(2);
+                    if w == 0.0 {
+                        continue;
+                    }
+                    let (xk, yk) = world(&path[k - seg.start]);
+                    let u: Vec<f64> = (0..N_GLOBAL + N_LOCAL)
+                        .map(|c| acc[0][c] + yk * acc[1][c] - xk * acc[2][c])
+                        .collect();
+                    for (a, ua) in u.iter().enumerate() {
+                        for (b, ub) in u.iter().enumerate() {
+                            local_s[a][b] += w * ua * ub;
+                        }
+                    }
+                }
+                for a in 0..N_GLOBAL + N_LOCAL {
+                    for b in 0..N_GLOBAL + N_LOCAL {
+                        s[(global(a), global(b))] += local_s[a][b];
+                    }
+                }
+            }
+        }
     }
 
     /// Each group's integrated autocorrelation time over its residual
