@@ -6,6 +6,7 @@
 #![allow(clippy::unwrap_used, clippy::missing_panics_doc)]
 
 mod common;
+mod drive;
 mod grid;
 mod noise_free;
 mod sim_session;
