@@ -15,6 +15,7 @@
 //! - [`pose_frames`]: pose samples encoded into canodom's own frames.
 //! - [`vehicle`]: the simulator encoded with the configured DBC (simulate, demo, tests).
 //! - [`report`]: calibration reports, an SVG picture and a JSON file of every number.
+//! - [`drive_report`]: the report of a calibration from a drive with position fixes.
 //! - [`float_text`]: `f64` written as `{}` writes it, fast (replay output).
 //! - [`progress`]: a progress line on terminals for long offline work.
 //! - [`state_file`]: the end state `run --state-file` saves on SIGTERM.
@@ -28,6 +29,7 @@ pub mod calib_wire;
 pub mod candump;
 pub mod cmd;
 pub mod config;
+pub mod drive_report;
 pub mod float_text;
 pub mod frame;
 pub mod live_calib;

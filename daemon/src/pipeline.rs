@@ -65,6 +65,9 @@ pub struct Step {
     /// What the filter's correction window did at this step
     /// ([`WindowOutcome::Open`] when the step did not close one).
     pub correction: WindowOutcome,
+    /// The yaw rate the step used (rad/s, left positive, scale corrected,
+    /// bias not removed); `None` without a fresh yaw-rate sensor.
+    pub yaw_rate_radps: Option<f64>,
 }
 
 /// Validity flags of a pose sample.
@@ -501,6 +504,11 @@ impl Pipeline {
         self.last_step
     }
 
+    /// The timestamp of the first input frame, from which [`Step::t_s`] counts.
+    pub fn first_frame_time(&self) -> Option<Timestamp> {
+        self.t0_us.map(Timestamp::from_micros)
+    }
+
     /// Offers one frame received at `t`; returns the filter step it caused.
     /// Never panics, whatever the frame holds.
     pub fn push(&mut self, t: Timestamp, frame: &CanFrame) -> Option<Step> {
@@ -769,6 +777,7 @@ impl Pipeline {
             rear_rev: (rev(rl, Wheel::RearLeft), rev(rr, Wheel::RearRight)),
             steer_signal: self.steer_signal,
             correction,
+            yaw_rate_radps: input.yaw_rate_radps,
         };
         self.last_step = Some(step);
         Some(step)

@@ -41,27 +41,43 @@ DIR/calibration.json (every number of the result and of each run).\n\n\
 --end-poses FILE gives measured real end poses, in the run frame (x along the first straight, \
 y to the left), for some or all logs; a log not listed is assumed to end exactly at its start:\n  \
 [[run]]\n  log = \"cw1.log\"      # as given on the command line, or its file name\n  \
-dx_m = 0.012\n  dy_m = -0.004\n  dtheta_deg = 0.8")]
+dx_m = 0.012\n  dy_m = -0.004\n  dtheta_deg = 0.8\n\n\
+Without a track: calibration from an ordinary drive with position fixes (GNSS, a surveyed route):\n  \
+canodom calibrate --config car.toml --fixes fixes.csv --out params.toml drive.log\n\
+fixes.csv has a header t_unix_s,x_m,y_m[,heading_rad] (the rear-axle centre in a local metric frame, \
+times on the log's clock; 1 Hz is plenty). The rear diameter ratio, the speed scale, the steering \
+offset and gain and the yaw-rate sensor's bias and scale are fitted by least squares over the whole \
+drive, each with its standard deviation; what the drive cannot tell (a straight road cannot tell the \
+steering gain) is held and said so. The result is committed to the parameter file --out (created if \
+missing, history kept, bounds checked), which `replay --params` and `run` (param_file) use.")]
 pub struct CalibrateArgs {
     /// The configuration file: DBC, signals and the parameters in use while recording.
     #[arg(long)]
     pub config: PathBuf,
     /// Radius R of the track's semicircles, in metres.
-    #[arg(long)]
-    pub track_radius: f64,
+    #[arg(long, required_unless_present = "fixes", conflicts_with = "fixes")]
+    pub track_radius: Option<f64>,
     /// Candump -L logs of clockwise runs.
-    #[arg(long, num_args = 1.., required = true)]
+    #[arg(long, num_args = 1.., required_unless_present = "fixes", conflicts_with = "fixes")]
     pub cw: Vec<PathBuf>,
     /// Candump -L logs of counter-clockwise runs.
-    #[arg(long, num_args = 1.., required = true)]
+    #[arg(long, num_args = 1.., required_unless_present = "fixes", conflicts_with = "fixes")]
     pub ccw: Vec<PathBuf>,
+    /// Position fixes of an ordinary drive (CSV, see below): calibrate from
+    /// LOG instead of track runs; the result is committed to --out.
+    #[arg(long, requires_all = ["out", "log"])]
+    pub fixes: Option<PathBuf>,
+    /// With --fixes: the candump -L log of the drive.
+    #[arg(requires = "fixes")]
+    pub log: Option<PathBuf>,
     /// Measured real end poses per log (TOML, see below).
     #[arg(long)]
     pub end_poses: Option<PathBuf>,
     /// The calibration method.
     #[arg(long, value_enum, default_value = "exact")]
     pub method: MethodArg,
-    /// Also write the TOML result to this file (atomically).
+    /// Track runs: also write the TOML result to this file (atomically).
+    /// With --fixes: the parameter file the result is committed to.
     #[arg(long)]
     pub out: Option<PathBuf>,
     /// Write a report into this directory (created if missing): calibration.svg,
@@ -354,8 +370,13 @@ fn write_atomic(path: &Path, text: &str) -> anyhow::Result<()> {
 /// a failed calibration, an unwritable output.
 pub fn execute(args: &CalibrateArgs) -> anyhow::Result<()> {
     let config = Config::load(&args.config)?;
-    let track = Track::new(args.track_radius)
-        .with_context(|| format!("--track-radius {}", args.track_radius))?;
+    if let (Some(fixes), Some(log), Some(out)) = (&args.fixes, &args.log, &args.out) {
+        return super::calibrate_drive::execute(&config, fixes, log, out, args.report.as_deref());
+    }
+    let radius = args
+        .track_radius
+        .context("--track-radius is needed for track runs")?;
+    let track = Track::new(radius).with_context(|| format!("--track-radius {radius}"))?;
     let poses = match &args.end_poses {
         Some(p) => load_end_poses(p)?,
         None => HashMap::new(),

@@ -4,6 +4,7 @@
 
 pub mod calib;
 pub mod calibrate;
+pub mod calibrate_drive;
 pub mod decode;
 pub mod demo;
 pub mod replay;

@@ -1,0 +1,461 @@
+//! `canodom calibrate --fixes`: calibration from an ordinary drive with
+//! sparse position fixes (a GNSS receiver, a surveyed route), no test track.
+//!
+//! The log goes through the daemon's own [`Pipeline`] with the parameters in
+//! use (the parameter file's current set, else the configuration's nominal
+//! ones), so every frame is judged as live; each filter step becomes a
+//! [`DriveSample`] (rear wheel distances, steering angle, yaw rate) on the
+//! log's clock. [`canodom_calib::drive`] fits the rear diameter ratio, the
+//! speed scale, the steering offset and gain and the yaw-rate sensor's bias
+//! and scale to the fixes by least squares over the whole drive; what the
+//! drive could not observe is held. The result is committed to the parameter
+//! file as a new set (history kept, bounds checked), which `replay --params`
+//! and `run` (through `param_file`) then use.
+
+use crate::candump::{LogReader, ReadError};
+use crate::config::Config;
+use crate::persist::{ParamFile, ParamSet, ParamValues, PersistError};
+use crate::pipeline::Pipeline;
+use anyhow::{Context as _, bail};
+use canodom_calib::drive::{
+    DriveCalibration, DriveModel, DriveSample, Estimate, Fix, calibrate_drive,
+};
+use std::fmt::Write as _;
+use std::path::Path;
+
+/// Reads a fixes CSV: a header naming `t_unix_s`, `x_m`, `y_m` and
+/// optionally `heading_rad` (any order, other columns ignored), then one fix
+/// a line; times on the log's clock (Unix seconds, as candump -L writes).
+///
+/// # Errors
+/// A missing column, or a line that is not numbers, naming `name` and the line.
+pub fn parse_fixes(text: &str, name: &str) -> anyhow::Result<Vec<Fix>> {
+    let mut lines = text
+        .lines()
+        .enumerate()
+        .filter(|(_, l)| !l.trim().is_empty());
+    let Some((_, header)) = lines.next() else {
+        bail!("{name}: empty; expected a header t_unix_s,x_m,y_m[,heading_rad]");
+    };
+    let columns: Vec<&str> = header.split(',').map(str::trim).collect();
+    let column = |want: &str| columns.iter().position(|c| *c == want);
+    let (Some(t), Some(x), Some(y)) = (column("t_unix_s"), column("x_m"), column("y_m")) else {
+        bail!(
+            "{name}:1: the header {header:?} lacks t_unix_s, x_m or y_m \
+             (expected t_unix_s,x_m,y_m[,heading_rad])"
+        );
+    };
+    let heading = column("heading_rad");
+    let mut fixes = Vec::new();
+    for (i, line) in lines {
+        let fields: Vec<&str> = line.split(',').map(str::trim).collect();
+        let number = |k: usize, what: &str| -> anyhow::Result<f64> {
+            let text = fields
+                .get(k)
+                .with_context(|| format!("{name}:{}: no {what} column", i + 1))?;
+            let v: f64 = text
+                .parse()
+                .with_context(|| format!("{name}:{}: {what} {text:?} is not a number", i + 1))?;
+            if !v.is_finite() {
+                bail!("{name}:{}: {what} {text:?} is not finite", i + 1);
+            }
+            Ok(v)
+        };
+        fixes.push(Fix {
+            t_s: number(t, "t_unix_s")?,
+            x_m: number(x, "x_m")?,
+            y_m: number(y, "y_m")?,
+            heading_rad: heading.map(|h| number(h, "heading_rad")).transpose()?,
+        });
+    }
+    if fixes.windows(2).any(|w| w[1].t_s <= w[0].t_s) {
+        bail!("{name}: the fixes' times must increase");
+    }
+    Ok(fixes)
+}
+
+/// The parameter file at `path` as it is (an empty one if it does not exist yet).
+///
+/// # Errors
+/// A damaged or out-of-bounds file: a calibration is not committed over it.
+pub fn load_or_new(path: &Path, config: &Config) -> anyhow::Result<ParamFile> {
+    match crate::persist::load(path, &config.calibration.bounds) {
+        Ok(f) => Ok(f),
+        Err(PersistError::Missing { .. }) => Ok(ParamFile::default()),
+        Err(e) => Err(anyhow::Error::new(e).context("the parameter file cannot be extended")),
+    }
+}
+
+/// The values a set describes when `set` is absent: the configuration's nominal parameters.
+pub fn values_in_use(config: &Config, set: Option<&ParamSet>) -> ParamValues {
+    set.map_or_else(
+        || {
+            let p = &config.params;
+            let steer = p.steering();
+            ParamValues {
+                rear_tread_m: p.rear_tread_m(),
+                rear_left_diameter_m: p.wheel_diameter_m(canodom_fusion::Wheel::RearLeft),
+                rear_right_diameter_m: p.wheel_diameter_m(canodom_fusion::Wheel::RearRight),
+                steering_gain: steer.gain,
+                steering_offset_rad: steer.offset_rad,
+                yaw_rate_bias_radps: None,
+                yaw_rate_scale: None,
+            }
+        },
+        |s| s.values,
+    )
+}
+
+/// What one log gave: the samples and how the pipeline judged its frames.
+pub struct DriveLog {
+    /// One sample a filter step, on the log's clock.
+    pub samples: Vec<DriveSample>,
+    /// The pipeline's statistics line.
+    pub stats: String,
+    /// Malformed lines skipped.
+    pub malformed: u64,
+}
+
+/// Runs `log` through the pipeline with `set` in use and collects a
+/// [`DriveSample`] per filter step.
+///
+/// # Errors
+/// Unreadable log, a set the filter refuses, or no step at all.
+pub fn samples_from_log(
+    config: &Config,
+    set: Option<&ParamSet>,
+    log: &Path,
+) -> anyhow::Result<DriveLog> {
+    let file =
+        std::fs::File::open(log).with_context(|| format!("{}: cannot open", log.display()))?;
+    let mut reader = LogReader::new(std::io::BufReader::with_capacity(1 << 16, file));
+    let mut pipeline = Pipeline::new(config)?;
+    if let Some(s) = set {
+        pipeline.apply_params(Some((s.version, &s.values)))?;
+    }
+    let map = pipeline.params().steering();
+    let (d_left, d_right) = {
+        let p = pipeline.params();
+        (
+            std::f64::consts::PI * p.wheel_diameter_m(canodom_fusion::Wheel::RearLeft),
+            std::f64::consts::PI * p.wheel_diameter_m(canodom_fusion::Wheel::RearRight),
+        )
+    };
+    let mut samples = Vec::new();
+    let mut malformed = 0u64;
+    loop {
+        let record = match reader.next_record() {
+            Ok(Some(r)) => r,
+            Ok(None) => break,
+            Err(ReadError::Malformed(m)) => {
+                malformed += 1;
+                if malformed <= 5 {
+                    eprintln!("calibrate: {}: {m}; skipped", log.display());
+                }
+                continue;
+            }
+            Err(e @ ReadError::Io(_)) => {
+                return Err(anyhow::Error::new(e).context(format!("{}", log.display())));
+            }
+        };
+        let Some(step) = pipeline.push(record.timestamp, &record.frame) else {
+            continue;
+        };
+        let t0 = pipeline
+            .first_frame_time()
+            .map_or(0.0, |t| t.as_micros() as f64 / 1e6);
+        samples.push(DriveSample {
+            t_s: t0 + step.t_s,
+            rear_left_m: step.rear_rev.0 * d_left,
+            rear_right_m: step.rear_rev.1 * d_right,
+            steer_angle_rad: step.steer_signal.map(|u| map.angle_rad(u)),
+            yaw_rate_radps: step.yaw_rate_radps,
+        });
+    }
+    if samples.len() < 2 {
+        bail!(
+            "{}: {} filter steps ({}); is this the configured car's log?",
+            log.display(),
+            samples.len(),
+            pipeline.stats()
+        );
+    }
+    Ok(DriveLog {
+        samples,
+        stats: pipeline.stats().to_string(),
+        malformed,
+    })
+}
+
+/// The parameter values after the calibration `cal` of a drive recorded
+/// with `base`: every observable correction applied, the rest as in `base`.
+pub fn calibrated_values(base: &ParamValues, cal: &DriveCalibration) -> ParamValues {
+    let mut v = *base;
+    let used = |e: &Estimate, held: f64| if e.observable { e.value } else { held };
+    let s = used(&cal.speed_scale, 1.0);
+    let r = used(&cal.rear_ratio, 1.0);
+    v.rear_left_diameter_m *= s * 2.0 / (1.0 + r);
+    v.rear_right_diameter_m *= s * 2.0 * r / (1.0 + r);
+    // φ = g·(gain·u + offset) + o.
+    let g = cal.steer_gain.map_or(1.0, |e| used(&e, 1.0));
+    let o = cal.steer_offset_rad.map_or(0.0, |e| used(&e, 0.0));
+    v.steering_gain *= g;
+    v.steering_offset_rad = g * v.steering_offset_rad + o;
+    // The samples carried ω_raw / c0 (c0 the scale in use): ω_raw = c0·c·ω + c0·b.
+    let c0 = base.yaw_rate_scale.unwrap_or(1.0);
+    let b0 = base.yaw_rate_bias_radps.unwrap_or(0.0);
+    if let (Some(bias), Some(scale)) = (cal.yaw_bias_radps, cal.yaw_scale) {
+        let c = used(&scale, 1.0);
+        if scale.observable || bias.observable {
+            v.yaw_rate_scale = Some(c0 * c);
+        }
+        if bias.observable {
+            v.yaw_rate_bias_radps = Some(c0 * bias.value);
+        } else if scale.observable {
+            v.yaw_rate_bias_radps = Some(b0);
+        }
+    }
+    v
+}
+
+/// The human report of a drive calibration: every parameter with its σ,
+/// what was held and why, the residuals.
+pub fn report_text(cal: &DriveCalibration, base: &ParamValues, new: &ParamValues) -> String {
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "calibrate: {} fixes over {:.0} m",
+        cal.fixes_used, cal.distance_m
+    );
+    let line = |s: &mut String, name: &str, e: Option<&Estimate>, unit: &str, k: f64| {
+        let _ = match e {
+            None => writeln!(s, "  {name:<18} no data in the log"),
+            Some(e) if e.observable => writeln!(
+                s,
+                "  {name:<18} {:+.6}{unit} ± {:.6}{unit}",
+                e.value * k,
+                e.sigma * k
+            ),
+            Some(e) => writeln!(
+                s,
+                "  {name:<18} held: the drive does not tell it (σ {:.6}{unit}, too close to the prior)",
+                e.sigma * k
+            ),
+        };
+    };
+    let deg = 180.0 / std::f64::consts::PI;
+    line(&mut s, "speed scale", Some(&cal.speed_scale), "", 1.0);
+    line(&mut s, "rear ratio (R/L)", Some(&cal.rear_ratio), "", 1.0);
+    line(
+        &mut s,
+        "steering offset",
+        cal.steer_offset_rad.as_ref(),
+        "°",
+        deg,
+    );
+    line(&mut s, "steering gain", cal.steer_gain.as_ref(), "", 1.0);
+    line(
+        &mut s,
+        "yaw-rate bias",
+        cal.yaw_bias_radps.as_ref(),
+        "°/s",
+        deg,
+    );
+    line(&mut s, "yaw-rate scale", cal.yaw_scale.as_ref(), "", 1.0);
+    let _ = writeln!(
+        s,
+        "  rear tread         not estimated from a drive (turns both ways on a track tell it): {} m kept",
+        base.rear_tread_m
+    );
+    let names = ["rear wheels", "yaw rate", "steering"];
+    let residuals: Vec<String> = names
+        .iter()
+        .zip(cal.residual_rms_m)
+        .filter_map(|(n, r)| r.map(|r| format!("{n} {r:.3} m")))
+        .collect();
+    let _ = writeln!(s, "  residual RMS at the fixes: {}", residuals.join(", "));
+    let _ = writeln!(
+        s,
+        "  rear diameters {:.6} / {:.6} m -> {:.6} / {:.6} m",
+        base.rear_left_diameter_m,
+        base.rear_right_diameter_m,
+        new.rear_left_diameter_m,
+        new.rear_right_diameter_m
+    );
+    s
+}
+
+/// Runs the drive calibration: samples from `log`, fixes from `fixes`,
+/// committed to the parameter file `out`.
+///
+/// # Errors
+/// Unreadable inputs, too few fixes within the log, a failed fit, a set
+/// outside the configured bounds, an unwritable parameter file.
+pub fn execute(
+    config: &Config,
+    fixes_path: &Path,
+    log: &Path,
+    out: &Path,
+    report_dir: Option<&Path>,
+) -> anyhow::Result<()> {
+    let text = std::fs::read_to_string(fixes_path)
+        .with_context(|| format!("{}: cannot read the fixes", fixes_path.display()))?;
+    let all_fixes = parse_fixes(&text, &fixes_path.display().to_string())?;
+    let mut file = load_or_new(out, config)?;
+    let base_set = file.current.clone();
+    let base = values_in_use(config, base_set.as_ref());
+    let drive = samples_from_log(config, base_set.as_ref(), log)?;
+    let (first, last) = (
+        drive.samples[0].t_s,
+        drive.samples[drive.samples.len() - 1].t_s,
+    );
+    let fixes: Vec<Fix> = all_fixes
+        .iter()
+        .copied()
+        .filter(|f| f.t_s >= first && f.t_s <= last)
+        .collect();
+    let outside = all_fixes.len() - fixes.len();
+    if outside > 0 {
+        eprintln!(
+            "calibrate: {outside} of {} fixes lie outside the log's {first:.3}–{last:.3} s and are left out",
+            all_fixes.len()
+        );
+    }
+    eprintln!(
+        "calibrate: {}: {} filter steps; {}{}",
+        log.display(),
+        drive.samples.len(),
+        drive.stats,
+        if drive.malformed > 0 {
+            format!(", {} malformed lines", drive.malformed)
+        } else {
+            String::new()
+        }
+    );
+    let model = DriveModel {
+        rear_tread_m: base.rear_tread_m,
+        wheelbase_m: config.params.wheelbase_m(),
+    };
+    let cal = calibrate_drive(&drive.samples, &fixes, &model).with_context(|| {
+        format!(
+            "calibration of {} against {} failed",
+            log.display(),
+            fixes_path.display()
+        )
+    })?;
+    let values = calibrated_values(&base, &cal);
+    print!("{}", report_text(&cal, &base, &values));
+    config
+        .calibration
+        .bounds
+        .check(&values)
+        .context("the calibrated set is outside the configured bounds; not committed")?;
+    let created = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_secs());
+    let version = file
+        .commit(values, "drive", created, config.calibration.max_history)
+        .version;
+    crate::persist::store(out, &file)?;
+    println!("  committed as version {version} to {}", out.display());
+    if let Some(dir) = report_dir {
+        let paths = crate::drive_report::write_drive_report(
+            dir,
+            &drive.samples,
+            &fixes,
+            &base,
+            &values,
+            &cal,
+        )?;
+        eprintln!(
+            "calibrate: report written to {} and {}",
+            paths.0.display(),
+            paths.1.display()
+        );
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fixes_parse_by_header_name_and_errors_name_the_line() {
+        let f = parse_fixes("x_m,t_unix_s,y_m\n1.0,100.5,2.0\n3,101.5,4\n", "f.csv").unwrap();
+        assert_eq!(f.len(), 2);
+        assert_eq!(
+            (f[1].t_s, f[1].x_m, f[1].y_m, f[1].heading_rad),
+            (101.5, 3.0, 4.0, None)
+        );
+        let f = parse_fixes("t_unix_s,x_m,y_m,heading_rad\n1,0,0,0.5\n", "f.csv").unwrap();
+        assert_eq!(f[0].heading_rad, Some(0.5));
+        let e = parse_fixes("t,x,y\n1,2,3\n", "f.csv")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("f.csv:1") && e.contains("t_unix_s"), "{e}");
+        let e = parse_fixes("t_unix_s,x_m,y_m\n1,2,3\n2,abc,3\n", "f.csv")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("f.csv:3") && e.contains("x_m"), "{e}");
+        let e = parse_fixes("t_unix_s,x_m,y_m\n2,0,0\n1,0,0\n", "f.csv")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("increase"), "{e}");
+        assert!(parse_fixes("", "f.csv").is_err());
+    }
+
+    fn estimate(value: f64, observable: bool) -> Estimate {
+        Estimate {
+            value,
+            sigma: 1e-4,
+            observable,
+        }
+    }
+
+    #[test]
+    fn observable_corrections_are_applied_and_the_rest_held() {
+        let base = ParamValues {
+            rear_tread_m: 1.57,
+            rear_left_diameter_m: 0.72,
+            rear_right_diameter_m: 0.72,
+            steering_gain: 0.001,
+            steering_offset_rad: 0.0,
+            yaw_rate_bias_radps: None,
+            yaw_rate_scale: None,
+        };
+        let cal = DriveCalibration {
+            speed_scale: estimate(1.01, true),
+            rear_ratio: estimate(0.9996, true),
+            steer_offset_rad: Some(estimate(0.002, true)),
+            steer_gain: Some(estimate(0.9, false)),
+            yaw_bias_radps: Some(estimate(-0.007, true)),
+            yaw_scale: Some(estimate(1.05, false)),
+            fixes_used: 30,
+            distance_m: 500.0,
+            residual_rms_m: [Some(0.1), Some(0.1), None],
+        };
+        let v = calibrated_values(&base, &cal);
+        let (l, r) = (v.rear_left_diameter_m, v.rear_right_diameter_m);
+        assert!((r / l - 0.9996).abs() < 1e-12);
+        assert!((f64::midpoint(l, r) / 0.72 - 1.01).abs() < 1e-12);
+        assert_eq!(v.steering_gain, 0.001, "gain held");
+        assert!((v.steering_offset_rad - 0.002).abs() < 1e-15);
+        assert_eq!(v.yaw_rate_bias_radps, Some(-0.007));
+        assert_eq!(
+            v.yaw_rate_scale,
+            Some(1.0),
+            "scale held at the value in use"
+        );
+        assert_eq!(v.rear_tread_m, 1.57);
+        let text = report_text(&cal, &base, &v);
+        assert!(
+            text.contains("steering gain") && text.contains("held"),
+            "{text}"
+        );
+        assert!(
+            text.contains("rear tread") && text.contains("not estimated"),
+            "{text}"
+        );
+    }
+}
