@@ -68,6 +68,9 @@ pub struct DriveReport {
     pub rear_after: Vec<[f64; 2]>,
     /// Yaw-rate heading with the calibrated bias and scale, calibrated distances.
     pub yaw_after: Option<Vec<[f64; 2]>>,
+    /// At each fix: seconds since the first fix and the distance of each
+    /// reckoning from the fix (rear before, rear after, yaw rate after), metres.
+    pub errors_at_fixes: Vec<[f64; 4]>,
 }
 
 /// Dead reckoning of `samples` from `start` (x, y, heading) with rear
@@ -79,9 +82,9 @@ fn reckon(
     k: (f64, f64),
     tread_m: f64,
     yaw: Option<(f64, f64)>,
-) -> Vec<[f64; 2]> {
+) -> Vec<[f64; 3]> {
     let (t0, mut x, mut y, mut th) = start;
-    let mut out = vec![[x, y]];
+    let mut out = vec![[t0, x, y]];
     let mut prev_t = t0;
     for s in samples.iter().filter(|s| s.t_s > t0) {
         let (dl, dr) = (s.rear_left_m * k.0, s.rear_right_m * k.1);
@@ -95,9 +98,29 @@ fn reckon(
         x += d * mid.cos();
         y += d * mid.sin();
         th += dth;
-        out.push([x, y]);
+        out.push([s.t_s, x, y]);
     }
-    thin(&out)
+    out
+}
+
+/// The path's x/y, thinned for drawing.
+fn xy(path: &[[f64; 3]]) -> Vec<[f64; 2]> {
+    thin(&path.iter().map(|p| [p[1], p[2]]).collect::<Vec<_>>())
+}
+
+/// The distance of `path` (interpolated at the fix's time) from `fix`.
+fn error_at(path: &[[f64; 3]], fix: &Fix) -> f64 {
+    let i = path.partition_point(|p| p[0] < fix.t_s);
+    if path.is_empty() {
+        return f64::NAN;
+    }
+    let (a, b) = (path[i.saturating_sub(1)], path[i.min(path.len() - 1)]);
+    let f = if b[0] > a[0] {
+        ((fix.t_s - a[0]) / (b[0] - a[0])).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    (a[1] + f * (b[1] - a[1]) - fix.x_m).hypot(a[2] + f * (b[2] - a[2]) - fix.y_m)
 }
 
 /// At most [`MAX_POINTS`] of `points`, evenly, with the last kept.
@@ -153,6 +176,18 @@ impl DriveReport {
             ),
             None => (Vec::new(), Vec::new(), None),
         };
+        let t0 = fixes.first().map_or(0.0, |f| f.t_s);
+        let errors_at_fixes = fixes
+            .iter()
+            .map(|f| {
+                [
+                    f.t_s - t0,
+                    error_at(&rear_before, f),
+                    error_at(&rear_after, f),
+                    yaw_after.as_ref().map_or(f64::NAN, |p| error_at(p, f)),
+                ]
+            })
+            .collect();
         Self {
             fixes_used: cal.fixes_used,
             distance_m: cal.distance_m,
@@ -166,9 +201,10 @@ impl DriveReport {
             before: *before,
             after: *after,
             fixes: thin(&fixes.iter().map(|f| [f.x_m, f.y_m]).collect::<Vec<_>>()),
-            rear_before,
-            rear_after,
-            yaw_after,
+            rear_before: xy(&rear_before),
+            rear_after: xy(&rear_after),
+            yaw_after: yaw_after.as_deref().map(xy),
+            errors_at_fixes,
         }
     }
 
@@ -194,8 +230,14 @@ impl DriveReport {
             "canodom drive calibration: {} fixes over {:.0} m",
             self.fixes_used, self.distance_m
         );
-        let mut chart = ChartBuilder::on(root)
-            .caption(title, ("sans-serif", 22))
+        let root = root.titled(&title, ("sans-serif", 22))?;
+        let (top, bottom) = root.split_vertically(430);
+        self.draw_errors(&bottom)?;
+        let mut chart = ChartBuilder::on(&top)
+            .caption(
+                "the drive, dead-reckoned from the first fix",
+                ("sans-serif", 16),
+            )
             .margin(15)
             .x_label_area_size(40)
             .y_label_area_size(60)
@@ -236,6 +278,59 @@ impl DriveReport {
             .legend(|(x, y)| Circle::new((x + 10, y), 3, BLACK.filled()));
         chart
             .configure_series_labels()
+            .position(SeriesLabelPosition::UpperLeft)
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .draw()?;
+        Ok(())
+    }
+
+    /// The distance of each reckoning from each fix, over time: what the
+    /// trajectory's scale hides on a long straight road.
+    fn draw_errors(
+        &self,
+        area: &DrawingArea<SVGBackend<'_>, plotters::coord::Shift>,
+    ) -> PlotResult {
+        let t_max = self.errors_at_fixes.last().map_or(1.0, |e| e[0]).max(1.0);
+        let e_max = self
+            .errors_at_fixes
+            .iter()
+            .flat_map(|e| e[1..].iter().copied())
+            .filter(|e| e.is_finite())
+            .fold(0.1f64, f64::max);
+        let mut chart = ChartBuilder::on(area)
+            .caption("distance from each fix", ("sans-serif", 16))
+            .margin(15)
+            .x_label_area_size(40)
+            .y_label_area_size(60)
+            .build_cartesian_2d(0.0..t_max, 0.0..e_max * 1.05)?;
+        chart
+            .configure_mesh()
+            .x_desc("time since the first fix (s)")
+            .y_desc("error (m)")
+            .draw()?;
+        for (k, colour, label) in [
+            (1, RED, "rear wheels, before"),
+            (2, BLUE, "rear wheels, calibrated"),
+            (3, GREEN, "yaw rate, calibrated"),
+        ] {
+            let points: Vec<(f64, f64)> = self
+                .errors_at_fixes
+                .iter()
+                .filter(|e| e[k].is_finite())
+                .map(|e| (e[0], e[k]))
+                .collect();
+            if points.is_empty() {
+                continue;
+            }
+            chart
+                .draw_series(LineSeries::new(points, colour.stroke_width(2)))?
+                .label(label)
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour));
+        }
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::UpperLeft)
             .background_style(WHITE.mix(0.8))
             .border_style(BLACK)
             .draw()?;
