@@ -19,7 +19,7 @@ runs=${RUNS:-3}
 report=${REPORT:-$target/bench-report.md}
 frames=1000000
 config=daemon/examples/rc_car.toml
-dbc=$root/../shared/dbc/rc_car.dbc
+dbc=$root/data/dbc/rc_car.dbc
 [ -f "$dbc" ] || dbc=daemon/dbc/rc_car.dbc
 mkdir -p "$bench_dir"
 

@@ -3,7 +3,7 @@
 #
 # Why a VM: the development and CI machines run a kernel built without CAN, so
 # `vcan` exists only in a guest booting Debian's stock kernel (which ships
-# can.ko, can-raw.ko, vcan.ko, ... as modules). See shared/docs/vcan-vm.md.
+# can.ko, can-raw.ko, vcan.ko, ... as modules). See docs/vcan-vm.md.
 #
 # What it does, in order: installs the Debian packages it needs (as root; as
 # another user it says what to install and stops), builds the release binaries
@@ -113,9 +113,8 @@ for bin in "${scenario_bins[@]}"; do
     copy_with_libs "$bin" "scenarios/$name"
 done
 # Fixtures the scenarios read (DBC files, example configs), at paths they can find.
-mkdir -p "$initroot/work/shared/dbc" "$initroot/work/main"
-cp "$root"/../shared/dbc/*.dbc "$initroot/work/shared/dbc/"
-for dir in daemon/dbc daemon/examples vcan-tests/fixtures; do
+mkdir -p "$initroot/work/main"
+for dir in data/dbc daemon/dbc daemon/examples vcan-tests/fixtures; do
     [ -d "$root/$dir" ] && mkdir -p "$initroot/work/main/$dir" && cp -r "$root/$dir/." "$initroot/work/main/$dir/"
 done
 
@@ -137,7 +136,7 @@ mount -t proc proc /proc; mount -t sysfs sys /sys; mount -t devtmpfs dev /dev; m
 for m in can can-raw can-dev vcan vxcan can-gw; do
     insmod /modules/\$m.ko || echo "vcan-vm: insmod \$m failed"
 done
-export HOME=/tmp PATH=/bin:/sbin CANODOM_BIN=/bin/canodom CANODOM_SHARED_DBC=/work/shared/dbc \
+export HOME=/tmp PATH=/bin:/sbin CANODOM_BIN=/bin/canodom \
     CANODOM_REPO=/work/main VCAN_LOAD_S=$load_s RUST_BACKTRACE=0
 echo "vcan-vm: guest up after \$(cut -d' ' -f1 /proc/uptime) s"
 passed=0; failed=0

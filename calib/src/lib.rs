@@ -1,6 +1,6 @@
 //! Kinematic parameter calibration of a car-like vehicle (Lee, Chung & Yoo,
 //! *Mechatronics* 2010) with the corrections and the exact refinement of
-//! `shared/docs/calibration-math.md`, camera-free steering calibration, and
+//! `docs/calibration-math.md`, camera-free steering calibration, and
 //! the guided calibration session.
 //!
 //! Pure: no I/O, no async, no clock; samples and times come in as arguments.

@@ -57,7 +57,7 @@ fn dbc_500() -> String {
 fn toyota_wheel_speeds(c: &mut Criterion) {
     let db = Database::from_file(concat!(
         env!("CARGO_MANIFEST_DIR"),
-        "/../../shared/dbc/opendbc_toyota_2017.dbc"
+        "/../data/dbc/opendbc_toyota_2017.dbc"
     ))
     .unwrap();
     let handles: Vec<_> = ["FR", "FL", "RR", "RL"]

@@ -3,9 +3,9 @@
 
 use std::path::PathBuf;
 
-/// Path of a DBC file of the project's shared directory.
+/// Path of a DBC file of the repository's `data/dbc`.
 pub fn shared_dbc(name: &str) -> PathBuf {
-    PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/dbc")).join(name)
+    PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../data/dbc")).join(name)
 }
 
 /// Every `.dbc` file of the shared directory, sorted.

@@ -1048,10 +1048,7 @@ algorithm = "crc8_sae_j1850"
 "#;
 
     fn path() -> PathBuf {
-        PathBuf::from(concat!(
-            env!("CARGO_MANIFEST_DIR"),
-            "/../../shared/dbc/x.toml"
-        ))
+        PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../data/dbc/x.toml"))
     }
 
     #[test]

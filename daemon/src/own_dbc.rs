@@ -243,7 +243,7 @@ mod tests {
         // Clear of the vehicle DBC the defaults are designed to live beside.
         let rc = std::fs::read_to_string(concat!(
             env!("CARGO_MANIFEST_DIR"),
-            "/../../shared/dbc/rc_car.dbc"
+            "/../data/dbc/rc_car.dbc"
         ))
         .unwrap();
         let rc_ids: HashSet<MessageId> = parse(&rc).messages.iter().map(|m| m.id).collect();

@@ -1,5 +1,5 @@
 //! `canodom decode` agrees with cantools on every message of every DBC in
-//! ../shared/dbc (vectors from fixtures/cantools/gen_decode_vectors.py).
+//! data/dbc (vectors from fixtures/cantools/gen_decode_vectors.py).
 
 use canodom::cmd::decode::{DecodeArgs, decode};
 use canodom_dbc::Database;
@@ -8,7 +8,7 @@ use serde_json::Value;
 #[test]
 fn decode_agrees_with_cantools_on_every_shared_dbc() {
     let fixtures = crate::util::manifest().join("tests/fixtures/cantools");
-    let dbc_dir = crate::util::manifest().join("../../shared/dbc");
+    let dbc_dir = crate::util::manifest().join("../data/dbc");
     let mut files = 0;
     let mut compared = 0;
     for entry in std::fs::read_dir(&dbc_dir).unwrap() {

@@ -61,7 +61,7 @@ fn simulate_decode_replay_round_trip() {
     let (json, se) = ok(&[
         "decode",
         "--dbc",
-        "../../shared/dbc/rc_car.dbc",
+        "../data/dbc/rc_car.dbc",
         log.to_str().unwrap(),
     ]);
     let lines: Vec<&str> = json.lines().collect();
@@ -134,7 +134,7 @@ fn decode_reports_malformed_lines_and_strict_fails() {
     )
     .unwrap();
     let l = log.to_str().unwrap();
-    let dbc = "../../shared/dbc/rc_car.dbc";
+    let dbc = "../data/dbc/rc_car.dbc";
     let (json, se) = ok(&["decode", "--dbc", dbc, l]);
     assert_eq!(json.lines().count(), 1);
     assert!(se.contains("line 2"), "{se}");
@@ -155,7 +155,7 @@ fn decode_reports_malformed_lines_and_strict_fails() {
 #[test]
 fn decode_reads_stdin() {
     let mut child = Command::new(env!("CARGO_BIN_EXE_canodom"))
-        .args(["decode", "--dbc", "../../shared/dbc/rc_car.dbc", "-"])
+        .args(["decode", "--dbc", "../data/dbc/rc_car.dbc", "-"])
         .current_dir(manifest())
         .stdin(std::process::Stdio::piped())
         .stdout(std::process::Stdio::piped())
@@ -189,9 +189,9 @@ fn run_refuses_a_bad_config_naming_the_key() {
     let text = std::fs::read_to_string(rc_car_toml())
         .unwrap()
         .replace(
-            "../../../shared/dbc/rc_car.dbc",
+            "../../data/dbc/rc_car.dbc",
             &manifest()
-                .join("../../shared/dbc/rc_car.dbc")
+                .join("../data/dbc/rc_car.dbc")
                 .display()
                 .to_string(),
         )

@@ -104,7 +104,7 @@ pub fn calibration_config(dir: &Path, dbc: &Path, arming_code: u8) -> Result<Pat
     let example = std::fs::read_to_string(&example_path)
         .map_err(|e| format!("{}: {e}", example_path.display()))?;
     let mut config = example.replace(
-        "dbc = \"../../../shared/dbc/rc_car.dbc\"",
+        "dbc = \"../../data/dbc/rc_car.dbc\"",
         &format!("dbc = \"{}\"", dbc.display()),
     );
     if config == example {

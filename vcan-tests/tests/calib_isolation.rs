@@ -76,8 +76,7 @@ impl<R: FrameSource> StatusReader<R> {
 async fn calibration_commands_on_wrong_id_bad_crc_or_wrong_arming_change_nothing() {
     let dir = scratch_dir("calib-isolation").unwrap();
     let params = dir.join("params.toml");
-    let config_path =
-        calibration_config(&dir, &repo_file("../shared/dbc/rc_car.dbc"), ARMING).unwrap();
+    let config_path = calibration_config(&dir, &repo_file("data/dbc/rc_car.dbc"), ARMING).unwrap();
 
     let wire = CalibWire::new(BaseId::new(BASE, false).unwrap()).unwrap();
     let (rx, _tx) =

@@ -65,7 +65,7 @@ struct Heard {
 /// delays a sender by more than 15 ms about once a second, which rejected
 /// most runs with INPUT_FAULT; gaps over 60 ms are rare enough.
 fn write_config(dir: &Path) -> std::path::PathBuf {
-    let shared = read(&repo_file("../shared/dbc/rc_car.dbc"));
+    let shared = read(&repo_file("data/dbc/rc_car.dbc"));
     let mut dbc = shared.clone();
     for id in [256, 257, 272] {
         dbc = dbc.replace(

@@ -13,7 +13,7 @@ use libfuzzer_sys::fuzz_target;
 
 macro_rules! shared {
     ($($f:literal),*) => {
-        [$( ($f, include_bytes!(concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/dbc/", $f)).as_slice()) ),*]
+        [$( ($f, include_bytes!(concat!(env!("CARGO_MANIFEST_DIR"), "/../../data/dbc/", $f)).as_slice()) ),*]
     };
 }
 

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Produce the cantools differential-test vectors for canodom-dbc.
 
-For every message of every DBC file in ../shared/dbc/, N payloads (default 10,000) are
+For every message of every DBC file in data/dbc/, N payloads (default 10,000) are
 drawn from splitmix64 seeded with FNV-1a-64 of "<file name>:<DBC message id>" (the Rust
 test regenerates the same payloads, so none are stored), decoded by cantools with
 scaling on and choices off, and summarised per message as:
@@ -35,7 +35,7 @@ from cantools.database.errors import DecodeError
 from cantools.database.utils import create_encode_decode_formats, decode_data
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-DBC_DIR = os.path.normpath(os.path.join(HERE, "..", "..", "..", "..", "shared", "dbc"))
+DBC_DIR = os.path.normpath(os.path.join(HERE, "..", "..", "..", "data", "dbc"))
 OUT_DIR = os.path.join(HERE, "vectors")
 MASK64 = (1 << 64) - 1
 NAN_BITS = 0x7FF8000000000000

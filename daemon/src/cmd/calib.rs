@@ -184,7 +184,7 @@ pub fn command_for(action: &Action) -> Option<Command> {
 }
 
 /// Track length of the calibration track, `(4 + 2π)·ρ`
-/// (`calibration-math.md`, the track of `canodom_calib::track`).
+/// (`docs/calibration-math.md`, the track of `canodom_calib::track`).
 pub fn track_length_m(radius_m: f64) -> f64 {
     (4.0 + 2.0 * std::f64::consts::PI) * radius_m
 }

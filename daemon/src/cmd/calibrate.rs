@@ -301,7 +301,7 @@ pub fn result_toml(
     );
     let _ = writeln!(
         s,
-        "# rear_tread_m is the EFFECTIVE tread (calibration-math.md §4): the one that makes\n\
+        "# rear_tread_m is the EFFECTIVE tread (docs/calibration-math.md §4): the one that makes\n\
          # odometry close, not the distance between tyre centres; use it for odometry only."
     );
     let _ = writeln!(s, "[calibration]");

@@ -20,7 +20,7 @@ pub const DEFAULT_CONFIG: &str = include_str!("../../examples/rc_car.toml");
 
 /// `rc_car.dbc`, built in with the configuration so the installed binary's
 /// demo needs no file.
-pub const DEFAULT_DBC: &str = include_str!("../../../../shared/dbc/rc_car.dbc");
+pub const DEFAULT_DBC: &str = include_str!("../../../data/dbc/rc_car.dbc");
 
 /// Arguments of `demo`.
 #[derive(Debug, clap::Args)]
