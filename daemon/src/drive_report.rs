@@ -247,26 +247,20 @@ impl DriveReport {
             .x_desc("x (m)")
             .y_desc("y (m)")
             .draw()?;
-        let line = |pts: &[[f64; 2]]| pts.iter().map(|p| (p[0], p[1])).collect::<Vec<_>>();
-        chart
-            .draw_series(LineSeries::new(
-                line(&self.rear_before),
-                RED.stroke_width(2),
-            ))?
-            .label("rear wheels, before")
-            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED));
-        chart
-            .draw_series(LineSeries::new(
-                line(&self.rear_after),
-                BLUE.stroke_width(2),
-            ))?
-            .label("rear wheels, calibrated")
-            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLUE));
-        if let Some(yaw) = &self.yaw_after {
+        let paths = [
+            (Some(&self.rear_before), RED, "rear wheels, before"),
+            (Some(&self.rear_after), BLUE, "rear wheels, calibrated"),
+            (self.yaw_after.as_ref(), GREEN, "yaw rate, calibrated"),
+        ];
+        for (path, colour, label) in paths {
+            let Some(path) = path else { continue };
             chart
-                .draw_series(LineSeries::new(line(yaw), GREEN.stroke_width(2)))?
-                .label("yaw rate, calibrated")
-                .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], GREEN));
+                .draw_series(LineSeries::new(
+                    path.iter().map(|p| (p[0], p[1])),
+                    colour.stroke_width(2),
+                ))?
+                .label(label)
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour));
         }
         chart
             .draw_series(
@@ -276,13 +270,7 @@ impl DriveReport {
             )?
             .label("fixes")
             .legend(|(x, y)| Circle::new((x + 10, y), 3, BLACK.filled()));
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::UpperLeft)
-            .background_style(WHITE.mix(0.8))
-            .border_style(BLACK)
-            .draw()?;
-        Ok(())
+        draw_legend(&mut chart)
     }
 
     /// The distance of each reckoning from each fix, over time: what the
@@ -328,14 +316,25 @@ impl DriveReport {
                 .label(label)
                 .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour));
         }
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::UpperLeft)
-            .background_style(WHITE.mix(0.8))
-            .border_style(BLACK)
-            .draw()?;
-        Ok(())
+        draw_legend(&mut chart)
     }
+}
+
+/// The legend of both charts, top left.
+fn draw_legend<'a, X, Y>(
+    chart: &mut ChartContext<'a, SVGBackend<'a>, Cartesian2d<X, Y>>,
+) -> PlotResult
+where
+    X: plotters::coord::ranged1d::Ranged<ValueType = f64>,
+    Y: plotters::coord::ranged1d::Ranged<ValueType = f64>,
+{
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::UpperLeft)
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .draw()?;
+    Ok(())
 }
 
 impl ReportFiles for DriveReport {

@@ -151,6 +151,32 @@ fn end_pose_of(poses: &HashMap<String, Pose>, log: &Path) -> Option<Pose> {
     })
 }
 
+/// The next frame of `log` with its time, skipping malformed lines (counted in
+/// `malformed`, the first five named on stderr); `None` at its end.
+///
+/// # Errors
+/// The log cannot be read.
+pub fn next_record<R: std::io::Read>(
+    reader: &mut LogReader<R>,
+    log: &Path,
+    malformed: &mut u64,
+) -> anyhow::Result<Option<(crate::candump::Timestamp, crate::frame::CanFrame)>> {
+    loop {
+        match reader.next_record() {
+            Ok(r) => return Ok(r.map(|r| (r.timestamp, r.frame))),
+            Err(ReadError::Malformed(m)) => {
+                *malformed += 1;
+                if *malformed <= 5 {
+                    eprintln!("calibrate: {}: {m}; skipped", log.display());
+                }
+            }
+            Err(e @ ReadError::Io(_)) => {
+                return Err(anyhow::Error::new(e).context(format!("{}", log.display())));
+            }
+        }
+    }
+}
+
 /// Faults of the inputs (not frames of other messages, not the filter's gate).
 fn input_faults(pipeline: &Pipeline) -> u64 {
     Reject::ALL
@@ -188,28 +214,14 @@ pub fn run_from_log(
     // (sample, input faults so far)
     let mut samples: Vec<(RevSample, u64)> = Vec::new();
     let mut malformed = 0u64;
-    loop {
-        let record = match reader.next_record() {
-            Ok(Some(r)) => r,
-            Ok(None) => break,
-            Err(ReadError::Malformed(m)) => {
-                malformed += 1;
-                if malformed <= 5 {
-                    eprintln!("calibrate: {}: {m}; skipped", log.display());
-                }
-                continue;
-            }
-            Err(e @ ReadError::Io(_)) => {
-                return Err(anyhow::Error::new(e).context(format!("{}", log.display())));
-            }
-        };
-        let step = pipeline.push(record.timestamp, &record.frame);
-        let id = match record.frame.id() {
+    while let Some((timestamp, frame)) = next_record(&mut reader, log, &mut malformed)? {
+        let step = pipeline.push(timestamp, &frame);
+        let id = match frame.id() {
             CanId::Standard(s) => canodom_dbc::FrameId::standard(s).ok(),
             CanId::Extended(e) => canodom_dbc::FrameId::extended(e).ok(),
         };
         if id == Some(steer_id) {
-            let data = record.frame.data();
+            let data = frame.data();
             let u = config
                 .signals
                 .steering

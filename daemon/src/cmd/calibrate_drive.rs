@@ -12,7 +12,7 @@
 //! file as a new set (history kept, bounds checked), which `replay --params`
 //! and `run` (through `param_file`) then use.
 
-use crate::candump::{LogReader, ReadError};
+use crate::candump::LogReader;
 use crate::config::Config;
 use crate::persist::{ParamFile, ParamSet, ParamValues, PersistError};
 use crate::pipeline::Pipeline;
@@ -143,22 +143,10 @@ pub fn samples_from_log(
     };
     let mut samples = Vec::new();
     let mut malformed = 0u64;
-    loop {
-        let record = match reader.next_record() {
-            Ok(Some(r)) => r,
-            Ok(None) => break,
-            Err(ReadError::Malformed(m)) => {
-                malformed += 1;
-                if malformed <= 5 {
-                    eprintln!("calibrate: {}: {m}; skipped", log.display());
-                }
-                continue;
-            }
-            Err(e @ ReadError::Io(_)) => {
-                return Err(anyhow::Error::new(e).context(format!("{}", log.display())));
-            }
-        };
-        let Some(step) = pipeline.push(record.timestamp, &record.frame) else {
+    while let Some((timestamp, frame)) =
+        super::calibrate::next_record(&mut reader, log, &mut malformed)?
+    {
+        let Some(step) = pipeline.push(timestamp, &frame) else {
             continue;
         };
         let t0 = pipeline
@@ -244,24 +232,16 @@ pub fn report_text(cal: &DriveCalibration, base: &ParamValues, new: &ParamValues
         };
     };
     let deg = 180.0 / std::f64::consts::PI;
-    line(&mut s, "speed scale", Some(&cal.speed_scale), "", 1.0);
-    line(&mut s, "rear ratio (R/L)", Some(&cal.rear_ratio), "", 1.0);
-    line(
-        &mut s,
-        "steering offset",
-        cal.steer_offset_rad.as_ref(),
-        "°",
-        deg,
-    );
-    line(&mut s, "steering gain", cal.steer_gain.as_ref(), "", 1.0);
-    line(
-        &mut s,
-        "yaw-rate bias",
-        cal.yaw_bias_radps.as_ref(),
-        "°/s",
-        deg,
-    );
-    line(&mut s, "yaw-rate scale", cal.yaw_scale.as_ref(), "", 1.0);
+    for (name, estimate, unit, k) in [
+        ("speed scale", Some(&cal.speed_scale), "", 1.0),
+        ("rear ratio (R/L)", Some(&cal.rear_ratio), "", 1.0),
+        ("steering offset", cal.steer_offset_rad.as_ref(), "°", deg),
+        ("steering gain", cal.steer_gain.as_ref(), "", 1.0),
+        ("yaw-rate bias", cal.yaw_bias_radps.as_ref(), "°/s", deg),
+        ("yaw-rate scale", cal.yaw_scale.as_ref(), "", 1.0),
+    ] {
+        line(&mut s, name, estimate, unit, k);
+    }
     let _ = writeln!(
         s,
         "  rear tread         not estimated from a drive (turns both ways on a track tell it): {} m kept",

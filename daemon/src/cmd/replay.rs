@@ -92,31 +92,22 @@ pub fn execute(args: &ReplayArgs) -> anyhow::Result<()> {
     let mut input = super::open_input(&args.log, "replay")
         .with_context(|| format!("{}", args.log.display()))?;
     let started = std::time::Instant::now();
-    let summary = if let Some(path) = &args.out {
-        let file = std::fs::File::create(path)
-            .with_context(|| format!("cannot create {}", path.display()))?;
-        let mut w = std::io::BufWriter::with_capacity(WRITE_BYTES, file);
-        let s = replay_with(
-            &config,
-            params.as_ref(),
-            &mut input,
-            &mut w,
-            &mut std::io::stderr(),
-        )?;
-        w.flush()?;
-        s
-    } else {
-        let mut w = std::io::BufWriter::with_capacity(WRITE_BYTES, std::io::stdout().lock());
-        let s = replay_with(
-            &config,
-            params.as_ref(),
-            &mut input,
-            &mut w,
-            &mut std::io::stderr(),
-        )?;
-        w.flush()?;
-        s
+    let sink: Box<dyn Write> = match &args.out {
+        Some(path) => Box::new(
+            std::fs::File::create(path)
+                .with_context(|| format!("cannot create {}", path.display()))?,
+        ),
+        None => Box::new(std::io::stdout().lock()),
     };
+    let mut w = std::io::BufWriter::with_capacity(WRITE_BYTES, sink);
+    let summary = replay_with(
+        &config,
+        params.as_ref(),
+        &mut input,
+        &mut w,
+        &mut std::io::stderr(),
+    )?;
+    w.flush()?;
     input.finish();
     let secs = started.elapsed().as_secs_f64();
     let mut malformed = format!("malformed lines {}", summary.malformed);
