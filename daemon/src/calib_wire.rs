@@ -130,6 +130,8 @@ wire_codes! {
         RequestParams = 9 => "REQUEST_PARAMS",
         /// Start recording the next run now.
         StartRun = 10 => "START_RUN",
+        /// Start recording a drive for calibration against the bus's position fixes.
+        StartDrive = 11 => "START_DRIVE",
     }
 }
 
@@ -430,6 +432,10 @@ pub enum Command {
     RequestParams,
     /// Start recording the next run now.
     StartRun,
+    /// Start recording a drive (wheels, steering, yaw rate and the bus's
+    /// position fixes) for calibration without a track; COMPUTE fits it,
+    /// COMMIT commits it, ABORT drops it.
+    StartDrive,
 }
 
 /// Runs per direction when START_SESSION says 0.
@@ -449,6 +455,7 @@ impl Command {
             Self::Rollback => CmdCode::Rollback,
             Self::RequestParams => CmdCode::RequestParams,
             Self::StartRun => CmdCode::StartRun,
+            Self::StartDrive => CmdCode::StartDrive,
         }
     }
 }
@@ -910,6 +917,7 @@ impl CalibWire {
             Some(CmdCode::Rollback) => Some(Command::Rollback),
             Some(CmdCode::RequestParams) => Some(Command::RequestParams),
             Some(CmdCode::StartRun) => Some(Command::StartRun),
+            Some(CmdCode::StartDrive) => Some(Command::StartDrive),
         };
         Ok(CommandFrame {
             cmd_raw,

@@ -198,6 +198,21 @@ struct RawCalibration {
     max_history: usize,
     standstill_speed_mps: f64,
     standstill_time_s: f64,
+    /// Position fixes on the bus (GNSS on CAN) for calibration from a drive.
+    fixes: Option<RawFixes>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawFixes {
+    /// `MESSAGE.SIGNAL` of a local metric x, metres.
+    x: Option<String>,
+    /// `MESSAGE.SIGNAL` of a local metric y, metres.
+    y: Option<String>,
+    /// `MESSAGE.SIGNAL` of the latitude, degrees.
+    latitude: Option<String>,
+    /// `MESSAGE.SIGNAL` of the longitude, degrees.
+    longitude: Option<String>,
 }
 
 impl Default for RawCalibration {
@@ -219,6 +234,7 @@ impl Default for RawCalibration {
             max_history: crate::persist::DEFAULT_MAX_HISTORY,
             standstill_speed_mps: 0.01,
             standstill_time_s: 1.0,
+            fixes: None,
         }
     }
 }
@@ -269,6 +285,20 @@ pub struct Signals {
     pub tick_bits: u32,
     /// The yaw-rate sensor, if configured.
     pub yaw_rate: Option<YawRateSignal>,
+}
+
+/// The bus's position fixes: two signals of one message.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FixSignals {
+    /// Index of the message in the database.
+    pub message_index: usize,
+    /// x (metres) or latitude (degrees).
+    pub first: SignalHandle,
+    /// y (metres) or longitude (degrees).
+    pub second: SignalHandle,
+    /// Latitude and longitude (turned into a local metric frame at the first
+    /// fix, x east and y north), rather than a local x and y.
+    pub geodetic: bool,
 }
 
 /// A resolved yaw-rate signal.
@@ -352,6 +382,8 @@ pub struct CalibrationConfig {
     pub max_history: usize,
     /// Below this rear-axle speed the vehicle stands still, m/s (default 0.01).
     pub standstill_speed_mps: f64,
+    /// Position fixes on the bus for `START_DRIVE` (calibration from a drive).
+    pub fixes: Option<FixSignals>,
     /// How long it must stay below it, s (default 1).
     pub standstill_time_s: f64,
 }
@@ -885,7 +917,28 @@ impl Validator<'_> {
             }
         }
 
-        let calibration = self.calibration(&raw.calibration, base_id, &params)?;
+        let mut calibration = self.calibration(&raw.calibration, base_id, &params)?;
+        calibration.fixes = match &raw.calibration.fixes {
+            None => None,
+            Some(f) => {
+                let fixes = self.fix_signals(&db, f)?;
+                let inputs = [
+                    wheels.rear_left.message_index,
+                    wheels.front_left.message_index,
+                    steering.message_index,
+                ];
+                if inputs.contains(&fixes.message_index)
+                    || yaw_rate.is_some_and(|y| y.signal.message_index == fixes.message_index)
+                {
+                    return Err(self.err(
+                        "calibration.fixes",
+                        "signals of a message that is not an odometry input",
+                        db.messages()[fixes.message_index].name(),
+                    ));
+                }
+                Some(fixes)
+            }
+        };
 
         Ok(Config {
             file: self.file.to_owned(),
@@ -996,6 +1049,42 @@ impl Validator<'_> {
                 .positive("calibration.standstill_speed_mps", c.standstill_speed_mps)?,
             standstill_time_s: self
                 .positive("calibration.standstill_time_s", c.standstill_time_s)?,
+            fixes: None,
+        })
+    }
+
+    /// The `[calibration.fixes]` signals: `x` and `y`, or `latitude` and
+    /// `longitude`, of one message.
+    fn fix_signals(&self, db: &Database, f: &RawFixes) -> Result<FixSignals, ConfigError> {
+        let ((k1, p1), (k2, p2), geodetic) = match (&f.x, &f.y, &f.latitude, &f.longitude) {
+            (Some(x), Some(y), None, None) => (
+                ("calibration.fixes.x", x),
+                ("calibration.fixes.y", y),
+                false,
+            ),
+            (None, None, Some(lat), Some(lon)) => (
+                ("calibration.fixes.latitude", lat),
+                ("calibration.fixes.longitude", lon),
+                true,
+            ),
+            _ => {
+                return Err(self.err(
+                    "calibration.fixes",
+                    "either x and y (metres) or latitude and longitude (degrees)",
+                    "another combination",
+                ));
+            }
+        };
+        let first = self.signal(db, k1, p1)?;
+        let second = self.signal(db, k2, p2)?;
+        if first.message_index != second.message_index {
+            return Err(self.err(k2, &format!("a signal in the same message as {k1}"), p2));
+        }
+        Ok(FixSignals {
+            message_index: first.message_index,
+            first: first.handle,
+            second: second.handle,
+            geodetic,
         })
     }
 }

@@ -27,6 +27,7 @@ use crate::persist::{ParamFile, ParamValues};
 use crate::report::{CalibrationReport, Report, SteeringReport};
 use canodom_calib::CalibrationResult;
 use canodom_calib::RearParams;
+use canodom_calib::drive::{DriveCalibration, DriveModel, DriveSample, Fix, calibrate_drive};
 use canodom_calib::run::{InputFault, RevSample, Run};
 use canodom_calib::session::{Action, Event, Instruction, Phase, Session, SessionConfig};
 use canodom_calib::steering::{
@@ -119,6 +120,83 @@ pub struct LiveCalibration {
     status_counter: u8,
     params_counter: u8,
     steering: Option<SteeringCollect>,
+    /// A drive recorded against the bus's position fixes (START_DRIVE).
+    drive: Option<DriveCollect>,
+}
+
+/// Steps of a recorded drive are merged into bins of this length: the fit
+/// needs the shape of the drive, not every 10 ms, and runs inline (#21
+/// moves computations off the runtime thread), so a ten-minute drive is
+/// 12,000 samples, a fraction of a second to fit.
+const DRIVE_BIN_S: f64 = 0.05;
+
+/// The most samples a drive keeps (20 minutes of bins): the rest is not recorded.
+const DRIVE_MAX_SAMPLES: usize = 24_000;
+
+/// Mean Earth radius, metres, for latitude/longitude fixes turned into a
+/// local frame (equirectangular around the first fix: centimetres over the
+/// kilometres of a calibration drive).
+const EARTH_RADIUS_M: f64 = 6_371_000.0;
+
+/// A drive being recorded for calibration against the bus's fixes.
+#[derive(Debug, Default)]
+struct DriveCollect {
+    samples: Vec<DriveSample>,
+    /// The open bin: its distances, the last steering angle, and ∫ω dt, ∫dt.
+    bin: Option<(DriveSample, f64, f64)>,
+    fixes: Vec<Fix>,
+    /// Latitude and longitude of the first fix (geodetic fixes only), degrees.
+    origin: Option<(f64, f64)>,
+    /// The computed set, with the fit it came from.
+    result: Option<(DriveCalibration, ParamValues)>,
+}
+
+impl DriveCollect {
+    /// Adds one filter step to the open bin, closing it after [`DRIVE_BIN_S`].
+    fn push(
+        &mut self,
+        t_s: f64,
+        left_m: f64,
+        right_m: f64,
+        steer: Option<f64>,
+        yaw: Option<f64>,
+        dt_s: f64,
+    ) {
+        if self.samples.len() >= DRIVE_MAX_SAMPLES {
+            return;
+        }
+        let (bin, yaw_dt, dt) = self.bin.get_or_insert((
+            DriveSample {
+                t_s,
+                rear_left_m: 0.0,
+                rear_right_m: 0.0,
+                steer_angle_rad: None,
+                yaw_rate_radps: None,
+            },
+            0.0,
+            0.0,
+        ));
+        bin.t_s = t_s;
+        bin.rear_left_m += left_m;
+        bin.rear_right_m += right_m;
+        bin.steer_angle_rad = steer.or(bin.steer_angle_rad);
+        if let Some(w) = yaw {
+            *yaw_dt += w * dt_s;
+            *dt += dt_s;
+        }
+        let start = self.samples.last().map_or(f64::NEG_INFINITY, |s| s.t_s);
+        if t_s - start >= DRIVE_BIN_S {
+            self.flush();
+        }
+    }
+
+    /// Closes the open bin.
+    fn flush(&mut self) {
+        if let Some((mut bin, yaw_dt, dt)) = self.bin.take() {
+            bin.yaw_rate_radps = (dt > 0.0).then(|| yaw_dt / dt);
+            self.samples.push(bin);
+        }
+    }
 }
 
 impl std::fmt::Debug for LiveCalibration {
@@ -183,6 +261,7 @@ impl LiveCalibration {
             status_counter: 0,
             params_counter: 0,
             steering: None,
+            drive: None,
         };
         me.session = Some(me.fresh_session());
         me
@@ -301,15 +380,26 @@ impl LiveCalibration {
     }
 
     /// A filter step: `rear_rev` wheel revolutions (left, right) since the
-    /// previous step with the diameters in use, and the steering signal.
+    /// previous step with the diameters in use, the steering signal, and the
+    /// yaw rate the filter used (for a drive recorded against fixes).
     pub fn on_step(
         &mut self,
         t: Timestamp,
         rear_rev: (f64, f64),
         steer_signal: Option<f64>,
+        yaw_rate_radps: Option<f64>,
     ) -> Vec<Output> {
         let t_s = seconds(t);
         let p = self.vehicle(&self.current_values());
+        if let Some(drive) = self.drive.as_mut().filter(|d| d.result.is_none()) {
+            let dt_s = self.last_step_s.map_or(0.0, |last| (t_s - last).max(0.0));
+            let (dl, dr) = (
+                std::f64::consts::PI * p.wheel_diameter_m(Wheel::RearLeft) * rear_rev.0,
+                std::f64::consts::PI * p.wheel_diameter_m(Wheel::RearRight) * rear_rev.1,
+            );
+            let steer = steer_signal.map(|u| p.steering().angle_rad(u));
+            drive.push(t_s, dl, dr, steer, yaw_rate_radps, dt_s);
+        }
         let distance_m = 0.5
             * std::f64::consts::PI
             * (p.wheel_diameter_m(Wheel::RearLeft) * rear_rev.0
@@ -348,6 +438,35 @@ impl LiveCalibration {
             }
         }
         self.apply_if_still(t_s)
+    }
+
+    /// A position fix from the bus: a local x and y in metres, or (`geodetic`)
+    /// latitude and longitude in degrees. Recorded while a drive is.
+    pub fn on_fix(&mut self, t: Timestamp, first: f64, second: f64, geodetic: bool) {
+        let Some(drive) = self.drive.as_mut().filter(|d| d.result.is_none()) else {
+            return;
+        };
+        if !(first.is_finite() && second.is_finite()) {
+            return;
+        }
+        let (x_m, y_m) = if geodetic {
+            let (lat0, lon0) = *drive.origin.get_or_insert((first, second));
+            (
+                EARTH_RADIUS_M * lat0.to_radians().cos() * (second - lon0).to_radians(),
+                EARTH_RADIUS_M * (first - lat0).to_radians(),
+            )
+        } else {
+            (first, second)
+        };
+        let t_s = seconds(t);
+        if drive.fixes.last().is_none_or(|f| t_s > f.t_s) {
+            drive.fixes.push(Fix {
+                t_s,
+                x_m,
+                y_m,
+                heading_rad: None,
+            });
+        }
     }
 
     /// The input path refused or faulted a wheel frame (`code`: the
@@ -466,6 +585,9 @@ impl LiveCalibration {
         let Some(command) = cmd.command else {
             return Reason::UnknownCommand;
         };
+        if let Some(reason) = self.drive_command(command, t_s, out) {
+            return reason;
+        }
         match command {
             Command::StartSession { .. } if self.steering.is_some() => Reason::SessionActive,
             Command::StartSession {
@@ -495,6 +617,7 @@ impl LiveCalibration {
                 r
             }
             Command::StartSteering => self.start_steering(),
+            Command::StartDrive => self.start_drive(),
             Command::Abort if self.steering.is_some() => {
                 self.steering = None;
                 Reason::None
@@ -658,6 +781,106 @@ impl LiveCalibration {
         }
         self.file = file;
         self.adopt(t_s, set.version, set.values, out);
+        Reason::None
+    }
+
+    /// The commands a recorded drive answers itself (`None` for the others).
+    fn drive_command(
+        &mut self,
+        command: Command,
+        t_s: f64,
+        out: &mut Vec<Output>,
+    ) -> Option<Reason> {
+        self.drive.as_ref()?;
+        Some(match command {
+            Command::StartSession { .. } | Command::StartSteering => Reason::SessionActive,
+            Command::Abort => {
+                self.drive = None;
+                Reason::None
+            }
+            Command::Compute => self.compute_drive(),
+            Command::Commit => self.commit_drive(t_s, out),
+            _ => return None,
+        })
+    }
+
+    /// Starts recording a drive against the bus's position fixes: only with
+    /// no session, and with `[calibration.fixes]` configured.
+    fn start_drive(&mut self) -> Reason {
+        if self.phase() != Phase::Idle || self.steering.is_some() || self.drive.is_some() {
+            return Reason::SessionActive;
+        }
+        if self.config.fixes.is_none() {
+            return Reason::NotSupported;
+        }
+        self.drive = Some(DriveCollect::default());
+        self.result = None;
+        Reason::None
+    }
+
+    /// Fits the recorded drive to its fixes (`canodom_calib::drive`).
+    fn compute_drive(&mut self) -> Reason {
+        let base = self.current_values();
+        let p = self.vehicle(&base);
+        let Some(drive) = self.drive.as_mut() else {
+            return Reason::NoSession;
+        };
+        drive.flush();
+        if drive.fixes.len() < 3 || drive.samples.len() < 3 {
+            return Reason::TooFewSamples;
+        }
+        let model = DriveModel {
+            rear_tread_m: p.rear_tread_m(),
+            wheelbase_m: p.wheelbase_m(),
+        };
+        // Fixes outside the recorded steps say nothing about them.
+        let (first, last) = (
+            drive.samples[0].t_s,
+            drive.samples[drive.samples.len() - 1].t_s,
+        );
+        let fixes: Vec<Fix> = drive
+            .fixes
+            .iter()
+            .copied()
+            .filter(|f| f.t_s >= first && f.t_s <= last)
+            .collect();
+        match calibrate_drive(&drive.samples, &fixes, &model) {
+            Ok(cal) => {
+                let values = crate::cmd::calibrate_drive::calibrated_values(&base, &cal);
+                drive.result = Some((cal, values));
+                Reason::None
+            }
+            Err(e) => {
+                tracing::warn!(cause = %e, samples = drive.samples.len(), fixes = fixes.len(), "drive calibration failed");
+                Reason::ComputeFailed
+            }
+        }
+    }
+
+    /// Commits a computed drive the way a rear result is committed: bounds,
+    /// stored, applied at standstill, written back.
+    fn commit_drive(&mut self, t_s: f64, out: &mut Vec<Output>) -> Reason {
+        let Some((_, values)) = self.drive.as_ref().and_then(|d| d.result) else {
+            return Reason::NothingToCommit;
+        };
+        if self.writeback() == Writeback::Pending {
+            return Reason::WritebackBusy;
+        }
+        if self.config.bounds.check(&values).is_err() {
+            return Reason::OutOfBounds;
+        }
+        let mut file = self.file.clone();
+        let created = t_s.max(0.0) as u64;
+        let version = file
+            .commit(values, "drive", created, self.config.max_history)
+            .version;
+        if let Err(cause) = (self.persister)(&file) {
+            tracing::warn!(%cause, "drive calibration not stored; commit refused");
+            return Reason::PersistFailed;
+        }
+        self.file = file;
+        self.drive = None;
+        self.adopt(t_s, version, values, out);
         Reason::None
     }
 
@@ -1279,7 +1502,7 @@ mod tests {
         let c = config();
         let (mut live, w, _) = core(&c, two_sets(), false);
         // Moving: the set waits for the standstill.
-        let _ = live.on_step(at(0), (0.1, 0.1), Some(0.0));
+        let _ = live.on_step(at(0), (0.1, 0.1), Some(0.0), None);
         let out = live.on_command(at(5), &cmd(&w, w.encode_command(Command::Rollback, 0, 1)));
         assert!(!out.iter().any(|o| matches!(o, Output::Apply(..))));
         let ack = |version, status| {
@@ -1289,11 +1512,11 @@ mod tests {
         assert_eq!(live.writeback(), Writeback::Pending);
         let out = live.on_ack(at(20), &ack(1, AckStatus::Stored));
         assert_eq!(progress(&w, &out).unwrap().writeback, Writeback::Acked);
-        let _ = live.on_step(at(100), (0.0, 0.0), Some(0.0));
+        let _ = live.on_step(at(100), (0.0, 0.0), Some(0.0), None);
         let still_ms = u64::try_from((c.calibration.standstill_time_s * 1000.0) as i64).unwrap();
-        let early = live.on_step(at(100 + still_ms - 10), (0.0, 0.0), Some(0.0));
+        let early = live.on_step(at(100 + still_ms - 10), (0.0, 0.0), Some(0.0), None);
         assert!(!early.iter().any(|o| matches!(o, Output::Apply(..))));
-        let late = live.on_step(at(100 + still_ms), (0.0, 0.0), Some(0.0));
+        let late = live.on_step(at(100 + still_ms), (0.0, 0.0), Some(0.0), None);
         assert!(late.iter().any(|o| matches!(o, Output::Apply(1, _))));
         assert_eq!(
             live.tick(at(200 + still_ms))
@@ -1316,12 +1539,12 @@ mod tests {
         let mut ms = 0;
         for _ in 0..150 {
             ms += 10;
-            let _ = live.on_step(at(ms), (0.0, 0.0), Some(0.0));
+            let _ = live.on_step(at(ms), (0.0, 0.0), Some(0.0), None);
         }
         // Straight ahead for 2 m: recording.
         for _ in 0..200 {
             ms += 10;
-            let _ = live.on_step(at(ms), (0.035, 0.035), Some(0.0));
+            let _ = live.on_step(at(ms), (0.035, 0.035), Some(0.0), None);
         }
         assert_eq!(live.phase(), Phase::Recording);
         live.on_fault(at(ms), 2);
@@ -1349,7 +1572,7 @@ mod tests {
         let rest = |live: &mut LiveCalibration, ms: &mut u64| {
             for _ in 0..150 {
                 *ms += 10;
-                let _ = live.on_step(at(*ms), (0.0, 0.0), Some(0.0));
+                let _ = live.on_step(at(*ms), (0.0, 0.0), Some(0.0), None);
             }
         };
         rest(live, &mut ms);
@@ -1363,6 +1586,7 @@ mod tests {
                     at(ms),
                     (s.rear_left_rev, s.rear_right_rev),
                     Some(s.steer_signal),
+                    None,
                 );
             }
             rest(live, &mut ms);
@@ -1371,6 +1595,85 @@ mod tests {
         assert_eq!(counts(w, &out).cmd_reason, Reason::None);
         assert_eq!(live.phase(), Phase::Computed);
         ms
+    }
+
+    #[test]
+    fn a_drive_against_the_bus_fixes_calibrates_without_a_track() {
+        let mut c = config();
+        let (live0, w0, _) = core(&c, ParamFile::default(), false);
+        let mut live0 = live0;
+        let out = live0.on_command(
+            at(0),
+            &cmd(&w0, w0.encode_command(Command::StartDrive, 0, 1)),
+        );
+        assert_eq!(
+            counts(&w0, &out).cmd_reason,
+            Reason::NotSupported,
+            "no [calibration.fixes]"
+        );
+        c.calibration.fixes = Some(crate::config::FixSignals {
+            message_index: c.signals.wheels.rear_left.message_index,
+            first: c.signals.wheels.rear_left.handle,
+            second: c.signals.wheels.rear_right.handle,
+            geodetic: false,
+        });
+        let (mut live, w, stored) = core(&c, ParamFile::default(), false);
+        let out = live.on_command(at(0), &cmd(&w, w.encode_command(Command::StartDrive, 0, 1)));
+        assert_eq!(counts(&w, &out).cmd_reason, Reason::None);
+        let start = Command::StartSession {
+            track_radius_mm: 780,
+            runs_per_direction: 1,
+        };
+        let out = live.on_command(at(1), &cmd(&w, w.encode_command(start, 0, 2)));
+        assert_eq!(counts(&w, &out).cmd_reason, Reason::SessionActive);
+        // 60 s at 0.2 m/s, weaving (radius down to 2 m); the right rear tyre
+        // reads 0.1 % short. Fixes at 1 Hz of the true rear-axle centre.
+        let p = live.vehicle(&live.current_values());
+        let (b, dl, dr) = (
+            p.rear_tread_m(),
+            std::f64::consts::PI * p.wheel_diameter_m(Wheel::RearLeft),
+            std::f64::consts::PI * p.wheel_diameter_m(Wheel::RearRight),
+        );
+        let (mut x, mut y, mut th) = (0.0f64, 0.0f64, 0.0f64);
+        for k in 1..=6000u64 {
+            let t = k as f64 * 0.01;
+            let kappa = 0.5 * (std::f64::consts::TAU * t / 20.0).sin();
+            let ds = 0.002;
+            let (d_l, d_r) = (ds * (1.0 - 0.5 * kappa * b), ds * (1.0 + 0.5 * kappa * b));
+            let mid = th + 0.5 * ds * kappa;
+            x += ds * mid.cos();
+            y += ds * mid.sin();
+            th += ds * kappa;
+            let _ = live.on_step(
+                at(10 * k),
+                (d_l / dl, d_r * (1.0 - 1e-3) / dr),
+                Some(0.0),
+                None,
+            );
+            if k % 100 == 0 {
+                live.on_fix(at(10 * k), x, y, false);
+            }
+        }
+        let out = live.on_command(
+            at(60_010),
+            &cmd(&w, w.encode_command(Command::Compute, 0, 3)),
+        );
+        assert_eq!(counts(&w, &out).cmd_reason, Reason::None);
+        let out = live.on_command(
+            at(60_020),
+            &cmd(&w, w.encode_command(Command::Commit, 0, 4)),
+        );
+        assert_eq!(counts(&w, &out).cmd_reason, Reason::None);
+        let file = stored.lock().unwrap().last().cloned().unwrap();
+        let set = file.current.unwrap();
+        assert_eq!(set.method, "drive");
+        let ratio = set.values.rear_right_diameter_m
+            / set.values.rear_left_diameter_m
+            / (p.wheel_diameter_m(Wheel::RearRight) / p.wheel_diameter_m(Wheel::RearLeft));
+        assert!((ratio - 1.0 / (1.0 - 1e-3)).abs() < 2e-4, "{ratio}");
+        // The drive is over: a track session may start again.
+        let out = live.on_command(at(60_030), &cmd(&w, w.encode_command(start, 0, 5)));
+        assert_eq!(counts(&w, &out).cmd_reason, Reason::None);
     }
 
     #[test]
@@ -1503,11 +1806,12 @@ mod tests {
                 at(*ms),
                 (s.rear_left_rev, s.rear_right_rev),
                 Some(s.steer_signal),
+                None,
             );
         }
         for _ in 0..150 {
             *ms += 10;
-            let _ = live.on_step(at(*ms), (0.0, 0.0), Some(u));
+            let _ = live.on_step(at(*ms), (0.0, 0.0), Some(u), None);
         }
     }
 

@@ -228,6 +228,15 @@ impl InProcessDaemon {
     }
 }
 
+/// The transport's id of a DBC message id.
+fn can_id_of(id: canodom_dbc::FrameId) -> CanId {
+    if id.is_extended() {
+        CanId::Extended(id.raw())
+    } else {
+        CanId::Standard(id.raw() as u16)
+    }
+}
+
 /// Runs the daemon until `shutdown` completes or the transport fails for good.
 ///
 /// # Errors
@@ -250,20 +259,18 @@ pub async fn run<C: Connector>(
     let (calib_cmd_id, calib_ack_id) = (config.calibration.command_id, live.1);
     let encoder = PoseEncoder::new(config.output.base_id)?;
     let cmd_id = OwnFrame::OdomCmd.id(config.output.base_id);
-    let mut filters: Vec<IdFilter> = config
+    let fixes = config.calibration.fixes.map(|f| {
+        let id = can_id_of(config.db.messages()[f.message_index].id());
+        (id, f)
+    });
+    let filters: Vec<IdFilter> = config
         .input_ids()
         .into_iter()
-        .map(|id| {
-            IdFilter::exact(if id.is_extended() {
-                CanId::Extended(id.raw())
-            } else {
-                CanId::Standard(id.raw() as u16)
-            })
-        })
+        .map(can_id_of)
+        .chain([cmd_id, calib_cmd_id, calib_ack_id])
+        .chain(fixes.map(|(id, _)| id))
+        .map(IdFilter::exact)
         .collect();
-    filters.push(IdFilter::exact(cmd_id));
-    filters.push(IdFilter::exact(calib_cmd_id));
-    filters.push(IdFilter::exact(calib_ack_id));
     let notifier = match Notifier::from_env() {
         Ok(n) => n,
         Err(e) => {
@@ -300,6 +307,7 @@ pub async fn run<C: Connector>(
         stats_period: Duration::from_secs_f64(config.output.stats_interval_s),
         publish_on_update: config.output.publish_on_update,
         cmd_id,
+        fixes,
         odom_commands,
         odom_refusals: OdomRefusals::default(),
         notifier,
@@ -660,6 +668,8 @@ struct PipelineTask<Tx> {
     stats_period: Duration,
     publish_on_update: bool,
     cmd_id: CanId,
+    /// The bus's position fixes (`[calibration.fixes]`): their id and signals.
+    fixes: Option<(CanId, crate::config::FixSignals)>,
     odom_commands: OdomCommands,
     odom_refusals: OdomRefusals,
     notifier: Option<Notifier>,
@@ -776,6 +786,15 @@ impl<Tx: FrameSink + Clone> PipelineTask<Tx> {
                     self.command(r.timestamp, &r.frame).await;
                     return;
                 }
+                if let Some((id, f)) = &self.fixes
+                    && r.frame.id() == *id
+                {
+                    let data = r.frame.data();
+                    if let (Some(a), Some(b)) = (f.first.decode(data), f.second.decode(data)) {
+                        self.live.on_fix(r.timestamp, a, b, f.geodetic);
+                    }
+                    return;
+                }
                 let faults = |s: &Stats| {
                     [
                         Reject::WheelFault,
@@ -795,9 +814,12 @@ impl<Tx: FrameSink + Clone> PipelineTask<Tx> {
                         .on_fault(r.timestamp, u8::try_from(i + 1).unwrap_or(u8::MAX));
                 }
                 if let Some(step) = step {
-                    let out = self
-                        .live
-                        .on_step(r.timestamp, step.rear_rev, step.steer_signal);
+                    let out = self.live.on_step(
+                        r.timestamp,
+                        step.rear_rev,
+                        step.steer_signal,
+                        step.yaw_rate_radps,
+                    );
                     self.carry_out(out).await;
                     if let Some(w) = &self.observers.steps {
                         w.send_replace(Some(step));

@@ -109,3 +109,43 @@ fn yaw_rate_signal_takes_its_unit_from_the_dbc_and_its_sign_from_the_config() {
     assert!(e.contains("signals.yaw_rate_sign"), "{e}");
     assert!(Config::load(&path).unwrap().signals.yaw_rate.is_none());
 }
+
+#[test]
+fn calibration_fixes_name_two_signals_of_one_message() {
+    let path = crate::util::toyota_toml();
+    let text = std::fs::read_to_string(&path).unwrap();
+    let with =
+        |table: &str| Config::from_toml(&format!("{text}\n[calibration.fixes]\n{table}\n"), &path);
+    // Any two signals of one message stand in for a GNSS message here.
+    let c = with("x = \"KINEMATICS.ACCEL_X\"\ny = \"KINEMATICS.ACCEL_Y\"").unwrap();
+    let f = c.calibration.fixes.unwrap();
+    assert!(!f.geodetic);
+    let c = with("latitude = \"KINEMATICS.ACCEL_X\"\nlongitude = \"KINEMATICS.ACCEL_Y\"").unwrap();
+    assert!(c.calibration.fixes.unwrap().geodetic);
+    let e = with("x = \"KINEMATICS.ACCEL_X\"\nlongitude = \"KINEMATICS.ACCEL_Y\"")
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("calibration.fixes") && e.contains("latitude"),
+        "{e}"
+    );
+    let e = with("x = \"KINEMATICS.ACCEL_X\"\ny = \"WHEEL_SPEEDS.WHEEL_SPEED_FL\"")
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("calibration.fixes.y") && e.contains("same message"),
+        "{e}"
+    );
+    let e = with("x = \"GNSS.X\"\ny = \"GNSS.Y\"")
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("calibration.fixes.x") && e.contains("GNSS.X"),
+        "{e}"
+    );
+    let e = with("x = \"WHEEL_SPEEDS.WHEEL_SPEED_FL\"\ny = \"WHEEL_SPEEDS.WHEEL_SPEED_FR\"")
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("not an odometry input"), "{e}");
+    assert!(Config::load(&path).unwrap().calibration.fixes.is_none());
+}

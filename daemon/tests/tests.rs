@@ -11,6 +11,7 @@ mod calibrate;
 mod cantools_decode;
 mod cli;
 mod config_errors;
+mod drive_session;
 mod rav4;
 mod run_loop;
 mod trajectory;

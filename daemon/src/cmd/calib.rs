@@ -74,6 +74,9 @@ pub enum Action {
     },
     /// Start the steering calibration (after a committed rear calibration).
     StartSteering,
+    /// Start recording a drive for calibration against the position fixes
+    /// the bus carries (`[calibration.fixes]`); then drive, `compute`, `commit`.
+    StartDrive,
     /// Start recording the next run now (instead of on moving off).
     StartRun,
     /// End the current run now.
@@ -163,6 +166,7 @@ pub fn command_for(action: &Action) -> Option<Command> {
             runs_per_direction: runs,
         },
         Action::StartSteering => Command::StartSteering,
+        Action::StartDrive => Command::StartDrive,
         Action::StartRun => Command::StartRun,
         Action::EndRun => Command::EndRun,
         Action::EndPose {

@@ -1,0 +1,106 @@
+//! Calibration without a track over the in-process bus (issue #23 item 4):
+//! the bus carries position fixes (a GNSS message named in
+//! `[calibration.fixes]`); the operator sends START_DRIVE, the simulated car
+//! drives a random course whose right rear tyre is 1 % large, then COMPUTE
+//! and COMMIT: the committed set carries the true diameter ratio.
+
+use crate::util::tmp_dir;
+use canodom::bus::FrameSink;
+use canodom::calib_wire::{CalibWire, Command};
+use canodom::config::Config;
+use canodom::frame::{CanFrame, CanId};
+use canodom::pipeline::Pipeline;
+use canodom::server::{InProcessDaemon, Observers};
+use canodom::vehicle::{SampleEncoder, sim_config};
+use canodom_fusion::sim::{Plan, simulate};
+use std::sync::Arc;
+use std::time::Duration;
+
+/// rc_car.dbc with a GNSS message: the rear-axle centre in a local frame, mm.
+fn dbc_with_gnss() -> String {
+    let dbc =
+        std::fs::read_to_string(crate::util::manifest().join("../data/dbc/rc_car.dbc")).unwrap();
+    let gnss = "BO_ 768 GNSS_LOCAL: 8 GNSS\n SG_ X : 0|32@1- (0.001,0) [-1000000|1000000] \"m\" ODOM\n \
+                SG_ Y : 32|32@1- (0.001,0) [-1000000|1000000] \"m\" ODOM\n\n";
+    let at = dbc.find("CM_ ").unwrap();
+    format!("{}{gnss}{}", &dbc[..at], &dbc[at..])
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_drive_with_fixes_on_the_bus_commits_the_true_ratio() {
+    let dir = tmp_dir("drive-session");
+    std::fs::write(dir.join("car.dbc"), dbc_with_gnss()).unwrap();
+    let example = std::fs::read_to_string(crate::util::rc_car_toml()).unwrap();
+    let text = example.replace("../../data/dbc/rc_car.dbc", "car.dbc")
+        + "\n[calibration.fixes]\nx = \"GNSS_LOCAL.X\"\ny = \"GNSS_LOCAL.Y\"\n";
+    let text = text.replacen(
+        "[calibration]",
+        "[calibration]\nparam_file = \"params.toml\"",
+        1,
+    );
+    let cfg_path = dir.join("car.toml");
+    std::fs::write(&cfg_path, &text).unwrap();
+    let config = Config::load(&cfg_path).unwrap();
+    let nominal = *Pipeline::new(&config).unwrap().params();
+    let mut d = nominal.wheel_diameters_m();
+    d.rear_right *= 1.01;
+    let truth = nominal.with_diameters(d).unwrap();
+    let run = simulate(
+        &sim_config(&config, truth),
+        &Plan::random_drive(5, 25.0, 0.8).unwrap(),
+        5,
+    )
+    .unwrap();
+    let config = Arc::new(config);
+    let daemon = InProcessDaemon::spawn(Arc::clone(&config), 65536, Observers::default());
+    let (_rx, tx) = daemon.bus.open().unwrap();
+    tokio::time::sleep(Duration::from_millis(20)).await;
+    let wire = CalibWire::new(config.output.base_id).unwrap();
+    let send_cmd = |command: Command, counter: u8| {
+        let data = wire.encode_command(
+            command,
+            config.calibration.arming_code.unwrap_or(0),
+            counter,
+        );
+        CalibWire::frame(wire.cmd_id(), &data).unwrap()
+    };
+    tx.send(&send_cmd(Command::StartDrive, 1)).await.unwrap();
+    let gnss = config
+        .db
+        .messages()
+        .iter()
+        .find(|m| m.name() == "GNSS_LOCAL")
+        .unwrap();
+    let mut encoder = SampleEncoder::new(&config);
+    let mut frames = Vec::new();
+    for (k, s) in run.samples.iter().enumerate() {
+        frames.clear();
+        encoder.encode(s, &mut frames);
+        if k % 100 == 0 {
+            let data = gnss
+                .encode(&[("X", s.true_pose.x_m), ("Y", s.true_pose.y_m)])
+                .unwrap();
+            frames.push(CanFrame::new_data(CanId::Standard(768), &data).unwrap());
+        }
+        for f in &frames {
+            tx.send(f).await.unwrap();
+        }
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+    tx.send(&send_cmd(Command::Compute, 2)).await.unwrap();
+    tokio::time::sleep(Duration::from_millis(50)).await;
+    tx.send(&send_cmd(Command::Commit, 3)).await.unwrap();
+    tokio::time::sleep(Duration::from_millis(50)).await;
+    daemon.stop().await.unwrap();
+    let file =
+        canodom::persist::load(&dir.join("params.toml"), &config.calibration.bounds).unwrap();
+    let set = file.current.unwrap();
+    assert_eq!(set.method, "drive");
+    let ratio = set.values.rear_right_diameter_m / set.values.rear_left_diameter_m;
+    let want = d.rear_right / d.rear_left;
+    println!(
+        "committed ratio {ratio:.6}, true {want:.6} ({} samples)",
+        run.samples.len()
+    );
+    assert!((ratio - want).abs() < 1e-3, "{ratio} vs {want}");
+}
