@@ -721,24 +721,17 @@ impl LiveCalibration {
         {
             return Reason::UncertaintyTooHigh;
         }
-        let mut file = self.file.clone();
         let method = format!("{:?}", result.method).to_lowercase();
-        // Bus timestamps are Unix time on a live bus.
-        let created = t_s.max(0.0) as u64;
-        let version = file
-            .commit(values, &method, created, self.config.max_history)
-            .version;
-        if let Err(cause) = (self.persister)(&file) {
-            tracing::warn!(%cause, "calibrated parameters not stored; commit refused");
-            return Reason::PersistFailed;
-        }
+        let version = match self.store_committed(values, &method, t_s) {
+            Ok(v) => v,
+            Err(reason) => return reason,
+        };
         let actions = self.event(Event::Commit);
         if let Some(Action::Refused { reason, .. }) = actions.first() {
             // Not reachable after the checks above; the file is stored, so
             // keep it consistent with what is in use.
             tracing::warn!(?reason, "session refused a checked commit");
         }
-        self.file = file;
         self.result = None;
         if let Some((track, runs)) = self.computed_from.take() {
             out.push(Output::Report(
@@ -753,6 +746,29 @@ impl LiveCalibration {
         }
         self.adopt(t_s, version, values, out);
         Reason::None
+    }
+
+    /// Commits `values` to the parameter file and stores it durably; the
+    /// new version, or `PERSIST_FAILED` (and no change) when it cannot be
+    /// stored.
+    fn store_committed(
+        &mut self,
+        values: ParamValues,
+        method: &str,
+        t_s: f64,
+    ) -> Result<u16, Reason> {
+        let mut file = self.file.clone();
+        // Bus timestamps are Unix time on a live bus.
+        let created = t_s.max(0.0) as u64;
+        let version = file
+            .commit(values, method, created, self.config.max_history)
+            .version;
+        if let Err(cause) = (self.persister)(&file) {
+            tracing::warn!(%cause, method, "calibrated parameters not stored; commit refused");
+            return Err(Reason::PersistFailed);
+        }
+        self.file = file;
+        Ok(version)
     }
 
     /// Applies (now or at the next standstill) and writes back a set.
@@ -869,16 +885,10 @@ impl LiveCalibration {
         if self.config.bounds.check(&values).is_err() {
             return Reason::OutOfBounds;
         }
-        let mut file = self.file.clone();
-        let created = t_s.max(0.0) as u64;
-        let version = file
-            .commit(values, "drive", created, self.config.max_history)
-            .version;
-        if let Err(cause) = (self.persister)(&file) {
-            tracing::warn!(%cause, "drive calibration not stored; commit refused");
-            return Reason::PersistFailed;
-        }
-        self.file = file;
+        let version = match self.store_committed(values, "drive", t_s) {
+            Ok(v) => v,
+            Err(reason) => return reason,
+        };
         self.drive = None;
         self.adopt(t_s, version, values, out);
         Reason::None
@@ -1030,16 +1040,10 @@ impl LiveCalibration {
             return Reason::UncertaintyTooHigh;
         }
         let before = self.current_values().steering_map();
-        let mut file = self.file.clone();
-        let created = t_s.max(0.0) as u64;
-        let version = file
-            .commit(values, "steering", created, self.config.max_history)
-            .version;
-        if let Err(cause) = (self.persister)(&file) {
-            tracing::warn!(%cause, "steering map not stored; commit refused");
-            return Reason::PersistFailed;
-        }
-        self.file = file;
+        let version = match self.store_committed(values, "steering", t_s) {
+            Ok(v) => v,
+            Err(reason) => return reason,
+        };
         self.steering = None;
         out.push(Output::Report(
             version,
