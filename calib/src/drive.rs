@@ -19,7 +19,7 @@
 //! - (S) the steering: `Δθ = d·tan(gain·φ̄ + offset)/L`, `φ̄` the mean of the
 //!   interval's two ends.
 //!
-//! Each is integrated with the mid-point heading (`calibration-math.md` §3).
+//! Each is integrated with the mid-point heading (`docs/calibration-math.md` §3).
 //! A sample's distances and yaw rate describe the interval since the
 //! previous sample; its steering angle is the angle at its time.
 //!

@@ -33,7 +33,7 @@ pub enum Error {
         context: &'static str,
     },
     /// The refinement closed the runs' positions with a wrong number of
-    /// turns (`calibration-math.md` §7): the odometry turn of one run is more
+    /// turns (`docs/calibration-math.md` §7): the odometry turn of one run is more
     /// than π/2 away from the true turn.
     #[error("false closure on run {run}: odometry turn off by {turn_error_rad} rad")]
     FalseClosure {

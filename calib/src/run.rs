@@ -317,7 +317,7 @@ impl Run {
     }
 
     /// The front odometry converted to the rear axle (exact conversion of
-    /// `calibration-math.md` §3) with `params`, or `None` without front encoders.
+    /// `docs/calibration-math.md` §3) with `params`, or `None` without front encoders.
     ///
     /// # Errors
     /// A steering angle at or beyond ±90° (fusion's error).

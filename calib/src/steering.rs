@@ -1,4 +1,4 @@
-//! Steering calibration without a camera (`calibration-math.md` §10).
+//! Steering calibration without a camera (`docs/calibration-math.md` §10).
 //!
 //! Drive constant commands u_j (about 2 m each), drop the first seconds, and
 //! measure each arc's curvature with *calibrated* rear odometry:

@@ -1,4 +1,4 @@
-//! A noise-free run generator from exact kinematics (`calibration-math.md`
+//! A noise-free run generator from exact kinematics (`docs/calibration-math.md`
 //! §3): the vehicle follows the track (or a constant steering command)
 //! exactly, each wheel rolls `g_i · ds` without slip, and the encoders count
 //! real revolutions `g_i · ds / (π D_i,true)` (no tick quantisation).
@@ -17,7 +17,7 @@ use crate::error::Result;
 use crate::run::RevSample;
 use crate::track::{Direction, Track};
 
-/// The vehicle of `calibration-math.md` §9: wheelbase 25 cm, true effective
+/// The vehicle of `docs/calibration-math.md` §9: wheelbase 25 cm, true effective
 /// rear tread 28.5 cm, rear diameter ratio 1.005 around 9 cm, with a 3.5 %
 /// tape on the left and/or right rear wheel (Table 2's four cases).
 ///

@@ -1,4 +1,4 @@
-//! The calibration track of `calibration-math.md` §2: straight 2ρ, semicircle
+//! The calibration track of `docs/calibration-math.md` §2: straight 2ρ, semicircle
 //! ρ, straight 2ρ, semicircle; driven counter-clockwise or clockwise.
 //!
 //! Poses are given in the *run frame* (origin at the run's start, x along the

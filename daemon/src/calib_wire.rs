@@ -253,7 +253,7 @@ impl WireDirection {
 
 wire_codes! {
     /// `CALIB_STATUS.START_POINT`: where the next run starts (each direction
-    /// has its own start point on the track, `calibration-math.md`).
+    /// has its own start point on the track, `docs/calibration-math.md`).
     StartPoint {
         /// No run applies.
         None = 0 => "NONE",

@@ -1,4 +1,4 @@
-//! The report of a committed steering map (`calibration-math.md` §10): every
+//! The report of a committed steering map (`docs/calibration-math.md` §10): every
 //! arc's command and measured road-wheel angle, the fitted line beside the
 //! map used while driving, and the fit's uncertainty, as JSON and as an SVG
 //! plot of angle against command, so that a person sees whether the arcs lie

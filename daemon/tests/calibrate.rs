@@ -1,5 +1,5 @@
 //! `canodom calibrate` on logs from `canodom simulate` (issue 6, "Must show"
-//! third bullet): the four Table-2 cases of calibration-math.md §9 on the
+//! third bullet): the four Table-2 cases of docs/calibration-math.md §9 on the
 //! 1:10 car of `examples/rc_car.toml` (nominal b = 0.30 m, D = 0.09 m).
 
 use crate::util::{rc_car_toml, tmp_dir};

@@ -5,7 +5,7 @@
 //! larger than nominal and drives the runs `CALIB_STATUS` asks for; an ECU
 //! emulator on its own socket acknowledges `CALIB_PARAMS`. Judged from the
 //! `candump -L` recording: the committed set carries the effective tread
-//! (calibration-math.md §4) within 0.5 % and the true diameter ratio within
+//! (docs/calibration-math.md §4) within 0.5 % and the true diameter ratio within
 //! 0.1 %; the write-back is ACKED, the parameter file holds the set, and the
 //! daemon restarted with the same configuration publishes poses computed
 //! with it and answers REQUEST_PARAMS with it.
@@ -65,8 +65,7 @@ struct Heard {
 /// delays a sender by more than 15 ms about once a second, which rejected
 /// most runs with INPUT_FAULT; gaps over 60 ms are rare enough.
 fn write_config(dir: &Path) -> std::path::PathBuf {
-    let shared = read(&repo_file("data/dbc/rc_car.dbc"));
-    let mut dbc = shared.clone();
+    let mut dbc = read(&repo_file("data/dbc/rc_car.dbc"));
     for id in [256, 257, 272] {
         dbc = dbc.replace(
             &format!("BA_ \"GenMsgCycleTime\" BO_ {id} 10;"),

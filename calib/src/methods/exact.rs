@@ -1,4 +1,4 @@
-//! The exact refinement of `calibration-math.md` §7: Levenberg–Marquardt
+//! The exact refinement of `docs/calibration-math.md` §7: Levenberg–Marquardt
 //! over q = (ln b, ln E) with the mean diameter held, minimising
 //! F(q) = Σ |p_odo,end(q) − p_real,end|² + w² Σ (θ_odo,j(q) − Θ_j)², w = ρ.
 //!

@@ -1,4 +1,4 @@
-//! The heading law of `calibration-math.md` §6: per run, the odometry total
+//! The heading law of `docs/calibration-math.md` §6: per run, the odometry total
 //! turn θ_o = g·Θ + c·P (Θ the true total turn, P the odometry length),
 //! fitted by linear least squares in one shot.
 //!

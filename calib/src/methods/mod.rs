@@ -5,7 +5,7 @@
 //! wheel revolutions, so any candidate parameters can be replayed.
 //!
 //! **What is estimated.** A closed track cannot see a uniform scale of both
-//! wheels (`calibration-math.md` §4): every method keeps the mean rear
+//! wheels (`docs/calibration-math.md` §4): every method keeps the mean rear
 //! diameter D̄ it was given and returns the *effective* tread
 //! b_eff = b_true · D̄_used / D̄_true together with the true ratio
 //! E = D_R/D_L. Headings are then right and distances keep the error of D̄.

@@ -1,5 +1,5 @@
 //! The paper's centre-of-gravity closed form, sign-consistent as
-//! `calibration-math.md` §6–§7 states it, with the parameter updates
+//! `docs/calibration-math.md` §6–§7 states it, with the parameter updates
 //! corrected per §8 (α an over-turn, β a leftward drift, the E update with
 //! the tread that was used).
 

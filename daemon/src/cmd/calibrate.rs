@@ -94,7 +94,7 @@ pub enum MethodArg {
     Paper,
     /// The heading law (one shot).
     Heading,
-    /// Levenberg–Marquardt refinement from the heading law (§7).
+    /// Levenberg–Marquardt refinement from the heading law (docs/calibration-math.md §7).
     Exact,
 }
 

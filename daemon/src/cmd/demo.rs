@@ -40,8 +40,9 @@ pub struct DemoArgs {
     /// Seed of the simulated drive.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    /// Wheels that never slip (by default they slip now and then, as in §11,
-    /// which is where fusing the front wheels beats rear-only odometry).
+    /// Wheels that never slip (by default they slip now and then, as in
+    /// docs/calibration-math.md §11, which is where fusing the front wheels beats
+    /// rear-only odometry).
     #[arg(long)]
     pub no_slip: bool,
     /// Seconds of simulated time between table rows.

@@ -56,7 +56,8 @@ pub struct SimulateArgs {
     /// Write the true trajectory as CSV.
     #[arg(long)]
     pub truth: Option<PathBuf>,
-    /// Let the wheels slip now and then (§11: 0.02 events/s per wheel, ratio N(0, 0.35), 0.5–2 s).
+    /// Let the wheels slip now and then (docs/calibration-math.md §11: 0.02 events/s per
+    /// wheel, ratio N(0, 0.35), 0.5–2 s).
     #[arg(long)]
     pub slip: bool,
     /// Drive the path this many times (track laps, circle turns, 20 m of random drive each):
