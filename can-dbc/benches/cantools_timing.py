@@ -12,7 +12,7 @@ import time
 import cantools
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-TOYOTA = os.path.normpath(os.path.join(HERE, "..", "..", "..", "shared", "dbc",
+TOYOTA = os.path.normpath(os.path.join(HERE, "..", "..", "data", "dbc",
                                        "opendbc_toyota_2017.dbc"))
 FRAMES = 1024
 MASK64 = (1 << 64) - 1

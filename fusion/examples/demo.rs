@@ -6,7 +6,7 @@
 //! ```
 //!
 //! Three drives, each from rest to rest:
-//! 1. a 1:10 car (§9 of `calibration-math.md`) drives two CCW laps of the
+//! 1. a 1:10 car (§9 of `docs/calibration-math.md`) drives two CCW laps of the
 //!    0.78 m calibration track while its wheels slip now and then (all four
 //!    wheels, 0.05 events/s each, ratio N(0, 0.35), 0.5–2 s) and its steering
 //!    sensor has 0.3° of white noise and a bias;

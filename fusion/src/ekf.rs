@@ -1,5 +1,5 @@
 //! The extended Kalman filter fusing rear and front odometry
-//! (`calibration-math.md` §11–§12).
+//! (`docs/calibration-math.md` §11–§12).
 //!
 //! **State** `X = [x, y, θ]` of the rear-axle centre, θ wrapped to (−π, π]
 //! (the unwrapped heading is kept beside it), covariance `P` (3×3).

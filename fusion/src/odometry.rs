@@ -160,7 +160,7 @@ pub fn front_increment(
     })
 }
 
-/// The distance factors `g_i` of `calibration-math.md` §3: how far each
+/// The distance factors `g_i` of `docs/calibration-math.md` §3: how far each
 /// wheel rolls per metre of the rear-axle centre at steering angle φ.
 /// Returned as `(g_RL, g_RR, g_FL, g_FR)`.
 pub fn wheel_distance_factors(params: &VehicleParams, steer_angle_rad: f64) -> [f64; 4] {
@@ -199,7 +199,7 @@ pub fn front_increment_exact(
 }
 
 /// Front-axle odometry whose heading comes from the front wheels' difference
-/// (`calibration-math.md` §12), so that a steering bias barely matters.
+/// (`docs/calibration-math.md` §12), so that a steering bias barely matters.
 ///
 /// §12 writes `Δθ = (d_FR − d_FL)/(b_f cos φ)`; this uses its exact form
 /// `Δθ = (d_FR − d_FL)(g_FR + g_FL)/(2 b_f)` (since `g_FR² − g_FL² = 2κ b_f`),

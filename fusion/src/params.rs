@@ -5,7 +5,7 @@ use crate::{Wheel, WheelSet};
 
 /// The steering map from the steering signal `u` the vehicle reports (or is
 /// commanded with) to the road-wheel angle of the equivalent centre wheel:
-/// `φ = gain · u + offset_rad` (left positive, `calibration-math.md` §1).
+/// `φ = gain · u + offset_rad` (left positive, `docs/calibration-math.md` §1).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SteeringMap {
     /// Radians of road-wheel angle per unit of the steering signal.
@@ -244,7 +244,7 @@ impl VehicleParams {
 }
 
 /// Rear diameters `(left, right)` with a given ratio E = D_R/D_L and mean D̄,
-/// as `calibration-math.md` §7 keeps the mean: D_R = 2D̄E/(1+E), D_L = 2D̄/(1+E).
+/// as `docs/calibration-math.md` §7 keeps the mean: D_R = 2D̄E/(1+E), D_L = 2D̄/(1+E).
 pub fn rear_diameters_for_ratio(mean_diameter_m: f64, ratio: f64) -> (f64, f64) {
     let left = 2.0 * mean_diameter_m / (1.0 + ratio);
     (left, left * ratio)

@@ -1,4 +1,4 @@
-//! The fusion experiments of `calibration-math.md` §11 and §12 reproduced on
+//! The fusion experiments of `docs/calibration-math.md` §11 and §12 reproduced on
 //! the simulator with fixed seeds; every figure is printed
 //! (`cargo test -p canodom-fusion --test experiments -- --nocapture`).
 //!

@@ -5,7 +5,7 @@
 //! odometry uses) drives a [`Plan`] from rest to rest. The driver turns the
 //! plan's curvature into a steering command through their *belief* of the
 //! steering map (default: the true map; a wrong belief reproduces the
-//! order-of-operations trap of `calibration-math.md` §10). The actuator
+//! order-of-operations trap of `docs/calibration-math.md` §10). The actuator
 //! follows the command with a first-order servo lag and path-following noise
 //! (Ornstein–Uhlenbeck steering and speed noise, §9). The car moves as a
 //! bicycle at the rear axle, integrated with exact arcs; each wheel rolls
@@ -54,7 +54,7 @@ impl OuNoise {
     };
 }
 
-/// How closely the car follows the plan (`calibration-math.md` §9).
+/// How closely the car follows the plan (`docs/calibration-math.md` §9).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PathFollowing {
     /// Noise added to the road-wheel angle command, radians.

@@ -12,7 +12,7 @@ use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use std::f64::consts::PI;
 
-/// The direction of a run on the calibration track (`calibration-math.md` §2).
+/// The direction of a run on the calibration track (`docs/calibration-math.md` §2).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Direction {
     /// Counter-clockwise: turns left, the loop lies at +y of the run frame.
@@ -57,7 +57,7 @@ pub enum Segment {
         length_m: f64,
     },
     /// A constant steering *command* in the vehicle's signal units, whatever
-    /// path it gives (`calibration-math.md` §10 steering calibration).
+    /// path it gives (`docs/calibration-math.md` §10 steering calibration).
     Command {
         /// The steering signal `u` sent to the actuator.
         signal: f64,
@@ -340,7 +340,7 @@ impl Plan {
         Self::new(segments)
     }
 
-    /// The full-size car's drive of `calibration-math.md` §12: two loops of
+    /// The full-size car's drive of `docs/calibration-math.md` §12: two loops of
     /// 15 m radius and eight gentle curves (radius 50–120 m, entered through
     /// steering ramps), joined by straights, 660 m in all. The curves' sizes
     /// and sides vary with the seed.
