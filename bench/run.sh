@@ -20,7 +20,6 @@ report=${REPORT:-$target/bench-report.md}
 frames=1000000
 config=daemon/examples/rc_car.toml
 dbc=$root/data/dbc/rc_car.dbc
-[ -f "$dbc" ] || dbc=daemon/dbc/rc_car.dbc
 mkdir -p "$bench_dir"
 
 echo "== build (release)" >&2
@@ -113,7 +112,7 @@ crit_args=(--warm-up-time 0.3 --measurement-time 1 --output-format bencher)
 micro=$(
     CARGO_TARGET_DIR=$target cargo bench -q -p canodom-dbc --bench decode -- "${crit_args[@]}" 2>/dev/null | grep '^test '
     CARGO_TARGET_DIR=$target cargo bench -q -p canodom-fusion --bench fusion -- "${crit_args[@]}" 2>/dev/null | grep '^test '
-    CARGO_TARGET_DIR=$target cargo bench -q -p canodom --bench candump -- "${crit_args[@]}" 2>/dev/null | grep '^test '
+    CARGO_TARGET_DIR=$target cargo bench -q -p canodom-can --bench candump -- "${crit_args[@]}" 2>/dev/null | grep '^test '
     CARGO_TARGET_DIR=$target cargo bench -q -p canodom --bench csv_rows -- "${crit_args[@]}" 2>/dev/null | grep '^test '
 )
 

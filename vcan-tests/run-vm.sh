@@ -114,7 +114,7 @@ for bin in "${scenario_bins[@]}"; do
 done
 # Fixtures the scenarios read (DBC files, example configs), at paths they can find.
 mkdir -p "$initroot/work/main"
-for dir in data/dbc daemon/dbc daemon/examples vcan-tests/fixtures; do
+for dir in data/dbc protocol/dbc daemon/examples vcan-tests/fixtures; do
     [ -d "$root/$dir" ] && mkdir -p "$initroot/work/main/$dir" && cp -r "$root/$dir/." "$initroot/work/main/$dir/"
 done
 

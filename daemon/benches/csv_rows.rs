@@ -9,10 +9,10 @@
 //! `cargo bench -p canodom --bench csv_rows`
 
 use canodom::cmd::replay::replay;
-use canodom::cmd::simulate::{simulator, write_log};
-use canodom::config::Config;
-use canodom::float_text::push_csv_row;
-use canodom::vehicle::PathKind;
+use canodom_pipeline::config::Config;
+use canodom_report::float_text::push_csv_row;
+use canodom_sim::drive::{simulator, write_log};
+use canodom_sim::vehicle::PathKind;
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use std::hint::black_box;
 use std::io::Write as _;

@@ -6,9 +6,9 @@
 
 use canodom::cmd::decode::{DecodeArgs, decode};
 use canodom::cmd::replay::replay;
-use canodom::cmd::simulate::{simulator, write_log};
-use canodom::config::Config;
-use canodom::vehicle::PathKind;
+use canodom_pipeline::config::Config;
+use canodom_sim::drive::{simulator, write_log};
+use canodom_sim::vehicle::PathKind;
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use std::hint::black_box;
 use std::path::PathBuf;

@@ -9,11 +9,11 @@
 //!
 //! `cargo run --release -p canodom --example memory`
 
-use canodom::cmd::simulate::drive;
-use canodom::config::Config;
 use canodom::server::{InProcessDaemon, Observers};
-use canodom::vehicle::sim_config;
 use canodom_fusion::sim::{Plan, Simulator};
+use canodom_pipeline::config::Config;
+use canodom_sim::drive::drive;
+use canodom_sim::vehicle::sim_config;
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Duration;

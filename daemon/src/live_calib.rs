@@ -16,15 +16,6 @@
 //! refused, is answered on status page 1 (`LAST_CMD`, `CMD_REASON`, `CMD_SEQ`)
 //! at once.
 
-use crate::calib_wire::{
-    Ack, AckStatus, CalibWire, Command, Counts, DEFAULT_RUNS_PER_DIRECTION, InstructionCode,
-    ParamSet as WireSet, Progress, Reason, StartPoint, State, StatusPage, WireDirection, Writeback,
-};
-use crate::candump::Timestamp;
-use crate::config::CalibrationConfig;
-use crate::frame::CanFrame;
-use crate::persist::{ParamFile, ParamValues};
-use crate::report::{CalibrationReport, Report, SteeringReport};
 use canodom_calib::CalibrationResult;
 use canodom_calib::RearParams;
 use canodom_calib::drive::{DriveCalibration, DriveModel, DriveSample, Fix, calibrate_drive};
@@ -34,7 +25,16 @@ use canodom_calib::steering::{
     ArcEstimate, ArcOptions, SteeringFit, SteeringProvenance, estimate_arc, fit_steering,
 };
 use canodom_calib::track::{Direction, Track};
+use canodom_can::candump::Timestamp;
+use canodom_can::frame::CanFrame;
 use canodom_fusion::{Pose, VehicleParams, Wheel};
+use canodom_params::persist::{ParamFile, ParamValues};
+use canodom_pipeline::config::CalibrationConfig;
+use canodom_protocol::calib_wire::{
+    Ack, AckStatus, CalibWire, Command, Counts, DEFAULT_RUNS_PER_DIRECTION, InstructionCode,
+    ParamSet as WireSet, Progress, Reason, StartPoint, State, StatusPage, WireDirection, Writeback,
+};
+use canodom_report::report::{CalibrationReport, Report, SteeringReport};
 
 /// Status period while a session is active, s (10 Hz).
 const ACTIVE_STATUS_S: f64 = 0.1;
@@ -1127,7 +1127,7 @@ impl LiveCalibration {
         Self::frames(self.wire.params_id(), &pages)
     }
 
-    fn frames(id: crate::frame::CanId, pages: &[[u8; 8]]) -> Vec<Output> {
+    fn frames(id: canodom_can::frame::CanId, pages: &[[u8; 8]]) -> Vec<Output> {
         pages
             .iter()
             .filter_map(|p| CalibWire::frame(id, p).ok())
@@ -1275,9 +1275,9 @@ impl LiveCalibration {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::config::Config;
-    use crate::pipeline::Pipeline;
     use canodom_fusion::{SteeringMap, VehicleParams};
+    use canodom_pipeline::config::Config;
+    use canodom_pipeline::pipeline::Pipeline;
     use std::sync::{Arc, Mutex};
 
     type Stored = Arc<Mutex<Vec<ParamFile>>>;
@@ -1615,7 +1615,7 @@ mod tests {
             Reason::NotSupported,
             "no [calibration.fixes]"
         );
-        c.calibration.fixes = Some(crate::config::FixSignals {
+        c.calibration.fixes = Some(canodom_pipeline::config::FixSignals {
             message_index: c.signals.wheels.rear_left.message_index,
             first: c.signals.wheels.rear_left.handle,
             second: c.signals.wheels.rear_right.handle,

@@ -19,19 +19,21 @@
 //! drops its sender; the pipeline task drains every frame already queued
 //! before it returns, so nothing received is lost.
 
-use crate::bus::{BusError, BusEvent, FrameSink, FrameSource, IdFilter, InProcessBus, Received};
-use crate::calib_wire::CalibWire;
-use crate::candump::Timestamp;
-use crate::config::Config;
-use crate::frame::{CanFrame, CanId, ErrorSeverity};
 use crate::live_calib::{LiveCalibration, Output, Persister};
-use crate::own_dbc::{OwnFrame, dbc_for_base};
-use crate::pipeline::{Pipeline, Step};
-use crate::pose_frames::PoseEncoder;
 use crate::sd_notify::Notifier;
-use crate::stats::{Reject, Stats};
+use canodom_can::bus::{
+    BusError, BusEvent, FrameSink, FrameSource, IdFilter, InProcessBus, Received,
+};
+use canodom_can::candump::Timestamp;
+use canodom_can::frame::{CanFrame, CanId, ErrorSeverity};
 use canodom_dbc::{Checksum, Database, SignalHandle};
 use canodom_fusion::ekf::State;
+use canodom_pipeline::config::Config;
+use canodom_pipeline::pipeline::{Pipeline, Step};
+use canodom_pipeline::stats::{Reject, Stats};
+use canodom_protocol::calib_wire::CalibWire;
+use canodom_protocol::own_dbc::{OwnFrame, dbc_for_base};
+use canodom_protocol::pose_frames::PoseEncoder;
 use std::future::Future;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -58,8 +60,8 @@ pub trait Connector: Send + Sync + 'static {
 }
 
 impl Connector for InProcessBus {
-    type Rx = crate::bus::InProcessRx;
-    type Tx = crate::bus::InProcessTx;
+    type Rx = canodom_can::bus::InProcessRx;
+    type Tx = canodom_can::bus::InProcessTx;
     fn connect(&self, filters: &[IdFilter]) -> Result<(Self::Rx, Self::Tx), BusError> {
         let (mut rx, tx) = self.open()?;
         rx.set_filters(filters)?;
@@ -78,10 +80,10 @@ pub struct SocketCan {
 }
 
 impl Connector for SocketCan {
-    type Rx = crate::bus::SocketCanRx;
-    type Tx = crate::bus::SocketCanTx;
+    type Rx = canodom_can::bus::SocketCanRx;
+    type Tx = canodom_can::bus::SocketCanTx;
     fn connect(&self, filters: &[IdFilter]) -> Result<(Self::Rx, Self::Tx), BusError> {
-        crate::bus::open_socketcan(&self.iface, filters)
+        canodom_can::bus::open_socketcan(&self.iface, filters)
     }
     fn name(&self) -> String {
         self.iface.clone()
@@ -116,7 +118,7 @@ pub enum RunError {
     Pipeline(#[from] canodom_fusion::Error),
     /// The pose encoder could not be built.
     #[error("{0}")]
-    Encoder(#[from] crate::pose_frames::PoseEncodeError),
+    Encoder(#[from] canodom_protocol::pose_frames::PoseEncodeError),
     /// The transport failed for good.
     #[error("{0}")]
     Bus(#[from] BusError),
@@ -125,7 +127,7 @@ pub enum RunError {
     Task(String),
     /// The calibration frames cannot be built at the configured base id.
     #[error("calibration frames: {0}")]
-    Calibration(#[from] crate::calib_wire::WireError),
+    Calibration(#[from] canodom_protocol::calib_wire::WireError),
 }
 
 /// How often the live calibration's clock runs (status periods and ACK
@@ -199,7 +201,7 @@ impl InProcessDaemon {
         let bus = InProcessBus::with_epoch(
             &config.interface,
             capacity,
-            Timestamp::from_micros(crate::cmd::simulate::LOG_EPOCH_US),
+            Timestamp::from_micros(canodom_sim::drive::LOG_EPOCH_US),
         );
         let stop = CancellationToken::new();
         let task = tokio::spawn(run(
@@ -294,9 +296,9 @@ pub async fn run<C: Connector>(
     };
     let link_handle = tracker.spawn(link.run());
     let own_db = Database::parse(&dbc_for_base(config.output.base_id), "canodom.dbc")
-        .map_err(crate::pose_frames::PoseEncodeError::from)?;
+        .map_err(canodom_protocol::pose_frames::PoseEncodeError::from)?;
     let odom_commands = OdomCommands::new(&own_db, config.calibration.arming_code)
-        .map_err(crate::pose_frames::PoseEncodeError::from)?;
+        .map_err(canodom_protocol::pose_frames::PoseEncodeError::from)?;
     let task = PipelineTask {
         pipeline,
         encoder,
@@ -355,12 +357,12 @@ fn live_calibration(
     nominal: canodom_fusion::VehicleParams,
 ) -> Result<(LiveCalibration, CanId), RunError> {
     let cal = &config.calibration;
-    let file = crate::persist::load(&cal.param_file, &cal.bounds).unwrap_or_default();
+    let file = canodom_params::persist::load(&cal.param_file, &cal.bounds).unwrap_or_default();
     let wire = CalibWire::new(config.output.base_id)?;
     let ack_id = wire.ack_id();
     let path = cal.param_file.clone();
     let persister: Persister =
-        Box::new(move |f| crate::persist::store(&path, f).map_err(|e| e.to_string()));
+        Box::new(move |f| canodom_params::persist::store(&path, f).map_err(|e| e.to_string()));
     Ok((
         LiveCalibration::new(wire, cal.clone(), nominal, file, persister),
         ack_id,
@@ -385,7 +387,7 @@ pub enum ParamStart {
     Loaded(u16),
     /// The file is damaged (or out of bounds): the nominal parameters, and a
     /// warning naming the file was logged.
-    Fallback(crate::persist::PersistError),
+    Fallback(canodom_params::persist::PersistError),
 }
 
 /// Loads the calibrated-parameter file (checksums and bounds checked) and
@@ -393,9 +395,9 @@ pub enum ParamStart {
 /// parameters with a warning naming the file when it is damaged.
 pub fn apply_param_file(
     pipeline: &mut Pipeline,
-    calibration: &crate::config::CalibrationConfig,
+    calibration: &canodom_pipeline::config::CalibrationConfig,
 ) -> ParamStart {
-    use crate::persist::{PersistError, load};
+    use canodom_params::persist::{PersistError, load};
     let path = &calibration.param_file;
     let fallback = |pipeline: &mut Pipeline, e: PersistError| {
         warn!(file = %path.display(), cause = %e, "calibrated parameter file unusable; using the nominal parameters");
@@ -669,7 +671,7 @@ struct PipelineTask<Tx> {
     publish_on_update: bool,
     cmd_id: CanId,
     /// The bus's position fixes (`[calibration.fixes]`): their id and signals.
-    fixes: Option<(CanId, crate::config::FixSignals)>,
+    fixes: Option<(CanId, canodom_pipeline::config::FixSignals)>,
     odom_commands: OdomCommands,
     odom_refusals: OdomRefusals,
     notifier: Option<Notifier>,
@@ -885,16 +887,16 @@ impl<Tx: FrameSink + Clone> PipelineTask<Tx> {
                 Output::Report(version, report) => {
                     let dir = self.report_root.join(version.to_string());
                     // SVG rendering is file work: keep it off the frame path.
-                    tokio::task::spawn_blocking(move || {
-                        match crate::report::write_report(&dir, &*report) {
+                    tokio::task::spawn_blocking(
+                        move || match canodom_report::report::write_report(&dir, &*report) {
                             Ok((svg, _)) => {
                                 info!(report = %svg.display(), "calibration report written");
                             }
                             Err(e) => {
                                 warn!(cause = %e, "calibration report not written");
                             }
-                        }
-                    });
+                        },
+                    );
                 }
             }
         }
@@ -939,7 +941,7 @@ impl<Tx: FrameSink + Clone> PipelineTask<Tx> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::persist::{ParamFile, ParamValues, store};
+    use canodom_params::persist::{ParamFile, ParamValues, store};
 
     fn rc_car(param_file: &str) -> (Config, std::path::PathBuf) {
         let p = std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/examples/rc_car.toml"));
@@ -977,7 +979,7 @@ mod tests {
 
     #[test]
     fn odom_commands_are_checked_for_crc_counter_arming_and_standstill() {
-        let base = crate::own_dbc::BaseId::new(0x600, false).unwrap();
+        let base = canodom_protocol::own_dbc::BaseId::new(0x600, false).unwrap();
         let db = Database::parse(&dbc_for_base(base), "canodom.dbc").unwrap();
         let mut open = OdomCommands::new(&db, None).unwrap();
         assert_eq!(
@@ -1078,7 +1080,7 @@ mod tests {
         ));
         assert_eq!(p.param_version(), Some(2));
         assert!((p.params().rear_tread_m() - 0.305).abs() < 1e-12);
-        let out = p.pose_output(crate::candump::Timestamp::from_micros(0));
+        let out = p.pose_output(canodom_can::candump::Timestamp::from_micros(0));
         assert_eq!((out.param_version, out.flags.nominal_params), (2, false));
         // One flipped digit in a value: the checksum no longer matches.
         let text = std::fs::read_to_string(&c.calibration.param_file).unwrap();
@@ -1092,7 +1094,7 @@ mod tests {
         assert!(e.to_string().contains("params.toml"), "{e}");
         assert_eq!(p.param_version(), None);
         assert!((p.params().rear_tread_m() - 0.30).abs() < 1e-12);
-        let out = p.pose_output(crate::candump::Timestamp::from_micros(0));
+        let out = p.pose_output(canodom_can::candump::Timestamp::from_micros(0));
         assert_eq!((out.param_version, out.flags.nominal_params), (0, true));
         // A set outside the configured bounds (±30 %) is refused at start too.
         let mut far = ParamFile::default();
@@ -1100,7 +1102,7 @@ mod tests {
         store(&c.calibration.param_file, &far).unwrap();
         assert!(matches!(
             apply_param_file(&mut p, &c.calibration),
-            ParamStart::Fallback(crate::persist::PersistError::OutOfBounds { .. })
+            ParamStart::Fallback(canodom_params::persist::PersistError::OutOfBounds { .. })
         ));
         let _ = std::fs::remove_dir_all(dir);
     }

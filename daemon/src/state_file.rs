@@ -16,9 +16,9 @@
 //! leaves either the previous complete file or the new complete one, never
 //! a torn one.
 
-use crate::config::Config;
 use crate::server::Summary;
-use crate::stats::{Reject, Stats};
+use canodom_pipeline::config::Config;
+use canodom_pipeline::stats::{Reject, Stats};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::fs;
@@ -202,7 +202,7 @@ pub mod learnt_bounds {
     /// Front distance factor's distance from 1 (5 %).
     pub const FRONT_SCALE: f64 = 0.05;
     /// Yaw-rate bias, rad/s (5°/s).
-    pub const YAW_BIAS_RADPS: f64 = crate::persist::YAW_BIAS_MAX_RADPS;
+    pub const YAW_BIAS_RADPS: f64 = canodom_params::persist::YAW_BIAS_MAX_RADPS;
     /// Rear ratio error (1 %).
     pub const REAR_RATIO_ERR: f64 = 0.01;
 }
@@ -380,7 +380,7 @@ pub fn save(path: &Path, state: &SavedState) -> Result<(), StateFileError> {
         reason: e.to_string(),
     })?;
     text.push('\n');
-    crate::atomic_file::write(path, text.as_bytes()).map_err(|e| StateFileError::Io {
+    canodom_params::atomic_file::write(path, text.as_bytes()).map_err(|e| StateFileError::Io {
         path: e.path,
         source: e.source,
     })
@@ -414,10 +414,10 @@ pub fn load(path: &Path) -> Result<SavedState, StateFileError> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::cmd::simulate::simulator;
-    use crate::frame::{CanFrame, CanId};
     use crate::server::{InProcessDaemon, Observers};
-    use crate::vehicle::{PathKind, SampleEncoder};
+    use canodom_can::frame::{CanFrame, CanId};
+    use canodom_sim::drive::simulator;
+    use canodom_sim::vehicle::{PathKind, SampleEncoder};
     use std::sync::Arc;
     use std::time::Duration;
 
@@ -455,7 +455,7 @@ mod tests {
             frames.clear();
             enc.encode(&sample, &mut frames);
             for f in &frames {
-                crate::bus::FrameSink::send(&tx, f).await.unwrap();
+                canodom_can::bus::FrameSink::send(&tx, f).await.unwrap();
                 sent += 1;
             }
             // Every 100th sample a rear-wheel frame with a broken checksum.
@@ -468,7 +468,7 @@ mod tests {
                 data.copy_from_slice(rear.data());
                 data[7] ^= 0x5A;
                 let bad = CanFrame::new_data(CanId::Standard(0x100), &data).unwrap();
-                crate::bus::FrameSink::send(&tx, &bad).await.unwrap();
+                canodom_can::bus::FrameSink::send(&tx, &bad).await.unwrap();
                 sent += 1;
             }
             tokio::time::sleep(Duration::from_millis(10)).await;

@@ -2,13 +2,13 @@
 //! reason, and the pose stays what the good frames alone give.
 
 use crate::util::{frames_of, rc_car, simulated_log};
-use canodom::candump::Timestamp;
 use canodom::cmd::replay::replay;
-use canodom::config::Config;
-use canodom::frame::{CanFrame, CanId};
-use canodom::pipeline::Pipeline;
-use canodom::stats::Reject;
-use canodom::vehicle::PathKind;
+use canodom_can::candump::Timestamp;
+use canodom_can::frame::{CanFrame, CanId};
+use canodom_pipeline::config::Config;
+use canodom_pipeline::pipeline::Pipeline;
+use canodom_pipeline::stats::Reject;
+use canodom_sim::vehicle::PathKind;
 use proptest::prelude::*;
 use std::fmt::Write as _;
 
@@ -287,7 +287,7 @@ fn other_frame_kinds_in_a_log_replay_as_the_pipeline_sees_them() {
 
     let mut reference = Pipeline::new(&config).unwrap();
     let mut expected = format!("{}\n", canodom::cmd::replay::CSV_HEADER);
-    let mut reader = canodom::candump::LogReader::new(mixed.as_bytes());
+    let mut reader = canodom_can::candump::LogReader::new(mixed.as_bytes());
     while let Some(record) = reader.next_record().unwrap() {
         if let Some(s) = reference.push(record.timestamp, &record.frame) {
             let (f, o) = (s.fused, s.odometry);

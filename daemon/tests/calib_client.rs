@@ -71,7 +71,7 @@ fn without_the_interface_it_is_named_unavailable() {
 /// Whether vcan0 can be opened here (no CAN support, or no such interface,
 /// on a plain host).
 fn vcan0_opens() -> bool {
-    use canodom::bus::{IdFilter, open_socketcan};
+    use canodom_can::bus::{IdFilter, open_socketcan};
     open_socketcan("vcan0", &[IdFilter::accept_all()]).is_ok()
 }
 

@@ -9,20 +9,20 @@
 //! time, so minutes of driving take seconds.
 
 use crate::util::{rc_car, tmp_dir};
-use canodom::bus::{BusEvent, FrameSink, FrameSource, InProcessTx};
-use canodom::calib_wire::{
-    Ack, AckStatus, CalibWire, Command, Counts, ParamSet, ParamsAssembler, Progress, Reason, State,
-    StatusPage, WireDirection, Writeback,
-};
-use canodom::frame::CanId;
-use canodom::own_dbc::{OwnFrame, dbc_for_base};
-use canodom::persist::{ParamFile, ParamValues, store};
-use canodom::pipeline::Pipeline;
 use canodom::server::{InProcessDaemon, Observers};
-use canodom::vehicle::{SampleEncoder, sim_config};
+use canodom_can::bus::{BusEvent, FrameSink, FrameSource, InProcessTx};
+use canodom_can::frame::CanId;
 use canodom_dbc::Database;
 use canodom_fusion::sim::{Direction, Plan, simulate};
 use canodom_fusion::{VehicleParams, Wheel};
+use canodom_params::persist::{ParamFile, ParamValues, store};
+use canodom_pipeline::pipeline::Pipeline;
+use canodom_protocol::calib_wire::{
+    Ack, AckStatus, CalibWire, Command, Counts, ParamSet, ParamsAssembler, Progress, Reason, State,
+    StatusPage, WireDirection, Writeback,
+};
+use canodom_protocol::own_dbc::{OwnFrame, dbc_for_base};
+use canodom_sim::vehicle::{SampleEncoder, sim_config};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;

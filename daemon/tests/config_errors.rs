@@ -1,6 +1,6 @@
 //! Configuration errors name the file, the key and what was expected.
 
-use canodom::config::Config;
+use canodom_pipeline::config::Config;
 
 fn error_for(edit: impl Fn(String) -> String) -> String {
     let path = crate::util::rc_car_toml();

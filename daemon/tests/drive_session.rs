@@ -5,14 +5,14 @@
 //! and COMMIT: the committed set carries the true diameter ratio.
 
 use crate::util::tmp_dir;
-use canodom::bus::FrameSink;
-use canodom::calib_wire::{CalibWire, Command};
-use canodom::config::Config;
-use canodom::frame::{CanFrame, CanId};
-use canodom::pipeline::Pipeline;
 use canodom::server::{InProcessDaemon, Observers};
-use canodom::vehicle::{SampleEncoder, sim_config};
+use canodom_can::bus::FrameSink;
+use canodom_can::frame::{CanFrame, CanId};
 use canodom_fusion::sim::{Plan, simulate};
+use canodom_pipeline::config::Config;
+use canodom_pipeline::pipeline::Pipeline;
+use canodom_protocol::calib_wire::{CalibWire, Command};
+use canodom_sim::vehicle::{SampleEncoder, sim_config};
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -92,8 +92,8 @@ async fn a_drive_with_fixes_on_the_bus_commits_the_true_ratio() {
     tx.send(&send_cmd(Command::Commit, 3)).await.unwrap();
     tokio::time::sleep(Duration::from_millis(50)).await;
     daemon.stop().await.unwrap();
-    let file =
-        canodom::persist::load(&dir.join("params.toml"), &config.calibration.bounds).unwrap();
+    let file = canodom_params::persist::load(&dir.join("params.toml"), &config.calibration.bounds)
+        .unwrap();
     let set = file.current.unwrap();
     assert_eq!(set.method, "drive");
     let ratio = set.values.rear_right_diameter_m / set.values.rear_left_diameter_m;

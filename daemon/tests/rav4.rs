@@ -4,7 +4,7 @@
 
 use canodom::cmd::calibrate_drive;
 use canodom::cmd::replay::replay_with;
-use canodom::config::Config;
+use canodom_pipeline::config::Config;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
@@ -69,7 +69,7 @@ fn second_half_error(rows: &[Vec<f64>], t0: f64, truth: &[(f64, f64, f64)], spli
 
 fn replay_rows(config: &Config, params: Option<&Path>, log: &str) -> Vec<Vec<f64>> {
     let set = params.map(|p| {
-        canodom::persist::load(p, &config.calibration.bounds)
+        canodom_params::persist::load(p, &config.calibration.bounds)
             .unwrap()
             .current
             .unwrap()
@@ -121,7 +121,7 @@ fn calibrated_on_the_first_half_the_second_half_stays_within_one_percent() {
         Some(&dir.join("report")),
     )
     .unwrap();
-    let set = canodom::persist::load(&params, &config.calibration.bounds)
+    let set = canodom_params::persist::load(&params, &config.calibration.bounds)
         .unwrap()
         .current
         .unwrap();

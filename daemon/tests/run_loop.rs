@@ -2,16 +2,16 @@
 //! published pose frames, reconnection after the interface goes away.
 
 use crate::util::rc_car;
-use canodom::bus::{BusEvent, FrameSink, FrameSource, InProcessBus, LinkState, Received};
-use canodom::candump::Timestamp;
-use canodom::cmd::simulate::{LOG_EPOCH_US, drive, simulator};
-use canodom::config::Config;
-use canodom::frame::{CanFrame, ErrorFrame};
-use canodom::own_dbc::{OwnFrame, dbc_for_base};
-use canodom::pipeline::Pipeline;
 use canodom::server::{InProcessDaemon, Observers, run};
-use canodom::vehicle::PathKind;
+use canodom_can::bus::{BusEvent, FrameSink, FrameSource, InProcessBus, LinkState, Received};
+use canodom_can::candump::Timestamp;
+use canodom_can::frame::{CanFrame, ErrorFrame};
 use canodom_dbc::{Checksum, Database, FrameId};
+use canodom_pipeline::config::Config;
+use canodom_pipeline::pipeline::Pipeline;
+use canodom_protocol::own_dbc::{OwnFrame, dbc_for_base};
+use canodom_sim::drive::{LOG_EPOCH_US, drive, simulator};
+use canodom_sim::vehicle::PathKind;
 use std::sync::Arc;
 use std::time::Duration;
 use tokio_util::sync::CancellationToken;
@@ -28,7 +28,7 @@ enum Disturb {
     /// ODOM_CMD payloads (CRC applied here), each at its time since the
     /// start; the drive's end waits for the last one.
     OdomCmd {
-        base: canodom::own_dbc::BaseId,
+        base: canodom_protocol::own_dbc::BaseId,
         commands: Vec<(Duration, [u8; 8])>,
     },
 }
@@ -100,7 +100,7 @@ async fn drive_against_daemon(
                 Disturb::BusOff { at } => {
                     tokio::time::sleep(at).await;
                     b.inject_error(ErrorFrame {
-                        class: canodom::frame::err_class::BUS_OFF,
+                        class: canodom_can::frame::err_class::BUS_OFF,
                         detail: [0; 8],
                     });
                 }
@@ -227,7 +227,7 @@ async fn interface_gone_then_back_is_survived() {
     // It resumed: steps continue well after the outage (the drive is ~80 s).
     assert!(s.last_step.unwrap().t_s > 60.0);
     // The filter ran on across the gap: wheel decoders saw it as missed samples.
-    assert!(s.stats.get(canodom::stats::Reject::WheelGap) >= 1);
+    assert!(s.stats.get(canodom_pipeline::stats::Reject::WheelGap) >= 1);
 }
 
 #[tokio::test(start_paused = true)]
@@ -261,8 +261,17 @@ async fn bunched_arrival_gives_the_same_pose_as_even_timing() {
     );
     assert!(even.stats().steps > 5000);
     assert_eq!(bunched.stats().steps, even.stats().steps);
-    assert_eq!(bunched.stats().get(canodom::stats::Reject::WheelFault), 0);
-    assert_eq!(even.stats().get(canodom::stats::Reject::WheelFault), 0);
+    assert_eq!(
+        bunched
+            .stats()
+            .get(canodom_pipeline::stats::Reject::WheelFault),
+        0
+    );
+    assert_eq!(
+        even.stats()
+            .get(canodom_pipeline::stats::Reject::WheelFault),
+        0
+    );
     for (a, b) in [
         (e.fused.x_m, b.fused.x_m),
         (e.fused.y_m, b.fused.y_m),
@@ -279,30 +288,30 @@ async fn bunched_arrival_gives_the_same_pose_as_even_timing() {
 /// only the sending half can tell the daemon.
 struct DeafReceiver(InProcessBus);
 
-struct DeafRx(canodom::bus::InProcessRx);
+struct DeafRx(canodom_can::bus::InProcessRx);
 
 impl FrameSource for DeafRx {
-    async fn recv(&mut self) -> Result<BusEvent, canodom::bus::BusError> {
+    async fn recv(&mut self) -> Result<BusEvent, canodom_can::bus::BusError> {
         match self.0.recv().await {
-            Err(canodom::bus::BusError::InterfaceDown { .. }) => std::future::pending().await,
+            Err(canodom_can::bus::BusError::InterfaceDown { .. }) => std::future::pending().await,
             other => other,
         }
     }
     fn set_filters(
         &mut self,
-        filters: &[canodom::bus::IdFilter],
-    ) -> Result<(), canodom::bus::BusError> {
+        filters: &[canodom_can::bus::IdFilter],
+    ) -> Result<(), canodom_can::bus::BusError> {
         self.0.set_filters(filters)
     }
 }
 
 impl canodom::server::Connector for DeafReceiver {
     type Rx = DeafRx;
-    type Tx = canodom::bus::InProcessTx;
+    type Tx = canodom_can::bus::InProcessTx;
     fn connect(
         &self,
-        filters: &[canodom::bus::IdFilter],
-    ) -> Result<(Self::Rx, Self::Tx), canodom::bus::BusError> {
+        filters: &[canodom_can::bus::IdFilter],
+    ) -> Result<(Self::Rx, Self::Tx), canodom_can::bus::BusError> {
         let (rx, tx) = canodom::server::Connector::connect(&self.0, filters)?;
         Ok((DeafRx(rx), tx))
     }

@@ -12,6 +12,7 @@ mod cantools_decode;
 mod cli;
 mod config_errors;
 mod drive_session;
+mod follow_session;
 mod rav4;
 mod run_loop;
 mod trajectory;

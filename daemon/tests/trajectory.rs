@@ -2,8 +2,8 @@
 
 use crate::util::{csv_rows, rc_car, simulated_log};
 use canodom::cmd::replay::{CSV_HEADER, replay};
-use canodom::config::Config;
-use canodom::vehicle::PathKind;
+use canodom_pipeline::config::Config;
+use canodom_sim::vehicle::PathKind;
 
 /// Interpolates the truth at `t_s` (rows are t, x, y, heading at 100 Hz).
 fn truth_at(truth: &[Vec<f64>], t_s: f64) -> &[f64] {

@@ -1,10 +1,10 @@
 //! Shared helpers: configurations, simulated logs, pipelines.
 
-use canodom::candump::{LogReader, Timestamp};
-use canodom::cmd::simulate::{simulator, write_log};
-use canodom::config::Config;
-use canodom::frame::CanFrame;
-use canodom::vehicle::PathKind;
+use canodom_can::candump::{LogReader, Timestamp};
+use canodom_can::frame::CanFrame;
+use canodom_pipeline::config::Config;
+use canodom_sim::drive::{simulator, write_log};
+use canodom_sim::vehicle::PathKind;
 use std::path::PathBuf;
 
 pub fn manifest() -> PathBuf {

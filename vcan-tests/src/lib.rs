@@ -10,8 +10,8 @@
 //! This library holds what the scenarios share: running the guest's tools
 //! with a time limit and finding the fixtures inside the guest.
 
-use canodom::candump::{LogReader, ReadError};
-use canodom::frame::{CanFrame, CanId};
+use canodom_can::candump::{LogReader, ReadError};
+use canodom_can::frame::{CanFrame, CanId};
 use canodom_dbc::{Checksum, Database, SignalHandle};
 use std::fmt::Write as _;
 use std::fs::File;
@@ -416,7 +416,7 @@ impl PoseSample {
     }
 }
 
-/// Decodes canodom's pose frames with the project's `daemon/dbc/canodom.dbc`
+/// Decodes canodom's pose frames with the project's `protocol/dbc/canodom.dbc`
 /// (written for base id 0x600; another base shifts every id alike).
 #[derive(Debug)]
 pub struct PoseDecoder {
@@ -436,12 +436,12 @@ pub struct PoseLog {
 }
 
 impl PoseDecoder {
-    /// Loads `daemon/dbc/canodom.dbc` for pose frames at `base_id` (standard ids).
+    /// Loads `protocol/dbc/canodom.dbc` for pose frames at `base_id` (standard ids).
     ///
     /// # Errors
     /// The DBC cannot be read or lacks a signal.
     pub fn load(base_id: u32) -> Result<Self, String> {
-        let path = repo_file("daemon/dbc/canodom.dbc");
+        let path = repo_file("protocol/dbc/canodom.dbc");
         let text = std::fs::read_to_string(&path)
             .map_err(|e| format!("cannot read {}: {e}", path.display()))?;
         let db = Database::parse(&text, "canodom.dbc").map_err(|e| e.to_string())?;

@@ -8,10 +8,10 @@
 // Test code: the scenario reads top to bottom as the story it checks.
 #![allow(clippy::unwrap_used, clippy::too_many_lines)]
 
-use canodom::bus::{BusEvent, FrameSource, IdFilter, open_socketcan};
-use canodom::calib_wire::{CalibWire, Command, Counts, Reason, State, StatusPage};
-use canodom::frame::CanId;
-use canodom::own_dbc::BaseId;
+use canodom_can::bus::{BusEvent, FrameSource, IdFilter, open_socketcan};
+use canodom_can::frame::CanId;
+use canodom_protocol::calib_wire::{CalibWire, Command, Counts, Reason, State, StatusPage};
+use canodom_protocol::own_dbc::BaseId;
 use canodom_vcan_tests::{
     Spawned, calibration_config, canodom_bin, metric, read_candump, repo_file, scratch_dir,
     wait_until,

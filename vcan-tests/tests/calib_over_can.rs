@@ -13,14 +13,14 @@
 // Test code: the scenario reads top to bottom as the story it checks.
 #![allow(clippy::unwrap_used, clippy::too_many_lines)]
 
-use canodom::bus::{BusEvent, FrameSink, FrameSource, IdFilter, open_socketcan};
-use canodom::calib_wire::{
+use canodom_can::bus::{BusEvent, FrameSink, FrameSource, IdFilter, open_socketcan};
+use canodom_can::frame::CanId;
+use canodom_dbc::Database;
+use canodom_protocol::calib_wire::{
     Ack, AckStatus, CalibWire, CmdCode, Command, Counts, ParamSet, ParamsAssembler, Progress,
     Reason, State, StatusPage, Writeback,
 };
-use canodom::frame::CanId;
-use canodom::own_dbc::BaseId;
-use canodom_dbc::Database;
+use canodom_protocol::own_dbc::BaseId;
 use canodom_vcan_tests::{
     Spawned, calibration_config, canodom_bin, cansend, metric, read_candump, repo_file,
     scratch_dir, wait_until,
@@ -96,7 +96,7 @@ fn wheel_gaps(log: &str) -> Option<u64> {
 /// store ECU: every complete `CALIB_PARAMS` set is acknowledged STORED.
 fn listen_and_ack(wire: CalibWire, heard: Arc<Mutex<Heard>>) -> tokio::task::JoinHandle<()> {
     let quality_id = CanId::standard(BASE + 2).unwrap();
-    let db = Database::parse(&read(&repo_file("daemon/dbc/canodom.dbc")), "canodom.dbc").unwrap();
+    let db = Database::parse(&read(&repo_file("protocol/dbc/canodom.dbc")), "canodom.dbc").unwrap();
     let version = db.signal("ODOM_QUALITY.PARAM_VERSION").unwrap();
     let nominal = db.signal("ODOM_QUALITY.NOMINAL_PARAMS").unwrap();
     let cmd_id = wire.cmd_id();
@@ -408,7 +408,7 @@ async fn a_guided_session_over_vcan_commits_writes_back_and_survives_a_restart()
     );
 
     // The parameter file holds the committed set (its checksums verified).
-    let file = canodom::persist::from_toml(&params, &read(&params)).unwrap();
+    let file = canodom_params::persist::from_toml(&params, &read(&params)).unwrap();
     let current = file.current.clone().expect("a current set");
     println!(
         "parameter file: version {}, method {}, {:?}",

@@ -1,7 +1,7 @@
 //! The real `canodom` binary on a real `vcan0`, end to end: the daemon
 //! (`canodom run`) fed by the simulated vehicle (`canodom simulate`) or by
 //! `canplayer`, everything on the bus recorded by `candump -L`, the daemon's
-//! pose frames decoded with `daemon/dbc/canodom.dbc` and compared with the
+//! pose frames decoded with `protocol/dbc/canodom.dbc` and compared with the
 //! simulator's ground truth and with `canodom replay` of the same traffic.
 //!
 //! The comparison with replay is exact up to the pose frame's resolution:
@@ -14,8 +14,8 @@
 // reads top to bottom as the story it checks.
 #![allow(clippy::unwrap_used, clippy::too_many_lines)]
 
-use canodom::candump::parse_line;
-use canodom::frame::{CanFrame, CanId};
+use canodom_can::candump::parse_line;
+use canodom_can::frame::{CanFrame, CanId};
 use canodom_vcan_tests::{
     Logged, PoseDecoder, PoseSample, Spawned, angle_diff, canodom_bin, canodom_replay, ip, metric,
     read_candump, read_csv, repo_file, run, scratch_dir, wait_until,
@@ -32,7 +32,7 @@ const RC_REAR_ID: u16 = 0x100;
 const RC_FRONT_ID: u16 = 0x101;
 /// `WHEEL_SPEEDS` of `opendbc_toyota_2017.dbc`: all four wheels, one step each.
 const TOYOTA_WHEELS_ID: u16 = 0xAA;
-/// Log time of the simulator's first sample (`canodom::cmd::simulate::LOG_EPOCH_US`).
+/// Log time of the simulator's first sample (`canodom_sim::drive::LOG_EPOCH_US`).
 const LOG_EPOCH_US: u64 = 1_700_000_000_000_000;
 /// How many filter steps a published pose may lag the newest rear frame on
 /// the bus: a bound on the daemon's latency (2 s of samples), printed as measured.
@@ -735,7 +735,7 @@ async fn watch_poses(
     limit: Duration,
     mut until: impl FnMut(&[PoseSample]) -> bool,
 ) -> Result<Vec<PoseSample>, String> {
-    use canodom::bus::{BusEvent, FrameSource, IdFilter, open_socketcan};
+    use canodom_can::bus::{BusEvent, FrameSource, IdFilter, open_socketcan};
     let filters: Vec<IdFilter> = (0..3u32)
         .map(|k| IdFilter::exact(CanId::standard(RC_CAR_BASE + k).unwrap()))
         .collect();

@@ -4,9 +4,9 @@
 //! disappears (the daemon's retry logic depends on them).
 #![cfg(feature = "vcan")]
 
-use canodom::bus::{BusError, BusEvent, FrameSink, FrameSource, IdFilter, open_socketcan};
-use canodom::candump::parse_line;
-use canodom::frame::{CanFrame, CanId};
+use canodom_can::bus::{BusError, BusEvent, FrameSink, FrameSource, IdFilter, open_socketcan};
+use canodom_can::candump::parse_line;
+use canodom_can::frame::{CanFrame, CanId};
 use canodom_vcan_tests::{DEFAULT_WAIT, ip, metric, run};
 use std::process::{Command, Stdio};
 use std::time::{Duration, SystemTime, UNIX_EPOCH};

@@ -8,13 +8,13 @@
 //! [`render_line`], [`reason_text`]) and unit-tested; the I/O shell only
 //! moves frames between SocketCAN and those functions.
 
-use crate::bus::{BusEvent, FrameSink, FrameSource, IdFilter, open_socketcan};
-use crate::calib_wire::{
+use anyhow::Context as _;
+use canodom_can::bus::{BusEvent, FrameSink, FrameSource, IdFilter, open_socketcan};
+use canodom_pipeline::config::Config;
+use canodom_protocol::calib_wire::{
     CalibWire, CmdCode, Command, Counts, InstructionCode, ParamsAssembler, Progress, Reason, State,
     StatusPage, WireDirection, Writeback,
 };
-use crate::config::Config;
-use anyhow::Context as _;
 use std::fmt::Write as _;
 use std::io::{IsTerminal as _, Write as _};
 use std::path::PathBuf;
@@ -68,7 +68,7 @@ pub enum Action {
         #[arg(long, allow_negative_numbers = true, value_parser = parse_radius)]
         track_radius: f64,
         /// Runs per direction, 1..=15.
-        #[arg(long, default_value_t = crate::calib_wire::DEFAULT_RUNS_PER_DIRECTION,
+        #[arg(long, default_value_t = canodom_protocol::calib_wire::DEFAULT_RUNS_PER_DIRECTION,
               value_parser = clap::value_parser!(u8).range(1..=15))]
         runs: u8,
     },
@@ -590,15 +590,15 @@ struct Link<R, T> {
     /// `CALIB_PARAMS` pages that arrived while a command waited for its
     /// answer: a daemon may send the result ahead of the answer, and
     /// [`Link::params`] must still see them.
-    early_params: Vec<crate::calib_wire::ParamsPage>,
+    early_params: Vec<canodom_protocol::calib_wire::ParamsPage>,
 }
 
 enum Incoming {
     Status(StatusPage),
-    Params(crate::calib_wire::ParamsPage),
+    Params(canodom_protocol::calib_wire::ParamsPage),
 }
 
-impl Link<crate::bus::SocketCanRx, crate::bus::SocketCanTx> {
+impl Link<canodom_can::bus::SocketCanRx, canodom_can::bus::SocketCanTx> {
     fn open(config: &Config, timeout: Duration) -> anyhow::Result<Self> {
         let wire = CalibWire::new(config.output.base_id)?;
         let iface = config.interface.clone();
@@ -681,7 +681,7 @@ impl<R: FrameSource, T: FrameSink> Link<R, T> {
     async fn command(
         &mut self,
         cmd: Command,
-        cmd_id: crate::frame::CanId,
+        cmd_id: canodom_can::frame::CanId,
         arming: u8,
         mut counter: u8,
     ) -> anyhow::Result<Answer> {
@@ -751,8 +751,11 @@ impl<R: FrameSource, T: FrameSink> Link<R, T> {
     /// The CALIB_PARAMS set that follows a REQUEST_PARAMS.
     async fn params(
         &mut self,
-    ) -> anyhow::Result<Option<Result<crate::calib_wire::ParamSet, crate::calib_wire::ParamSet>>>
-    {
+    ) -> anyhow::Result<
+        Option<
+            Result<canodom_protocol::calib_wire::ParamSet, canodom_protocol::calib_wire::ParamSet>,
+        >,
+    > {
         let mut asm = ParamsAssembler::default();
         for page in std::mem::take(&mut self.early_params) {
             if let Some(set) = asm.push(&self.wire, page) {
@@ -937,7 +940,7 @@ mod tests {
             run_index: 3,
             runs_total: 5,
             direction: WireDirection::Ccw,
-            start_point: crate::calib_wire::StartPoint::SCcw,
+            start_point: canodom_protocol::calib_wire::StartPoint::SCcw,
             run_distance_m: 4.25,
             writeback: Writeback::Idle,
             standstill: true,
@@ -1189,7 +1192,8 @@ mod tests {
 
     #[test]
     fn commands_round_trip_through_the_wire() {
-        let wire = CalibWire::new(crate::own_dbc::BaseId::new(0x600, false).unwrap()).unwrap();
+        let wire =
+            CalibWire::new(canodom_protocol::own_dbc::BaseId::new(0x600, false).unwrap()).unwrap();
         let cmd = Command::EndPose {
             dx_mm: -12,
             dy_mm: 30,
@@ -1204,7 +1208,7 @@ mod tests {
     /// A daemon that answers every command at once (COMMIT refused as out
     /// of bounds, a repeated counter as BAD_COUNTER) and otherwise sends
     /// progress and counts every 100 ms.
-    async fn fake_daemon(bus: crate::bus::InProcessBus, wire: CalibWire) {
+    async fn fake_daemon(bus: canodom_can::bus::InProcessBus, wire: CalibWire) {
         let (mut rx, tx) = bus.open().unwrap();
         let mut c = counts(5, CmdCode::None, Reason::None);
         let mut last_counter = None;
@@ -1259,8 +1263,8 @@ mod tests {
     }
 
     /// The set the fake daemon reports on REQUEST_PARAMS.
-    fn fake_set() -> crate::calib_wire::ParamSet {
-        crate::calib_wire::ParamSet {
+    fn fake_set() -> canodom_protocol::calib_wire::ParamSet {
+        canodom_protocol::calib_wire::ParamSet {
             version: 3,
             rear_tread_m: 0.3071,
             rear_left_diameter_m: 0.09,
@@ -1271,13 +1275,13 @@ mod tests {
         }
     }
 
-    fn base() -> crate::own_dbc::BaseId {
-        crate::own_dbc::BaseId::new(0x600, false).unwrap()
+    fn base() -> canodom_protocol::own_dbc::BaseId {
+        canodom_protocol::own_dbc::BaseId::new(0x600, false).unwrap()
     }
 
     fn client(
-        bus: &crate::bus::InProcessBus,
-    ) -> Link<crate::bus::InProcessRx, crate::bus::InProcessTx> {
+        bus: &canodom_can::bus::InProcessBus,
+    ) -> Link<canodom_can::bus::InProcessRx, canodom_can::bus::InProcessTx> {
         let (rx, tx) = bus.open().unwrap();
         Link {
             rx,
@@ -1291,7 +1295,7 @@ mod tests {
 
     #[tokio::test(start_paused = true)]
     async fn commands_are_answered_refused_and_retried_after_a_duplicate_counter() {
-        let bus = crate::bus::InProcessBus::new("vcan0", 256);
+        let bus = canodom_can::bus::InProcessBus::new("vcan0", 256);
         let mut link = client(&bus);
         tokio::spawn(fake_daemon(bus.clone(), CalibWire::new(base()).unwrap()));
         let id = link.wire.cmd_id();
@@ -1318,7 +1322,7 @@ mod tests {
 
     #[tokio::test(start_paused = true)]
     async fn params_sent_ahead_of_the_answer_are_still_the_result() {
-        let bus = crate::bus::InProcessBus::new("vcan0", 256);
+        let bus = canodom_can::bus::InProcessBus::new("vcan0", 256);
         let mut link = client(&bus);
         tokio::spawn(fake_daemon(bus.clone(), CalibWire::new(base()).unwrap()));
         let id = link.wire.cmd_id();
@@ -1336,7 +1340,7 @@ mod tests {
 
     #[tokio::test(start_paused = true)]
     async fn a_silent_bus_is_no_answer_naming_the_interface() {
-        let bus = crate::bus::InProcessBus::new("vcan0", 16);
+        let bus = canodom_can::bus::InProcessBus::new("vcan0", 16);
         let mut link = client(&bus);
         let err = link
             .command(Command::Abort, link.wire.cmd_id(), 0, 1)
@@ -1358,7 +1362,7 @@ mod tests {
     }
     #[tokio::test(start_paused = true)]
     async fn watch_prints_a_line_per_change_or_redraws_in_place() {
-        let bus = crate::bus::InProcessBus::new("vcan0", 256);
+        let bus = canodom_can::bus::InProcessBus::new("vcan0", 256);
         tokio::spawn(fake_daemon(bus.clone(), CalibWire::new(base()).unwrap()));
         for tty in [false, true] {
             let mut link = client(&bus);

@@ -9,16 +9,16 @@
 //! revolutions the calib crate wants once divided by π·D of the same
 //! nominal parameters.
 
-use crate::candump::{LogReader, ReadError};
-use crate::config::Config;
-use crate::frame::CanId;
-use crate::pipeline::Pipeline;
-use crate::stats::Reject;
 use anyhow::{Context as _, bail};
 use canodom_calib::methods::{ExactOptions, PaperOptions, exact, heading, paper};
 use canodom_calib::run::{InputFault, Tolerances};
 use canodom_calib::{CalibrationResult, Direction, RearParams, RevSample, Run, RunRecorder, Track};
+use canodom_can::candump::{LogReader, ReadError};
+use canodom_can::frame::CanId;
 use canodom_fusion::{Pose, VehicleParams};
+use canodom_pipeline::config::Config;
+use canodom_pipeline::pipeline::Pipeline;
+use canodom_pipeline::stats::Reject;
 use serde::Deserialize;
 use std::collections::HashMap;
 use std::fmt::Write as _;
@@ -160,7 +160,12 @@ pub fn next_record<R: std::io::Read>(
     reader: &mut LogReader<R>,
     log: &Path,
     malformed: &mut u64,
-) -> anyhow::Result<Option<(crate::candump::Timestamp, crate::frame::CanFrame)>> {
+) -> anyhow::Result<
+    Option<(
+        canodom_can::candump::Timestamp,
+        canodom_can::frame::CanFrame,
+    )>,
+> {
     loop {
         match reader.next_record() {
             Ok(r) => return Ok(r.map(|r| (r.timestamp, r.frame))),
@@ -451,8 +456,9 @@ pub fn execute(args: &CalibrateArgs) -> anyhow::Result<()> {
         write_atomic(out, &text)?;
     }
     if let Some(dir) = &args.report {
-        let report = crate::report::CalibrationReport::build(&result, track, &runs, &labels);
-        let (svg, json) = crate::report::write_report(dir, &report)?;
+        let report =
+            canodom_report::report::CalibrationReport::build(&result, track, &runs, &labels);
+        let (svg, json) = canodom_report::report::write_report(dir, &report)?;
         eprintln!(
             "calibrate: report written to {} and {}",
             svg.display(),

@@ -12,14 +12,14 @@
 //! file as a new set (history kept, bounds checked), which `replay --params`
 //! and `run` (through `param_file`) then use.
 
-use crate::candump::LogReader;
-use crate::config::Config;
-use crate::persist::{ParamFile, ParamSet, ParamValues, PersistError};
-use crate::pipeline::Pipeline;
 use anyhow::{Context as _, bail};
 use canodom_calib::drive::{
     DriveCalibration, DriveModel, DriveSample, Estimate, Fix, calibrate_drive,
 };
+use canodom_can::candump::LogReader;
+use canodom_params::persist::{ParamFile, ParamSet, ParamValues, PersistError};
+use canodom_pipeline::config::Config;
+use canodom_pipeline::pipeline::Pipeline;
 use std::fmt::Write as _;
 use std::path::Path;
 
@@ -79,7 +79,7 @@ pub fn parse_fixes(text: &str, name: &str) -> anyhow::Result<Vec<Fix>> {
 /// # Errors
 /// A damaged or out-of-bounds file: a calibration is not committed over it.
 pub fn load_or_new(path: &Path, config: &Config) -> anyhow::Result<ParamFile> {
-    match crate::persist::load(path, &config.calibration.bounds) {
+    match canodom_params::persist::load(path, &config.calibration.bounds) {
         Ok(f) => Ok(f),
         Err(PersistError::Missing { .. }) => Ok(ParamFile::default()),
         Err(e) => Err(anyhow::Error::new(e).context("the parameter file cannot be extended")),
@@ -336,10 +336,10 @@ pub fn execute(
     let version = file
         .commit(values, "drive", created, config.calibration.max_history)
         .version;
-    crate::persist::store(out, &file)?;
+    canodom_params::persist::store(out, &file)?;
     println!("  committed as version {version} to {}", out.display());
     if let Some(dir) = report_dir {
-        let paths = crate::drive_report::write_drive_report(
+        let paths = canodom_report::drive_report::write_drive_report(
             dir,
             &drive.samples,
             &fixes,

@@ -1,11 +1,11 @@
 //! `canodom decode`: a candump log to JSON lines, one object per decoded
 //! frame, hand-written into one reused buffer (no per-frame allocation).
 
-use crate::candump::{LogReader, ReadError};
-use crate::float_text::push_f64;
-use crate::frame::{CanId, FrameKind};
 use anyhow::Context as _;
+use canodom_can::candump::{LogReader, ReadError};
+use canodom_can::frame::{CanId, FrameKind};
 use canodom_dbc::{Database, FrameId};
+use canodom_report::float_text::push_f64;
 use std::fmt::Write as _;
 use std::io::Write;
 use std::path::PathBuf;
@@ -46,7 +46,7 @@ pub struct DecodeCounts {
     /// Malformed lines skipped.
     pub malformed: u64,
     /// The same by reason.
-    pub malformed_by_reason: crate::candump::MalformedCounts,
+    pub malformed_by_reason: canodom_can::candump::MalformedCounts,
 }
 
 /// Runs `decode` with standard output.

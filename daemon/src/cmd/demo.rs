@@ -5,10 +5,10 @@
 //! other end and publishes its pose frames back. Time is tokio's paused
 //! clock, so a minute of driving takes a moment, and the run is reproducible.
 
-use crate::config::Config;
 use crate::server::{InProcessDaemon, Observers, Summary};
-use crate::vehicle::PathKind;
 use canodom_fusion::Pose;
+use canodom_pipeline::config::Config;
+use canodom_sim::vehicle::PathKind;
 use std::fmt::Write as _;
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -125,9 +125,9 @@ async fn demo_async(
     slip: bool,
     every_s: f64,
 ) -> anyhow::Result<DemoReport> {
-    let sim = super::simulate::simulator(&config, path, None, seed, slip)?;
+    let sim = canodom_sim::drive::simulator(&config, path, None, seed, slip)?;
     let (steps_tx, steps_rx) = watch::channel(None);
-    let (stats_tx, stats_rx) = watch::channel(crate::stats::Stats::default());
+    let (stats_tx, stats_rx) = watch::channel(canodom_pipeline::stats::Stats::default());
     let daemon = InProcessDaemon::spawn(
         Arc::clone(&config),
         4096,
@@ -155,7 +155,7 @@ async fn demo_async(
     let mut truth = Pose::default();
     let mut t_last = 0.0;
     let vehicle_stop = tokio_util::sync::CancellationToken::new();
-    super::simulate::drive(&config, sim, &vtx, 100.0, vehicle_stop, |s| {
+    canodom_sim::drive::drive(&config, sim, &vtx, 100.0, vehicle_stop, |s| {
         truth = s.true_pose;
         t_last = s.t_s;
         if s.t_s + 1e-9 >= next_row {

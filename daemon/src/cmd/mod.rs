@@ -10,7 +10,6 @@ pub mod demo;
 pub mod replay;
 pub mod run;
 pub mod simulate;
-pub mod simulate_follow;
 
 use std::path::Path;
 
@@ -80,7 +79,7 @@ pub fn open_input(
 }
 
 /// `secs.micros` without padding: a valid JSON number and CSV field.
-pub fn write_timestamp(out: &mut Vec<u8>, t: crate::candump::Timestamp) {
+pub fn write_timestamp(out: &mut Vec<u8>, t: canodom_can::candump::Timestamp) {
     use std::io::Write as _;
     let _ = write!(out, "{}.{:06}", t.secs(), t.subsec_micros());
 }

@@ -1,15 +1,15 @@
 //! `canodom replay`: the daemon's pipeline over a candump log, timed by the
 //! log's timestamps, as fast as the machine goes; one CSV row per filter step.
 
-use crate::candump::Timestamp;
-use crate::candump::{ClassicData, LogReader, MalformedCounts, ReadError};
-use crate::config::Config;
-use crate::float_text::push_csv_row;
-use crate::frame::CanFrame;
-use crate::pipeline::{Pipeline, Step};
-use crate::stats::Stats;
 use anyhow::Context as _;
+use canodom_can::candump::Timestamp;
+use canodom_can::candump::{ClassicData, LogReader, MalformedCounts, ReadError};
+use canodom_can::frame::CanFrame;
 use canodom_fusion::ekf::WindowOutcome;
+use canodom_pipeline::config::Config;
+use canodom_pipeline::pipeline::{Pipeline, Step};
+use canodom_pipeline::stats::Stats;
+use canodom_report::float_text::push_csv_row;
 use std::fmt::Write as _;
 use std::io::{Read, Write};
 use std::path::PathBuf;
@@ -72,7 +72,7 @@ pub fn execute(args: &ReplayArgs) -> anyhow::Result<()> {
     let params = match &args.params {
         None => None,
         Some(path) => {
-            let file = crate::persist::load(path, &config.calibration.bounds)
+            let file = canodom_params::persist::load(path, &config.calibration.bounds)
                 .with_context(|| "--params".to_string())?;
             let set = file.current.with_context(|| {
                 format!(
@@ -223,7 +223,7 @@ pub fn replay(
 /// Pipeline construction, a set the filter refuses, I/O.
 pub fn replay_with(
     config: &Config,
-    params: Option<&crate::persist::ParamSet>,
+    params: Option<&canodom_params::persist::ParamSet>,
     input: impl Read,
     out: &mut impl Write,
     diag: &mut impl Write,

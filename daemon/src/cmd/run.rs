@@ -1,8 +1,8 @@
 //! `canodom run`: loads the configuration and runs [`crate::server::run`] on
 //! SocketCAN until SIGINT or SIGTERM.
 
-use crate::config::Config;
 use crate::server::{Observers, SocketCan};
+use canodom_pipeline::config::Config;
 use std::path::PathBuf;
 use std::sync::Arc;
 use tracing::{info, warn};

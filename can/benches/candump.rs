@@ -3,8 +3,8 @@
 //!
 //! `CARGO_TARGET_DIR=/work/tgt/daemon cargo bench -p canodom --bench candump`
 
-use canodom::candump::{LogReader, Record, Timestamp, format_record};
-use canodom::frame::{CanFrame, CanId};
+use canodom_can::candump::{LogReader, Record, Timestamp, format_record};
+use canodom_can::frame::{CanFrame, CanId};
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use std::hint::black_box;
 use std::time::Duration;

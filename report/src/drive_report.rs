@@ -4,9 +4,9 @@
 //! when the car has one), and `calibration.json`, every number of the
 //! result.
 
-use crate::persist::ParamValues;
 use crate::report::{PlotResult, ReportError, ReportFiles, json_line, svg_text, write_report};
 use canodom_calib::drive::{DriveCalibration, DriveSample, Estimate, Fix};
+use canodom_params::persist::ParamValues;
 use plotters::prelude::*;
 use serde::Serialize;
 use std::path::{Path, PathBuf};

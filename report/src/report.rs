@@ -698,9 +698,9 @@ pub(crate) fn svg_text(
     Ok(svg)
 }
 
-/// Writes `text` to `path` durably and atomically ([`crate::atomic_file`]).
+/// Writes `text` to `path` durably and atomically ([`canodom_params::atomic_file`]).
 fn write_durable(path: &Path, text: &str) -> Result<(), ReportError> {
-    crate::atomic_file::write(path, text.as_bytes()).map_err(|e| ReportError::Io {
+    canodom_params::atomic_file::write(path, text.as_bytes()).map_err(|e| ReportError::Io {
         path: e.path,
         source: e.source,
     })

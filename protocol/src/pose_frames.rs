@@ -3,15 +3,15 @@
 //! id, with the shared rolling counter and CRC-8 SAE J1850, through the same
 //! DBC codec users decode them with.
 
-use crate::frame::{CanFrame, FrameError};
 use crate::own_dbc::{BaseId, OwnFrame, dbc_for_base};
-use crate::pipeline::PoseOutput;
+use canodom_can::candump::Timestamp;
+use canodom_can::frame::{CanFrame, FrameError};
 use canodom_dbc::{Checksum, Database, SignalHandle};
 
 /// Encodes pose samples; owns the rolling counter.
 #[derive(Debug)]
 pub struct PoseEncoder {
-    ids: [crate::frame::CanId; 3],
+    ids: [canodom_can::frame::CanId; 3],
     db: Database,
     x: SignalHandle,
     y: SignalHandle,
@@ -140,11 +140,59 @@ fn put_wrapped(h: &SignalHandle, raw_scaled: f64, buf: &mut [u8]) {
     h.encode_raw(raw as u64, buf);
 }
 
+/// Validity flags of a pose sample.
+// Each is one bit of ODOM_QUALITY: independent flags, not a state machine.
+#[allow(clippy::struct_excessive_bools)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct PoseFlags {
+    /// Rear wheels fresh and trusted: the pose may be used.
+    pub pose_valid: bool,
+    /// A rear wheel input is stale or not yet trusted.
+    pub rear_stale: bool,
+    /// The front wheel input is stale: no front corrections.
+    pub front_stale: bool,
+    /// The steering input is stale.
+    pub steer_stale: bool,
+    /// A counter fault since the previous pose sample.
+    pub counter_fault: bool,
+    /// A checksum fault since the previous pose sample.
+    pub checksum_fault: bool,
+    /// A gate rejection since the previous pose sample.
+    pub gate_reject: bool,
+    /// The nominal parameters from the configuration are in use.
+    pub nominal_params: bool,
+}
+
+/// What a pose frame carries.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PoseOutput {
+    /// Time of the newest frame the pose includes.
+    pub timestamp: Timestamp,
+    /// Position x, metres.
+    pub x_m: f64,
+    /// Position y, metres.
+    pub y_m: f64,
+    /// Heading wrapped to (−π, π], radians.
+    pub heading_rad: f64,
+    /// Speed of the rear-axle centre, m/s.
+    pub speed_mps: f64,
+    /// Yaw rate, rad/s.
+    pub yaw_rate_radps: f64,
+    /// Square root of the largest eigenvalue of the x-y covariance, metres.
+    pub pos_std_m: f64,
+    /// Heading standard deviation, radians.
+    pub heading_std_rad: f64,
+    /// Validity flags.
+    pub flags: PoseFlags,
+    /// Version of the parameter set in use; 0 for nominal.
+    pub param_version: u16,
+}
+
 #[cfg(test)]
 mod tests {
+    use super::PoseFlags;
     use super::*;
-    use crate::candump::Timestamp;
-    use crate::pipeline::PoseFlags;
+    use canodom_can::candump::Timestamp;
     use canodom_dbc::FrameId;
 
     fn pose(x: f64) -> PoseOutput {

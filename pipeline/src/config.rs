@@ -13,11 +13,11 @@
 //! live session over CAN: command id, arming code, parameter file, bounds,
 //! uncertainty limits, write-back timing; see [`CalibrationConfig`]).
 
-use crate::own_dbc::BaseId;
 use canodom_dbc::{Checksum, ChecksumAlgorithm, Database, SignalHandle};
 use canodom_fusion::ekf::EkfConfig;
 use canodom_fusion::wheel::{InputConfig, SpeedUnit};
 use canodom_fusion::{SteeringMap, VehicleParams, WheelSet};
+use canodom_protocol::own_dbc::BaseId;
 use serde::Deserialize;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -172,7 +172,7 @@ struct RawOutput {
 impl Default for RawOutput {
     fn default() -> Self {
         Self {
-            base_id: crate::own_dbc::DEFAULT_BASE_ID,
+            base_id: canodom_protocol::own_dbc::DEFAULT_BASE_ID,
             extended: false,
             pose_rate_hz: 50.0,
             publish_on_update: false,
@@ -231,7 +231,7 @@ impl Default for RawCalibration {
             max_steer_offset_std_deg: 0.5,
             ack_timeout_ms: 500,
             writeback_retries: 3,
-            max_history: crate::persist::DEFAULT_MAX_HISTORY,
+            max_history: canodom_params::persist::DEFAULT_MAX_HISTORY,
             standstill_speed_mps: 0.01,
             standstill_time_s: 1.0,
             fixes: None,
@@ -357,13 +357,13 @@ pub struct CalibrationConfig {
     /// the configuration file).
     pub param_file: PathBuf,
     /// The only id `CALIB_CMD` is accepted on (default base id + 0x10).
-    pub command_id: crate::frame::CanId,
+    pub command_id: canodom_can::frame::CanId,
     /// When set, every `CALIB_CMD` and an `ODOM_CMD` RESET_POSE must carry
     /// this `ARMING_CODE`.
     pub arming_code: Option<u8>,
     /// Bounds around the nominal parameters a committed or loaded set must
     /// lie in (default ±30 %, steering offset ±10°).
-    pub bounds: crate::persist::ParamBounds,
+    pub bounds: canodom_params::persist::ParamBounds,
     /// Largest tread standard deviation a commit accepts, m (default 5 mm).
     pub max_tread_std_m: f64,
     /// Largest diameter-ratio standard deviation a commit accepts (default 0.002).
@@ -904,7 +904,7 @@ impl Validator<'_> {
         };
         for w in [wheels.rear_left, wheels.front_left, steering] {
             let id = db.messages()[w.message_index].id();
-            let own = (0..=crate::own_dbc::MAX_OFFSET).any(|off| {
+            let own = (0..=canodom_protocol::own_dbc::MAX_OFFSET).any(|off| {
                 base_id.id().raw() + off == id.raw()
                     && base_id.id().is_extended() == id.is_extended()
             });
@@ -969,9 +969,9 @@ impl Validator<'_> {
         base_id: BaseId,
         params: &VehicleParams,
     ) -> Result<CalibrationConfig, ConfigError> {
-        use crate::frame::CanId;
+        use canodom_can::frame::CanId;
         let command_id = match c.command_id {
-            None => crate::own_dbc::OwnFrame::CalibCmd.id(base_id),
+            None => canodom_protocol::own_dbc::OwnFrame::CalibCmd.id(base_id),
             Some(raw) => {
                 let id = if base_id.id().is_extended() {
                     CanId::extended(raw)
@@ -1007,7 +1007,7 @@ impl Validator<'_> {
         if c.param_file.as_os_str().is_empty() {
             return Err(self.err("calibration.param_file", "a file path", "\"\""));
         }
-        let mut bounds = crate::persist::ParamBounds::around(
+        let mut bounds = canodom_params::persist::ParamBounds::around(
             params.rear_tread_m(),
             params.rear_mean_diameter_m(),
             rel,
@@ -1171,7 +1171,7 @@ algorithm = "crc8_sae_j1850"
         assert_eq!(c.ekf.steer_offset_drift_rad, None);
         assert_eq!(
             c.output.base_id.id(),
-            crate::frame::CanId::Extended(0x18FF_0000)
+            canodom_can::frame::CanId::Extended(0x18FF_0000)
         );
         assert_eq!(c.output.pose_rate_hz, 10.0);
         assert_eq!(c.inputs.timeout_factor, 5.0);

@@ -13,11 +13,11 @@
 //! machine unchanged, `14..=18` the run [`Rejection`]s (`13 + code`), `19..`
 //! refusals of the protocol and the daemon.
 
-use crate::frame::{CanFrame, CanId, FrameError};
 use crate::own_dbc::{BaseId, OwnFrame, dbc_for_base};
 use canodom_calib::run::Rejection;
 use canodom_calib::session::{Instruction, Phase, Refusal};
 use canodom_calib::track::Direction;
+use canodom_can::frame::{CanFrame, CanId, FrameError};
 use canodom_dbc::{Checksum, Database, SignalHandle};
 
 /// Why a frame could not be encoded or decoded.

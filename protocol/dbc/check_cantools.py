@@ -4,7 +4,7 @@ mode and that every message, for every multiplexer value, round-trips example
 values through encode/decode within one LSB, with a valid CRC-8 in byte 7.
 
     python3 -m venv /tmp/venv && /tmp/venv/bin/pip install cantools
-    /tmp/venv/bin/python daemon/dbc/check_cantools.py [DBC] [--write-vectors JSON]
+    /tmp/venv/bin/python protocol/dbc/check_cantools.py [DBC] [--write-vectors JSON]
 
 Prints one line per checked frame (id, name, mux, hex payload) and a final
 "N passed, 0 failed" line; exits non-zero on any failure. With

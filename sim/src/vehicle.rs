@@ -4,11 +4,11 @@
 //! tests, so every frame the daemon reads in a test is one a real ECU with
 //! that DBC could have sent.
 
-use crate::config::{Config, SteeringKind, WheelKind};
-use crate::frame::{CanFrame, CanId};
+use canodom_can::frame::{CanFrame, CanId};
 use canodom_dbc::{Checksum, SignalHandle};
 use canodom_fusion::sim::{Direction, Plan, SimConfig, SteeringSensor, WheelOutput, family};
 use canodom_fusion::{SteeringMap, VehicleParams, Wheel};
+use canodom_pipeline::config::{Config, SteeringKind, WheelKind};
 use serde::Deserialize;
 use std::path::Path;
 

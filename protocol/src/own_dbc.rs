@@ -1,4 +1,4 @@
-//! canodom's own frames: the DBC shipped in `daemon/dbc/canodom.dbc`, the
+//! canodom's own frames: the DBC shipped in `protocol/dbc/canodom.dbc`, the
 //! id offsets from the configurable base id, and the same DBC rewritten for
 //! another base so CAN tools decode a relocated daemon from one file.
 //!
@@ -18,7 +18,7 @@
 //! Every frame is 8 bytes with `COUNTER` at bits 52..55 and a CRC-8 SAE
 //! J1850 `CHECKSUM` over bytes 0..=6 in byte 7, as in `rc_car.dbc`.
 
-use crate::frame::{CanId, MAX_EXTENDED_ID, MAX_STANDARD_ID};
+use canodom_can::frame::{CanId, MAX_EXTENDED_ID, MAX_STANDARD_ID};
 use std::fmt::Write as _;
 
 /// The DBC text for the default base id.

@@ -1,0 +1,15 @@
+//! CAN on the wire and on disk, for canodom: the frame value type, log
+//! timestamps, the `candump -L` log format, and the transports frames travel
+//! through (an in-process bus for tests and demos, SocketCAN for vehicles).
+//!
+//! It knows nothing of what frames mean: decoding is `canodom-dbc`'s job,
+//! canodom's own frames are `canodom-protocol`'s.
+//!
+//! Layout:
+//! - [`frame`]: the CAN frame value type (classic, FD, remote, error frames).
+//! - [`candump`]: the `candump -L` log format, streaming parser and formatter, and [`candump::Timestamp`].
+//! - [`bus`]: the transport trait, with the in-process bus and SocketCAN.
+
+pub mod bus;
+pub mod candump;
+pub mod frame;

@@ -1,0 +1,13 @@
+//! From a vehicle's CAN frames to the fused pose, without I/O: the
+//! configuration (TOML, validated once into typed values against the DBC),
+//! the pipeline that decodes the configured signals and drives the EKF, and
+//! the counts of frames it rejected and why.
+//!
+//! Layout:
+//! - [`config`]: the TOML configuration, validated once into typed values.
+//! - [`pipeline`]: the frame → EKF core shared by run, replay, calibrate and demo.
+//! - [`stats`]: reject reasons and counters.
+
+pub mod config;
+pub mod pipeline;
+pub mod stats;

@@ -1,0 +1,12 @@
+//! canodom's own CAN protocol: the frames canodom sends and listens to,
+//! described by its own DBC (`protocol/dbc/canodom.dbc`) at a configurable
+//! base id.
+//!
+//! Layout:
+//! - [`own_dbc`]: the DBC, its id map and the base id.
+//! - [`pose_frames`]: the published pose ([`pose_frames::PoseOutput`]) encoded into pose frames.
+//! - [`calib_wire`]: the calibration commands, status and parameter frames as typed values.
+
+pub mod calib_wire;
+pub mod own_dbc;
+pub mod pose_frames;
