@@ -4,7 +4,7 @@
 //! `CARGO_TARGET_DIR=/work/tgt/daemon cargo bench -p canodom --bench candump`
 
 use canodom_can::candump::{LogReader, Record, Timestamp, format_record};
-use canodom_can::frame::{CanFrame, CanId};
+use canodom_can::frame::{CanFrame, FrameId};
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use std::hint::black_box;
 use std::time::Duration;
@@ -28,7 +28,8 @@ fn generated_log(lines: usize) -> Vec<u8> {
             2 => (0x110, 8),
             _ => (0x120, 4),
         };
-        let frame = CanFrame::new_data(CanId::Standard(id), &payload[..len]).expect("valid frame");
+        let frame =
+            CanFrame::new_data(FrameId::Standard(id), &payload[..len]).expect("valid frame");
         let record = Record {
             timestamp: Timestamp::from_micros(1_700_000_000_000_000 + (i as u64 / 4) * 10_000),
             iface: "vcan0",

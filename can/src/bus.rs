@@ -16,7 +16,7 @@
 //! so a configuration behaves the same in `demo` and on a vehicle.
 
 use crate::candump::Timestamp;
-use crate::frame::{CanFrame, CanId, ErrorFrame, FrameKind, MAX_EXTENDED_ID};
+use crate::frame::{CanFrame, ErrorFrame, FrameId, FrameKind, MAX_EXTENDED_ID};
 use std::future::Future;
 use std::io;
 use std::sync::Arc;
@@ -125,14 +125,14 @@ impl BusError {
 /// filters this is translated into (RTR bit in the mask).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct IdFilter {
-    id: CanId,
+    id: FrameId,
     mask: u32,
     accept_all: bool,
 }
 
 impl IdFilter {
     /// Exactly this identifier (data and FD frames).
-    pub fn exact(id: CanId) -> Self {
+    pub fn exact(id: FrameId) -> Self {
         Self {
             id,
             mask: MAX_EXTENDED_ID,
@@ -141,7 +141,7 @@ impl IdFilter {
     }
 
     /// Identifiers equal to `id` on the bits of `mask`.
-    pub fn masked(id: CanId, mask: u32) -> Self {
+    pub fn masked(id: FrameId, mask: u32) -> Self {
         Self {
             id,
             mask: mask & MAX_EXTENDED_ID,
@@ -152,7 +152,7 @@ impl IdFilter {
     /// Every frame.
     pub fn accept_all() -> Self {
         Self {
-            id: CanId::Standard(0),
+            id: FrameId::Standard(0),
             mask: 0,
             accept_all: true,
         }
@@ -444,7 +444,7 @@ mod socketcan_bus {
         drops_from_meminfo,
     };
     use crate::candump::Timestamp;
-    use crate::frame::{CanFrame, CanId, FrameKind, MAX_EXTENDED_ID};
+    use crate::frame::{CanFrame, FrameId, FrameKind, MAX_EXTENDED_ID};
     use socketcan::{
         CanAnyFrame, CanDataFrame, CanFdFrame, CanFilter, CanRemoteFrame, EmbeddedFrame, Id,
         SocketOptions, id::FdFlags, tokio::CanFdSocket,
@@ -533,10 +533,10 @@ mod socketcan_bus {
         CanFilter::new(f.id.raw() | eff, f.mask | CAN_EFF_FLAG | CAN_RTR_FLAG)
     }
 
-    fn id_of(id: Id) -> CanId {
+    fn id_of(id: Id) -> FrameId {
         match id {
-            Id::Standard(s) => CanId::Standard(s.as_raw()),
-            Id::Extended(e) => CanId::Extended(e.as_raw()),
+            Id::Standard(s) => FrameId::Standard(s.as_raw()),
+            Id::Extended(e) => FrameId::Extended(e.as_raw()),
         }
     }
 
@@ -684,8 +684,8 @@ mod socketcan_bus {
     impl FrameSink for SocketCanTx {
         async fn send(&self, frame: &CanFrame) -> Result<(), BusError> {
             let id: Id = match frame.id() {
-                CanId::Standard(raw) => socketcan::StandardId::new(raw).map(Id::Standard),
-                CanId::Extended(raw) => {
+                FrameId::Standard(raw) => socketcan::StandardId::new(raw).map(Id::Standard),
+                FrameId::Extended(raw) => {
                     socketcan::ExtendedId::new(raw & MAX_EXTENDED_ID).map(Id::Extended)
                 }
             }
@@ -722,7 +722,7 @@ mod tests {
     use crate::frame::{ErrorSeverity, err_class};
 
     fn data(id: u16, b: &[u8]) -> CanFrame {
-        CanFrame::new_data(CanId::Standard(id), b).unwrap()
+        CanFrame::new_data(FrameId::Standard(id), b).unwrap()
     }
 
     async fn next_frame(rx: &mut InProcessRx) -> Received {
@@ -774,18 +774,18 @@ mod tests {
         let (mut rx, _) = bus.open().unwrap();
         let (_, tx) = bus.open().unwrap();
         rx.set_filters(&[
-            IdFilter::exact(CanId::Standard(0x100)),
-            IdFilter::masked(CanId::Extended(0x1800_0000), 0x1F00_0000),
+            IdFilter::exact(FrameId::Standard(0x100)),
+            IdFilter::masked(FrameId::Extended(0x1800_0000), 0x1F00_0000),
         ])
         .unwrap();
         let sent = [
-            data(0x101, &[0]),                                               // other id
-            CanFrame::new_data(CanId::Extended(0x100), &[1]).unwrap(),       // wrong format
-            CanFrame::new_remote(CanId::Standard(0x100), 2, None).unwrap(),  // remote
-            data(0x100, &[2]),                                               // passes
-            CanFrame::new_data(CanId::Extended(0x18FE_F100), &[3]).unwrap(), // passes (mask)
-            CanFrame::new_data(CanId::Extended(0x19FE_F100), &[4]).unwrap(), // masked out
-            CanFrame::new_fd(CanId::Standard(0x100), 1, &[5; 12]).unwrap(),  // FD passes
+            data(0x101, &[0]),                                                 // other id
+            CanFrame::new_data(FrameId::Extended(0x100), &[1]).unwrap(),       // wrong format
+            CanFrame::new_remote(FrameId::Standard(0x100), 2, None).unwrap(),  // remote
+            data(0x100, &[2]),                                                 // passes
+            CanFrame::new_data(FrameId::Extended(0x18FE_F100), &[3]).unwrap(), // passes (mask)
+            CanFrame::new_data(FrameId::Extended(0x19FE_F100), &[4]).unwrap(), // masked out
+            CanFrame::new_fd(FrameId::Standard(0x100), 1, &[5; 12]).unwrap(),  // FD passes
         ];
         for f in &sent {
             tx.send(f).await.unwrap();

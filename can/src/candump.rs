@@ -32,7 +32,7 @@
 //! a 256-entry table, and the formatter appends bytes to a caller's `Vec`.
 
 use crate::frame::{
-    CAN_ERR_FLAG, CLASSIC_MAX_LEN, CanFrame, CanId, ERROR_FRAME_LEN, FD_MAX_LEN, FrameKind,
+    CAN_ERR_FLAG, CLASSIC_MAX_LEN, CanFrame, ERROR_FRAME_LEN, FD_MAX_LEN, FrameId, FrameKind,
     MAX_EXTENDED_ID, MAX_STANDARD_ID, is_fd_len,
 };
 use std::fmt;
@@ -126,7 +126,7 @@ pub struct ClassicData {
     /// Receive time.
     pub timestamp: Timestamp,
     /// The identifier.
-    pub id: CanId,
+    pub id: FrameId,
     /// Payload length, at most [`CLASSIC_MAX_LEN`].
     len: u8,
     /// The payload, zero past `len`.
@@ -712,9 +712,9 @@ fn parse_common(text: &[u8], known_iface: &[u8]) -> Option<Common> {
         raw = (raw << 4) | u32::from(v);
     }
     let id = match digits {
-        3 if raw <= MAX_STANDARD_ID => CanId::Standard(raw as u16),
+        3 if raw <= MAX_STANDARD_ID => FrameId::Standard(raw as u16),
         // Above MAX_EXTENDED_ID lie CAN_ERR_FLAG (error frames) and errors.
-        8 if raw <= MAX_EXTENDED_ID => CanId::Extended(raw),
+        8 if raw <= MAX_EXTENDED_ID => FrameId::Extended(raw),
         _ => return None,
     };
     let (data, len, end) = payload(text, id_start + digits + 1)?;
@@ -845,7 +845,7 @@ fn parse_iface<'a>(c: &mut Cursor<'a>) -> Result<&'a str, Reason> {
 
 /// What an identifier field denotes.
 enum Target {
-    Id(CanId),
+    Id(FrameId),
     /// Error class bits (the id had `CAN_ERR_FLAG`).
     Error(u32),
 }
@@ -867,7 +867,7 @@ fn parse_frame(c: &mut Cursor<'_>) -> Result<CanFrame, Reason> {
         return Err(Reason::BadId);
     }
     let target = match digits {
-        3 if raw <= MAX_STANDARD_ID => Target::Id(CanId::Standard(raw as u16)),
+        3 if raw <= MAX_STANDARD_ID => Target::Id(FrameId::Standard(raw as u16)),
         8 if raw & CAN_ERR_FLAG != 0 => {
             let class = raw & !CAN_ERR_FLAG;
             if class > MAX_EXTENDED_ID {
@@ -875,7 +875,7 @@ fn parse_frame(c: &mut Cursor<'_>) -> Result<CanFrame, Reason> {
             }
             Target::Error(class)
         }
-        8 if raw <= MAX_EXTENDED_ID => Target::Id(CanId::Extended(raw)),
+        8 if raw <= MAX_EXTENDED_ID => Target::Id(FrameId::Extended(raw)),
         3 | 8 => return Err(Reason::IdOutOfRange),
         _ => return Err(Reason::BadId),
     };
@@ -1008,8 +1008,8 @@ pub fn format_frame(out: &mut Vec<u8>, frame: &CanFrame) {
     match frame.kind() {
         FrameKind::Error => push_hex_fixed(out, frame.id().raw() | CAN_ERR_FLAG, 8),
         _ => match frame.id() {
-            CanId::Standard(id) => push_hex_fixed(out, u32::from(id), 3),
-            CanId::Extended(id) => push_hex_fixed(out, id, 8),
+            FrameId::Standard(id) => push_hex_fixed(out, u32::from(id), 3),
+            FrameId::Extended(id) => push_hex_fixed(out, id, 8),
         },
     }
     out.push(b'#');
@@ -1088,7 +1088,7 @@ mod tests {
         assert_eq!(r.timestamp.secs(), 1_700_000_000);
         assert_eq!(r.timestamp.subsec_micros(), 123_456);
         assert_eq!(r.iface, "vcan0");
-        assert_eq!(r.frame.id(), CanId::Standard(0x123));
+        assert_eq!(r.frame.id(), FrameId::Standard(0x123));
         assert_eq!(r.frame.data(), &[0xDE, 0xAD, 0xBE, 0xEF]);
         assert_eq!(r.frame.kind(), FrameKind::Data { len8_dlc: None });
         assert_eq!(r.direction, None);
@@ -1097,9 +1097,9 @@ mod tests {
     #[test]
     fn id_width_decides_format() {
         let ext = parse("(0000000001.000000) can0 00000123#01").unwrap();
-        assert_eq!(ext.frame.id(), CanId::Extended(0x123));
+        assert_eq!(ext.frame.id(), FrameId::Extended(0x123));
         let max = parse("(0000000001.000000) can0 1FFFFFFF#").unwrap();
-        assert_eq!(max.frame.id(), CanId::Extended(0x1FFF_FFFF));
+        assert_eq!(max.frame.id(), FrameId::Extended(0x1FFF_FFFF));
         assert!(max.frame.is_empty());
         assert_eq!(parse("(1.000000) can0 800#01"), Err(Reason::IdOutOfRange));
         assert_eq!(
@@ -1295,7 +1295,7 @@ mod tests {
         );
         let mut r = LogReader::new(log.as_bytes());
         let first = r.next_record().unwrap().unwrap();
-        assert_eq!(first.frame.id(), CanId::Standard(0x123));
+        assert_eq!(first.frame.id(), FrameId::Standard(0x123));
         match r.next_record() {
             Err(ReadError::Malformed(m)) => {
                 assert_eq!(
@@ -1328,7 +1328,7 @@ mod tests {
             other => panic!("{other:?}"),
         }
         let third = r.next_record().unwrap().unwrap();
-        assert_eq!(third.frame.id(), CanId::Standard(0x125));
+        assert_eq!(third.frame.id(), FrameId::Standard(0x125));
         assert_eq!(r.line_no(), 6);
         assert!(r.next_record().unwrap().is_none());
         assert!(r.next_record().unwrap().is_none());
@@ -1462,10 +1462,10 @@ mod tests {
         assert!(parse_common(b"(1.000000) can0 123#00\r", b"").is_none());
     }
 
-    fn arb_id() -> impl Strategy<Value = CanId> {
+    fn arb_id() -> impl Strategy<Value = FrameId> {
         prop_oneof![
-            (0..=MAX_STANDARD_ID).prop_map(|v| CanId::Standard(v as u16)),
-            (0..=MAX_EXTENDED_ID).prop_map(CanId::Extended),
+            (0..=MAX_STANDARD_ID).prop_map(|v| FrameId::Standard(v as u16)),
+            (0..=MAX_EXTENDED_ID).prop_map(FrameId::Extended),
         ]
     }
 

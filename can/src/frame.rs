@@ -26,50 +26,9 @@ pub const FD_MAX_LEN: usize = 64;
 /// Payload length of every kernel error frame (`CAN_ERR_DLC`).
 pub const ERROR_FRAME_LEN: usize = 8;
 
-/// A CAN identifier; the variant is the frame format, not a range of values
-/// (`00000123` in a log is an extended frame with id 0x123).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
-pub enum CanId {
-    /// 11-bit identifier.
-    Standard(u16),
-    /// 29-bit identifier.
-    Extended(u32),
-}
-
-impl CanId {
-    /// A standard identifier, or `None` above 0x7FF.
-    pub fn standard(raw: u32) -> Option<Self> {
-        (raw <= MAX_STANDARD_ID).then_some(Self::Standard(raw as u16))
-    }
-
-    /// An extended identifier, or `None` above 0x1FFF_FFFF.
-    pub fn extended(raw: u32) -> Option<Self> {
-        (raw <= MAX_EXTENDED_ID).then_some(Self::Extended(raw))
-    }
-
-    /// The numeric identifier without format flags.
-    pub fn raw(self) -> u32 {
-        match self {
-            Self::Standard(id) => u32::from(id),
-            Self::Extended(id) => id,
-        }
-    }
-
-    /// Whether this is a 29-bit identifier.
-    pub fn is_extended(self) -> bool {
-        matches!(self, Self::Extended(_))
-    }
-}
-
-impl fmt::Display for CanId {
-    /// candump's spelling: three hex digits for standard, eight for extended.
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            Self::Standard(id) => write!(f, "{id:03X}"),
-            Self::Extended(id) => write!(f, "{id:08X}"),
-        }
-    }
-}
+/// The CAN identifier is the DBC crate's: one type for an id on the bus, in a
+/// log and in a DBC file, so no conversion stands between a frame and its message.
+pub use canodom_dbc::FrameId;
 
 /// What kind of frame this is, with the per-kind details.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -125,7 +84,7 @@ pub enum FrameError {
 pub struct CanFrame {
     /// For error frames: the error class bits (`can_id` without `CAN_ERR_FLAG`),
     /// stored as `Extended`.
-    id: CanId,
+    id: FrameId,
     kind: FrameKind,
     len: u8,
     data: [u8; FD_MAX_LEN],
@@ -157,7 +116,7 @@ impl CanFrame {
     ///
     /// # Errors
     /// [`FrameError`] when the arguments break the kind's limits.
-    pub fn new_data(id: CanId, bytes: &[u8]) -> Result<Self, FrameError> {
+    pub fn new_data(id: FrameId, bytes: &[u8]) -> Result<Self, FrameError> {
         Self::new_data_with_dlc(id, bytes, None)
     }
 
@@ -167,7 +126,7 @@ impl CanFrame {
     /// [`FrameError`] when the arguments break the kind's limits.
     #[inline]
     pub fn new_data_with_dlc(
-        id: CanId,
+        id: FrameId,
         bytes: &[u8],
         len8_dlc: Option<u8>,
     ) -> Result<Self, FrameError> {
@@ -190,7 +149,7 @@ impl CanFrame {
     ///
     /// # Errors
     /// [`FrameError`] when the arguments break the kind's limits.
-    pub fn new_remote(id: CanId, len: usize, len8_dlc: Option<u8>) -> Result<Self, FrameError> {
+    pub fn new_remote(id: FrameId, len: usize, len8_dlc: Option<u8>) -> Result<Self, FrameError> {
         if len > CLASSIC_MAX_LEN {
             return Err(FrameError::TooLong {
                 len,
@@ -211,7 +170,7 @@ impl CanFrame {
     /// # Errors
     /// [`FrameError`] when the arguments break the kind's limits.
     #[inline]
-    pub fn new_fd(id: CanId, flags: u8, bytes: &[u8]) -> Result<Self, FrameError> {
+    pub fn new_fd(id: FrameId, flags: u8, bytes: &[u8]) -> Result<Self, FrameError> {
         if bytes.len() > FD_MAX_LEN {
             return Err(FrameError::TooLong {
                 len: bytes.len(),
@@ -242,7 +201,7 @@ impl CanFrame {
             return Err(FrameError::BadErrorClass(class));
         }
         Ok(Self {
-            id: CanId::Extended(class),
+            id: FrameId::Extended(class),
             kind: FrameKind::Error,
             len: ERROR_FRAME_LEN as u8,
             data: payload(&detail),
@@ -251,7 +210,7 @@ impl CanFrame {
 
     /// The identifier (for error frames, the error class bits; prefer
     /// [`CanFrame::as_error`]).
-    pub fn id(&self) -> CanId {
+    pub fn id(&self) -> FrameId {
         self.id
     }
 
@@ -452,21 +411,8 @@ mod tests {
     use super::*;
 
     #[test]
-    fn id_ranges_follow_the_format() {
-        assert_eq!(CanId::standard(0x7FF), Some(CanId::Standard(0x7FF)));
-        assert_eq!(CanId::standard(0x800), None);
-        assert_eq!(
-            CanId::extended(0x1FFF_FFFF).map(CanId::raw),
-            Some(0x1FFF_FFFF)
-        );
-        assert_eq!(CanId::extended(0x2000_0000), None);
-        assert_eq!(CanId::Standard(0x12).to_string(), "012");
-        assert_eq!(CanId::Extended(0x12).to_string(), "00000012");
-    }
-
-    #[test]
     fn constructors_check_lengths() {
-        let id = CanId::Standard(1);
+        let id = FrameId::Standard(1);
         assert!(CanFrame::new_data(id, &[0; 8]).is_ok());
         assert_eq!(
             CanFrame::new_data(id, &[0; 9]),
@@ -502,7 +448,7 @@ mod tests {
 
     #[test]
     fn remote_frames_carry_no_payload() {
-        let f = CanFrame::new_remote(CanId::Standard(0x10), 4, None).unwrap();
+        let f = CanFrame::new_remote(FrameId::Standard(0x10), 4, None).unwrap();
         assert_eq!(f.len(), 4);
         assert!(f.data().is_empty());
         assert!(!f.is_data());
@@ -558,7 +504,7 @@ mod tests {
         assert_eq!(with.as_error().unwrap().error_counters(), Some((130, 5)));
         assert_eq!(without.as_error().unwrap().error_counters(), None);
         assert!(
-            CanFrame::new_data(CanId::Standard(1), &[])
+            CanFrame::new_data(FrameId::Standard(1), &[])
                 .unwrap()
                 .as_error()
                 .is_none()

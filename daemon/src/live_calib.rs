@@ -1127,7 +1127,7 @@ impl LiveCalibration {
         Self::frames(self.wire.params_id(), &pages)
     }
 
-    fn frames(id: canodom_can::frame::CanId, pages: &[[u8; 8]]) -> Vec<Output> {
+    fn frames(id: canodom_can::frame::FrameId, pages: &[[u8; 8]]) -> Vec<Output> {
         pages
             .iter()
             .filter_map(|p| CalibWire::frame(id, p).ok())

@@ -25,7 +25,7 @@ use canodom_can::bus::{
     BusError, BusEvent, FrameSink, FrameSource, IdFilter, InProcessBus, Received,
 };
 use canodom_can::candump::Timestamp;
-use canodom_can::frame::{CanFrame, CanId, ErrorSeverity};
+use canodom_can::frame::{CanFrame, ErrorSeverity, FrameId};
 use canodom_dbc::{Checksum, Database, SignalHandle};
 use canodom_fusion::ekf::State;
 use canodom_pipeline::config::Config;
@@ -230,15 +230,6 @@ impl InProcessDaemon {
     }
 }
 
-/// The transport's id of a DBC message id.
-fn can_id_of(id: canodom_dbc::FrameId) -> CanId {
-    if id.is_extended() {
-        CanId::Extended(id.raw())
-    } else {
-        CanId::Standard(id.raw() as u16)
-    }
-}
-
 /// Runs the daemon until `shutdown` completes or the transport fails for good.
 ///
 /// # Errors
@@ -262,13 +253,12 @@ pub async fn run<C: Connector>(
     let encoder = PoseEncoder::new(config.output.base_id)?;
     let cmd_id = OwnFrame::OdomCmd.id(config.output.base_id);
     let fixes = config.calibration.fixes.map(|f| {
-        let id = can_id_of(config.db.messages()[f.message_index].id());
+        let id = config.db.messages()[f.message_index].id();
         (id, f)
     });
     let filters: Vec<IdFilter> = config
         .input_ids()
         .into_iter()
-        .map(can_id_of)
         .chain([cmd_id, calib_cmd_id, calib_ack_id])
         .chain(fixes.map(|(id, _)| id))
         .map(IdFilter::exact)
@@ -355,7 +345,7 @@ pub async fn run<C: Connector>(
 fn live_calibration(
     config: &Config,
     nominal: canodom_fusion::VehicleParams,
-) -> Result<(LiveCalibration, CanId), RunError> {
+) -> Result<(LiveCalibration, FrameId), RunError> {
     let cal = &config.calibration;
     let file = canodom_params::persist::load(&cal.param_file, &cal.bounds).unwrap_or_default();
     let wire = CalibWire::new(config.output.base_id)?;
@@ -669,9 +659,9 @@ struct PipelineTask<Tx> {
     pose_period: Duration,
     stats_period: Duration,
     publish_on_update: bool,
-    cmd_id: CanId,
+    cmd_id: FrameId,
     /// The bus's position fixes (`[calibration.fixes]`): their id and signals.
-    fixes: Option<(CanId, canodom_pipeline::config::FixSignals)>,
+    fixes: Option<(FrameId, canodom_pipeline::config::FixSignals)>,
     odom_commands: OdomCommands,
     odom_refusals: OdomRefusals,
     notifier: Option<Notifier>,
@@ -685,8 +675,8 @@ struct PipelineTask<Tx> {
     link_lost: mpsc::Sender<BusError>,
     outages: Arc<AtomicU64>,
     live: LiveCalibration,
-    calib_cmd_id: CanId,
-    calib_ack_id: CanId,
+    calib_cmd_id: FrameId,
+    calib_ack_id: FrameId,
     report_root: std::path::PathBuf,
 }
 

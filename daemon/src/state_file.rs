@@ -415,7 +415,7 @@ pub fn load(path: &Path) -> Result<SavedState, StateFileError> {
 mod tests {
     use super::*;
     use crate::server::{InProcessDaemon, Observers};
-    use canodom_can::frame::{CanFrame, CanId};
+    use canodom_can::frame::{CanFrame, FrameId};
     use canodom_sim::drive::simulator;
     use canodom_sim::vehicle::{PathKind, SampleEncoder};
     use std::sync::Arc;
@@ -462,12 +462,12 @@ mod tests {
             if sent.is_multiple_of(300) {
                 let rear = frames
                     .iter()
-                    .find(|f| f.id() == CanId::Standard(0x100))
+                    .find(|f| f.id() == FrameId::Standard(0x100))
                     .unwrap();
                 let mut data = [0u8; 8];
                 data.copy_from_slice(rear.data());
                 data[7] ^= 0x5A;
-                let bad = CanFrame::new_data(CanId::Standard(0x100), &data).unwrap();
+                let bad = CanFrame::new_data(FrameId::Standard(0x100), &data).unwrap();
                 canodom_can::bus::FrameSink::send(&tx, &bad).await.unwrap();
                 sent += 1;
             }

@@ -4,7 +4,7 @@
 use crate::util::{frames_of, rc_car, simulated_log};
 use canodom::cmd::replay::replay;
 use canodom_can::candump::Timestamp;
-use canodom_can::frame::{CanFrame, CanId};
+use canodom_can::frame::{CanFrame, FrameId};
 use canodom_pipeline::config::Config;
 use canodom_pipeline::pipeline::Pipeline;
 use canodom_pipeline::stats::Reject;
@@ -12,7 +12,7 @@ use canodom_sim::vehicle::PathKind;
 use proptest::prelude::*;
 use std::fmt::Write as _;
 
-const REAR: CanId = CanId::Standard(0x100);
+const REAR: FrameId = FrameId::Standard(0x100);
 
 /// The first `n` frames of a simulated rc_car drive.
 fn clean(n: usize) -> (Config, Vec<(Timestamp, CanFrame)>) {
@@ -93,7 +93,7 @@ fn bad_checksum_frames() {
 #[test]
 fn unknown_ids() {
     assert_counted_and_harmless(Reject::UnknownId, |f| {
-        CanFrame::new_data(CanId::Standard(0x7FE), f.data()).unwrap()
+        CanFrame::new_data(FrameId::Standard(0x7FE), f.data()).unwrap()
     });
 }
 
@@ -172,8 +172,8 @@ fn duplicate_samples_are_wheel_faults() {
 fn nan_float_signals() {
     let path = crate::util::manifest().join("tests/fixtures/float_car.toml");
     let config = Config::load(&path).unwrap();
-    let wheels = CanId::Standard(0x200);
-    let steer = CanId::Standard(0x201);
+    let wheels = FrameId::Standard(0x200);
+    let steer = FrameId::Standard(0x201);
     let mut p = Pipeline::new(&config).unwrap();
     let speed = 500i16.to_le_bytes(); // 0.5 m/s
     let wheel_data = [speed, speed, speed, speed].concat();
@@ -329,9 +329,9 @@ fn arb_frame() -> impl Strategy<Value = (u64, CanFrame)> {
     )
         .prop_map(|(t, id, data, remote)| {
             let f = if remote {
-                CanFrame::new_remote(CanId::Standard(id), data.len(), None).unwrap()
+                CanFrame::new_remote(FrameId::Standard(id), data.len(), None).unwrap()
             } else {
-                CanFrame::new_data(CanId::Standard(id), &data).unwrap()
+                CanFrame::new_data(FrameId::Standard(id), &data).unwrap()
             };
             (t, f)
         })

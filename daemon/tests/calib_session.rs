@@ -11,7 +11,7 @@
 use crate::util::{rc_car, tmp_dir};
 use canodom::server::{InProcessDaemon, Observers};
 use canodom_can::bus::{BusEvent, FrameSink, FrameSource, InProcessTx};
-use canodom_can::frame::CanId;
+use canodom_can::frame::FrameId;
 use canodom_dbc::Database;
 use canodom_fusion::sim::{Direction, Plan, simulate};
 use canodom_fusion::{VehicleParams, Wheel};
@@ -48,7 +48,7 @@ struct Driver {
 }
 
 impl Driver {
-    async fn raw(&self, id: CanId, data: [u8; 8]) {
+    async fn raw(&self, id: FrameId, data: [u8; 8]) {
         self.tx
             .send(&CalibWire::frame(id, &data).unwrap())
             .await
@@ -256,7 +256,7 @@ async fn a_driven_session_commits_the_true_parameters_and_writes_them_back() {
 
     // Refusals, in Idle.
     let seq = driver.counts().cmd_seq;
-    let wrong_id = CanId::Standard(0x123);
+    let wrong_id = FrameId::Standard(0x123);
     driver
         .raw(
             wrong_id,

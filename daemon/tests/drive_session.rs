@@ -7,7 +7,7 @@
 use crate::util::tmp_dir;
 use canodom::server::{InProcessDaemon, Observers};
 use canodom_can::bus::FrameSink;
-use canodom_can::frame::{CanFrame, CanId};
+use canodom_can::frame::{CanFrame, FrameId};
 use canodom_fusion::sim::{Plan, simulate};
 use canodom_pipeline::config::Config;
 use canodom_pipeline::pipeline::Pipeline;
@@ -80,7 +80,7 @@ async fn a_drive_with_fixes_on_the_bus_commits_the_true_ratio() {
             let data = gnss
                 .encode(&[("X", s.true_pose.x_m), ("Y", s.true_pose.y_m)])
                 .unwrap();
-            frames.push(CanFrame::new_data(CanId::Standard(768), &data).unwrap());
+            frames.push(CanFrame::new_data(FrameId::Standard(768), &data).unwrap());
         }
         for f in &frames {
             tx.send(f).await.unwrap();

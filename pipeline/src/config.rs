@@ -357,7 +357,7 @@ pub struct CalibrationConfig {
     /// the configuration file).
     pub param_file: PathBuf,
     /// The only id `CALIB_CMD` is accepted on (default base id + 0x10).
-    pub command_id: canodom_can::frame::CanId,
+    pub command_id: canodom_can::frame::FrameId,
     /// When set, every `CALIB_CMD` and an `ODOM_CMD` RESET_POSE must carry
     /// this `ARMING_CODE`.
     pub arming_code: Option<u8>,
@@ -969,14 +969,16 @@ impl Validator<'_> {
         base_id: BaseId,
         params: &VehicleParams,
     ) -> Result<CalibrationConfig, ConfigError> {
-        use canodom_can::frame::CanId;
+        use canodom_can::frame::FrameId;
         let command_id = match c.command_id {
             None => canodom_protocol::own_dbc::OwnFrame::CalibCmd.id(base_id),
             Some(raw) => {
                 let id = if base_id.id().is_extended() {
-                    CanId::extended(raw)
+                    FrameId::extended(raw).ok()
                 } else {
-                    CanId::standard(raw)
+                    u16::try_from(raw)
+                        .ok()
+                        .and_then(|r| FrameId::standard(r).ok())
                 };
                 id.ok_or_else(|| {
                     self.err(
@@ -1171,7 +1173,7 @@ algorithm = "crc8_sae_j1850"
         assert_eq!(c.ekf.steer_offset_drift_rad, None);
         assert_eq!(
             c.output.base_id.id(),
-            canodom_can::frame::CanId::Extended(0x18FF_0000)
+            canodom_can::frame::FrameId::Extended(0x18FF_0000)
         );
         assert_eq!(c.output.pose_rate_hz, 10.0);
         assert_eq!(c.inputs.timeout_factor, 5.0);

@@ -479,15 +479,13 @@ impl Pipeline {
 
     /// The index into `inputs` of the message with this id.
     #[inline]
-    fn input_index(&self, id: canodom_can::frame::CanId) -> Option<usize> {
+    fn input_index(&self, id: FrameId) -> Option<usize> {
         match id {
-            canodom_can::frame::CanId::Standard(s) => self
+            FrameId::Standard(s) => self
                 .standard_inputs
                 .get(usize::from(s))
                 .and_then(|&slot| usize::from(slot).checked_sub(1)),
-            canodom_can::frame::CanId::Extended(e) => FrameId::extended(e)
-                .ok()
-                .and_then(|id| find(&self.inputs, id)),
+            FrameId::Extended(_) => find(&self.inputs, id),
         }
     }
 
@@ -496,7 +494,7 @@ impl Pipeline {
     pub fn push_data(
         &mut self,
         t: Timestamp,
-        id: canodom_can::frame::CanId,
+        id: canodom_can::frame::FrameId,
         data: &[u8],
     ) -> Option<Step> {
         self.stats.frames += 1;

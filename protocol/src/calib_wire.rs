@@ -17,7 +17,7 @@ use crate::own_dbc::{BaseId, OwnFrame, dbc_for_base};
 use canodom_calib::run::Rejection;
 use canodom_calib::session::{Instruction, Phase, Refusal};
 use canodom_calib::track::Direction;
-use canodom_can::frame::{CanFrame, CanId, FrameError};
+use canodom_can::frame::{CanFrame, FrameError, FrameId};
 use canodom_dbc::{Checksum, Database, SignalHandle};
 
 /// Why a frame could not be encoded or decoded.
@@ -662,7 +662,7 @@ struct StatusHandles {
 #[derive(Debug)]
 pub struct CalibWire {
     db: Database,
-    ids: [CanId; 4],
+    ids: [FrameId; 4],
     crc: Checksum,
     cmd: [SignalHandle; 7],
     status: StatusHandles,
@@ -793,22 +793,22 @@ impl CalibWire {
     }
 
     /// Id of `CALIB_CMD` at this base.
-    pub fn cmd_id(&self) -> CanId {
+    pub fn cmd_id(&self) -> FrameId {
         self.ids[0]
     }
 
     /// Id of `CALIB_STATUS`.
-    pub fn status_id(&self) -> CanId {
+    pub fn status_id(&self) -> FrameId {
         self.ids[1]
     }
 
     /// Id of `CALIB_PARAMS`.
-    pub fn params_id(&self) -> CanId {
+    pub fn params_id(&self) -> FrameId {
         self.ids[2]
     }
 
     /// Id of `CALIB_ACK`.
-    pub fn ack_id(&self) -> CanId {
+    pub fn ack_id(&self) -> FrameId {
         self.ids[3]
     }
 
@@ -1219,7 +1219,7 @@ impl CalibWire {
     ///
     /// # Errors
     /// Never for 8-byte payloads.
-    pub fn frame(id: CanId, data: &[u8; 8]) -> Result<CanFrame> {
+    pub fn frame(id: FrameId, data: &[u8; 8]) -> Result<CanFrame> {
         Ok(CanFrame::new_data(id, data)?)
     }
 }
@@ -1765,7 +1765,7 @@ mod tests {
         data[0] ^= 1;
         assert!(w.decode_ack(&data).is_err());
         let ext = CalibWire::new(BaseId::new(0x18FF_0000, true).unwrap()).unwrap();
-        assert_eq!(ext.ack_id(), CanId::Extended(0x18FF_0013));
-        assert_eq!(wire().cmd_id(), CanId::Standard(0x610));
+        assert_eq!(ext.ack_id(), FrameId::Extended(0x18FF_0013));
+        assert_eq!(wire().cmd_id(), FrameId::Standard(0x610));
     }
 }

@@ -18,7 +18,7 @@
 //! Every frame is 8 bytes with `COUNTER` at bits 52..55 and a CRC-8 SAE
 //! J1850 `CHECKSUM` over bytes 0..=6 in byte 7, as in `rc_car.dbc`.
 
-use canodom_can::frame::{CanId, MAX_EXTENDED_ID, MAX_STANDARD_ID};
+use canodom_can::frame::{FrameId, MAX_EXTENDED_ID, MAX_STANDARD_ID};
 use std::fmt::Write as _;
 
 /// The DBC text for the default base id.
@@ -93,17 +93,17 @@ impl OwnFrame {
     }
 
     /// The frame's id for a base.
-    pub fn id(self, base: BaseId) -> CanId {
+    pub fn id(self, base: BaseId) -> FrameId {
         match base.0 {
-            CanId::Standard(b) => CanId::Standard(b + self.offset() as u16),
-            CanId::Extended(b) => CanId::Extended(b + self.offset()),
+            FrameId::Standard(b) => FrameId::Standard(b + self.offset() as u16),
+            FrameId::Extended(b) => FrameId::Extended(b + self.offset()),
         }
     }
 }
 
 /// A validated base id: every own frame's id fits its format.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub struct BaseId(CanId);
+pub struct BaseId(FrameId);
 
 /// A base id whose last frame would not fit the id format.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
@@ -119,7 +119,7 @@ pub struct BaseIdError {
 
 impl BaseId {
     /// The default base, 0x600 standard.
-    pub const DEFAULT: Self = Self(CanId::Standard(DEFAULT_BASE_ID as u16));
+    pub const DEFAULT: Self = Self(FrameId::Standard(DEFAULT_BASE_ID as u16));
 
     /// Validates `base` (standard or extended per `extended`).
     ///
@@ -135,14 +135,14 @@ impl BaseId {
             return Err(BaseIdError { base, kind, max });
         }
         Ok(Self(if extended {
-            CanId::Extended(base)
+            FrameId::Extended(base)
         } else {
-            CanId::Standard(base as u16)
+            FrameId::Standard(base as u16)
         }))
     }
 
     /// The base as an id.
-    pub fn id(self) -> CanId {
+    pub fn id(self) -> FrameId {
         self.0
     }
 }
@@ -150,8 +150,8 @@ impl BaseId {
 /// The DBC's message id (with bit 31 for extended) of a frame at `base`.
 fn dbc_id(frame: OwnFrame, base: BaseId) -> u32 {
     match frame.id(base) {
-        CanId::Standard(id) => u32::from(id),
-        CanId::Extended(id) => id | 0x8000_0000,
+        FrameId::Standard(id) => u32::from(id),
+        FrameId::Extended(id) => id | 0x8000_0000,
     }
 }
 
@@ -220,10 +220,10 @@ mod tests {
         Dbc::try_from(text).unwrap_or_else(|e| panic!("can-dbc rejects the DBC: {e:?}"))
     }
 
-    fn msg_id(id: CanId) -> MessageId {
+    fn msg_id(id: FrameId) -> MessageId {
         match id {
-            CanId::Standard(s) => MessageId::Standard(s),
-            CanId::Extended(e) => MessageId::Extended(e),
+            FrameId::Standard(s) => MessageId::Standard(s),
+            FrameId::Extended(e) => MessageId::Extended(e),
         }
     }
 
@@ -463,10 +463,10 @@ mod tests {
         assert!(BaseId::new(0x1FFF_FFED, true).is_err());
         assert!(BaseId::new(u32::MAX, true).is_err());
         let ext = BaseId::new(0x18FF_0000, true).unwrap();
-        assert_eq!(OwnFrame::CalibAck.id(ext), CanId::Extended(0x18FF_0013));
+        assert_eq!(OwnFrame::CalibAck.id(ext), FrameId::Extended(0x18FF_0013));
         assert_eq!(
             OwnFrame::CalibCmd.id(BaseId::DEFAULT),
-            CanId::Standard(0x610)
+            FrameId::Standard(0x610)
         );
     }
 

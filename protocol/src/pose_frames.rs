@@ -11,7 +11,7 @@ use canodom_dbc::{Checksum, Database, SignalHandle};
 /// Encodes pose samples; owns the rolling counter.
 #[derive(Debug)]
 pub struct PoseEncoder {
-    ids: [canodom_can::frame::CanId; 3],
+    ids: [canodom_can::frame::FrameId; 3],
     db: Database,
     x: SignalHandle,
     y: SignalHandle,

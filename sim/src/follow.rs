@@ -16,7 +16,7 @@
 
 use crate::vehicle::{SampleEncoder, sim_config};
 use canodom_can::bus::{BusEvent, FrameSink, FrameSource};
-use canodom_can::frame::{CanFrame, CanId};
+use canodom_can::frame::{CanFrame, FrameId};
 use canodom_fusion::sim::{Direction, Plan, Sample, Segment, SimConfig, Simulator};
 use canodom_fusion::{Pose, VehicleParams, Wheel};
 use canodom_pipeline::config::Config;
@@ -248,7 +248,7 @@ pub async fn follow<R: FrameSource, S: FrameSink>(
     out: &mut (dyn Write + Send),
 ) -> anyhow::Result<FollowSummary> {
     let wire = CalibWire::new(config.output.base_id)?;
-    let cmd_id: CanId = config.calibration.command_id;
+    let cmd_id: FrameId = config.calibration.command_id;
     let mut sim = sim_config(config, options.true_params);
     if let Some(v) = options.speed_mps {
         anyhow::ensure!(

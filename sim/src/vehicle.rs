@@ -4,7 +4,7 @@
 //! tests, so every frame the daemon reads in a test is one a real ECU with
 //! that DBC could have sent.
 
-use canodom_can::frame::{CanFrame, CanId};
+use canodom_can::frame::{CanFrame, FrameId};
 use canodom_dbc::{Checksum, SignalHandle};
 use canodom_fusion::sim::{Direction, Plan, SimConfig, SteeringSensor, WheelOutput, family};
 use canodom_fusion::{SteeringMap, VehicleParams, Wheel};
@@ -211,7 +211,7 @@ pub fn sim_config(config: &Config, true_params: VehicleParams) -> SimConfig {
 }
 
 struct OutMessage {
-    id: CanId,
+    id: FrameId,
     length: usize,
     wheels: Vec<(Wheel, SignalHandle)>,
     steering: bool,
@@ -259,9 +259,9 @@ impl SampleEncoder {
                 let id = m.id();
                 OutMessage {
                     id: if id.is_extended() {
-                        CanId::Extended(id.raw())
+                        FrameId::Extended(id.raw())
                     } else {
-                        CanId::Standard(id.raw() as u16)
+                        FrameId::Standard(id.raw() as u16)
                     },
                     length: m.length(),
                     wheels,

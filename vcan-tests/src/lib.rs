@@ -11,7 +11,7 @@
 //! with a time limit and finding the fixtures inside the guest.
 
 use canodom_can::candump::{LogReader, ReadError};
-use canodom_can::frame::{CanFrame, CanId};
+use canodom_can::frame::{CanFrame, FrameId};
 use canodom_dbc::{Checksum, Database, SignalHandle};
 use std::fmt::Write as _;
 use std::fs::File;
@@ -472,11 +472,11 @@ impl PoseDecoder {
     /// 2 quality), `None` for any other frame.
     pub fn pose_part(&self, frame: &CanFrame) -> Option<usize> {
         match frame.id() {
-            CanId::Standard(id) => {
+            FrameId::Standard(id) => {
                 let off = u32::from(id).checked_sub(self.base_id)?;
                 (off < 3).then_some(off as usize)
             }
-            CanId::Extended(_) => None,
+            FrameId::Extended(_) => None,
         }
     }
 

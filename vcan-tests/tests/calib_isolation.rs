@@ -9,7 +9,7 @@
 #![allow(clippy::unwrap_used, clippy::too_many_lines)]
 
 use canodom_can::bus::{BusEvent, FrameSource, IdFilter, open_socketcan};
-use canodom_can::frame::CanId;
+use canodom_can::frame::FrameId;
 use canodom_protocol::calib_wire::{CalibWire, Command, Counts, Reason, State, StatusPage};
 use canodom_protocol::own_dbc::BaseId;
 use canodom_vcan_tests::{
@@ -186,8 +186,8 @@ async fn calibration_commands_on_wrong_id_bad_crc_or_wrong_arming_change_nothing
     // each once per reason, and no state but IDLE before the correct one.
     let (frames, _) = read_candump(&dir.join("bus.log")).unwrap();
     let status_id = status.wire.status_id();
-    let cmd_id = CanId::standard(CMD_ID).unwrap();
-    let wrong_id = CanId::standard(WRONG_ID).unwrap();
+    let cmd_id = FrameId::standard(CMD_ID).unwrap();
+    let wrong_id = FrameId::standard(WRONG_ID).unwrap();
     let sends: Vec<usize> = frames
         .iter()
         .enumerate()

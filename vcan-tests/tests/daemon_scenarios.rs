@@ -15,7 +15,7 @@
 #![allow(clippy::unwrap_used, clippy::too_many_lines)]
 
 use canodom_can::candump::parse_line;
-use canodom_can::frame::{CanFrame, CanId};
+use canodom_can::frame::{CanFrame, FrameId};
 use canodom_vcan_tests::{
     Logged, PoseDecoder, PoseSample, Spawned, angle_diff, canodom_bin, canodom_replay, ip, metric,
     read_candump, read_csv, repo_file, run, scratch_dir, wait_until,
@@ -58,7 +58,7 @@ fn now_us() -> u64 {
 }
 
 fn is_standard(frame: &CanFrame, id: u16) -> bool {
-    frame.id() == CanId::Standard(id)
+    frame.id() == FrameId::Standard(id)
 }
 
 /// The daemon on `config`, its stderr kept, once its socket is open.
@@ -737,7 +737,7 @@ async fn watch_poses(
 ) -> Result<Vec<PoseSample>, String> {
     use canodom_can::bus::{BusEvent, FrameSource, IdFilter, open_socketcan};
     let filters: Vec<IdFilter> = (0..3u32)
-        .map(|k| IdFilter::exact(CanId::standard(RC_CAR_BASE + k).unwrap()))
+        .map(|k| IdFilter::exact(FrameId::standard(RC_CAR_BASE + k).unwrap()))
         .collect();
     let (mut rx, _tx) = open_socketcan("vcan0", &filters).map_err(|e| e.to_string())?;
     let decoder = PoseDecoder::load(RC_CAR_BASE)?;

@@ -24,7 +24,7 @@
 #![allow(clippy::unwrap_used, clippy::too_many_lines)]
 
 use canodom_can::candump::parse_line;
-use canodom_can::frame::{CanFrame, CanId};
+use canodom_can::frame::{CanFrame, FrameId};
 use canodom_dbc::{Checksum, CounterCheck, CounterStatus};
 use canodom_vcan_tests::{
     PoseDecoder, Spawned, angle_diff, canodom_bin, canodom_replay, metric, read_candump, read_csv,
@@ -85,7 +85,7 @@ struct Expected {
     on_input_ids: u64,
 }
 
-fn data(id: CanId, bytes: &[u8]) -> CanFrame {
+fn data(id: FrameId, bytes: &[u8]) -> CanFrame {
     CanFrame::new_data(id, bytes).unwrap()
 }
 
@@ -101,8 +101,8 @@ fn schedule(lines: &[String], load_s: u64, exp: &mut Expected) -> Vec<(u64, CanF
         let t = r.timestamp.as_micros() - LOG_EPOCH_US;
         let id = r.frame.id();
         let wheel = match id {
-            CanId::Standard(REAR_ID) => Some(0),
-            CanId::Standard(FRONT_ID) => Some(1),
+            FrameId::Standard(REAR_ID) => Some(0),
+            FrameId::Standard(FRONT_ID) => Some(1),
             _ => None,
         };
         let Some(w) = wheel else {
@@ -175,10 +175,10 @@ fn schedule(lines: &[String], load_s: u64, exp: &mut Expected) -> Vec<(u64, CanF
                 7 => u32::from(REAR_ID),
                 _ => 0x1800_0000 | (rng.next() as u32 & 0xFFFFF),
             };
-            CanId::Extended(raw)
+            FrameId::Extended(raw)
         } else {
             // 0x200..=0x5FF: clear of the inputs (0x100–0x120) and the pose ids.
-            CanId::Standard(0x200 + (rng.next() % 0x400) as u16)
+            FrameId::Standard(0x200 + (rng.next() % 0x400) as u16)
         };
         let len = (rng.next() % 9) as usize;
         let b: Vec<u8> = (0..len).map(|_| rng.next() as u8).collect();
@@ -192,8 +192,8 @@ fn schedule(lines: &[String], load_s: u64, exp: &mut Expected) -> Vec<(u64, CanF
 /// carries (id with the extended flag, length, three reserved bytes, data).
 fn to_raw(f: &CanFrame) -> [u8; 16] {
     let can_id = match f.id() {
-        CanId::Standard(raw) => u32::from(raw),
-        CanId::Extended(raw) => raw | libc::CAN_EFF_FLAG,
+        FrameId::Standard(raw) => u32::from(raw),
+        FrameId::Extended(raw) => raw | libc::CAN_EFF_FLAG,
     };
     let mut raw = [0u8; 16];
     raw[..4].copy_from_slice(&can_id.to_ne_bytes());
@@ -430,7 +430,12 @@ fn hostile_bus_at_8000_fps_rejects_counted_exactly_no_drops_then_sigterm_saves_t
     assert_eq!(invalid_later, 0, "faults made a pose invalid");
     let wheel_on_bus = rec
         .iter()
-        .filter(|l| matches!(l.frame.id(), CanId::Standard(REAR_ID | FRONT_ID | STEER_ID)))
+        .filter(|l| {
+            matches!(
+                l.frame.id(),
+                FrameId::Standard(REAR_ID | FRONT_ID | STEER_ID)
+            )
+        })
         .count() as u64;
     assert_eq!(
         wheel_on_bus, exp.on_input_ids,
@@ -504,7 +509,7 @@ fn hostile_bus_at_8000_fps_rejects_counted_exactly_no_drops_then_sigterm_saves_t
     let mut pending: Option<u64> = None;
     for l in &rec {
         match l.frame.id() {
-            CanId::Standard(REAR_ID) => {
+            FrameId::Standard(REAR_ID) => {
                 let d = l.frame.data();
                 if d.len() != 8 || !crc.verify(d).unwrap_or(false) {
                     continue;
@@ -520,7 +525,7 @@ fn hostile_bus_at_8000_fps_rejects_counted_exactly_no_drops_then_sigterm_saves_t
                     }
                 }
             }
-            CanId::Standard(POSE_BASE) => {
+            FrameId::Standard(POSE_BASE) => {
                 if let Some(t0) = pending.take() {
                     lat.push(l.t_us.saturating_sub(t0));
                 }

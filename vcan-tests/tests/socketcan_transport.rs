@@ -6,7 +6,7 @@
 
 use canodom_can::bus::{BusError, BusEvent, FrameSink, FrameSource, IdFilter, open_socketcan};
 use canodom_can::candump::parse_line;
-use canodom_can::frame::{CanFrame, CanId};
+use canodom_can::frame::{CanFrame, FrameId};
 use canodom_vcan_tests::{DEFAULT_WAIT, ip, metric, run};
 use std::process::{Command, Stdio};
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
@@ -36,8 +36,8 @@ async fn next_frame(rx: &mut impl FrameSource) -> CanFrame {
 #[tokio::test]
 async fn kernel_filters_pass_exactly_the_configured_ids_with_kernel_timestamps() {
     let wanted = [
-        CanId::standard(0x100).unwrap(),
-        CanId::extended(0x1234_5678).unwrap(),
+        FrameId::standard(0x100).unwrap(),
+        FrameId::extended(0x1234_5678).unwrap(),
     ];
     let filters: Vec<IdFilter> = wanted.iter().map(|id| IdFilter::exact(*id)).collect();
     let (mut rx, _) = open_socketcan("vcan0", &filters).expect("open vcan0 for receiving");
@@ -47,7 +47,7 @@ async fn kernel_filters_pass_exactly_the_configured_ids_with_kernel_timestamps()
     // numeric id in the other format must be filtered out as well. Sending
     // and receiving run concurrently, as in the daemon: a receiver that
     // waited for all 1,500 would overflow its socket buffer and lose frames.
-    let unwanted = CanId::extended(0x100).unwrap();
+    let unwanted = FrameId::extended(0x100).unwrap();
     let frames: Vec<(CanFrame, bool)> = (0..1500u32)
         .map(|i| {
             let id = [wanted[0], wanted[1], unwanted][(i % 3) as usize];
@@ -105,13 +105,13 @@ async fn frames_round_trip_with_can_utils_in_both_directions() {
     run("cansend", &["vcan0", "1ABCDEF0#0102030405060708"]).expect("cansend extended");
     run("cansend", &["vcan0", "7FF#"]).expect("cansend empty");
     let expected = [
-        CanFrame::new_data(CanId::standard(0x123).unwrap(), &[0xDE, 0xAD, 0xBE, 0xEF]).unwrap(),
+        CanFrame::new_data(FrameId::standard(0x123).unwrap(), &[0xDE, 0xAD, 0xBE, 0xEF]).unwrap(),
         CanFrame::new_data(
-            CanId::extended(0x1ABC_DEF0).unwrap(),
+            FrameId::extended(0x1ABC_DEF0).unwrap(),
             &[1, 2, 3, 4, 5, 6, 7, 8],
         )
         .unwrap(),
-        CanFrame::new_data(CanId::standard(0x7FF).unwrap(), &[]).unwrap(),
+        CanFrame::new_data(FrameId::standard(0x7FF).unwrap(), &[]).unwrap(),
     ];
     for want in &expected {
         assert_eq!(&next_frame(&mut rx).await, want);
@@ -157,7 +157,7 @@ async fn interface_down_and_deleted_are_typed_errors_and_reopening_recovers() {
 
     ip(&["link", "set", "vcan0", "up"]).unwrap();
     let (mut rx, tx) = open_socketcan("vcan0", &[IdFilter::accept_all()]).expect("reopen");
-    let frame = CanFrame::new_data(CanId::standard(0x42).unwrap(), &[7]).unwrap();
+    let frame = CanFrame::new_data(FrameId::standard(0x42).unwrap(), &[7]).unwrap();
     let (_, sender) = open_socketcan("vcan0", &[]).expect("open sender");
     sender.send(&frame).await.unwrap();
     assert_eq!(next_frame(&mut rx).await, frame);
@@ -201,7 +201,7 @@ async fn frames_the_kernel_drops_on_a_full_socket_are_reported_with_their_count(
     let (_, tx) = open_socketcan("vcan0", &[]).expect("open vcan0 for sending");
     let sent = 20_000u32;
     for i in 0..sent {
-        let f = CanFrame::new_data(CanId::standard(0x321).unwrap(), &i.to_le_bytes()).unwrap();
+        let f = CanFrame::new_data(FrameId::standard(0x321).unwrap(), &i.to_le_bytes()).unwrap();
         tx.send(&f).await.expect("send");
     }
     let drops = rx.kernel_drops().expect("SO_MEMINFO on this kernel");

@@ -681,7 +681,7 @@ impl<R: FrameSource, T: FrameSink> Link<R, T> {
     async fn command(
         &mut self,
         cmd: Command,
-        cmd_id: canodom_can::frame::CanId,
+        cmd_id: canodom_can::frame::FrameId,
         arming: u8,
         mut counter: u8,
     ) -> anyhow::Result<Answer> {

@@ -14,7 +14,6 @@ use canodom_calib::methods::{ExactOptions, PaperOptions, exact, heading, paper};
 use canodom_calib::run::{InputFault, Tolerances};
 use canodom_calib::{CalibrationResult, Direction, RearParams, RevSample, Run, RunRecorder, Track};
 use canodom_can::candump::{LogReader, ReadError};
-use canodom_can::frame::CanId;
 use canodom_fusion::{Pose, VehicleParams};
 use canodom_pipeline::config::Config;
 use canodom_pipeline::pipeline::Pipeline;
@@ -221,11 +220,7 @@ pub fn run_from_log(
     let mut malformed = 0u64;
     while let Some((timestamp, frame)) = next_record(&mut reader, log, &mut malformed)? {
         let step = pipeline.push(timestamp, &frame);
-        let id = match frame.id() {
-            CanId::Standard(s) => canodom_dbc::FrameId::standard(s).ok(),
-            CanId::Extended(e) => canodom_dbc::FrameId::extended(e).ok(),
-        };
-        if id == Some(steer_id) {
+        if frame.id() == steer_id {
             let data = frame.data();
             let u = config
                 .signals

@@ -3,8 +3,8 @@
 
 use anyhow::Context as _;
 use canodom_can::candump::{LogReader, ReadError};
-use canodom_can::frame::{CanId, FrameKind};
-use canodom_dbc::{Database, FrameId};
+use canodom_can::frame::FrameKind;
+use canodom_dbc::Database;
 use canodom_report::float_text::push_f64;
 use std::fmt::Write as _;
 use std::io::Write;
@@ -103,16 +103,8 @@ pub fn decode(
             Err(e @ ReadError::Io(_)) => return Err(e.into()),
         };
         let frame = record.frame;
-        let (raw, extended) = match frame.id() {
-            CanId::Standard(s) => (u32::from(s), false),
-            CanId::Extended(e) => (e, true),
-        };
-        let id = if extended {
-            FrameId::extended(raw)
-        } else {
-            FrameId::standard(raw as u16)
-        };
-        let message = id.ok().and_then(|id| db.message_by_id(id));
+        let (raw, extended) = (frame.id().raw(), frame.id().is_extended());
+        let message = db.message_by_id(frame.id());
         if message.is_none() && !args.all {
             counts.unknown += 1;
             continue;
