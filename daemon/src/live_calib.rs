@@ -34,7 +34,9 @@ use canodom_protocol::calib_wire::{
     Ack, AckStatus, CalibWire, Command, Counts, DEFAULT_RUNS_PER_DIRECTION, InstructionCode,
     ParamSet as WireSet, Progress, Reason, StartPoint, State, StatusPage, WireDirection, Writeback,
 };
-use canodom_report::report::{CalibrationReport, Report, SteeringReport};
+use canodom_report::committed::Report;
+use canodom_report::report::CalibrationReport;
+use canodom_report::steering_report::SteeringReport;
 
 /// Status period while a session is active, s (10 Hz).
 const ACTIVE_STATUS_S: f64 = 0.1;

@@ -877,16 +877,16 @@ impl<Tx: FrameSink + Clone> PipelineTask<Tx> {
                 Output::Report(version, report) => {
                     let dir = self.report_root.join(version.to_string());
                     // SVG rendering is file work: keep it off the frame path.
-                    tokio::task::spawn_blocking(
-                        move || match canodom_report::report::write_report(&dir, &*report) {
-                            Ok((svg, _)) => {
-                                info!(report = %svg.display(), "calibration report written");
-                            }
-                            Err(e) => {
-                                warn!(cause = %e, "calibration report not written");
-                            }
-                        },
-                    );
+                    tokio::task::spawn_blocking(move || match canodom_report::files::write_report(
+                        &dir, &*report,
+                    ) {
+                        Ok((svg, _)) => {
+                            info!(report = %svg.display(), "calibration report written");
+                        }
+                        Err(e) => {
+                            warn!(cause = %e, "calibration report not written");
+                        }
+                    });
                 }
             }
         }

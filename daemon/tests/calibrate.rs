@@ -127,8 +127,8 @@ fn check_report(dir: &Path, toml: &toml::Table, cw: &[String], ccw: &[String]) {
             .count()
     };
     let [before, after] = [
-        canodom_report::report::BEFORE_COLOUR,
-        canodom_report::report::AFTER_COLOUR,
+        canodom_report::files::BEFORE_COLOUR,
+        canodom_report::files::AFTER_COLOUR,
     ]
     .map(|c| polylines(&format!("#{:02X}{:02X}{:02X}", c.0, c.1, c.2)));
     assert_eq!((before, after), (runs.len(), runs.len()));

@@ -4,7 +4,7 @@
 //! when the car has one), and `calibration.json`, every number of the
 //! result.
 
-use crate::report::{PlotResult, ReportError, ReportFiles, json_line, svg_text, write_report};
+use crate::files::{PlotResult, ReportError, ReportFiles, json_line, svg_text, write_report};
 use canodom_calib::drive::{DriveCalibration, DriveSample, Estimate, Fix};
 use canodom_params::persist::ParamValues;
 use plotters::prelude::*;

@@ -19,7 +19,9 @@
 //! the writing to a blocking task. A committed steering map has its own
 //! report ([`SteeringReport`]), written the same way.
 
-pub use crate::steering_report::SteeringReport;
+use crate::files::{
+    AFTER_COLOUR, BEFORE_COLOUR, PlotResult, ReportError, ReportFiles, json_line, svg_text,
+};
 use canodom_calib::methods::centroids;
 use canodom_calib::{CalibrationResult, Direction, Method, RearParams, Run, Track};
 use canodom_fusion::Pose;
@@ -27,38 +29,11 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 use serde::Serialize;
 use std::f64::consts::PI;
-use std::path::{Path, PathBuf};
-
-/// File name of the picture inside the report directory.
-pub const SVG_NAME: &str = "calibration.svg";
-/// File name of the numbers inside the report directory.
-pub const JSON_NAME: &str = "calibration.json";
 
 /// Paths are thinned to at most this many points: enough for a smooth line
 /// at any zoom a lap needs, small enough that twenty runs stay well under a
 /// megabyte.
 const MAX_PATH_POINTS: usize = 400;
-
-/// Why a report could not be written.
-#[derive(Debug, thiserror::Error)]
-pub enum ReportError {
-    /// A file or the directory could not be written.
-    #[error("{path}: {source}")]
-    Io {
-        /// The file or directory.
-        path: PathBuf,
-        /// The system's reason.
-        #[source]
-        source: std::io::Error,
-    },
-    /// plotters refused to draw (its error type is generic over the backend,
-    /// so it is kept as text).
-    #[error("cannot draw the calibration plot: {0}")]
-    Plot(String),
-    /// The report could not be serialised.
-    #[error("cannot serialise the report: {0}")]
-    Json(#[from] serde_json::Error),
-}
 
 /// A rear parameter set as reported.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
@@ -377,10 +352,6 @@ impl CalibrationReport {
     }
 }
 
-/// Colour of the paths and ends with the parameters used while recording.
-pub const BEFORE_COLOUR: RGBColor = RGBColor(0xD6, 0x60, 0x4D);
-/// Colour of the paths and ends with the calibrated parameters.
-pub const AFTER_COLOUR: RGBColor = RGBColor(0x21, 0x66, 0xAC);
 /// Colour of the reference track.
 pub const TRACK_COLOUR: RGBColor = RGBColor(0x99, 0x99, 0x99);
 
@@ -389,9 +360,6 @@ const SVG_H: u32 = 1150;
 const TOP_H: u32 = 660;
 const MARGIN: u32 = 12;
 const LABEL_AREA: u32 = 45;
-
-/// What drawing with plotters returns (its errors are generic over the backend).
-pub(crate) type PlotResult = Result<(), Box<dyn std::error::Error>>;
 
 /// Axis ranges centred on the data with equal metres per pixel on both axes.
 fn equal_aspect(
@@ -676,50 +644,6 @@ fn draw_ends(
     Ok(())
 }
 
-/// `value` as one line of JSON (compact: a rear report's paths make it long).
-pub(crate) fn json_line(value: &impl Serialize) -> Result<String, ReportError> {
-    let mut s = serde_json::to_string(value)?;
-    s.push('\n');
-    Ok(s)
-}
-
-/// The SVG text of a `(width, height)` picture that `draw` paints.
-pub(crate) fn svg_text(
-    size_px: (u32, u32),
-    draw: impl FnOnce(&DrawingArea<SVGBackend<'_>, Shift>) -> PlotResult,
-) -> Result<String, ReportError> {
-    let mut svg = String::new();
-    {
-        let root = SVGBackend::with_string(&mut svg, size_px).into_drawing_area();
-        draw(&root).map_err(|e| ReportError::Plot(e.to_string()))?;
-        root.present()
-            .map_err(|e| ReportError::Plot(e.to_string()))?;
-    }
-    Ok(svg)
-}
-
-/// Writes `text` to `path` durably and atomically ([`canodom_params::atomic_file`]).
-fn write_durable(path: &Path, text: &str) -> Result<(), ReportError> {
-    canodom_params::atomic_file::write(path, text.as_bytes()).map_err(|e| ReportError::Io {
-        path: e.path,
-        source: e.source,
-    })
-}
-
-/// A report as the two files of its directory: what [`write_report`] writes.
-pub trait ReportFiles {
-    /// The numbers, as JSON text.
-    ///
-    /// # Errors
-    /// A value serde cannot write.
-    fn json(&self) -> Result<String, ReportError>;
-    /// The picture, as SVG text.
-    ///
-    /// # Errors
-    /// The plot cannot be drawn.
-    fn svg(&self) -> Result<String, ReportError>;
-}
-
 impl ReportFiles for CalibrationReport {
     fn json(&self) -> Result<String, ReportError> {
         self.to_json()
@@ -729,57 +653,10 @@ impl ReportFiles for CalibrationReport {
     }
 }
 
-/// The report of a committed live calibration: of the rear parameters or
-/// of the steering map.
-#[derive(Debug, Clone, PartialEq)]
-// It travels boxed (`live_calib::Output::Report`), so the sizes do not matter.
-#[allow(clippy::large_enum_variant)]
-pub enum Report {
-    /// Tread and wheel diameters (the track runs).
-    Rear(CalibrationReport),
-    /// The steering map (the constant-command arcs).
-    Steering(SteeringReport),
-}
-
-impl ReportFiles for Report {
-    fn json(&self) -> Result<String, ReportError> {
-        match self {
-            Self::Rear(r) => r.json(),
-            Self::Steering(r) => r.json(),
-        }
-    }
-    fn svg(&self) -> Result<String, ReportError> {
-        match self {
-            Self::Rear(r) => r.svg(),
-            Self::Steering(r) => r.svg(),
-        }
-    }
-}
-
-/// Writes `calibration.svg` and `calibration.json` into `dir` (created if
-/// missing), each atomically; returns their paths (SVG, JSON).
-///
-/// # Errors
-/// The directory or a file cannot be written, or the plot cannot be drawn.
-pub fn write_report(
-    dir: &Path,
-    report: &impl ReportFiles,
-) -> Result<(PathBuf, PathBuf), ReportError> {
-    std::fs::create_dir_all(dir).map_err(|source| ReportError::Io {
-        path: dir.to_path_buf(),
-        source,
-    })?;
-    let svg = report.svg()?;
-    let json = report.json()?;
-    let (svg_path, json_path) = (dir.join(SVG_NAME), dir.join(JSON_NAME));
-    write_durable(&svg_path, &svg)?;
-    write_durable(&json_path, &json)?;
-    Ok((svg_path, json_path))
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::files::{SVG_NAME, write_report};
     use canodom_calib::synth;
 
     #[test]

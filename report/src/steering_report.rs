@@ -7,7 +7,7 @@
 //! [`SteeringReport::build`] is pure; [`crate::report::write_report`] writes
 //! it (atomically, like the rear report).
 
-use crate::report::{
+use crate::files::{
     AFTER_COLOUR, BEFORE_COLOUR, PlotResult, ReportError, ReportFiles, json_line, svg_text,
 };
 use canodom_calib::steering::SteeringFit;

@@ -453,7 +453,7 @@ pub fn execute(args: &CalibrateArgs) -> anyhow::Result<()> {
     if let Some(dir) = &args.report {
         let report =
             canodom_report::report::CalibrationReport::build(&result, track, &runs, &labels);
-        let (svg, json) = canodom_report::report::write_report(dir, &report)?;
+        let (svg, json) = canodom_report::files::write_report(dir, &report)?;
         eprintln!(
             "calibrate: report written to {} and {}",
             svg.display(),

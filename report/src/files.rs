@@ -1,0 +1,109 @@
+//! What every report shares: the two files of a report directory (an SVG
+//! picture and a JSON file of every number), their atomic, durable writing,
+//! the error type, and the colours "before" and "after" have in every picture.
+//! The report kinds ([`crate::report`], [`crate::steering_report`],
+//! [`crate::drive_report`]) build on this module and never on each other.
+
+use plotters::coord::Shift;
+use plotters::prelude::*;
+use serde::Serialize;
+use std::path::{Path, PathBuf};
+
+/// File name of the picture inside the report directory.
+pub const SVG_NAME: &str = "calibration.svg";
+/// File name of the numbers inside the report directory.
+pub const JSON_NAME: &str = "calibration.json";
+
+/// Colour of the paths and ends with the parameters used while recording.
+pub const BEFORE_COLOUR: RGBColor = RGBColor(0xD6, 0x60, 0x4D);
+/// Colour of the paths and ends with the calibrated parameters.
+pub const AFTER_COLOUR: RGBColor = RGBColor(0x21, 0x66, 0xAC);
+
+/// Why a report could not be written.
+#[derive(Debug, thiserror::Error)]
+pub enum ReportError {
+    /// A file or the directory could not be written.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file or directory.
+        path: PathBuf,
+        /// The system's reason.
+        #[source]
+        source: std::io::Error,
+    },
+    /// plotters refused to draw (its error type is generic over the backend,
+    /// so it is kept as text).
+    #[error("cannot draw the calibration plot: {0}")]
+    Plot(String),
+    /// The report could not be serialised.
+    #[error("cannot serialise the report: {0}")]
+    Json(#[from] serde_json::Error),
+}
+
+/// What drawing with plotters returns (its errors are generic over the backend).
+pub(crate) type PlotResult = Result<(), Box<dyn std::error::Error>>;
+
+/// `value` as one line of JSON (compact: a rear report's paths make it long).
+pub(crate) fn json_line(value: &impl Serialize) -> Result<String, ReportError> {
+    let mut s = serde_json::to_string(value)?;
+    s.push('\n');
+    Ok(s)
+}
+
+/// The SVG text of a `(width, height)` picture that `draw` paints.
+pub(crate) fn svg_text(
+    size_px: (u32, u32),
+    draw: impl FnOnce(&DrawingArea<SVGBackend<'_>, Shift>) -> PlotResult,
+) -> Result<String, ReportError> {
+    let mut svg = String::new();
+    {
+        let root = SVGBackend::with_string(&mut svg, size_px).into_drawing_area();
+        draw(&root).map_err(|e| ReportError::Plot(e.to_string()))?;
+        root.present()
+            .map_err(|e| ReportError::Plot(e.to_string()))?;
+    }
+    Ok(svg)
+}
+
+/// Writes `text` to `path` durably and atomically ([`canodom_params::atomic_file`]).
+fn write_durable(path: &Path, text: &str) -> Result<(), ReportError> {
+    canodom_params::atomic_file::write(path, text.as_bytes()).map_err(|e| ReportError::Io {
+        path: e.path,
+        source: e.source,
+    })
+}
+
+/// A report as the two files of its directory: what [`write_report`] writes.
+pub trait ReportFiles {
+    /// The numbers, as JSON text.
+    ///
+    /// # Errors
+    /// A value serde cannot write.
+    fn json(&self) -> Result<String, ReportError>;
+    /// The picture, as SVG text.
+    ///
+    /// # Errors
+    /// The plot cannot be drawn.
+    fn svg(&self) -> Result<String, ReportError>;
+}
+
+/// Writes `calibration.svg` and `calibration.json` into `dir` (created if
+/// missing), each atomically; returns their paths (SVG, JSON).
+///
+/// # Errors
+/// The directory or a file cannot be written, or the plot cannot be drawn.
+pub fn write_report(
+    dir: &Path,
+    report: &impl ReportFiles,
+) -> Result<(PathBuf, PathBuf), ReportError> {
+    std::fs::create_dir_all(dir).map_err(|source| ReportError::Io {
+        path: dir.to_path_buf(),
+        source,
+    })?;
+    let svg = report.svg()?;
+    let json = report.json()?;
+    let (svg_path, json_path) = (dir.join(SVG_NAME), dir.join(JSON_NAME));
+    write_durable(&svg_path, &svg)?;
+    write_durable(&json_path, &json)?;
+    Ok((svg_path, json_path))
+}
