@@ -4,6 +4,7 @@
 // Test helpers outside #[test] functions unwrap too: a failure is a test failure.
 #![allow(clippy::unwrap_used)]
 
+mod architecture;
 mod bad_input;
 mod calib_client;
 mod calib_session;

@@ -36,13 +36,13 @@ pub enum Error {
         /// The rejected width.
         bits: u32,
     },
-    /// A wheel sample was refused; see [`crate::wheel::InputFault`].
+    /// A wheel sample was refused; see [`InputFault`].
     #[error("wheel {wheel:?}: {fault}")]
     WheelInput {
         /// The wheel whose sample was refused.
         wheel: Wheel,
         /// Why it was refused.
-        fault: crate::wheel::InputFault,
+        fault: InputFault,
     },
     /// A matrix that must be invertible or positive definite is not.
     #[error("numerical failure in {context}")]
@@ -85,4 +85,54 @@ pub(crate) fn require_non_negative(name: &'static str, value: f64) -> Result<()>
             reason: format!("must be finite and >= 0, got {value}"),
         })
     }
+}
+
+/// Why a wheel sample was not integrated as it came.
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+pub enum InputFault {
+    /// The sample's timestamp is earlier than the previous one. Nothing is
+    /// integrated and the previous sample stays the reference.
+    #[error("timestamp went backwards from {prev_t_s} s to {t_s} s")]
+    TimestampBackwards {
+        /// The previous sample's time.
+        prev_t_s: f64,
+        /// This sample's time.
+        t_s: f64,
+    },
+    /// The sample has the same timestamp as the previous one (a repeated
+    /// frame). Nothing is integrated; for a cumulative counter nothing is lost,
+    /// the next sample's delta carries any movement.
+    #[error("duplicated sample at {t_s} s")]
+    DuplicateSample {
+        /// The repeated timestamp.
+        t_s: f64,
+    },
+    /// The gap since the previous sample exceeds the configured factor times
+    /// the nominal period. The increment was still integrated (it was
+    /// physically plausible), but the caller should know samples were lost.
+    #[error("missed about {missed} sample(s): gap of {gap_s} s")]
+    MissedSamples {
+        /// The time since the previous sample.
+        gap_s: f64,
+        /// Estimated number of lost samples.
+        missed: u64,
+    },
+    /// The increment needs a wheel speed above the configured maximum. It was
+    /// not integrated; the decoder re-anchors on this sample so that a
+    /// counter reset costs one fault, not a fault per sample.
+    #[error("implausible jump of {distance_m} m in {dt_s} s (max {max_distance_m} m)")]
+    ImplausibleJump {
+        /// The distance the sample implies.
+        distance_m: f64,
+        /// The time since the previous sample.
+        dt_s: f64,
+        /// The largest distance the maximum wheel speed allows.
+        max_distance_m: f64,
+    },
+    /// The timestamp or speed is NaN or infinite. Nothing is integrated.
+    #[error("non-finite sample value {value}")]
+    NonFinite {
+        /// The rejected value.
+        value: f64,
+    },
 }

@@ -13,7 +13,7 @@ use anyhow::{Context as _, bail};
 use canodom_calib::methods::{ExactOptions, PaperOptions, exact, heading, paper};
 use canodom_calib::run::{InputFault, Tolerances};
 use canodom_calib::{CalibrationResult, Direction, RearParams, RevSample, Run, RunRecorder, Track};
-use canodom_can::candump::{LogReader, ReadError};
+use canodom_can::candump::LogReader;
 use canodom_fusion::{Pose, VehicleParams};
 use canodom_pipeline::config::Config;
 use canodom_pipeline::pipeline::Pipeline;
@@ -150,37 +150,6 @@ fn end_pose_of(poses: &HashMap<String, Pose>, log: &Path) -> Option<Pose> {
     })
 }
 
-/// The next frame of `log` with its time, skipping malformed lines (counted in
-/// `malformed`, the first five named on stderr); `None` at its end.
-///
-/// # Errors
-/// The log cannot be read.
-pub fn next_record<R: std::io::Read>(
-    reader: &mut LogReader<R>,
-    log: &Path,
-    malformed: &mut u64,
-) -> anyhow::Result<
-    Option<(
-        canodom_can::candump::Timestamp,
-        canodom_can::frame::CanFrame,
-    )>,
-> {
-    loop {
-        match reader.next_record() {
-            Ok(r) => return Ok(r.map(|r| (r.timestamp, r.frame))),
-            Err(ReadError::Malformed(m)) => {
-                *malformed += 1;
-                if *malformed <= 5 {
-                    eprintln!("calibrate: {}: {m}; skipped", log.display());
-                }
-            }
-            Err(e @ ReadError::Io(_)) => {
-                return Err(anyhow::Error::new(e).context(format!("{}", log.display())));
-            }
-        }
-    }
-}
-
 /// Faults of the inputs (not frames of other messages, not the filter's gate).
 fn input_faults(pipeline: &Pipeline) -> u64 {
     Reject::ALL
@@ -218,7 +187,7 @@ pub fn run_from_log(
     // (sample, input faults so far)
     let mut samples: Vec<(RevSample, u64)> = Vec::new();
     let mut malformed = 0u64;
-    while let Some((timestamp, frame)) = next_record(&mut reader, log, &mut malformed)? {
+    while let Some((timestamp, frame)) = super::next_record(&mut reader, log, &mut malformed)? {
         let step = pipeline.push(timestamp, &frame);
         if frame.id() == steer_id {
             let data = frame.data();

@@ -143,9 +143,7 @@ pub fn samples_from_log(
     };
     let mut samples = Vec::new();
     let mut malformed = 0u64;
-    while let Some((timestamp, frame)) =
-        super::calibrate::next_record(&mut reader, log, &mut malformed)?
-    {
+    while let Some((timestamp, frame)) = super::next_record(&mut reader, log, &mut malformed)? {
         let Some(step) = pipeline.push(timestamp, &frame) else {
             continue;
         };

@@ -83,3 +83,34 @@ pub fn write_timestamp(out: &mut Vec<u8>, t: canodom_can::candump::Timestamp) {
     use std::io::Write as _;
     let _ = write!(out, "{}.{:06}", t.secs(), t.subsec_micros());
 }
+
+/// The next frame of `log` with its time, skipping malformed lines (counted in
+/// `malformed`, the first five named on stderr); `None` at its end.
+///
+/// # Errors
+/// The log cannot be read.
+pub fn next_record<R: std::io::Read>(
+    reader: &mut canodom_can::candump::LogReader<R>,
+    log: &Path,
+    malformed: &mut u64,
+) -> anyhow::Result<
+    Option<(
+        canodom_can::candump::Timestamp,
+        canodom_can::frame::CanFrame,
+    )>,
+> {
+    loop {
+        match reader.next_record() {
+            Ok(r) => return Ok(r.map(|r| (r.timestamp, r.frame))),
+            Err(canodom_can::candump::ReadError::Malformed(m)) => {
+                *malformed += 1;
+                if *malformed <= 5 {
+                    eprintln!("calibrate: {}: {m}; skipped", log.display());
+                }
+            }
+            Err(e @ canodom_can::candump::ReadError::Io(_)) => {
+                return Err(anyhow::Error::new(e).context(format!("{}", log.display())));
+            }
+        }
+    }
+}
