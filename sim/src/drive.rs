@@ -24,7 +24,7 @@ pub fn simulator(
     true_params: Option<&std::path::Path>,
     seed: u64,
     slip: bool,
-) -> anyhow::Result<Simulator> {
+) -> crate::error::Result<Simulator> {
     simulator_at(config, path, true_params, seed, slip, 1, None)
 }
 
@@ -35,7 +35,7 @@ pub fn simulator(
 pub fn true_vehicle(
     config: &Config,
     true_params: Option<&std::path::Path>,
-) -> anyhow::Result<VehicleParams> {
+) -> crate::error::Result<VehicleParams> {
     Ok(match true_params {
         Some(p) => TrueParamsFile::load(p)?.apply(&config.params)?,
         None => config.params,
@@ -55,18 +55,19 @@ pub fn simulator_at(
     slip: bool,
     laps: u32,
     speed_mps: Option<f64>,
-) -> anyhow::Result<Simulator> {
+) -> crate::error::Result<Simulator> {
     let mut cfg = sim_config(config, true_vehicle(config, true_params)?);
     if path.is_family() {
-        anyhow::ensure!(
-            matches!(config.signals.wheel_kind, WheelKind::Speed(_)),
-            "--path {} is a road car's drive: it needs wheel-speed inputs (wheel_kind = \"speed\")",
-            if path == PathKind::Town {
-                "town"
-            } else {
-                "full-size"
-            }
-        );
+        if !matches!(config.signals.wheel_kind, WheelKind::Speed(_)) {
+            return Err(crate::error::Error::Invalid(format!(
+                "--path {} is a road car's drive: it needs wheel-speed inputs (wheel_kind = \"speed\")",
+                if path == PathKind::Town {
+                    "town"
+                } else {
+                    "full-size"
+                }
+            )));
+        }
         // The family's world on the configured vehicle: its tyres, driver,
         // speeds and steering errors; the DBC's quantisation stays.
         let drive = path.family_drive(seed)?;
@@ -125,7 +126,7 @@ pub fn write_log(
     sim: &mut Simulator,
     out: &mut impl Write,
     mut truth: Option<&mut dyn Write>,
-) -> anyhow::Result<u64> {
+) -> crate::error::Result<u64> {
     let mut enc = SampleEncoder::new(config);
     let mut frames = Vec::new();
     let mut line = Vec::with_capacity(128);
@@ -171,7 +172,7 @@ pub async fn drive<S: FrameSink>(
     rate_hz: f64,
     stop: tokio_util::sync::CancellationToken,
     mut on_sample: impl FnMut(&Sample),
-) -> anyhow::Result<(u64, u64)> {
+) -> crate::error::Result<(u64, u64)> {
     let mut enc = SampleEncoder::new(config);
     let mut frames: Vec<CanFrame> = Vec::new();
     let mut tick = tokio::time::interval(std::time::Duration::from_secs_f64(1.0 / rate_hz));

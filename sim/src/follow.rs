@@ -152,7 +152,7 @@ impl Vehicle {
     }
 
     /// The next sample of `lap` with counters carried over, or `None` at its end.
-    fn next_of(&self, lap: &mut Lap) -> anyhow::Result<Option<Sample>> {
+    fn next_of(&self, lap: &mut Lap) -> crate::error::Result<Option<Sample>> {
         let Some(mut s) = lap.sim.try_next()? else {
             return Ok(None);
         };
@@ -188,7 +188,11 @@ fn default_radius_m(config: &Config) -> f64 {
 /// lap at 0.1 m/s ends about 1° short of the last turn (11° with the lag of
 /// a real servo at 1 m/s), and the calibration learns the driver's lateness
 /// instead of the wheels.
-fn anticipated_track(radius_m: f64, direction: Direction, sim: &SimConfig) -> anyhow::Result<Plan> {
+fn anticipated_track(
+    radius_m: f64,
+    direction: Direction,
+    sim: &SimConfig,
+) -> crate::error::Result<Plan> {
     let pi = std::f64::consts::PI;
     let arc_m = pi * radius_m;
     let straight_m = 2.0 * radius_m;
@@ -246,15 +250,16 @@ pub async fn follow<R: FrameSource, S: FrameSink>(
     tx: &S,
     stop: CancellationToken,
     out: &mut (dyn Write + Send),
-) -> anyhow::Result<FollowSummary> {
+) -> crate::error::Result<FollowSummary> {
     let wire = CalibWire::new(config.output.base_id)?;
     let cmd_id: FrameId = config.calibration.command_id;
     let mut sim = sim_config(config, options.true_params);
     if let Some(v) = options.speed_mps {
-        anyhow::ensure!(
-            v.is_finite() && v > 0.0,
-            "the speed must be positive, got {v} m/s"
-        );
+        if !(v.is_finite() && v > 0.0) {
+            return Err(crate::error::Error::Invalid(format!(
+                "the speed must be positive, got {v} m/s"
+            )));
+        }
         crate::drive::set_speed(&mut sim, v);
     }
     sim.standstill_s = RUN_REST_S;
@@ -266,7 +271,7 @@ pub async fn follow<R: FrameSource, S: FrameSink>(
         options.seed,
     )?
     .try_next()?
-    .ok_or_else(|| anyhow::anyhow!("the simulator produced no sample"))?;
+    .ok_or_else(|| crate::error::Error::Invalid("the simulator produced no sample".to_owned()))?;
     let mut vehicle = Vehicle {
         tick_mask: if sim.wheel_output.counter_bits >= 64 {
             u64::MAX

@@ -7,8 +7,10 @@
 //! Layout:
 //! - [`vehicle`]: the drives offered, the true vehicle, the sample encoder.
 //! - [`drive`]: a simulator for a configuration; logs and real-time drives.
+//! - [`error`]: the crate's error type.
 //! - [`follow`]: the closed-loop vehicle that drives a guided calibration session.
 
 pub mod drive;
+pub mod error;
 pub mod follow;
 pub mod vehicle;
