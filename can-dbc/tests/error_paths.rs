@@ -81,7 +81,7 @@ fn signal_past_frame_end_names_message_and_signal() {
     // Motorola: MSB at bit 7 of byte 1, 16 bits, needs byte 2.
     let e = load_err("BO_ 256 MSG: 2 ECU\n SG_ MOTO : 15|16@0+ (1,0) [0|0] \"\" ECU");
     assert!(
-        e.contains("signal MOTO") && e.contains("reaches byte 2"),
+        e.contains("signal MOTO") && e.contains("needs 3 bytes"),
         "{e}"
     );
 }

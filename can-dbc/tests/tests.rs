@@ -9,6 +9,7 @@
 )]
 
 mod cantools_diff;
+mod corpus;
 mod error_paths;
 mod properties;
 mod rc_car;
