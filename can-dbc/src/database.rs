@@ -39,11 +39,86 @@ impl Hasher for IdHasher {
     }
 }
 
+/// How a load treats a message that cannot be compiled (a signal past the message's end,
+/// a bad size, an ID used twice, …).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum LoadMode {
+    /// Leave the message out, record a [`LoadWarning`] and load the rest, as cantools
+    /// does: real files from car makers often carry one broken message nobody uses.
+    #[default]
+    Tolerant,
+    /// Refuse the whole file with the first such message's error.
+    Strict,
+}
+
+/// A message left out of a [`LoadMode::Tolerant`] load, and why; its `Display` is the
+/// warning line a program should print (this crate does no logging).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct LoadWarning {
+    source_name: String,
+    message: String,
+    signal: Option<String>,
+    reason: String,
+}
+
+impl LoadWarning {
+    /// The warning for a message that failed to compile with `error`.
+    fn from_error(error: Error, message: &str, source_name: &str) -> Self {
+        let (signal, reason) = match error {
+            Error::InvalidSignal { signal, reason, .. } => (Some(signal), reason),
+            Error::InvalidMessage { reason, .. } => (None, reason),
+            // Compiling a message only fails with the two above; keep any other whole.
+            other => (None, other.to_string()),
+        };
+        Self {
+            source_name: source_name.to_owned(),
+            message: message.to_owned(),
+            signal,
+            reason,
+        }
+    }
+    /// File name (or caller-chosen name) of the DBC text.
+    pub fn source_name(&self) -> &str {
+        &self.source_name
+    }
+    /// Name of the message left out (its long name, if the DBC gives one).
+    pub fn message(&self) -> &str {
+        &self.message
+    }
+    /// The signal at fault, if a signal is (else the message itself is).
+    pub fn signal(&self) -> Option<&str> {
+        self.signal.as_deref()
+    }
+    /// What is wrong.
+    pub fn reason(&self) -> &str {
+        &self.reason
+    }
+}
+
+impl std::fmt::Display for LoadWarning {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{}: message {} left out (it cannot be decoded): ",
+            self.source_name, self.message
+        )?;
+        if let Some(signal) = &self.signal {
+            write!(f, "signal {signal}: ")?;
+        }
+        f.write_str(&self.reason)
+    }
+}
+
 /// A compiled DBC database.
 #[derive(Clone, Debug)]
 pub struct Database {
     source_name: String,
     messages: Vec<Message>,
+    /// Messages left out by a tolerant load, in DBC order.
+    warnings: Vec<LoadWarning>,
+    /// Short and long names of the left-out messages → index in `warnings`, so a lookup
+    /// can say why instead of "no such message".
+    left_out: HashMap<String, usize>,
     /// Standard IDs index a flat table (`u32::MAX` = none): one load per lookup.
     standard: Box<[u32]>,
     extended: HashMap<u32, u32, BuildHasherDefault<IdHasher>>,
@@ -51,47 +126,85 @@ pub struct Database {
 }
 
 impl Database {
-    /// Read and compile a DBC file (UTF-8 or Windows-1252).
+    /// Read and compile a DBC file (UTF-8 or Windows-1252), tolerantly: a message that
+    /// cannot be compiled is left out and reported in [`Self::warnings`].
     ///
     /// # Errors
-    /// [`Error::Io`] naming the path, or any error of [`Self::parse`].
+    /// [`Error::Io`] naming the path, or [`Error::Parse`].
     pub fn from_file(path: impl AsRef<Path>) -> Result<Self> {
+        Self::from_file_with(path, LoadMode::Tolerant)
+    }
+
+    /// [`Self::from_file`] with a choice of [`LoadMode`].
+    ///
+    /// # Errors
+    /// [`Error::Io`] naming the path, or any error of [`Self::parse_with`].
+    pub fn from_file_with(path: impl AsRef<Path>, mode: LoadMode) -> Result<Self> {
         let path = path.as_ref();
         let bytes = std::fs::read(path).map_err(|source| Error::Io {
             path: path.to_owned(),
             source,
         })?;
-        Self::from_bytes(&bytes, &path.display().to_string())
+        Self::from_bytes_with(&bytes, &path.display().to_string(), mode)
     }
 
-    /// Compile DBC bytes, UTF-8 or else Windows-1252 (which Vector tools write).
+    /// Compile DBC bytes tolerantly, UTF-8 or else Windows-1252 (which Vector tools write).
     ///
     /// # Errors
-    /// Any error of [`Self::parse`].
+    /// [`Error::Parse`].
     pub fn from_bytes(bytes: &[u8], source_name: &str) -> Result<Self> {
+        Self::from_bytes_with(bytes, source_name, LoadMode::Tolerant)
+    }
+
+    /// [`Self::from_bytes`] with a choice of [`LoadMode`].
+    ///
+    /// # Errors
+    /// Any error of [`Self::parse_with`].
+    pub fn from_bytes_with(bytes: &[u8], source_name: &str, mode: LoadMode) -> Result<Self> {
         if let Ok(text) = std::str::from_utf8(bytes) {
-            Self::parse(text, source_name)
+            Self::parse_with(text, source_name, mode)
         } else {
             // Windows-1252 (WHATWG) maps every byte, so the lossy fallback is only defensive.
             let text =
                 can_dbc::decode_cp1252(bytes).unwrap_or_else(|| String::from_utf8_lossy(bytes));
-            Self::parse(&text, source_name)
+            Self::parse_with(&text, source_name, mode)
         }
     }
 
-    /// Compile DBC text; `source_name` (usually the file name) prefixes every error.
+    /// Compile DBC text tolerantly ([`LoadMode::Tolerant`]); `source_name` (usually the
+    /// file name) prefixes every error and warning.
     ///
     /// # Errors
-    /// [`Error::Parse`] with line and column, [`Error::InvalidMessage`] or
-    /// [`Error::InvalidSignal`] naming the message and signal that cannot be compiled.
+    /// [`Error::Parse`] with line and column.
     pub fn parse(text: &str, source_name: &str) -> Result<Self> {
+        Self::parse_with(text, source_name, LoadMode::Tolerant)
+    }
+
+    /// Compile DBC text with a choice of [`LoadMode`].
+    ///
+    /// # Errors
+    /// [`Error::Parse`] with line and column; under [`LoadMode::Strict`] also
+    /// [`Error::InvalidMessage`] or [`Error::InvalidSignal`] naming the first message and
+    /// signal that cannot be compiled.
+    pub fn parse_with(text: &str, source_name: &str, mode: LoadMode) -> Result<Self> {
         // The parser can panic on some malformed inputs (it `expect`s what its grammar
         // should guarantee); a daemon must get an error, not an abort.
         let parsed = std::panic::catch_unwind(|| ast::Dbc::try_from(text)).unwrap_or(Err(
             ast::DbcError::NotImplemented("input that makes the DBC parser panic"),
         ));
         let dbc = parsed.map_err(|e| parse_error(&e, source_name))?;
-        compile(&dbc, text, source_name)
+        compile(&dbc, text, source_name, mode)
+    }
+
+    /// The messages a tolerant load left out, one warning each, in DBC order (empty after
+    /// a strict load, which refuses instead).
+    pub fn warnings(&self) -> &[LoadWarning] {
+        &self.warnings
+    }
+
+    /// Why the message of this (short or long) name was left out, if it was.
+    pub fn left_out(&self, message: &str) -> Option<&LoadWarning> {
+        self.left_out.get(message).map(|&i| &self.warnings[i])
     }
 
     /// Name given at load (file path or caller's choice).
@@ -114,7 +227,8 @@ impl Database {
         self.messages.get(i as usize)
     }
 
-    /// The message with this name.
+    /// The message with this name: its long name (`SystemMessageLongSymbol`) or its
+    /// short `BO_` name.
     pub fn message_by_name(&self, name: &str) -> Option<&Message> {
         self.by_name.get(name).map(|&i| &self.messages[i])
     }
@@ -141,9 +255,10 @@ impl Database {
         self.message_by_id(id).map(|m| m.decode_each(data, f))
     }
 
-    /// A fast handle on one signal, named `MESSAGE.SIGNAL`.
+    /// A fast handle on one signal, named `MESSAGE.SIGNAL` (long or short names, each).
     ///
     /// # Errors
+    /// [`Error::LeftOut`] if the message was left out at load, with the reason;
     /// [`Error::UnknownSignal`] naming what was looked for and which part is missing, or
     /// if the signal's multiplexing is too complex for a handle (nested, or more than
     /// [`crate::signal::HANDLE_MAX_MUX_RANGES`] value ranges) — decode the message instead.
@@ -155,10 +270,15 @@ impl Database {
         let (msg_name, sig_name) = path
             .split_once('.')
             .ok_or_else(|| unknown("expected MESSAGE.SIGNAL".to_owned()))?;
-        let mi = *self
-            .by_name
-            .get(msg_name)
-            .ok_or_else(|| unknown(format!("no message {msg_name} in {}", self.source_name)))?;
+        let Some(&mi) = self.by_name.get(msg_name) else {
+            return Err(match self.left_out(msg_name) {
+                Some(w) => Error::LeftOut {
+                    looked_for: path.to_owned(),
+                    warning: w.clone(),
+                },
+                None => unknown(format!("no message {msg_name} in {}", self.source_name)),
+            });
+        };
         let m = &self.messages[mi];
         let s = m
             .signal(sig_name)
@@ -232,6 +352,22 @@ struct Side<'a> {
     ext_mux: HashMap<SigKey<'a>, &'a ast::ExtendedMultiplex>,
     cycle_times: HashMap<ast::MessageId, u64>,
     cycle_default: Option<u64>,
+    /// Vector's `SystemMessageLongSymbol` / `SystemSignalLongSymbol`: names longer than the
+    /// 32 characters a `BO_`/`SG_` name may have; cantools names things by them.
+    message_long_names: HashMap<ast::MessageId, String>,
+    signal_long_names: HashMap<SigKey<'a>, String>,
+}
+
+/// The text of a long-name attribute, as cantools takes it (`str(value)`); an empty
+/// string is ignored, since a message or signal without a name cannot be looked up.
+fn long_name(v: &ast::AttributeValue) -> Option<String> {
+    let text = match v {
+        ast::AttributeValue::String(s) => s.clone(),
+        ast::AttributeValue::Uint(u) => u.to_string(),
+        ast::AttributeValue::Int(i) => i.to_string(),
+        ast::AttributeValue::Double(d) => d.to_string(),
+    };
+    (!text.is_empty()).then_some(text)
 }
 
 impl<'a> Side<'a> {
@@ -243,6 +379,8 @@ impl<'a> Side<'a> {
             value_types: HashMap::new(),
             ext_mux: HashMap::new(),
             cycle_times: HashMap::new(),
+            message_long_names: HashMap::new(),
+            signal_long_names: HashMap::new(),
             cycle_default: dbc
                 .attribute_default("GenMsgCycleTime")
                 .and_then(attribute_u64),
@@ -285,29 +423,45 @@ impl<'a> Side<'a> {
             if let Some(ms) = attribute_u64(&a.value).filter(|_| a.name == "GenMsgCycleTime") {
                 s.cycle_times.insert(a.message_id, ms);
             }
+            if let Some(name) = long_name(&a.value).filter(|_| a.name == "SystemMessageLongSymbol")
+            {
+                s.message_long_names.insert(a.message_id, name);
+            }
+        }
+        for a in &dbc.attribute_values_signal {
+            if let Some(name) = long_name(&a.value).filter(|_| a.name == "SystemSignalLongSymbol") {
+                s.signal_long_names
+                    .insert((a.message_id, a.signal_name.as_str()), name);
+            }
         }
         s
     }
 }
 
-fn compile(dbc: &ast::Dbc, text: &str, source_name: &str) -> Result<Database> {
+fn compile(dbc: &ast::Dbc, text: &str, source_name: &str, mode: LoadMode) -> Result<Database> {
     let side = Side::new(dbc);
     let written = written_message_ids(text);
     // Only trust the text scan if it saw exactly the parser's messages.
     let written = (written.len() == dbc.messages.len()).then_some(written);
 
-    let mut messages = Vec::with_capacity(dbc.messages.len());
+    let mut messages: Vec<Message> = Vec::with_capacity(dbc.messages.len());
     let mut standard = vec![u32::MAX; 0x800].into_boxed_slice();
     let mut extended = HashMap::default();
     let mut by_name = HashMap::new();
+    let mut warnings = Vec::new();
+    let mut left_out = HashMap::new();
 
     for (k, m) in dbc.messages.iter().enumerate() {
         if m.name == INDEPENDENT_SIGNALS_MESSAGE {
             continue;
         }
+        let name = side
+            .message_long_names
+            .get(&m.id)
+            .map_or(m.name.as_str(), String::as_str);
         let invalid = |reason: String| Error::InvalidMessage {
             source_name: source_name.to_owned(),
-            message: m.name.clone(),
+            message: name.to_owned(),
             reason,
         };
         // The scanned number is used only if the scan lines up on this very message.
@@ -315,44 +469,66 @@ fn compile(dbc: &ast::Dbc, text: &str, source_name: &str) -> Result<Database> {
             .as_ref()
             .and_then(|w| w[k].0.filter(|_| w[k].1 == m.name))
             .unwrap_or(u64::from(m.id.raw()));
-        let id = u32::try_from(dbc_id)
+        let checked = u32::try_from(dbc_id)
             .ok()
             .and_then(|i| FrameId::from_dbc(i).ok())
             .ok_or_else(|| {
                 invalid(format!(
                     "ID {dbc_id} (0x{dbc_id:X}) is neither an 11-bit standard ID nor a 29-bit ID flagged with 0x80000000"
                 ))
-            })?;
-        let length = usize::try_from(m.size)
-            .ok()
-            .filter(|&l| l <= MAX_MESSAGE_LENGTH)
-            .ok_or_else(|| {
-                invalid(format!(
-                    "length {} bytes exceeds the CAN FD maximum of {MAX_MESSAGE_LENGTH}",
-                    m.size
-                ))
-            })?;
-        let index = messages.len();
-        let slot = match id {
-            FrameId::Standard(s) => &mut standard[usize::from(s)],
-            FrameId::Extended(e) => extended.entry(e).or_insert(u32::MAX),
+            })
+            .and_then(|id| {
+                let length = usize::try_from(m.size)
+                    .ok()
+                    .filter(|&l| l <= MAX_MESSAGE_LENGTH)
+                    .ok_or_else(|| {
+                        invalid(format!(
+                            "length {} bytes exceeds the CAN FD maximum of {MAX_MESSAGE_LENGTH}",
+                            m.size
+                        ))
+                    })?;
+                let taken = match id {
+                    FrameId::Standard(s) => standard[usize::from(s)],
+                    FrameId::Extended(e) => extended.get(&e).copied().unwrap_or(u32::MAX),
+                };
+                if let Some(other) = messages.get(taken as usize) {
+                    return Err(invalid(format!(
+                        "frame ID {id} is also used by {}",
+                        other.name
+                    )));
+                }
+                if by_name.contains_key(name) || by_name.contains_key(&m.name) {
+                    return Err(invalid("two messages have this name".to_owned()));
+                }
+                compile_message(m, name, id, length, &side, source_name)
+            });
+        let message = match checked {
+            Ok(message) => message,
+            Err(e) if mode == LoadMode::Strict => return Err(e),
+            Err(e) => {
+                // A name already loaded keeps pointing at the loaded message.
+                left_out.entry(name.to_owned()).or_insert(warnings.len());
+                left_out.entry(m.name.clone()).or_insert(warnings.len());
+                warnings.push(LoadWarning::from_error(e, name, source_name));
+                continue;
+            }
         };
-        if *slot != u32::MAX {
-            let other: &Message = &messages[*slot as usize];
-            return Err(invalid(format!(
-                "frame ID {id} is also used by {}",
-                other.name
-            )));
+        let index = messages.len() as u32;
+        match message.id {
+            FrameId::Standard(s) => standard[usize::from(s)] = index,
+            FrameId::Extended(e) => {
+                extended.insert(e, index);
+            }
         }
-        *slot = index as u32;
-        if by_name.insert(m.name.clone(), index).is_some() {
-            return Err(invalid("two messages have this name".to_owned()));
-        }
-        messages.push(compile_message(m, id, length, &side, source_name)?);
+        by_name.insert(name.to_owned(), index as usize);
+        by_name.insert(m.name.clone(), index as usize);
+        messages.push(message);
     }
     Ok(Database {
         source_name: source_name.to_owned(),
         messages,
+        warnings,
+        left_out,
         standard,
         extended,
         by_name,
@@ -365,21 +541,33 @@ type Parent = (usize, Vec<(u64, u64)>);
 #[allow(clippy::too_many_lines)] // one linear pass over the signals reads best unsplit
 fn compile_message(
     m: &ast::Message,
+    name: &str,
     id: FrameId,
     length: usize,
     side: &Side<'_>,
     source_name: &str,
 ) -> Result<Message> {
+    // Long names where the DBC gives them (cantools' names), else the `SG_` names.
+    let names: Vec<&str> = m
+        .signals
+        .iter()
+        .map(|s| {
+            side.signal_long_names
+                .get(&(m.id, s.name.as_str()))
+                .map_or(s.name.as_str(), String::as_str)
+        })
+        .collect();
     let invalid = |signal: &str, reason: String| Error::InvalidSignal {
         source_name: source_name.to_owned(),
-        message: m.name.clone(),
+        message: name.to_owned(),
         signal: signal.to_owned(),
         reason,
     };
+    // Short names first: multiplexing (`SG_MUL_VAL_`) refers to signals by them.
     let mut by_name = HashMap::with_capacity(m.signals.len());
     for (i, s) in m.signals.iter().enumerate() {
         if by_name.insert(s.name.clone(), i).is_some() {
-            return Err(invalid(&s.name, "defined twice in the message".to_owned()));
+            return Err(invalid(names[i], "defined twice in the message".to_owned()));
         }
     }
     // Plain `M` multiplexors: the implicit parent of `m<n>` signals.
@@ -400,7 +588,7 @@ fn compile_message(
             ast::ByteOrder::BigEndian => ByteOrder::BigEndian,
         };
         let layout = BitLayout::new(s.start_bit, s.size, order, length as u64)
-            .map_err(|e| invalid(&s.name, e.to_string()))?;
+            .map_err(|e| invalid(names[i], e.to_string()))?;
         let value_type = match side.value_types.get(&key) {
             Some(ast::SignalExtendedValueType::IEEEfloat32Bit) => ValueType::Float32,
             Some(ast::SignalExtendedValueType::IEEEdouble64bit) => ValueType::Float64,
@@ -416,7 +604,7 @@ fn compile_message(
         };
         if let Some(bits) = needed.filter(|&b| b != s.size) {
             return Err(invalid(
-                &s.name,
+                names[i],
                 format!(
                     "an IEEE float signal of {} bits (SIG_VALTYPE_ needs {bits})",
                     s.size
@@ -425,7 +613,7 @@ fn compile_message(
         }
         if !(s.factor.is_finite() && s.offset.is_finite()) || s.factor == 0.0 {
             return Err(invalid(
-                &s.name,
+                names[i],
                 format!(
                     "factor {} / offset {} cannot be inverted",
                     s.factor, s.offset
@@ -446,7 +634,7 @@ fn compile_message(
                 .get(x.multiplexor_signal_name.as_str())
                 .ok_or_else(|| {
                     invalid(
-                        &s.name,
+                        names[i],
                         format!(
                             "SG_MUL_VAL_ names unknown multiplexor {}",
                             x.multiplexor_signal_name
@@ -465,13 +653,13 @@ fn compile_message(
                 [p] => Some((*p, vec![(v, v)])),
                 [] => {
                     return Err(invalid(
-                        &s.name,
+                        names[i],
                         format!("multiplexed (m{v}) but the message has no multiplexor (M)"),
                     ));
                 }
                 _ => {
                     return Err(invalid(
-                        &s.name,
+                        names[i],
                         format!(
                             "multiplexed (m{v}) but the message has several multiplexors and no SG_MUL_VAL_ picks one"
                         ),
@@ -482,12 +670,13 @@ fn compile_message(
             None
         };
         if parent.as_ref().is_some_and(|(p, _)| *p == i) {
-            return Err(invalid(&s.name, "multiplexed by itself".to_owned()));
+            return Err(invalid(names[i], "multiplexed by itself".to_owned()));
         }
         parents.push(parent);
 
         signals.push(Signal {
-            name: s.name.clone(),
+            name: names[i].to_owned(),
+            short_name: s.name.clone(),
             index: i,
             codec: Codec::new(layout, value_type, s.factor, s.offset),
             start_bit: s.start_bit,
@@ -562,10 +751,16 @@ fn compile_message(
         }
     }
 
+    // Long names are looked up too; a long name that is some other signal's short name
+    // keeps meaning that signal.
+    for s in &signals {
+        by_name.entry(s.name.clone()).or_insert(s.index);
+    }
     let hot = signals.iter().map(|s| (s.codec, s.mux.is_some())).collect();
     Ok(Message {
         hot,
-        name: m.name.clone(),
+        name: name.to_owned(),
+        short_name: m.name.clone(),
         id,
         length,
         cycle_time_ms: side

@@ -62,6 +62,16 @@ pub enum Error {
         reason: String,
     },
 
+    /// `Database::signal` was asked for a signal of a message that was left out at load
+    /// because it cannot be compiled (see [`crate::LoadWarning`]).
+    #[error("{looked_for:?} cannot be used: {warning}")]
+    LeftOut {
+        /// The full name that was looked for.
+        looked_for: String,
+        /// Why its message was left out: file, message, signal and reason.
+        warning: crate::LoadWarning,
+    },
+
     /// A message name that is not in the database.
     #[error("unknown message {0:?}")]
     UnknownMessage(String),

@@ -49,9 +49,12 @@ impl std::fmt::Display for LayoutError {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
             Self::BadSize(s) => write!(f, "size {s} bits is not within 1..=64"),
+            // "needs N bytes", not a byte index: an index leaves the reader guessing whether
+            // it counts from 0 or 1.
             Self::PastEnd { last_byte, length } => write!(
                 f,
-                "reaches byte {last_byte} but the message is only {length} bytes long"
+                "needs {} bytes but the message is only {length} bytes long",
+                last_byte + 1
             ),
         }
     }

@@ -67,9 +67,9 @@ mod layout;
 pub mod message;
 pub mod signal;
 
-pub use database::Database;
+pub use database::{Database, LoadMode, LoadWarning};
 pub use error::{Error, Result};
 pub use frame_id::FrameId;
 pub use integrity::{Checksum, ChecksumAlgorithm, CounterCheck, CounterStatus};
 pub use message::{Decoded, Message};
-pub use signal::{ByteOrder, Signal, SignalHandle, ValueType};
+pub use signal::{ByteOrder, Signal, SignalHandle, Value, ValueType};

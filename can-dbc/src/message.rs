@@ -5,7 +5,7 @@ use std::collections::HashMap;
 
 use crate::error::{Error, Result};
 use crate::frame_id::FrameId;
-use crate::signal::{Codec, MuxCondition, Signal};
+use crate::signal::{Codec, MuxCondition, Signal, Value};
 
 /// Most multiplexor signals (`M` or `m<n>M`) one message may have; the per-frame
 /// multiplexor state is a fixed array of this size so decoding never allocates.
@@ -15,6 +15,7 @@ pub const MAX_MULTIPLEXORS: usize = 8;
 #[derive(Clone, Debug)]
 pub struct Message {
     pub(crate) name: String,
+    pub(crate) short_name: String,
     pub(crate) id: FrameId,
     pub(crate) length: usize,
     pub(crate) cycle_time_ms: Option<u64>,
@@ -47,9 +48,14 @@ impl MuxState {
 }
 
 impl Message {
-    /// Message name as in the DBC.
+    /// Message name as cantools gives it: the `SystemMessageLongSymbol` attribute if the
+    /// DBC has one (names longer than 32 characters), else the `BO_` name.
     pub fn name(&self) -> &str {
         &self.name
+    }
+    /// The `BO_` name, at most 32 characters in files written by Vector tools.
+    pub fn short_name(&self) -> &str {
+        &self.short_name
     }
     /// Frame ID (standard or extended).
     pub fn id(&self) -> FrameId {
@@ -75,7 +81,7 @@ impl Message {
     pub fn signals(&self) -> &[Signal] {
         &self.signals
     }
-    /// A signal by name.
+    /// A signal by long or short name.
     pub fn signal(&self, name: &str) -> Option<&Signal> {
         self.by_name.get(name).map(|&i| &self.signals[i])
     }
@@ -154,6 +160,24 @@ impl Message {
         } else {
             for (s, v) in self.decode(data)? {
                 f(s, v);
+            }
+        }
+        Ok(())
+    }
+
+    /// As [`Self::decode_each`], with each value as a [`Value`]: integers exact at any
+    /// size, for output that must print what the frame holds.
+    ///
+    /// # Errors
+    /// [`Error::ShortFrame`] if `data` is shorter than the message's length.
+    pub fn decode_each_value(&self, data: &[u8], mut f: impl FnMut(&Signal, Value)) -> Result<()> {
+        let it = self.decode(data)?;
+        for (s, (codec, muxed)) in self.signals.iter().zip(self.hot.iter()) {
+            if *muxed && s.mux.as_ref().is_some_and(|c| !it.mux.selects(c)) {
+                continue;
+            }
+            if let Some(bits) = codec.raw_bits(data) {
+                f(s, codec.raw_to_value(bits));
             }
         }
         Ok(())

@@ -25,6 +25,37 @@ pub enum ValueType {
     Float64,
 }
 
+/// A decoded physical value, typed as cantools types it: a Python `int` for an integer
+/// signal whose factor and offset are whole numbers, else a `float`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Value {
+    /// Integer raw value, whole factor and offset: exact at any size (64-bit raw values
+    /// times a factor can exceed `i64`, hence `i128`).
+    Integer(i128),
+    /// Any other value, bit-identical to cantools' `float`.
+    Float(f64),
+}
+
+impl Value {
+    /// The value as an `f64` (what [`crate::Message::decode`] gives; rounded past 2^53).
+    pub fn as_f64(self) -> f64 {
+        match self {
+            Self::Integer(i) => i as f64,
+            Self::Float(f) => f,
+        }
+    }
+}
+
+impl std::fmt::Display for Value {
+    /// Integers in full, floats as `{}` writes an `f64`.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::Integer(i) => write!(f, "{i}"),
+            Self::Float(x) => write!(f, "{x}"),
+        }
+    }
+}
+
 /// The three cantools conversions, chosen once at compile time.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub(crate) enum Scaling {
@@ -144,6 +175,33 @@ impl Codec {
             DecodeKind::Float32 => self.scale_float(f64::from(f32::from_bits(bits as u32))),
             DecodeKind::Float64 => self.scale_float(f64::from_bits(bits)),
         }
+    }
+
+    /// The physical value of raw `bits`, exact when cantools' is a Python `int`: an
+    /// integer signal whose factor and offset are whole numbers. Past 2^53 an `f64` cannot
+    /// hold every such value (`3791054832379806569` would become `…6700`).
+    #[inline]
+    pub(crate) fn raw_to_value(&self, bits: u64) -> Value {
+        let whole = |x: f64| x.fract() == 0.0 && x.abs() < 9.2e18;
+        if matches!(self.value_type, ValueType::Unsigned | ValueType::Signed)
+            && whole(self.factor)
+            && whole(self.offset)
+        {
+            let raw = if self.value_type == ValueType::Signed {
+                i128::from(self.signed(bits))
+            } else {
+                i128::from(bits)
+            };
+            // |raw| < 2^64 and |factor|, |offset| < 2^63: no overflow is possible, but the
+            // checked form costs nothing and needs no argument.
+            if let Some(v) = raw
+                .checked_mul(i128::from(self.factor as i64))
+                .and_then(|v| v.checked_add(i128::from(self.offset as i64)))
+            {
+                return Value::Integer(v);
+            }
+        }
+        Value::Float(self.raw_to_scaled(bits))
     }
 
     #[inline]
@@ -272,6 +330,7 @@ impl MuxCondition {
 #[derive(Clone, Debug, PartialEq)]
 pub struct Signal {
     pub(crate) name: String,
+    pub(crate) short_name: String,
     pub(crate) index: usize,
     pub(crate) codec: Codec,
     pub(crate) start_bit: u64,
@@ -287,9 +346,14 @@ pub struct Signal {
 }
 
 impl Signal {
-    /// Signal name as in the DBC.
+    /// Signal name as cantools gives it: the `SystemSignalLongSymbol` attribute if the DBC
+    /// has one (names longer than 32 characters), else the `SG_` name.
     pub fn name(&self) -> &str {
         &self.name
+    }
+    /// The `SG_` name, at most 32 characters in files written by Vector tools.
+    pub fn short_name(&self) -> &str {
+        &self.short_name
     }
     /// Position of the signal in its message's [`crate::Message::signals`] (DBC order).
     pub fn index(&self) -> usize {
@@ -366,6 +430,11 @@ impl Signal {
     /// zero-extended (two's complement for signed, IEEE bits for floats).
     pub fn raw_to_scaled(&self, raw: u64) -> f64 {
         self.codec.raw_to_scaled(raw)
+    }
+    /// Physical value of raw bits, exact for integer signals with whole factor and offset
+    /// (see [`Value`]).
+    pub fn value(&self, raw: u64) -> Value {
+        self.codec.raw_to_value(raw)
     }
     /// Raw bits for a physical value, rounded to the nearest raw (cantools `scaled_to_raw`).
     ///

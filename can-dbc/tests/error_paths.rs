@@ -1,15 +1,32 @@
 //! Every error path, each checked to name its fault (file and line, message, signal).
+//! A message that cannot be compiled is an error under `LoadMode::Strict`, and under the
+//! default tolerant load a warning with the same reason (the rest of the file loads).
 
-use canodom_dbc::{Database, Error, FrameId};
+use canodom_dbc::{Database, Error, FrameId, LoadMode};
 
 fn dbc(messages: &str) -> String {
     format!("VERSION \"\"\n\nBS_:\n\nBU_: ECU\n\n{messages}\n")
 }
 
+/// The strict load's error text, after checking that the tolerant load of the same text
+/// succeeds with one warning giving the same reason.
 fn load_err(messages: &str) -> String {
-    Database::parse(&dbc(messages), "test.dbc")
-        .unwrap_err()
-        .to_string()
+    let text = dbc(messages);
+    let err = Database::parse_with(&text, "test.dbc", LoadMode::Strict).unwrap_err();
+    let tolerant = Database::parse(&text, "test.dbc").unwrap();
+    let [warning] = tolerant.warnings() else {
+        panic!("one warning expected, got {:?}", tolerant.warnings());
+    };
+    let reason = match &err {
+        Error::InvalidMessage { reason, .. } | Error::InvalidSignal { reason, .. } => reason,
+        other => panic!("not a compile error: {other}"),
+    };
+    assert_eq!(warning.reason(), reason);
+    assert!(
+        warning.to_string().starts_with("test.dbc: message "),
+        "{warning}"
+    );
+    err.to_string()
 }
 
 #[test]
@@ -64,7 +81,7 @@ fn signal_past_frame_end_names_message_and_signal() {
     // Motorola: MSB at bit 7 of byte 1, 16 bits, needs byte 2.
     let e = load_err("BO_ 256 MSG: 2 ECU\n SG_ MOTO : 15|16@0+ (1,0) [0|0] \"\" ECU");
     assert!(
-        e.contains("signal MOTO") && e.contains("reaches byte 2"),
+        e.contains("signal MOTO") && e.contains("needs 3 bytes"),
         "{e}"
     );
 }

@@ -9,7 +9,9 @@
 )]
 
 mod cantools_diff;
+mod corpus;
 mod error_paths;
+mod issue20;
 mod properties;
 mod rc_car;
 pub mod util;

@@ -326,3 +326,106 @@ fn simulate_true_params_differ_from_the_nominal_vehicle() {
             .contains("rear_right_diameter")
     );
 }
+
+/// Issue #20: a DBC with one message that cannot be compiled still decodes the rest (a
+/// warning names file, message, signal and reason); `--strict` refuses it; a 64-bit
+/// integer prints exactly; CAN FD is read; `decode --help` says so.
+#[test]
+fn decode_tolerates_a_broken_message_prints_exact_integers_and_strict_refuses() {
+    let dir = tmp_dir("issue20");
+    let dbc = dir.join("car.dbc");
+    std::fs::write(
+        &dbc,
+        "VERSION \"\"\n\nBS_:\n\nBU_: ECU\n\n\
+         BO_ 2 BIG: 8 ECU\n SG_ s64 : 0|64@1- (1,0) [0|0] \"\" ECU\n\n\
+         BO_ 3 BROKEN: 2 ECU\n SG_ FAR : 12|8@1+ (1,0) [0|0] \"\" ECU\n",
+    )
+    .unwrap();
+    let log = dir.join("x.log");
+    let mut f = std::fs::File::create(&log).unwrap();
+    let big = 3_791_054_832_379_806_569i64.to_le_bytes();
+    let hex = format!("{:016X}", u64::from_be_bytes(big));
+    writeln!(f, "(1700000000.000001) vcan0 002#{hex}").unwrap();
+    writeln!(f, "(1700000000.000002) vcan0 002##0{hex}").unwrap();
+    drop(f);
+    let (dbc, log) = (dbc.to_str().unwrap(), log.to_str().unwrap());
+    let (out, err) = ok(&["decode", "--dbc", dbc, log]);
+    let lines: Vec<&str> = out.lines().collect();
+    assert_eq!(lines.len(), 2, "{out}");
+    for line in lines {
+        assert!(
+            line.ends_with(r#""signals": {"s64": 3791054832379806569}}"#),
+            "{line}"
+        );
+    }
+    assert!(
+        err.contains(&format!(
+            "{dbc}: message BROKEN left out (it cannot be decoded): signal FAR: \
+             needs 3 bytes but the message is only 2 bytes long"
+        )),
+        "{err}"
+    );
+    let refused = canodom(&["decode", "--dbc", dbc, "--strict", log]);
+    let err = String::from_utf8(refused.stderr).unwrap();
+    assert!(
+        !refused.status.success() && refused.stdout.is_empty(),
+        "{err}"
+    );
+    assert!(
+        err.contains("--strict: 1 message(s)") && err.contains("message BROKEN left out"),
+        "{err}"
+    );
+    let (help, _) = ok(&["decode", "--help"]);
+    assert!(
+        help.contains("CAN FD") && help.contains("##") && help.contains("more than 8 data"),
+        "{help}"
+    );
+}
+
+/// Issue #20: the commands that load a configuration take `--strict` too, and a
+/// configured signal in a left-out message is refused with the reason.
+#[test]
+fn replay_strict_refuses_and_a_used_left_out_message_is_named() {
+    let dir = tmp_dir("issue20_replay");
+    let rc_dbc = std::fs::read_to_string(manifest().join("../data/dbc/rc_car.dbc")).unwrap();
+    std::fs::write(
+        dir.join("car.dbc"),
+        format!("{rc_dbc}\nBO_ 2000 BROKEN: 2 ECU\n SG_ FAR : 12|8@1+ (1,0) [0|0] \"\" ECU\n"),
+    )
+    .unwrap();
+    let toml = std::fs::read_to_string(rc_car_toml())
+        .unwrap()
+        .replace("../../data/dbc/rc_car.dbc", "car.dbc");
+    std::fs::write(dir.join("car.toml"), &toml).unwrap();
+    std::fs::write(dir.join("empty.log"), "").unwrap();
+    let config = dir.join("car.toml");
+    let (config, log) = (
+        config.to_str().unwrap(),
+        dir.join("empty.log").to_str().unwrap().to_owned(),
+    );
+    let (_, err) = ok(&["replay", "--config", config, &log]);
+    assert!(err.contains("message BROKEN left out"), "{err}");
+    let refused = canodom(&["replay", "--config", config, "--strict", &log]);
+    let err = String::from_utf8(refused.stderr).unwrap();
+    assert!(
+        !refused.status.success() && err.contains("--strict"),
+        "{err}"
+    );
+    // Configured to read a signal of the left-out message: refused, with the reason.
+    std::fs::write(
+        dir.join("car.toml"),
+        toml.replace(
+            "rear_left = \"WHEEL_ENC_REAR.RL_TICKS\"",
+            "rear_left = \"BROKEN.FAR\"",
+        ),
+    )
+    .unwrap();
+    let refused = canodom(&["replay", "--config", config, &log]);
+    let err = String::from_utf8(refused.stderr).unwrap();
+    assert!(
+        !refused.status.success()
+            && err.contains("\"BROKEN.FAR\" cannot be used")
+            && err.contains("needs 3 bytes but the message is only 2 bytes long"),
+        "{err}"
+    );
+}

@@ -84,6 +84,10 @@ pub struct CalibrateArgs {
     /// and calibration.json with every number.
     #[arg(long, value_name = "DIR")]
     pub report: Option<PathBuf>,
+    /// Refuse a DBC file with a message that cannot be decoded (a signal past
+    /// its end, ...) instead of leaving the message out with a warning.
+    #[arg(long)]
+    pub strict: bool,
 }
 
 /// `--method`.
@@ -351,6 +355,7 @@ fn write_atomic(path: &Path, text: &str) -> anyhow::Result<()> {
 /// a failed calibration, an unwritable output.
 pub fn execute(args: &CalibrateArgs) -> anyhow::Result<()> {
     let config = Config::load(&args.config)?;
+    super::dbc_warnings(&config.db, args.strict)?;
     if let (Some(fixes), Some(log), Some(out)) = (&args.fixes, &args.log, &args.out) {
         return super::calibrate_drive::execute(&config, fixes, log, out, args.report.as_deref());
     }

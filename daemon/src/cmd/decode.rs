@@ -4,7 +4,7 @@
 use anyhow::Context as _;
 use canodom_can::candump::{LogReader, ReadError};
 use canodom_can::frame::FrameKind;
-use canodom_dbc::Database;
+use canodom_dbc::{Database, Value};
 use canodom_report::float_text::push_f64;
 use std::fmt::Write as _;
 use std::io::Write;
@@ -17,7 +17,19 @@ use std::path::PathBuf;
 candump -L can0 | canodom decode --dbc car.dbc - --all\n\n\
 Output, one line per frame:\n  {\"t\": 1700000000.123456, \"iface\": \"vcan0\", \"id\": 256, \"extended\": false, \
 \"name\": \"WHEEL_ENC_REAR\", \"signals\": {\"RL_TICKS\": 1200, ...}}\n\
-Only the signals present for a multiplexed frame's mux value are printed; NaN and infinite values are null."
+Only the signals present for a multiplexed frame's mux value are printed; NaN and infinite values are null.\n\n\
+Frames: classic CAN (`123#11223344`, at most 8 data bytes) and CAN FD (`123##<flags><data>`, \
+`##` in candump -L, at most 64 bytes) are both decoded. A classic line with more than 8 data \
+bytes is not a frame candump writes: it is reported as a malformed line (too_long) and skipped, \
+or ends decode under --strict. A frame shorter than its message's DBC length is skipped as \
+undecodable; bytes beyond that length are ignored.\n\n\
+Names and values: messages and signals are named as cantools names them, by the \
+SystemMessageLongSymbol / SystemSignalLongSymbol attributes where the DBC has them. A signal \
+with an integer raw value and whole factor and offset is printed as an exact integer, also \
+above 2^53 (JSON carries it; read it with an arbitrary-precision parser); other values as the \
+shortest decimal that reads back as the same f64.\n\n\
+A DBC message that cannot be decoded (a signal past its end, ...) is left out with a warning \
+on stderr and its frames count as unknown ids; --strict refuses the DBC instead."
 )]
 pub struct DecodeArgs {
     /// The DBC file.
@@ -29,7 +41,9 @@ pub struct DecodeArgs {
     /// Also print frames of ids the DBC does not know, with "name": null.
     #[arg(long)]
     pub all: bool,
-    /// A malformed log line is fatal instead of reported and skipped.
+    /// A malformed log line is fatal instead of reported and skipped, and a
+    /// DBC message that cannot be decoded refuses the DBC instead of being
+    /// left out with a warning.
     #[arg(long)]
     pub strict: bool,
 }
@@ -55,6 +69,7 @@ pub struct DecodeCounts {
 /// Unreadable DBC or log, a malformed line under `--strict`, a write error.
 pub fn execute(args: &DecodeArgs) -> anyhow::Result<()> {
     let db = Database::from_file(&args.dbc)?;
+    super::dbc_warnings(&db, args.strict)?;
     let mut input = super::open_input(&args.log, "decode")
         .with_context(|| format!("{}", args.log.display()))?;
     let stdout = std::io::stdout().lock();
@@ -134,14 +149,14 @@ pub fn decode(
                 write_json_str(&mut line, m.name());
                 line.extend_from_slice(b", \"signals\": {");
                 let mut first = true;
-                let decoded = m.decode_each(frame.data(), |s, v| {
+                let decoded = m.decode_each_value(frame.data(), |s, v| {
                     if !first {
                         line.extend_from_slice(b", ");
                     }
                     first = false;
                     write_json_str(&mut line, s.name());
                     line.extend_from_slice(b": ");
-                    write_json_number(&mut line, v);
+                    write_json_value(&mut line, v);
                 });
                 if decoded.is_err() {
                     counts.undecodable += 1;
@@ -164,6 +179,16 @@ pub fn write_json_number(out: &mut Vec<u8>, v: f64) {
         push_f64(out, v);
     } else {
         out.extend_from_slice(b"null");
+    }
+}
+
+/// A decoded value as a JSON number: an integer exactly, at any size (an
+/// `f64` would print `3791054832379806569` as `3791054832379806700`), a float
+/// as [`write_json_number`] writes it.
+pub fn write_json_value(out: &mut Vec<u8>, v: Value) {
+    match v {
+        Value::Integer(i) => out.extend_from_slice(itoa::Buffer::new().format(i).as_bytes()),
+        Value::Float(f) => write_json_number(out, f),
     }
 }
 
@@ -210,5 +235,26 @@ mod tests {
         let mut out = Vec::new();
         write_json_number(&mut out, f64::NAN);
         assert_eq!(out, b"null");
+    }
+
+    #[test]
+    fn integers_are_exact_beyond_2_pow_53() {
+        for (v, text) in [
+            (
+                Value::Integer(3_791_054_832_379_806_569),
+                "3791054832379806569",
+            ),
+            (
+                Value::Integer(-9_223_372_036_854_775_807),
+                "-9223372036854775807",
+            ),
+            (Value::Integer(1200), "1200"),
+            (Value::Float(1200.0), "1200"),
+            (Value::Float(-67.67), "-67.67"),
+        ] {
+            let mut out = Vec::new();
+            write_json_value(&mut out, v);
+            assert_eq!(String::from_utf8(out).unwrap(), text);
+        }
     }
 }

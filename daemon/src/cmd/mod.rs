@@ -78,6 +78,32 @@ pub fn open_input(
     Ok(crate::progress::Progress::new(reader, label, total))
 }
 
+/// Logs the messages a tolerant DBC load left out (one `warn` each, naming file,
+/// message, signal and reason: canodom-dbc does no logging itself), or, under
+/// `--strict`, refuses the DBC with all of them.
+///
+/// # Errors
+/// `strict` and at least one message left out.
+pub fn dbc_warnings(db: &canodom_dbc::Database, strict: bool) -> anyhow::Result<()> {
+    let warnings = db.warnings();
+    if strict && !warnings.is_empty() {
+        let list = warnings.iter().fold(String::new(), |mut list, w| {
+            use std::fmt::Write as _;
+            let _ = write!(list, "\n  {w}");
+            list
+        });
+        anyhow::bail!(
+            "--strict: {} message(s) of {} cannot be decoded:{list}",
+            warnings.len(),
+            db.source_name()
+        );
+    }
+    for w in warnings {
+        tracing::warn!("{w}");
+    }
+    Ok(())
+}
+
 /// `secs.micros` without padding: a valid JSON number and CSV field.
 pub fn write_timestamp(out: &mut Vec<u8>, t: canodom_can::candump::Timestamp) {
     use std::io::Write as _;

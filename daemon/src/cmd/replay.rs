@@ -46,6 +46,10 @@ pub struct ReplayArgs {
     /// as `run` uses it. Checksums and the configuration's bounds are checked.
     #[arg(long)]
     pub params: Option<PathBuf>,
+    /// Refuse a DBC file with a message that cannot be decoded (a signal past
+    /// its end, ...) instead of leaving the message out with a warning.
+    #[arg(long)]
+    pub strict: bool,
 }
 
 /// What a replay did.
@@ -69,6 +73,7 @@ pub struct ReplaySummary {
 /// Configuration, unreadable log, write failure.
 pub fn execute(args: &ReplayArgs) -> anyhow::Result<()> {
     let config = Config::load(&args.config)?;
+    super::dbc_warnings(&config.db, args.strict)?;
     let params = match &args.params {
         None => None,
         Some(path) => {

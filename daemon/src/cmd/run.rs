@@ -32,6 +32,10 @@ pub struct RunArgs {
     /// bounds). See `canodom::state_file`.
     #[arg(long)]
     pub state_file: Option<PathBuf>,
+    /// Refuse a DBC file with a message that cannot be decoded (a signal past
+    /// its end, ...) instead of leaving the message out with a warning.
+    #[arg(long)]
+    pub strict: bool,
 }
 
 /// Runs the daemon.
@@ -40,6 +44,7 @@ pub struct RunArgs {
 /// Configuration, or the transport failing for good.
 pub fn execute(args: &RunArgs) -> anyhow::Result<()> {
     let config = Arc::new(Config::load(&args.config)?);
+    super::dbc_warnings(&config.db, args.strict)?;
     let connector = SocketCan {
         iface: config.interface.clone(),
     };
