@@ -307,7 +307,17 @@ pub struct LogReader<R> {
     line_no: u64,
     /// The interface name of the last record parsed on the fast path.
     iface: String,
+    /// Only records of this interface are returned, when set.
+    only_iface: Option<String>,
+    /// Lines of other interfaces skipped by [`Self::only_interface`].
+    other_iface_lines: u64,
+    /// The distinct interface names seen, in order of appearance (at most
+    /// [`MAX_INTERFACES_LISTED`]).
+    interfaces: Vec<String>,
 }
+
+/// How many distinct interface names [`LogReader::interfaces`] keeps.
+pub const MAX_INTERFACES_LISTED: usize = 32;
 
 impl<R: Read> LogReader<R> {
     /// Wraps a reader (buffered or not: the reader does its own buffering).
@@ -327,7 +337,40 @@ impl<R: Read> LogReader<R> {
             eof: false,
             line_no: 0,
             iface: String::new(),
+            only_iface: None,
+            other_iface_lines: 0,
+            interfaces: Vec::new(),
         }
+    }
+
+    /// Returns only the records of interface `name`; lines of other
+    /// interfaces are skipped and counted ([`Self::other_interface_lines`]).
+    #[must_use]
+    pub fn only_interface(mut self, name: &str) -> Self {
+        self.only_iface = Some(name.to_owned());
+        self
+    }
+
+    /// The distinct interface names of the lines read so far, filtered out or
+    /// not, in order of appearance: more than one means the log mixes buses.
+    pub fn interfaces(&self) -> &[String] {
+        &self.interfaces
+    }
+
+    /// Lines skipped because they belong to another interface than the one
+    /// asked for with [`Self::only_interface`].
+    pub fn other_interface_lines(&self) -> u64 {
+        self.other_iface_lines
+    }
+
+    /// Notes an interface name; `true` when the filter lets its lines through.
+    fn note_interface(&mut self, name: &str) -> bool {
+        if self.interfaces.len() < MAX_INTERFACES_LISTED
+            && !self.interfaces.iter().any(|n| n == name)
+        {
+            self.interfaces.push(name.to_owned());
+        }
+        self.only_iface.as_deref().is_none_or(|only| only == name)
     }
 
     /// Number of the line most recently read (1-based; 0 before the first).
@@ -372,18 +415,29 @@ impl<R: Read> LogReader<R> {
     #[allow(clippy::inline_always)]
     #[inline(always)]
     fn next_common(&mut self) -> Option<ClassicData> {
-        let line = parse_common(&self.buf[self.start..self.end], self.iface.as_bytes())?;
-        if !line.known_iface {
-            let name = &self.buf[self.start + line.iface.start..self.start + line.iface.end];
-            // `parse_common` checked it is printable ASCII; else the general
-            // parser judges the line.
-            let name = std::str::from_utf8(name).ok()?;
-            self.iface.clear();
-            self.iface.push_str(name);
+        loop {
+            // `self.iface` is only ever an accepted name, so a line of the
+            // known interface needs no filtering: the common case stays as fast.
+            let line = parse_common(&self.buf[self.start..self.end], self.iface.as_bytes())?;
+            if !line.known_iface {
+                let range = self.start + line.iface.start..self.start + line.iface.end;
+                // `parse_common` checked it is printable ASCII; else the general
+                // parser judges the line.
+                let name = std::str::from_utf8(&self.buf[range.clone()])
+                    .ok()?
+                    .to_owned();
+                if !self.note_interface(&name) {
+                    self.start += line.consumed;
+                    self.line_no += 1;
+                    self.other_iface_lines += 1;
+                    continue;
+                }
+                self.iface = name;
+            }
+            self.start += line.consumed;
+            self.line_no += 1;
+            return Some(line.classic);
         }
-        self.start += line.consumed;
-        self.line_no += 1;
-        Some(line.classic)
     }
 
     /// [`Self::next_record`] without its fast path, for any line: finds its
@@ -422,9 +476,37 @@ impl<R: Read> LogReader<R> {
             self.start = (line_start + line_len + 1).min(self.end);
             self.line_no += 1;
             let len = trim_end(&self.buf[line_start..line_start + line_len]).len();
-            if len > 0 {
-                break (line_start, len);
+            if len == 0 {
+                continue;
             }
+            // The interface is the line's second word (after the time): the
+            // filter and the list judge it before parsing, so a line of
+            // another bus is skipped whatever its content.
+            let line = &self.buf[line_start..line_start + len];
+            let mut words = line
+                .split(u8::is_ascii_whitespace)
+                .filter(|w| !w.is_empty());
+            // Only a line shaped as a record names an interface (garbage's
+            // second word is not one).
+            let (Some(b'('), Some(iface)) = (words.next().and_then(|w| w.first()), words.next())
+            else {
+                break (line_start, len);
+            };
+            let new = !self.interfaces.iter().any(|n| n.as_bytes() == iface);
+            let passes = self
+                .only_iface
+                .as_deref()
+                .is_none_or(|only| only.as_bytes() == iface);
+            // Owned only for a name not seen before (rare), so the general
+            // path does not allocate per line.
+            if new && let Ok(name) = std::str::from_utf8(iface).map(str::to_owned) {
+                self.note_interface(&name);
+            }
+            if !passes {
+                self.other_iface_lines += 1;
+                continue;
+            }
+            break (line_start, len);
         };
         match parse_line(&self.buf[line_start..line_start + len]) {
             Ok(record) => Ok(Some(record)),
@@ -1073,6 +1155,55 @@ mod tests {
 
     fn parse(s: &str) -> Result<Record<'_>, Reason> {
         parse_line(s.as_bytes())
+    }
+
+    /// Every record `reader` returns, through the fast and general paths
+    /// as replay alternates them, as `(iface, id)`.
+    fn read_all(mut reader: LogReader<&[u8]>) -> (Vec<(String, u32)>, LogReader<&[u8]>) {
+        let mut out = Vec::new();
+        loop {
+            if let Some(c) = reader.next_classic() {
+                out.push((reader.iface.clone(), c.id.raw()));
+                continue;
+            }
+            match reader.next_record_general() {
+                Ok(Some(r)) => out.push((r.iface.to_owned(), r.frame.id().raw())),
+                Ok(None) => return (out, reader),
+                Err(ReadError::Malformed(_)) => {}
+                Err(e @ ReadError::Io(_)) => panic!("{e}"),
+            }
+        }
+    }
+
+    const TWO_BUSES: &str = "(1.000001) can0 100#11\n(1.000002) can1 200#22\n\
+        (1.000003) can0 101##1AA\n(1.000004) can1 201##1BB\ngarbage words here\n\
+        (1.000005) can0 102#33\n(1.000006) can1 202#R\n";
+
+    #[test]
+    fn the_interfaces_of_a_log_are_listed_in_order() {
+        let (records, reader) = read_all(LogReader::new(TWO_BUSES.as_bytes()));
+        assert_eq!(records.len(), 6);
+        assert_eq!(reader.interfaces(), ["can0", "can1"]);
+        assert_eq!(reader.other_interface_lines(), 0);
+    }
+
+    #[test]
+    fn an_interface_filter_keeps_one_bus_on_both_paths() {
+        let (records, reader) =
+            read_all(LogReader::new(TWO_BUSES.as_bytes()).only_interface("can1"));
+        assert_eq!(
+            records,
+            [
+                ("can1".to_owned(), 0x200),
+                ("can1".to_owned(), 0x201),
+                ("can1".to_owned(), 0x202)
+            ]
+        );
+        assert_eq!(reader.other_interface_lines(), 3);
+        assert_eq!(reader.interfaces(), ["can0", "can1"]);
+        let (none, reader) = read_all(LogReader::new(TWO_BUSES.as_bytes()).only_interface("can9"));
+        assert!(none.is_empty());
+        assert_eq!(reader.other_interface_lines(), 6);
     }
 
     fn roundtrip(s: &str) {

@@ -8,8 +8,10 @@
 //! Layout:
 //! - [`frame`]: the CAN frame value type (classic, FD, remote, error frames).
 //! - [`candump`]: the `candump -L` log format, streaming parser and formatter, and [`candump::Timestamp`].
+//! - [`log_format`]: which CAN log format a file is, from its first bytes.
 //! - [`bus`]: the transport trait, with the in-process bus and SocketCAN.
 
 pub mod bus;
 pub mod candump;
 pub mod frame;
+pub mod log_format;

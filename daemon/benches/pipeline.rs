@@ -35,6 +35,7 @@ fn bench(c: &mut Criterion) {
         log: PathBuf::from("-"),
         all: false,
         strict: false,
+        interface: None,
     };
     group.bench_function("decode", |b| {
         let mut out = Vec::with_capacity(1 << 22);

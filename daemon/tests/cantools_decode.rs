@@ -26,6 +26,7 @@ fn decode_agrees_with_cantools_on_every_shared_dbc() {
             log: log.clone(),
             all: true,
             strict: true,
+            interface: None,
         };
         let mut out = Vec::new();
         let input = std::io::BufReader::new(std::fs::File::open(&log).unwrap());

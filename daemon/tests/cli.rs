@@ -397,12 +397,15 @@ fn replay_strict_refuses_and_a_used_left_out_message_is_named() {
         .unwrap()
         .replace("../../data/dbc/rc_car.dbc", "car.dbc");
     std::fs::write(dir.join("car.toml"), &toml).unwrap();
-    std::fs::write(dir.join("empty.log"), "").unwrap();
     let config = dir.join("car.toml");
     let (config, log) = (
         config.to_str().unwrap(),
-        dir.join("empty.log").to_str().unwrap().to_owned(),
+        dir.join("drive.log").to_str().unwrap().to_owned(),
     );
+    // A log with frames: replay refuses one it reads nothing from.
+    ok(&[
+        "simulate", "--config", config, "--log", &log, "--path", "circle",
+    ]);
     let (_, err) = ok(&["replay", "--config", config, &log]);
     assert!(err.contains("message BROKEN left out"), "{err}");
     let refused = canodom(&["replay", "--config", config, "--strict", &log]);

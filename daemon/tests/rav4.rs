@@ -119,6 +119,7 @@ fn calibrated_on_the_first_half_the_second_half_stays_within_one_percent() {
         &first_log,
         &params,
         Some(&dir.join("report")),
+        None,
     )
     .unwrap();
     let set = canodom_params::persist::load(&params, &config.calibration.bounds)

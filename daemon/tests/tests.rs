@@ -14,6 +14,7 @@ mod cli;
 mod config_errors;
 mod drive_session;
 mod follow_session;
+mod log_refusal;
 mod rav4;
 mod run_loop;
 mod trajectory;

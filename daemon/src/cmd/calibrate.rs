@@ -13,7 +13,6 @@ use anyhow::{Context as _, bail};
 use canodom_calib::methods::{ExactOptions, PaperOptions, exact, heading, paper};
 use canodom_calib::run::{InputFault, Tolerances};
 use canodom_calib::{CalibrationResult, Direction, RearParams, RevSample, Run, RunRecorder, Track};
-use canodom_can::candump::LogReader;
 use canodom_fusion::{Pose, VehicleParams};
 use canodom_pipeline::config::Config;
 use canodom_pipeline::pipeline::Pipeline;
@@ -88,6 +87,9 @@ pub struct CalibrateArgs {
     /// its end, ...) instead of leaving the message out with a warning.
     #[arg(long)]
     pub strict: bool,
+    /// Only the frames of this interface (a log may hold several buses).
+    #[arg(long)]
+    pub interface: Option<String>,
 }
 
 /// `--method`.
@@ -178,10 +180,9 @@ pub fn run_from_log(
     direction: Direction,
     measured_end: Option<Pose>,
     max_gap_s: f64,
+    interface: Option<&str>,
 ) -> anyhow::Result<Run> {
-    let file =
-        std::fs::File::open(log).with_context(|| format!("{}: cannot open", log.display()))?;
-    let mut reader = LogReader::new(std::io::BufReader::with_capacity(1 << 16, file));
+    let mut reader = super::log_reader(super::open_input(log, "calibrate")?, interface);
     let mut pipeline = Pipeline::new(config)?;
     let params = config.params;
     let tread_m = params.rear_tread_m();
@@ -230,6 +231,12 @@ pub fn run_from_log(
             input_faults(&pipeline),
         ));
     }
+    super::check_log_read(
+        "calibrate",
+        log,
+        &super::LogSeen::of(&reader, pipeline.stats().frames, malformed),
+        interface,
+    )?;
     let moving = |s: &RevSample| s.rear_left_rev.abs().max(s.rear_right_rev.abs()) > MOVING_REV;
     let Some(first) = samples.iter().position(|(s, _)| moving(s)) else {
         bail!(
@@ -357,7 +364,14 @@ pub fn execute(args: &CalibrateArgs) -> anyhow::Result<()> {
     let config = Config::load(&args.config)?;
     super::dbc_warnings(&config.db, args.strict)?;
     if let (Some(fixes), Some(log), Some(out)) = (&args.fixes, &args.log, &args.out) {
-        return super::calibrate_drive::execute(&config, fixes, log, out, args.report.as_deref());
+        return super::calibrate_drive::execute(
+            &config,
+            fixes,
+            log,
+            out,
+            args.report.as_deref(),
+            args.interface.as_deref(),
+        );
     }
     let radius = args
         .track_radius
@@ -395,6 +409,7 @@ pub fn execute(args: &CalibrateArgs) -> anyhow::Result<()> {
             dir,
             end_pose_of(&poses, log),
             tolerances.max_gap_s,
+            args.interface.as_deref(),
         )?;
         let reasons = run.validate(track, &config.params, &tolerances);
         if reasons.is_empty() {

@@ -16,7 +16,6 @@ use anyhow::{Context as _, bail};
 use canodom_calib::drive::{
     DriveCalibration, DriveModel, DriveSample, Estimate, Fix, calibrate_drive,
 };
-use canodom_can::candump::LogReader;
 use canodom_params::persist::{ParamFile, ParamSet, ParamValues, PersistError};
 use canodom_pipeline::config::Config;
 use canodom_pipeline::pipeline::Pipeline;
@@ -125,10 +124,9 @@ pub fn samples_from_log(
     config: &Config,
     set: Option<&ParamSet>,
     log: &Path,
+    interface: Option<&str>,
 ) -> anyhow::Result<DriveLog> {
-    let file =
-        std::fs::File::open(log).with_context(|| format!("{}: cannot open", log.display()))?;
-    let mut reader = LogReader::new(std::io::BufReader::with_capacity(1 << 16, file));
+    let mut reader = super::log_reader(super::open_input(log, "calibrate")?, interface);
     let mut pipeline = Pipeline::new(config)?;
     if let Some(s) = set {
         pipeline.apply_params(Some((s.version, &s.values)))?;
@@ -158,6 +156,12 @@ pub fn samples_from_log(
             yaw_rate_radps: step.yaw_rate_radps,
         });
     }
+    super::check_log_read(
+        "calibrate",
+        log,
+        &super::LogSeen::of(&reader, pipeline.stats().frames, malformed),
+        interface,
+    )?;
     if samples.len() < 2 {
         bail!(
             "{}: {} filter steps ({}); is this the configured car's log?",
@@ -275,6 +279,7 @@ pub fn execute(
     log: &Path,
     out: &Path,
     report_dir: Option<&Path>,
+    interface: Option<&str>,
 ) -> anyhow::Result<()> {
     let text = std::fs::read_to_string(fixes_path)
         .with_context(|| format!("{}: cannot read the fixes", fixes_path.display()))?;
@@ -282,7 +287,7 @@ pub fn execute(
     let mut file = load_or_new(out, config)?;
     let base_set = file.current.clone();
     let base = values_in_use(config, base_set.as_ref());
-    let drive = samples_from_log(config, base_set.as_ref(), log)?;
+    let drive = samples_from_log(config, base_set.as_ref(), log, interface)?;
     let (first, last) = (
         drive.samples[0].t_s,
         drive.samples[drive.samples.len() - 1].t_s,

@@ -1,8 +1,7 @@
 //! `canodom decode`: a candump log to JSON lines, one object per decoded
 //! frame, hand-written into one reused buffer (no per-frame allocation).
 
-use anyhow::Context as _;
-use canodom_can::candump::{LogReader, ReadError};
+use canodom_can::candump::ReadError;
 use canodom_can::frame::FrameKind;
 use canodom_dbc::{Database, Value};
 use canodom_report::float_text::push_f64;
@@ -46,11 +45,16 @@ pub struct DecodeArgs {
     /// left out with a warning.
     #[arg(long)]
     pub strict: bool,
+    /// Only the frames of this interface (a log may hold several buses).
+    #[arg(long)]
+    pub interface: Option<String>,
 }
 
 /// Counts of what `decode` did.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct DecodeCounts {
+    /// Frames read from the log (of the chosen interface).
+    pub frames: u64,
     /// Frames printed.
     pub printed: u64,
     /// Frames of unknown ids skipped.
@@ -70,8 +74,7 @@ pub struct DecodeCounts {
 pub fn execute(args: &DecodeArgs) -> anyhow::Result<()> {
     let db = Database::from_file(&args.dbc)?;
     super::dbc_warnings(&db, args.strict)?;
-    let mut input = super::open_input(&args.log, "decode")
-        .with_context(|| format!("{}", args.log.display()))?;
+    let mut input = super::open_input(&args.log, "decode")?;
     let stdout = std::io::stdout().lock();
     let mut out = std::io::BufWriter::with_capacity(1 << 16, stdout);
     let counts = decode(&db, &mut input, &mut out, args, &mut std::io::stderr())?;
@@ -99,7 +102,7 @@ pub fn decode(
     args: &DecodeArgs,
     diag: &mut impl Write,
 ) -> anyhow::Result<DecodeCounts> {
-    let mut reader = LogReader::new(input);
+    let mut reader = super::log_reader(input, args.interface.as_deref());
     let mut counts = DecodeCounts::default();
     let mut line = Vec::with_capacity(512);
     loop {
@@ -117,6 +120,7 @@ pub fn decode(
             }
             Err(e @ ReadError::Io(_)) => return Err(e.into()),
         };
+        counts.frames += 1;
         let frame = record.frame;
         let (raw, extended) = (frame.id().raw(), frame.id().is_extended());
         let message = db.message_by_id(frame.id());
@@ -167,6 +171,22 @@ pub fn decode(
         }
         out.write_all(&line)?;
         counts.printed += 1;
+    }
+    super::check_log_read(
+        "decode",
+        &args.log,
+        &super::LogSeen::of(&reader, counts.frames, counts.malformed),
+        args.interface.as_deref(),
+    )?;
+    if counts.unknown == counts.frames && !args.all {
+        anyhow::bail!(
+            "{}: none of its {} frames has an id of {}: is this the vehicle's DBC? \
+             (`canodom dbc dump {}` lists its ids; --all prints every frame anyway)",
+            args.log.display(),
+            counts.frames,
+            db.source_name(),
+            db.source_name()
+        );
     }
     Ok(counts)
 }

@@ -50,16 +50,20 @@ impl Command {
     }
 }
 
-/// Opens a log path, `-` meaning standard input, buffered.
+/// Opens a log path, `-` meaning standard input, buffered, and refuses by
+/// name a log of a format canodom does not read (plain candump, Vector ASC
+/// or BLF, python-can CSV, TRC, compressed), judged from its first bytes,
+/// with the way forward. A progress line is drawn on stderr when it is a
+/// terminal.
 ///
 /// # Errors
-/// The file cannot be opened.
-/// A progress line is drawn on stderr when it is a terminal.
+/// The file cannot be opened or read, or is of a format not read.
 pub fn open_input(
     path: &Path,
     label: &'static str,
-) -> std::io::Result<crate::progress::Progress<Box<dyn std::io::BufRead>>> {
-    let (reader, total): (Box<dyn std::io::BufRead>, _) = if path == Path::new("-") {
+) -> anyhow::Result<crate::progress::Progress<Box<dyn std::io::BufRead>>> {
+    use std::io::BufRead as _;
+    let (mut reader, total): (Box<dyn std::io::BufRead>, _) = if path == Path::new("-") {
         (
             Box::new(std::io::BufReader::with_capacity(
                 1 << 16,
@@ -68,14 +72,111 @@ pub fn open_input(
             None,
         )
     } else {
-        let file = std::fs::File::open(path)?;
+        let file = std::fs::File::open(path)
+            .map_err(|e| anyhow::anyhow!("{}: cannot open: {e}", path.display()))?;
         let len = file.metadata().ok().map(|m| m.len());
         (
             Box::new(std::io::BufReader::with_capacity(1 << 16, file)),
             len,
         )
     };
+    let head = reader
+        .fill_buf()
+        .map_err(|e| anyhow::anyhow!("{}: cannot read: {e}", path.display()))?;
+    let format = canodom_can::log_format::sniff(head);
+    if let Some(way) = format.way_forward() {
+        anyhow::bail!(
+            "{}: this is {}, and canodom reads candump -L logs; {way}",
+            path.display(),
+            format.name()
+        );
+    }
     Ok(crate::progress::Progress::new(reader, label, total))
+}
+
+/// A log reader over `input`, keeping only interface `interface` when given.
+pub fn log_reader<R: std::io::Read>(
+    input: R,
+    interface: Option<&str>,
+) -> canodom_can::candump::LogReader<R> {
+    let reader = canodom_can::candump::LogReader::new(input);
+    match interface {
+        Some(name) => reader.only_interface(name),
+        None => reader,
+    }
+}
+
+/// What reading a log met, for [`check_log_read`].
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct LogSeen {
+    /// Frames read (of the chosen interface).
+    pub frames: u64,
+    /// Malformed lines skipped.
+    pub malformed: u64,
+    /// The distinct interfaces of the log, in order of appearance.
+    pub interfaces: Vec<String>,
+    /// Lines skipped as another interface's.
+    pub other_interface_lines: u64,
+}
+
+impl LogSeen {
+    /// What `reader` met, with the frames and malformed lines its user counted.
+    pub fn of<R: std::io::Read>(
+        reader: &canodom_can::candump::LogReader<R>,
+        frames: u64,
+        malformed: u64,
+    ) -> Self {
+        Self {
+            frames,
+            malformed,
+            interfaces: reader.interfaces().to_vec(),
+            other_interface_lines: reader.other_interface_lines(),
+        }
+    }
+}
+
+/// Refuses a log from which no frame was read (exit non-zero, saying why),
+/// and warns when a log mixes the frames of several interfaces without
+/// `--interface` choosing one.
+///
+/// # Errors
+/// No frame read.
+pub fn check_log_read(
+    label: &str,
+    path: &Path,
+    seen: &LogSeen,
+    interface: Option<&str>,
+) -> anyhow::Result<()> {
+    let interfaces = seen.interfaces.join(", ");
+    if seen.frames == 0 {
+        match interface {
+            Some(name) if seen.other_interface_lines > 0 => anyhow::bail!(
+                "{}: no frame of interface {name}; the log holds {interfaces}",
+                path.display()
+            ),
+            _ if seen.malformed > 0 => anyhow::bail!(
+                "{}: no frame could be read: all {} lines are malformed; canodom reads \
+                 candump -L records such as `(1700000000.000100) can0 123#11223344` \
+                 (record with `candump -L can0 > drive.log`)",
+                path.display(),
+                seen.malformed
+            ),
+            _ => anyhow::bail!(
+                "{}: holds no frame (record with `candump -L can0 > drive.log`)",
+                path.display()
+            ),
+        }
+    }
+    if interface.is_none() && seen.interfaces.len() > 1 {
+        tracing::warn!(
+            "{label}: {} holds frames of {} interfaces ({interfaces}), read as one bus; \
+             choose one with --interface {}",
+            path.display(),
+            seen.interfaces.len(),
+            seen.interfaces[0]
+        );
+    }
+    Ok(())
 }
 
 /// Logs the messages a tolerant DBC load left out (one `warn` each, naming file,

@@ -8,7 +8,7 @@ use canodom_can::frame::CanFrame;
 use canodom_fusion::ekf::WindowOutcome;
 use canodom_pipeline::config::Config;
 use canodom_pipeline::pipeline::{Pipeline, Step};
-use canodom_pipeline::stats::Stats;
+use canodom_pipeline::stats::{Reject, Stats};
 use canodom_report::float_text::push_csv_row;
 use std::fmt::Write as _;
 use std::io::{Read, Write};
@@ -50,6 +50,9 @@ pub struct ReplayArgs {
     /// its end, ...) instead of leaving the message out with a warning.
     #[arg(long)]
     pub strict: bool,
+    /// Only the frames of this interface (a log may hold several buses).
+    #[arg(long)]
+    pub interface: Option<String>,
 }
 
 /// What a replay did.
@@ -65,6 +68,8 @@ pub struct ReplaySummary {
     pub last_step: Option<Step>,
     /// The filter's final state.
     pub state: canodom_fusion::ekf::State,
+    /// The log's interfaces and the lines of others skipped.
+    pub seen: super::LogSeen,
 }
 
 /// Runs `replay`.
@@ -94,8 +99,7 @@ pub fn execute(args: &ReplayArgs) -> anyhow::Result<()> {
             Some(set)
         }
     };
-    let mut input = super::open_input(&args.log, "replay")
-        .with_context(|| format!("{}", args.log.display()))?;
+    let mut input = super::open_input(&args.log, "replay")?;
     let started = std::time::Instant::now();
     let sink: Box<dyn Write> = match &args.out {
         Some(path) => Box::new(
@@ -105,15 +109,40 @@ pub fn execute(args: &ReplayArgs) -> anyhow::Result<()> {
         None => Box::new(std::io::stdout().lock()),
     };
     let mut w = std::io::BufWriter::with_capacity(WRITE_BYTES, sink);
-    let summary = replay_with(
+    let summary = replay_log(
         &config,
         params.as_ref(),
+        args.interface.as_deref(),
         &mut input,
         &mut w,
         &mut std::io::stderr(),
     )?;
     w.flush()?;
     input.finish();
+    super::check_log_read(
+        "replay",
+        &args.log,
+        &summary.seen,
+        args.interface.as_deref(),
+    )?;
+    if summary.stats.get(Reject::UnknownId) == summary.stats.frames {
+        anyhow::bail!(
+            "{}: none of its {} frames has an id the configuration reads ({}): \
+             is this the configured vehicle's log, and {} its DBC? \
+             (`canodom decode --dbc {} {}` shows what the DBC knows of it)",
+            args.log.display(),
+            summary.stats.frames,
+            config
+                .input_ids()
+                .iter()
+                .map(ToString::to_string)
+                .collect::<Vec<_>>()
+                .join(", "),
+            config.db.source_name(),
+            config.db.source_name(),
+            args.log.display()
+        );
+    }
     let secs = started.elapsed().as_secs_f64();
     let mut malformed = format!("malformed lines {}", summary.malformed);
     for (reason, n) in summary.malformed_by_reason.nonzero() {
@@ -233,13 +262,28 @@ pub fn replay_with(
     out: &mut impl Write,
     diag: &mut impl Write,
 ) -> anyhow::Result<ReplaySummary> {
+    replay_log(config, params, None, input, out, diag)
+}
+
+/// [`replay_with`] of one interface's frames only, when `interface` is given.
+///
+/// # Errors
+/// Pipeline construction, a set the filter refuses, I/O.
+pub fn replay_log(
+    config: &Config,
+    params: Option<&canodom_params::persist::ParamSet>,
+    interface: Option<&str>,
+    input: impl Read,
+    out: &mut impl Write,
+    diag: &mut impl Write,
+) -> anyhow::Result<ReplaySummary> {
     let mut pipeline = Pipeline::new(config)?;
     if let Some(set) = params {
         pipeline
             .apply_params(Some((set.version, &set.values)))
             .with_context(|| format!("parameter set version {}", set.version))?;
     }
-    let mut reader = LogReader::new(input);
+    let mut reader = super::log_reader(input, interface);
     writeln!(out, "{CSV_HEADER}")?;
     let (to_filter, filter_in) = mpsc::channel::<Batch>();
     let (to_writer, from_filter) = mpsc::channel::<Batch>();
@@ -294,7 +338,9 @@ pub fn replay_with(
             .join()
             .unwrap_or_else(|panic| std::panic::resume_unwind(panic));
         let (malformed, by_reason) = fed?;
+        let seen = super::LogSeen::of(&reader, pipeline.stats().frames, malformed);
         Ok(ReplaySummary {
+            seen,
             stats: *pipeline.stats(),
             malformed,
             malformed_by_reason: by_reason,

@@ -1,0 +1,253 @@
+//! Which kind of CAN log a file is, judged from its first bytes, so that a
+//! log canodom does not read is refused by name with the way forward instead
+//! of being skipped line by line as malformed `candump -L` records.
+
+use crate::candump::parse_line;
+
+/// How many of the first non-blank lines are looked at.
+const LINES_LOOKED_AT: usize = 20;
+
+/// A CAN log format, as far as its first bytes tell.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LogFormat {
+    /// `candump -L` (`(1700000000.123456) can0 123#1122`): what canodom reads.
+    CandumpL,
+    /// `candump can0` without `-L` (`  can0  123   [8]  11 22 ...`).
+    CandumpPlain,
+    /// `candump -ta`/`-td`/`-tz`/`-tA` (a time in brackets, then the plain layout).
+    CandumpTimed,
+    /// Vector ASC text (`date ...`, `base hex  timestamps absolute`).
+    VectorAsc,
+    /// Vector BLF binary (`LOGG` magic).
+    VectorBlf,
+    /// python-can's CSV (`timestamp,arbitration_id,extended,...`).
+    PythonCanCsv,
+    /// PEAK PCAN-View TRC (`;$FILEVERSION=...`).
+    PeakTrc,
+    /// gzip-compressed (of any format).
+    Gzip,
+    /// zstd-compressed (of any format).
+    Zstd,
+    /// Nothing in it.
+    Empty,
+    /// None of the above: read as `candump -L`, whose reader names each bad line.
+    Unknown,
+}
+
+impl LogFormat {
+    /// The format's name as its users call it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::CandumpL => "a candump -L log",
+            Self::CandumpPlain => "plain candump output (candump without -L)",
+            Self::CandumpTimed => "candump output with -t timestamps (candump -ta/-td/-tz/-tA)",
+            Self::VectorAsc => "a Vector ASC log",
+            Self::VectorBlf => "a Vector BLF log",
+            Self::PythonCanCsv => "a python-can CSV log",
+            Self::PeakTrc => "a PEAK TRC log",
+            Self::Gzip => "a gzip-compressed file",
+            Self::Zstd => "a zstd-compressed file",
+            Self::Empty => "an empty file",
+            Self::Unknown => "not a known CAN log format",
+        }
+    }
+
+    /// Whether the `candump -L` reader should read it (an unknown text is
+    /// read too: its reader names every line it cannot use).
+    pub fn is_read(self) -> bool {
+        matches!(self, Self::CandumpL | Self::Unknown)
+    }
+
+    /// What to do with a log of this format, for one that is not read.
+    pub fn way_forward(self) -> Option<&'static str> {
+        Some(match self {
+            Self::CandumpL | Self::Unknown => return None,
+            Self::CandumpPlain | Self::CandumpTimed => {
+                "record with `candump -L can0 > drive.log` (the -L layout keeps the \
+                 absolute time and every frame kind); a live stream works too: \
+                 `candump -L can0 | canodom decode --dbc car.dbc -`"
+            }
+            Self::VectorAsc | Self::VectorBlf | Self::PythonCanCsv | Self::PeakTrc => {
+                "convert it with python-can: `pip install python-can` then \
+                 `python3 -m can.logconvert INPUT drive.log` (a .log output is candump -L)"
+            }
+            Self::Gzip => "decompress it first: `gunzip -k FILE` or `zcat FILE | canodom ... -`",
+            Self::Zstd => "decompress it first: `zstd -d FILE` or `zstdcat FILE | canodom ... -`",
+            Self::Empty => "record a log with `candump -L can0 > drive.log`",
+        })
+    }
+}
+
+/// The format of a log whose first bytes are `head` (a few kB are plenty;
+/// a cut last line is ignored).
+pub fn sniff(head: &[u8]) -> LogFormat {
+    if head.starts_with(b"LOGG") {
+        return LogFormat::VectorBlf;
+    }
+    if head.starts_with(&[0x1f, 0x8b]) {
+        return LogFormat::Gzip;
+    }
+    if head.starts_with(&[0x28, 0xb5, 0x2f, 0xfd]) {
+        return LogFormat::Zstd;
+    }
+    let head = head.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(head);
+    // A cut last line could look like anything: judge whole lines only,
+    // unless the head is the whole file (no newline at its end is normal).
+    let whole = match head.iter().rposition(|&b| b == b'\n') {
+        Some(end) if head.len() > 4096 => &head[..end],
+        _ => head,
+    };
+    let lines: Vec<&[u8]> = whole
+        .split(|&b| b == b'\n')
+        .map(trim)
+        .filter(|l| !l.is_empty())
+        .take(LINES_LOOKED_AT)
+        .collect();
+    if lines.is_empty() {
+        return LogFormat::Empty;
+    }
+    // One readable record among the first lines: a candump -L log, perhaps
+    // with a damaged line before it.
+    if lines.iter().any(|l| parse_line(l).is_ok()) {
+        return LogFormat::CandumpL;
+    }
+    lines
+        .iter()
+        .find_map(|l| foreign_line(l))
+        .unwrap_or(LogFormat::Unknown)
+}
+
+/// The format a single line of another tool's log gives away, if any.
+fn foreign_line(line: &[u8]) -> Option<LogFormat> {
+    let text = std::str::from_utf8(line).ok()?;
+    let lower = text.to_ascii_lowercase();
+    if lower.starts_with(";$fileversion") || lower.starts_with(";   start time") {
+        return Some(LogFormat::PeakTrc);
+    }
+    if lower.starts_with("date ")
+        || lower.starts_with("base hex")
+        || lower.starts_with("base dec")
+        || lower.starts_with("begin triggerblock")
+        || lower.starts_with("internal events logged")
+    {
+        return Some(LogFormat::VectorAsc);
+    }
+    if lower.starts_with("timestamp,arbitration_id") {
+        return Some(LogFormat::PythonCanCsv);
+    }
+    let mut words = text.split_whitespace();
+    let first = words.next()?;
+    let timed = first.starts_with('(') && first.ends_with(')') && first.len() > 2;
+    let (iface, id, len) = if timed {
+        (words.next()?, words.next()?, words.next()?)
+    } else {
+        (first, words.next()?, words.next()?)
+    };
+    let plain_shape = is_iface(iface)
+        && !id.is_empty()
+        && id.len() <= 8
+        && id.bytes().all(|b| b.is_ascii_hexdigit())
+        && len.starts_with('[')
+        && len.ends_with(']');
+    match (plain_shape, timed) {
+        (true, true) => Some(LogFormat::CandumpTimed),
+        (true, false) => Some(LogFormat::CandumpPlain),
+        _ => None,
+    }
+}
+
+/// A plausible network interface name (`can0`, `vcan1`, `slcan0`, `any`).
+fn is_iface(word: &str) -> bool {
+    !word.is_empty()
+        && word.len() <= 16
+        && word.starts_with(|c: char| c.is_ascii_alphabetic())
+        && word
+            .bytes()
+            .all(|b| b.is_ascii_alphanumeric() || matches!(b, b'_' | b'-' | b'.' | b':'))
+}
+
+fn trim(line: &[u8]) -> &[u8] {
+    let start = line
+        .iter()
+        .position(|b| !b.is_ascii_whitespace())
+        .unwrap_or(line.len());
+    let end = line
+        .iter()
+        .rposition(|b| !b.is_ascii_whitespace())
+        .map_or(start, |e| e + 1);
+    &line[start..end.max(start)]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn candump_l_is_read_even_after_a_damaged_first_line() {
+        assert_eq!(
+            sniff(b"(1700000000.000100) can0 123#1122\n"),
+            LogFormat::CandumpL
+        );
+        assert_eq!(
+            sniff(b"garbage\n(1700000000.000100) can0 123##1AABB\n"),
+            LogFormat::CandumpL
+        );
+        assert!(LogFormat::CandumpL.is_read());
+    }
+
+    #[test]
+    fn other_tools_logs_are_named() {
+        let cases: [(&[u8], LogFormat); 9] = [
+            (
+                b"  vcan0  123   [8]  11 22 33 44 55 66 77 88\n",
+                LogFormat::CandumpPlain,
+            ),
+            (
+                b" (1700000000.000100)  can0  18FF0000   [3]  01 02 03\n",
+                LogFormat::CandumpTimed,
+            ),
+            (
+                b" (000.010000)  can0  123   [2]  01 02\n",
+                LogFormat::CandumpTimed,
+            ),
+            (
+                b"date Wed Nov 25 06:00:00.000 am 2026\nbase hex  timestamps absolute\n",
+                LogFormat::VectorAsc,
+            ),
+            (b"LOGG\x90\x00\x00\x00", LogFormat::VectorBlf),
+            (
+                b"timestamp,arbitration_id,extended,remote,error,dlc,data\n",
+                LogFormat::PythonCanCsv,
+            ),
+            (
+                b";$FILEVERSION=2.1\n;$STARTTIME=45000.1\n",
+                LogFormat::PeakTrc,
+            ),
+            (b"\x1f\x8b\x08\x00", LogFormat::Gzip),
+            (b"\x28\xb5\x2f\xfd\x00", LogFormat::Zstd),
+        ];
+        for (head, format) in cases {
+            assert_eq!(sniff(head), format, "{}", String::from_utf8_lossy(head));
+            assert!(!format.is_read(), "{format:?}");
+            assert!(format.way_forward().is_some(), "{format:?}");
+        }
+    }
+
+    #[test]
+    fn empty_and_unknown_inputs() {
+        assert_eq!(sniff(b""), LogFormat::Empty);
+        assert_eq!(sniff(b"\n \n\t\n"), LogFormat::Empty);
+        assert_eq!(sniff(b"hello world\nnot a log\n"), LogFormat::Unknown);
+        assert!(LogFormat::Unknown.is_read());
+    }
+
+    #[test]
+    fn a_cut_last_line_of_a_long_head_is_ignored() {
+        let mut head = Vec::new();
+        for i in 0..200 {
+            head.extend_from_slice(format!("(1700000000.{i:06}) can0 123#11\n").as_bytes());
+        }
+        head.extend_from_slice(b"  can0  12");
+        assert_eq!(sniff(&head), LogFormat::CandumpL);
+    }
+}
