@@ -276,18 +276,43 @@ impl Database {
                     looked_for: path.to_owned(),
                     warning: w.clone(),
                 },
-                None => unknown(format!("no message {msg_name} in {}", self.source_name)),
+                None => unknown(format!(
+                    "no message {msg_name} in {}{}",
+                    self.source_name,
+                    did_you_mean(msg_name, self.messages.iter().map(Message::name))
+                )),
             });
         };
         let m = &self.messages[mi];
-        let s = m
-            .signal(sig_name)
-            .ok_or_else(|| unknown(format!("message {msg_name} has no signal {sig_name}")))?;
+        let s = m.signal(sig_name).ok_or_else(|| {
+            unknown(format!(
+                "message {msg_name} has no signal {sig_name}{}",
+                did_you_mean(sig_name, m.signals().iter().map(Signal::name))
+            ))
+        })?;
         let multiplexor = s.mux.as_ref().map(|c| &m.signals[c.multiplexor]);
         SignalHandle::new(s, multiplexor, m.length as u8, m.id, mi).ok_or_else(|| {
             unknown("its multiplexing is nested or has too many ranges for a handle; decode the whole message".to_owned())
         })
     }
+}
+
+/// `"; did you mean X?"` for the name among `names` closest to a misspelt
+/// `wanted` (case ignored), or nothing when none is close: a suggestion
+/// must be a likely typo, not any name of the file.
+fn did_you_mean<'a>(wanted: &str, names: impl Iterator<Item = &'a str>) -> String {
+    let wanted_lower = wanted.to_ascii_lowercase();
+    names
+        .map(|n| {
+            (
+                strsim::jaro_winkler(&wanted_lower, &n.to_ascii_lowercase()),
+                n,
+            )
+        })
+        .filter(|(score, _)| *score >= 0.85)
+        .max_by(|a, b| a.0.total_cmp(&b.0))
+        .map(|(_, n)| format!("; did you mean {n}?"))
+        .unwrap_or_default()
 }
 
 /// Turn the parser's error into ours, pulling the `--> line:col` pest prints.

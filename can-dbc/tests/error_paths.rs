@@ -178,6 +178,33 @@ fn unknown_signal_names_what_was_looked_for() {
 }
 
 #[test]
+fn a_misspelt_name_gets_a_suggestion_and_a_foreign_one_none() {
+    let db = Database::parse(
+        &dbc(
+            "BO_ 256 WHEEL_SPEEDS: 8 ECU\n SG_ WHEEL_SPEED_RL : 0|16@1+ (0.01,0) [0|0] \"\" ECU\n \
+              SG_ WHEEL_SPEED_RR : 16|16@1+ (0.01,0) [0|0] \"\" ECU",
+        ),
+        "t.dbc",
+    )
+    .unwrap();
+    let e = db
+        .signal("WHEEL_SPEEDS.WHEEL_SPEED_LR")
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("did you mean WHEEL_SPEED_RL?") || e.contains("did you mean WHEEL_SPEED_RR?"),
+        "{e}"
+    );
+    let e = db
+        .signal("wheel_speed.WHEEL_SPEED_RL")
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("did you mean WHEEL_SPEEDS?"), "{e}");
+    let e = db.signal("STEERING.ANGLE").unwrap_err().to_string();
+    assert!(!e.contains("did you mean"), "{e}");
+}
+
+#[test]
 fn short_frame_is_rejected_with_lengths() {
     let db = Database::from_file(crate::util::shared_dbc("rc_car.dbc")).unwrap();
     let m = db.message_by_id(FrameId::standard(256).unwrap()).unwrap();

@@ -54,8 +54,23 @@ fn main() -> std::process::ExitCode {
         // and environment errors for the user, not bugs (RUST_BACKTRACE=1 is
         // common on developer machines and would bury the one useful line).
         Err(e) => {
-            eprintln!("Error: {e:#}");
+            eprintln!("Error: {}", error_text(&e));
             std::process::ExitCode::FAILURE
         }
     }
+}
+
+/// The error with its causes, each once: many of our error types already
+/// write their cause into their own message (`file: reason`), so the cause
+/// chain would repeat the OS's reason.
+fn error_text(e: &anyhow::Error) -> String {
+    let mut text = e.to_string();
+    for cause in e.chain().skip(1) {
+        let cause = cause.to_string();
+        if !text.contains(&cause) {
+            text.push_str(": ");
+            text.push_str(&cause);
+        }
+    }
+    text
 }

@@ -15,6 +15,7 @@ mod config_errors;
 mod drive_session;
 mod follow_session;
 mod log_refusal;
+mod messages;
 mod rav4;
 mod run_loop;
 mod trajectory;

@@ -49,7 +49,7 @@ pub struct FollowOptions {
     pub true_params: VehicleParams,
     /// Cruise speed, m/s; `None` keeps the simulator's default for the vehicle.
     pub speed_mps: Option<f64>,
-    /// Track corner radius, m; `None` takes it from the operator's
+    /// Track semicircle radius ρ, m; `None` takes it from the operator's
     /// `START_SESSION` seen on the bus (or, failing that, the default track).
     pub track_radius_m: Option<f64>,
     /// Give up after this long.
@@ -78,7 +78,7 @@ pub struct LapRecord {
     pub run_index: u8,
     /// Direction driven.
     pub direction: Direction,
-    /// Track corner radius, m.
+    /// Track semicircle radius ρ, m.
     pub track_radius_m: f64,
     /// True distance driven, m.
     pub distance_m: f64,

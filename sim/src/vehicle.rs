@@ -42,7 +42,7 @@ const TRACK_RADIUS_M: f64 = 0.78;
 /// 1:10 car (tick inputs).
 const ROAD_SCALE: f64 = 20.0;
 
-/// The corner radius of the simulated calibration track (`--path track-*`):
+/// The semicircle radius ρ of the simulated calibration track (`--path track-*`):
 /// 0.78 m for a 1:10 car, 20 times that at road scale.
 pub fn track_radius_m(road_scale: bool) -> f64 {
     if road_scale {

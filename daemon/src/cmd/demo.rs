@@ -25,7 +25,7 @@ pub const DEFAULT_DBC: &str = include_str!("../../../data/dbc/rc_car.dbc");
 /// Arguments of `demo`.
 #[derive(Debug, clap::Args)]
 #[command(after_help = "Example:\n  cargo run --release -p canodom -- demo\n  \
-canodom demo --config examples/toyota.toml --path random --seed 3\n\n\
+canodom demo --config daemon/examples/toyota.toml --path random --seed 3\n\n\
 Prints a table every --every seconds of simulated time: the true pose, the fused pose, \
 rear-wheel-only odometry, the fused pose's distance from the truth, and frames rejected so \
 far; then the end errors. Without --config it uses the built-in rc_car configuration \

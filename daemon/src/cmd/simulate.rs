@@ -66,7 +66,7 @@ pub struct SimulateArgs {
     /// Drive the runs the daemon's guided calibration asks for on --iface (see below).
     #[arg(long, requires = "iface", conflicts_with_all = ["log", "truth", "laps", "slip"])]
     pub follow_calibration: bool,
-    /// With --follow-calibration: the track corner radius, m, instead of the one heard in START_SESSION.
+    /// With --follow-calibration: the track's semicircle radius ρ, m, instead of the one heard in START_SESSION.
     #[arg(long, requires = "follow_calibration", value_parser = parse_positive)]
     pub track_radius: Option<f64>,
     /// With --follow-calibration: stop after this many seconds whatever happens.
