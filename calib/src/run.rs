@@ -561,6 +561,80 @@ impl Rejection {
     }
 }
 
+impl std::fmt::Display for InputFault {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::Gap { gap_s } => write!(f, "no sample for {gap_s:.2} s"),
+            Self::TimestampNotIncreasing => write!(f, "a timestamp did not increase"),
+            Self::NonFinite => write!(f, "a NaN or infinite value"),
+            Self::Decoder { code } => write!(f, "the wheel decoder reported fault {code}"),
+        }
+    }
+}
+
+/// The track's segments in driving order, for messages.
+const SEGMENT_NAMES: [&str; 4] = [
+    "the first straight",
+    "the first semicircle",
+    "the second straight",
+    "the second semicircle",
+];
+
+impl std::fmt::Display for Rejection {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::TooFewSamples { samples } => {
+                write!(f, "only {samples} samples: too short to be a run")
+            }
+            Self::LengthOff {
+                length_m,
+                expected_m,
+            } => write!(
+                f,
+                "the odometry path is {length_m:.3} m long where the track is {expected_m:.3} m \
+                 ({:+.1} %): not one lap of this track",
+                100.0 * (length_m / expected_m - 1.0)
+            ),
+            Self::TurnOff {
+                total_turn_rad,
+                expected_rad,
+            } => write!(
+                f,
+                "the run turned {:.0}° where a lap turns {:.0}°",
+                total_turn_rad.to_degrees(),
+                expected_rad.to_degrees()
+            ),
+            Self::InputFault {
+                count,
+                first_t_s,
+                first,
+            } => write!(
+                f,
+                "{count} input fault(s) during the run, the first at {first_t_s:.2} s: {first}"
+            ),
+            Self::SteeringInconsistent {
+                segment,
+                mean_angle_rad,
+                expected_rad,
+            } => {
+                let name = SEGMENT_NAMES
+                    .get(usize::from(*segment))
+                    .unwrap_or(&"a segment");
+                if mean_angle_rad.is_finite() {
+                    write!(
+                        f,
+                        "the steering averaged {:.1}° on {name} where the track needs {:.1}°",
+                        mean_angle_rad.to_degrees(),
+                        expected_rad.to_degrees()
+                    )
+                } else {
+                    write!(f, "no steering sample on the middle half of {name}")
+                }
+            }
+        }
+    }
+}
+
 /// Checks that the runs hold at least `per_direction` runs each way.
 pub(crate) fn count_directions(runs: &[Run]) -> (usize, usize) {
     let ccw = runs
@@ -595,6 +669,51 @@ mod tests {
             rec.push(*s);
         }
         rec.finish(None)
+    }
+
+    #[test]
+    fn rejections_read_as_words() {
+        let texts = [
+            Rejection::TooFewSamples { samples: 1 }.to_string(),
+            Rejection::LengthOff {
+                length_m: 9.0,
+                expected_m: 10.0,
+            }
+            .to_string(),
+            Rejection::TurnOff {
+                total_turn_rad: PI,
+                expected_rad: 2.0 * PI,
+            }
+            .to_string(),
+            Rejection::InputFault {
+                count: 1,
+                first_t_s: 0.030_935,
+                first: InputFault::Decoder { code: 1 },
+            }
+            .to_string(),
+            Rejection::SteeringInconsistent {
+                segment: 1,
+                mean_angle_rad: f64::NAN,
+                expected_rad: 0.2,
+            }
+            .to_string(),
+        ];
+        assert!(texts[1].contains("-10.0 %"), "{}", texts[1]);
+        assert!(
+            texts[2].contains("180°") && texts[2].contains("360°"),
+            "{}",
+            texts[2]
+        );
+        assert!(
+            texts[3].contains("at 0.03 s: the wheel decoder reported fault 1"),
+            "{}",
+            texts[3]
+        );
+        assert!(texts[4].contains("the first semicircle"), "{}", texts[4]);
+        for t in &texts {
+            // Words, not Rust's debug notation.
+            assert!(!t.contains('{') && !t.contains("NaN"), "{t}");
+        }
     }
 
     fn nominal() -> VehicleParams {

@@ -296,6 +296,11 @@ pub fn result_toml(
         "# rear_tread_m is the EFFECTIVE tread (docs/calibration-math.md §4): the one that makes\n\
          # odometry close, not the distance between tyre centres; use it for odometry only."
     );
+    let _ = writeln!(
+        s,
+        "# Held at nominal (track runs do not tell them): the front tread and wheel diameters,\n\
+         # the steering map; calibrate those with `canodom calib start-steering` or a drive with fixes."
+    );
     let _ = writeln!(s, "[calibration]");
     let num = |s: &mut String, k: &str, v: f64| {
         let _ = writeln!(s, "{k} = {v:?}");
@@ -421,7 +426,7 @@ pub fn execute(args: &CalibrateArgs) -> anyhow::Result<()> {
             labels.push(log.display().to_string());
         } else {
             for r in &reasons {
-                eprintln!("calibrate: {}: run rejected: {r:?}", log.display());
+                eprintln!("calibrate: {}: run rejected: {r}", log.display());
             }
         }
     }
