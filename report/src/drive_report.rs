@@ -4,7 +4,9 @@
 //! when the car has one), and `calibration.json`, every number of the
 //! result.
 
-use crate::files::{PlotResult, ReportError, ReportFiles, json_line, svg_text, write_report};
+use crate::files::{
+    PlotResult, ReportError, ReportFiles, draw_legend, json_line, svg_text, write_report,
+};
 use canodom_calib::drive::{DriveCalibration, DriveSample, Estimate, Fix};
 use canodom_params::persist::ParamValues;
 use plotters::prelude::*;
@@ -318,23 +320,6 @@ impl DriveReport {
         }
         draw_legend(&mut chart)
     }
-}
-
-/// The legend of both charts, top left.
-fn draw_legend<'a, X, Y>(
-    chart: &mut ChartContext<'a, SVGBackend<'a>, Cartesian2d<X, Y>>,
-) -> PlotResult
-where
-    X: plotters::coord::ranged1d::Ranged<ValueType = f64>,
-    Y: plotters::coord::ranged1d::Ranged<ValueType = f64>,
-{
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperLeft)
-        .background_style(WHITE.mix(0.8))
-        .border_style(BLACK)
-        .draw()?;
-    Ok(())
 }
 
 impl ReportFiles for DriveReport {

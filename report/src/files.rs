@@ -35,6 +35,9 @@ pub enum ReportError {
     /// so it is kept as text).
     #[error("cannot draw the calibration plot: {0}")]
     Plot(String),
+    /// A replay and its reference trajectory cannot be compared.
+    #[error("cannot compare with the reference: {0}")]
+    Truth(String),
     /// The report could not be serialised.
     #[error("cannot serialise the report: {0}")]
     Json(#[from] serde_json::Error),
@@ -106,4 +109,21 @@ pub fn write_report(
     write_durable(&svg_path, &svg)?;
     write_durable(&json_path, &json)?;
     Ok((svg_path, json_path))
+}
+
+/// A chart's legend, top left, on a translucent white box.
+pub(crate) fn draw_legend<'a, X, Y>(
+    chart: &mut ChartContext<'a, SVGBackend<'a>, Cartesian2d<X, Y>>,
+) -> PlotResult
+where
+    X: plotters::coord::ranged1d::Ranged<ValueType = f64>,
+    Y: plotters::coord::ranged1d::Ranged<ValueType = f64>,
+{
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::UpperLeft)
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .draw()?;
+    Ok(())
 }

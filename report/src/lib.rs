@@ -7,6 +7,7 @@
 //! - [`steering_report`]: the steering calibration report.
 //! - [`drive_report`]: the report of a calibration from a drive with position fixes.
 //! - [`committed`]: the report of a committed live calibration, rear or steering.
+//! - [`truth`]: a replay against a reference trajectory (`replay --truth`).
 //! - [`float_text`]: `f64` written as `{}` writes it, fast (replay output).
 
 pub mod committed;
@@ -15,3 +16,4 @@ pub mod files;
 pub mod float_text;
 pub mod report;
 pub mod steering_report;
+pub mod truth;
