@@ -53,6 +53,19 @@ pub struct ReplayArgs {
     /// Only the frames of this interface (a log may hold several buses).
     #[arg(long)]
     pub interface: Option<String>,
+    /// A reference trajectory to compare with: CSV `t_unix_s,x_m,y_m[,heading_rad]`
+    /// on the log's clock (the format of `calibrate --fixes`), e.g. GNSS in a local
+    /// metric frame or motion capture.
+    #[arg(long, value_name = "CSV")]
+    pub truth: Option<PathBuf>,
+    /// With --truth: dead-reckon from the reference's pose this many seconds after
+    /// the log's first frame (default: the first step inside the reference).
+    #[arg(long, requires = "truth", value_name = "SECONDS")]
+    pub truth_start_s: Option<f64>,
+    /// With --truth: where the comparison's picture and numbers go
+    /// (default: beside --out, `<out stem>-truth/`, else `replay-truth/`).
+    #[arg(long, requires = "truth", value_name = "DIR")]
+    pub truth_report: Option<PathBuf>,
 }
 
 /// What a replay did.
@@ -70,6 +83,19 @@ pub struct ReplaySummary {
     pub state: canodom_fusion::ekf::State,
     /// The log's interfaces and the lines of others skipped.
     pub seen: super::LogSeen,
+    /// Every step at its absolute time, when [`ReplayOptions::keep_track`] asked.
+    pub track: Vec<canodom_report::truth::TrackPoint>,
+    /// Time of the first input frame, which steps' `t_s` count from.
+    pub first_frame: Option<canodom_can::candump::Timestamp>,
+}
+
+/// How [`replay_log`] reads and what it keeps.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct ReplayOptions<'a> {
+    /// Only the frames of this interface.
+    pub interface: Option<&'a str>,
+    /// Keep every step with its absolute time (for `--truth`).
+    pub keep_track: bool,
 }
 
 /// Runs `replay`.
@@ -99,6 +125,14 @@ pub fn execute(args: &ReplayArgs) -> anyhow::Result<()> {
             Some(set)
         }
     };
+    let truth = match &args.truth {
+        None => None,
+        Some(path) => {
+            let text = std::fs::read_to_string(path)
+                .map_err(|e| anyhow::anyhow!("{}: cannot read the reference: {e}", path.display()))?;
+            Some(super::calibrate_drive::parse_fixes(&text, &path.display().to_string())?)
+        }
+    };
     let mut input = super::open_input(&args.log, "replay")?;
     let started = std::time::Instant::now();
     let sink: Box<dyn Write> = match &args.out {
@@ -112,7 +146,10 @@ pub fn execute(args: &ReplayArgs) -> anyhow::Result<()> {
     let summary = replay_log(
         &config,
         params.as_ref(),
-        args.interface.as_deref(),
+        ReplayOptions {
+            interface: args.interface.as_deref(),
+            keep_track: truth.is_some(),
+        },
         &mut input,
         &mut w,
         &mut std::io::stderr(),
@@ -165,6 +202,42 @@ pub fn execute(args: &ReplayArgs) -> anyhow::Result<()> {
             s.odometry.heading_rad
         );
     }
+    if let Some(truth) = truth {
+        compare_with_truth(args, &truth, &summary.track, summary.first_frame)?;
+    }
+    Ok(())
+}
+
+/// `--truth`: the replay placed on the reference, the errors printed, the
+/// picture and numbers written.
+fn compare_with_truth(
+    args: &ReplayArgs,
+    truth: &[canodom_calib::drive::Fix],
+    track: &[canodom_report::truth::TrackPoint],
+    first_frame: Option<canodom_can::candump::Timestamp>,
+) -> anyhow::Result<()> {
+    // Seconds after the log's first frame, on the log's clock.
+    let start = args
+        .truth_start_s
+        .zip(first_frame)
+        .map(|(s, t0)| t0.as_secs_f64() + s);
+    let truth_path = args.truth.as_deref().unwrap_or(std::path::Path::new("truth"));
+    let comparison = canodom_report::truth::TruthComparison::build(truth, track, start)
+        .map_err(|e| anyhow::anyhow!("--truth {}: {e}", truth_path.display()))?;
+    eprintln!("replay: {}", comparison.summary());
+    let dir = match (&args.truth_report, &args.out) {
+        (Some(dir), _) => dir.clone(),
+        (None, Some(out)) => {
+            let stem = out.file_stem().map_or_else(
+                || "replay".to_owned(),
+                |s| s.to_string_lossy().into_owned(),
+            );
+            out.with_file_name(format!("{stem}-truth"))
+        }
+        (None, None) => PathBuf::from("replay-truth"),
+    };
+    let (svg, json) = canodom_report::files::write_report(&dir, &comparison)?;
+    eprintln!("replay: comparison in {} and {}", svg.display(), json.display());
     Ok(())
 }
 
@@ -262,17 +335,17 @@ pub fn replay_with(
     out: &mut impl Write,
     diag: &mut impl Write,
 ) -> anyhow::Result<ReplaySummary> {
-    replay_log(config, params, None, input, out, diag)
+    replay_log(config, params, ReplayOptions::default(), input, out, diag)
 }
 
-/// [`replay_with`] of one interface's frames only, when `interface` is given.
+/// [`replay_with`] as `options` say: one interface's frames only, the track kept.
 ///
 /// # Errors
 /// Pipeline construction, a set the filter refuses, I/O.
 pub fn replay_log(
     config: &Config,
     params: Option<&canodom_params::persist::ParamSet>,
-    interface: Option<&str>,
+    options: ReplayOptions<'_>,
     input: impl Read,
     out: &mut impl Write,
     diag: &mut impl Write,
@@ -283,7 +356,8 @@ pub fn replay_log(
             .apply_params(Some((set.version, &set.values)))
             .with_context(|| format!("parameter set version {}", set.version))?;
     }
-    let mut reader = super::log_reader(input, interface);
+    let mut reader = super::log_reader(input, options.interface);
+    let mut kept = options.keep_track.then(Vec::new);
     writeln!(out, "{CSV_HEADER}")?;
     let (to_filter, filter_in) = mpsc::channel::<Batch>();
     let (to_writer, from_filter) = mpsc::channel::<Batch>();
@@ -331,7 +405,14 @@ pub fn replay_log(
             }
             pipeline
         });
-        let fed = feed(&mut reader, &to_filter, &from_filter, out, diag);
+        let fed = feed(
+            &mut reader,
+            &to_filter,
+            &from_filter,
+            out,
+            diag,
+            kept.as_mut(),
+        );
         // Ends the filter thread's loop, whether feeding ended or failed.
         drop(to_filter);
         let pipeline = filter
@@ -339,8 +420,28 @@ pub fn replay_log(
             .unwrap_or_else(|panic| std::panic::resume_unwind(panic));
         let (malformed, by_reason) = fed?;
         let seen = super::LogSeen::of(&reader, pipeline.stats().frames, malformed);
+        let t0_us = pipeline.first_frame_time().map_or(0, |t| t.as_micros() as i64);
+        let track = kept
+            .unwrap_or_default()
+            .into_iter()
+            .map(|(t_us, v)| canodom_report::truth::TrackPoint {
+                t_unix_s: (t0_us + t_us) as f64 / 1e6,
+                fused: canodom_fusion::Pose {
+                    x_m: v[0],
+                    y_m: v[1],
+                    heading_rad: v[2],
+                },
+                rear: canodom_fusion::Pose {
+                    x_m: v[3],
+                    y_m: v[4],
+                    heading_rad: v[5],
+                },
+            })
+            .collect();
         Ok(ReplaySummary {
             seen,
+            track,
+            first_frame: pipeline.first_frame_time(),
             stats: *pipeline.stats(),
             malformed,
             malformed_by_reason: by_reason,
@@ -359,6 +460,7 @@ fn feed<R: Read>(
     from_filter: &mpsc::Receiver<Batch>,
     out: &mut impl Write,
     diag: &mut impl Write,
+    mut kept: Option<&mut Vec<(i64, [f64; 6])>>,
 ) -> anyhow::Result<(u64, MalformedCounts)> {
     let mut malformed = 0u64;
     let mut by_reason = MalformedCounts::default();
@@ -375,6 +477,9 @@ fn feed<R: Read>(
     // Rows are gathered until at least `WRITE_BYTES` (a `BufWriter` of that
     // capacity then hands them on without copying them into its buffer).
     let mut write_rows = |batch: &Batch, out: &mut dyn Write| -> std::io::Result<()> {
+        if let Some(kept) = kept.as_deref_mut() {
+            kept.extend(batch.rows.iter().map(|r| (r.t_us, r.values)));
+        }
         if batch.text.is_empty() {
             push_rows(&mut text, &batch.rows);
         } else {
