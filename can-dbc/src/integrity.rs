@@ -350,6 +350,18 @@ impl Checksum {
 }
 
 /// Byte-wise table of a non-reflected CRC-8.
+///
+/// Kept beside the `crc` crate (issue #21), which serves the catalogue J1850
+/// above: `crc::Crc::new` takes a `&'static Algorithm`, which a poly read
+/// from config at run time can only be by leaking it, and the crate's
+/// per-frame check is slower than the position tables built from this one.
+/// Verifying a 7-byte CRC-8 (poly 0x2F) in an 8-byte frame: ours
+/// ([`Checksum::is_valid`]) 6.0 ns, `Crc<u8, Table<1>>` 10.7 ns,
+/// `Table<16>` 21.3 ns, `NoTable` 125 ns; set-up once per checksum 2.2 µs
+/// against 0.17 µs (`Table<1>`) and 4.9 µs (`Table<16>`) (`cargo bench -p
+/// canodom-can --bench checksum`, 2 shared cores under load ≈ 13). The test
+/// `crc8_table_is_the_crc_crates_table` holds it to the crate's table for
+/// every poly.
 fn crc8_table(poly: u8) -> [u8; 256] {
     let mut table = [0u8; 256];
     for (i, entry) in table.iter_mut().enumerate() {
@@ -432,6 +444,21 @@ mod tests {
             state ^= state << 17;
             let data = state.to_le_bytes();
             assert_eq!(c.compute(&data).unwrap(), J1850.checksum(&data[..7]));
+        }
+    }
+
+    #[test]
+    fn crc8_table_is_the_crc_crates_table() {
+        // The crate as an oracle for every poly; leaking 256 small
+        // algorithms is fine in a test (see `crc8_table` for why the
+        // library does not).
+        for poly in 0..=u8::MAX {
+            let algorithm: &'static crc::Algorithm<u8> = Box::leak(Box::new(crc::Algorithm {
+                poly,
+                ..crc::CRC_8_SAE_J1850
+            }));
+            let theirs = crc::Crc::<u8, crc::Table<1>>::new(algorithm);
+            assert_eq!(crc8_table(poly), theirs.table()[0], "poly {poly:#04x}");
         }
     }
 

@@ -1,7 +1,11 @@
 //! Throughput of the candump log reader and formatter on a generated log of
 //! rc_car-like traffic (three 8-byte frames and one 4-byte frame per 10 ms).
 //!
-//! `CARGO_TARGET_DIR=/work/tgt/daemon cargo bench -p canodom --bench candump`
+//! `cargo bench -p canodom-can --bench candump`
+//!
+//! `socketcan_dump_parse_1M_lines` reads the same log with socketcan's own
+//! `dump::Reader` (issue #21: our parser is kept only while it earns its
+//! place; the figures are in `candump.rs`'s module doc).
 
 use canodom_can::candump::{LogReader, Record, Timestamp, format_record};
 use canodom_can::frame::{CanFrame, FrameId};
@@ -51,6 +55,23 @@ fn parse(log: &[u8]) -> (usize, u64) {
     (frames, checksum)
 }
 
+/// As [`parse`] with `socketcan::dump::Reader`, which reads a line into a
+/// `String` and allocates the interface name and the payload per record.
+fn parse_with_socketcan(log: &[u8]) -> (usize, u64) {
+    use socketcan::{CanAnyFrame, EmbeddedFrame as _};
+    let mut reader = socketcan::dump::Reader::from_reader(log);
+    let (mut frames, mut checksum) = (0usize, 0u64);
+    while let Some(record) = reader.next_record().expect("generated log is valid") {
+        frames += 1;
+        let first = match &record.frame {
+            CanAnyFrame::Normal(f) => f.data()[0],
+            _ => 0,
+        };
+        checksum = checksum.wrapping_add(u64::from(first));
+    }
+    (frames, checksum)
+}
+
 fn bench(c: &mut Criterion) {
     let log = generated_log(LINES);
     let mut group = c.benchmark_group("candump");
@@ -60,6 +81,13 @@ fn bench(c: &mut Criterion) {
     group.bench_function("parse_1M_lines", |b| {
         b.iter(|| {
             let (frames, sum) = parse(black_box(&log));
+            assert_eq!(frames, LINES);
+            sum
+        });
+    });
+    group.bench_function("socketcan_dump_parse_1M_lines", |b| {
+        b.iter(|| {
+            let (frames, sum) = parse_with_socketcan(black_box(&log));
             assert_eq!(frames, LINES);
             sum
         });

@@ -8,6 +8,19 @@
 //! mutating the process environment (which edition 2024 makes `unsafe`,
 //! forbidden in this workspace). The protocol is one datagram of
 //! `KEY=VALUE` lines; paths starting with `@` are Linux abstract sockets.
+//!
+//! Weighed again for issue #21 against `sd-notify` 0.5.0 (libc only; its
+//! `fdstore` feature, which canodom does not need, adds `sendfd`), with a
+//! probe outside the workspace that sets the variables and calls the crate
+//! (`cargo run --manifest-path bench/crate-probes/Cargo.toml --bin
+//! sd_notify`): `NOTIFY_SOCKET=@name` fails with `ENOENT` and the manager receives
+//! nothing (it connects to a file path named `@name`, no abstract sockets);
+//! `WATCHDOG_USEC=0` gives `watchdog_enabled() == Some(0ns)` where this
+//! module turns the watchdog off; `STATUS=a\nREADY=1` goes out as two keys,
+//! a false `READY=1`, where [`Notifier::status`] joins the lines; and each
+//! `notify` opens, connects and closes a new socket where a [`Notifier`]
+//! sends one datagram on the socket it keeps. Replacing this module would
+//! change behaviour, so it stays.
 
 use std::ffi::OsStr;
 use std::io;

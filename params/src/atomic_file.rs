@@ -4,6 +4,19 @@
 //! written and `fsync`ed, renamed over the target (atomic on POSIX file
 //! systems), and the directory is `fsync`ed so the rename itself is durable.
 //! At any instant the target is the old file or the new one, complete.
+//!
+//! Kept beside `tempfile`'s `NamedTempFile::persist` (issue #21), which is
+//! only the rename: durability needs the same `sync_all` of the file and of
+//! the directory by hand, so the crate would save no line here. It would
+//! change behaviour (`cargo run --manifest-path
+//! bench/crate-probes/Cargo.toml --bin tempfile_persist`, tempfile 3.27):
+//! the persisted file is mode 600 where ours is 644 (less umask), so a
+//! parameter or report file would stop being readable by other users; each
+//! crashed attempt leaves another randomly named `.tmpXXXXXX` behind where
+//! ours reuses and truncates its one fixed `.{name}.tmp` (which the state
+//! file's tests rely on); and it would add fastrand, rustix and
+//! linux-raw-sys to the daemon's dependency tree (`cargo tree -p canodom -e
+//! normal`).
 
 use std::fs::{self, File, OpenOptions};
 use std::io::Write as _;
