@@ -44,6 +44,17 @@ fn first_timestamp(log: &str) -> f64 {
 /// The second half's end error, as a fraction of its distance, of the
 /// replay rows (t_s, x, y, heading) dead-reckoned from the truth at `split_s`.
 fn second_half_error(rows: &[Vec<f64>], t0: f64, truth: &[(f64, f64, f64)], split_s: f64) -> f64 {
+    let (error_m, distance_m) = second_half_error_m(rows, t0, truth, split_s);
+    error_m / distance_m
+}
+
+/// [`second_half_error`] as (end error, distance) in metres.
+fn second_half_error_m(
+    rows: &[Vec<f64>],
+    t0: f64,
+    truth: &[(f64, f64, f64)],
+    split_s: f64,
+) -> (f64, f64) {
     let a = rows
         .iter()
         .min_by(|r, s| (r[0] - split_s).abs().total_cmp(&(s[0] - split_s).abs()))
@@ -64,7 +75,7 @@ fn second_half_error(rows: &[Vec<f64>], t0: f64, truth: &[(f64, f64, f64)], spli
         .filter(|w| w[0].0 >= t0 + a[0] && w[1].0 <= t0 + b[0])
         .map(|w| (w[1].1 - w[0].1).hypot(w[1].2 - w[0].2))
         .sum();
-    (predicted.0 - end.0).hypot(predicted.1 - end.1) / distance
+    ((predicted.0 - end.0).hypot(predicted.1 - end.1), distance)
 }
 
 fn replay_rows(config: &Config, params: Option<&Path>, log: &str) -> Vec<Vec<f64>> {
@@ -150,4 +161,65 @@ fn calibrated_on_the_first_half_the_second_half_stays_within_one_percent() {
     assert!(before > 0.04, "{before}");
     assert!(fused <= 0.010, "{fused}");
     assert!(rear <= 0.010, "{rear}");
+
+    // `replay --truth` tells the same: the end error of the same second half.
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_canodom"))
+        .args(["replay", "--config"])
+        .arg(data().join("config_yaw.toml"))
+        .arg(data().join("drive.log"))
+        .arg("--params")
+        .arg(&params)
+        .arg("--out")
+        .arg(dir.join("pose.csv"))
+        .args(["--truth-start-s", "30", "--truth"])
+        .arg(data().join("truth.csv"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8(out.stderr).unwrap();
+    assert!(out.status.success(), "{err}");
+    println!("{err}");
+    let metres = |who: &str| -> f64 {
+        let line = err
+            .lines()
+            .find(|l| l.trim_start().starts_with(who))
+            .unwrap();
+        let at = line.find("end error ").unwrap() + "end error ".len();
+        line[at..].split(' ').next().unwrap().parse().unwrap()
+    };
+    // The rows' times count from the first frame the pipeline used (the
+    // assertions above count from the log's first line, a few ms earlier).
+    let first_input = {
+        let config = Config::load(&data().join("config_yaw.toml")).unwrap();
+        replay_with(
+            &config,
+            None,
+            log.as_bytes(),
+            &mut std::io::sink(),
+            &mut std::io::sink(),
+        )
+        .unwrap()
+        .first_frame
+        .unwrap()
+        .as_secs_f64()
+    };
+    // Like replay --truth, only the steps the truth covers (the log runs a
+    // few ms past the truth's last row).
+    let t_end = truth.last().unwrap().0;
+    let ours = |rows: &[Vec<f64>]| {
+        let covered: Vec<Vec<f64>> = rows
+            .iter()
+            .filter(|r| first_input + r[0] <= t_end)
+            .cloned()
+            .collect();
+        second_half_error_m(&covered, first_input, &truth, 30.0).0
+    };
+    let rear_rows: Vec<Vec<f64>> = rows.iter().map(|r| vec![r[0], r[4], r[5], r[6]]).collect();
+    for (who, expected) in [("fused", ours(&rows)), ("rear-only", ours(&rear_rows))] {
+        let cli = metres(who);
+        assert!(
+            (cli - expected).abs() < 0.1,
+            "{who}: replay --truth {cli} m, test {expected} m"
+        );
+    }
+    assert!(dir.join("pose-truth/calibration.svg").exists());
 }

@@ -98,14 +98,15 @@ pub struct ReplayOptions<'a> {
     pub keep_track: bool,
 }
 
-/// Runs `replay`.
+/// `--params`: the current set of a parameter file, if one is given.
 ///
 /// # Errors
-/// Configuration, unreadable log, write failure.
-pub fn execute(args: &ReplayArgs) -> anyhow::Result<()> {
-    let config = Config::load(&args.config)?;
-    super::dbc_warnings(&config.db, args.strict)?;
-    let params = match &args.params {
+/// A damaged file, or one without a current set.
+fn load_params(
+    args: &ReplayArgs,
+    config: &Config,
+) -> anyhow::Result<Option<canodom_params::persist::ParamSet>> {
+    Ok(match &args.params {
         None => None,
         Some(path) => {
             let file = canodom_params::persist::load(path, &config.calibration.bounds)
@@ -124,13 +125,27 @@ pub fn execute(args: &ReplayArgs) -> anyhow::Result<()> {
             );
             Some(set)
         }
-    };
+    })
+}
+
+/// Runs `replay`.
+///
+/// # Errors
+/// Configuration, unreadable log, write failure.
+pub fn execute(args: &ReplayArgs) -> anyhow::Result<()> {
+    let config = Config::load(&args.config)?;
+    super::dbc_warnings(&config.db, args.strict)?;
+    let params = load_params(args, &config)?;
     let truth = match &args.truth {
         None => None,
         Some(path) => {
-            let text = std::fs::read_to_string(path)
-                .map_err(|e| anyhow::anyhow!("{}: cannot read the reference: {e}", path.display()))?;
-            Some(super::calibrate_drive::parse_fixes(&text, &path.display().to_string())?)
+            let text = std::fs::read_to_string(path).map_err(|e| {
+                anyhow::anyhow!("{}: cannot read the reference: {e}", path.display())
+            })?;
+            Some(super::calibrate_drive::parse_fixes(
+                &text,
+                &path.display().to_string(),
+            )?)
         }
     };
     let mut input = super::open_input(&args.log, "replay")?;
@@ -221,23 +236,29 @@ fn compare_with_truth(
         .truth_start_s
         .zip(first_frame)
         .map(|(s, t0)| t0.as_secs_f64() + s);
-    let truth_path = args.truth.as_deref().unwrap_or(std::path::Path::new("truth"));
+    let truth_path = args
+        .truth
+        .as_deref()
+        .unwrap_or(std::path::Path::new("truth"));
     let comparison = canodom_report::truth::TruthComparison::build(truth, track, start)
         .map_err(|e| anyhow::anyhow!("--truth {}: {e}", truth_path.display()))?;
     eprintln!("replay: {}", comparison.summary());
     let dir = match (&args.truth_report, &args.out) {
         (Some(dir), _) => dir.clone(),
         (None, Some(out)) => {
-            let stem = out.file_stem().map_or_else(
-                || "replay".to_owned(),
-                |s| s.to_string_lossy().into_owned(),
-            );
+            let stem = out
+                .file_stem()
+                .map_or_else(|| "replay".to_owned(), |s| s.to_string_lossy().into_owned());
             out.with_file_name(format!("{stem}-truth"))
         }
         (None, None) => PathBuf::from("replay-truth"),
     };
     let (svg, json) = canodom_report::files::write_report(&dir, &comparison)?;
-    eprintln!("replay: comparison in {} and {}", svg.display(), json.display());
+    eprintln!(
+        "replay: comparison in {} and {}",
+        svg.display(),
+        json.display()
+    );
     Ok(())
 }
 
@@ -420,7 +441,9 @@ pub fn replay_log(
             .unwrap_or_else(|panic| std::panic::resume_unwind(panic));
         let (malformed, by_reason) = fed?;
         let seen = super::LogSeen::of(&reader, pipeline.stats().frames, malformed);
-        let t0_us = pipeline.first_frame_time().map_or(0, |t| t.as_micros() as i64);
+        let t0_us = pipeline
+            .first_frame_time()
+            .map_or(0, |t| t.as_micros() as i64);
         let track = kept
             .unwrap_or_default()
             .into_iter()
