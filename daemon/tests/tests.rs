@@ -13,6 +13,7 @@ mod cli;
 mod config_errors;
 mod drive_session;
 mod follow_session;
+mod install;
 mod rav4;
 mod run_loop;
 mod trajectory;
