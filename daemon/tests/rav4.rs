@@ -162,13 +162,25 @@ fn calibrated_on_the_first_half_the_second_half_stays_within_one_percent() {
     assert!(fused <= 0.010, "{fused}");
     assert!(rear <= 0.010, "{rear}");
 
+    replay_truth_agrees(&dir, &params, &log, &rows, &truth);
+}
+
+/// `replay --truth` tells the same as this test: the end error of the same
+/// second half, for the fused pose and rear-only (`rows`: the calibrated replay).
+fn replay_truth_agrees(
+    dir: &Path,
+    params: &Path,
+    log: &str,
+    rows: &[Vec<f64>],
+    truth: &[(f64, f64, f64)],
+) {
     // `replay --truth` tells the same: the end error of the same second half.
     let out = std::process::Command::new(env!("CARGO_BIN_EXE_canodom"))
         .args(["replay", "--config"])
         .arg(data().join("config_yaw.toml"))
         .arg(data().join("drive.log"))
         .arg("--params")
-        .arg(&params)
+        .arg(params)
         .arg("--out")
         .arg(dir.join("pose.csv"))
         .args(["--truth-start-s", "30", "--truth"])
@@ -211,10 +223,10 @@ fn calibrated_on_the_first_half_the_second_half_stays_within_one_percent() {
             .filter(|r| first_input + r[0] <= t_end)
             .cloned()
             .collect();
-        second_half_error_m(&covered, first_input, &truth, 30.0).0
+        second_half_error_m(&covered, first_input, truth, 30.0).0
     };
     let rear_rows: Vec<Vec<f64>> = rows.iter().map(|r| vec![r[0], r[4], r[5], r[6]]).collect();
-    for (who, expected) in [("fused", ours(&rows)), ("rear-only", ours(&rear_rows))] {
+    for (who, expected) in [("fused", ours(rows)), ("rear-only", ours(&rear_rows))] {
         let cli = metres(who);
         assert!(
             (cli - expected).abs() < 0.1,

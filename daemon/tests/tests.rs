@@ -14,6 +14,7 @@ mod cli;
 mod config_errors;
 mod drive_session;
 mod follow_session;
+mod install;
 mod log_refusal;
 mod messages;
 mod rav4;

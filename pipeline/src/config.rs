@@ -20,6 +20,7 @@ use canodom_fusion::{SteeringMap, VehicleParams, WheelSet};
 use canodom_protocol::own_dbc::BaseId;
 use serde::Deserialize;
 use std::collections::BTreeMap;
+use std::ffi::{OsStr, OsString};
 use std::path::{Path, PathBuf};
 
 /// A configuration that cannot be used: which file, which key, what was expected.
@@ -53,6 +54,50 @@ pub enum ConfigError {
         /// What the file says.
         got: String,
     },
+    /// The parameter file cannot be created or replaced where the
+    /// configuration puts it (see [`Config::check_param_file`]).
+    // The OS error is part of the message and deliberately not a `source`:
+    // the binary prints the whole cause chain, which would repeat it.
+    #[error(
+        "{file}: key `calibration.param_file`: cannot create or write {}: {reason}",
+        path.display()
+    )]
+    ParamFile {
+        /// The configuration file.
+        file: PathBuf,
+        /// The resolved parameter file.
+        path: PathBuf,
+        /// The OS error of the failed probe.
+        reason: std::io::Error,
+    },
+}
+
+/// The variable systemd sets to the unit's state directory (`StateDirectory=`;
+/// a colon-separated list when the unit names several, ours the first).
+pub const STATE_DIRECTORY_ENV: &str = "STATE_DIRECTORY";
+
+/// Name of the parameter file when `[calibration] param_file` is not set.
+pub const DEFAULT_PARAM_FILE: &str = "canodom-params.toml";
+
+/// Where the parameter file goes when `[calibration] param_file` is not set:
+/// in the state directory when systemd gives one (the unit's `/etc/canodom`
+/// is read-only, so a file beside the configuration could never be
+/// committed), else beside the configuration file.
+pub fn default_param_file(config_file: &Path, state_directory: Option<&OsStr>) -> PathBuf {
+    let state = state_directory
+        .and_then(|dirs| std::env::split_paths(dirs).next())
+        .filter(|dir| !dir.as_os_str().is_empty());
+    match state {
+        Some(dir) => dir.join(DEFAULT_PARAM_FILE),
+        None => beside(config_file, Path::new(DEFAULT_PARAM_FILE)),
+    }
+}
+
+/// `path` as written in `config_file`: a relative one is taken from the
+/// configuration's folder, so a configuration reads the same files whatever
+/// the working directory (under systemd it is the state directory).
+fn beside(config_file: &Path, path: &Path) -> PathBuf {
+    config_file.parent().unwrap_or(Path::new(".")).join(path)
 }
 
 // ---------------------------------------------------------------- raw (serde)
@@ -184,7 +229,7 @@ impl Default for RawOutput {
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 struct RawCalibration {
-    param_file: PathBuf,
+    param_file: Option<PathBuf>,
     command_id: Option<u32>,
     arming_code: Option<u8>,
     bounds_rel: f64,
@@ -218,7 +263,7 @@ struct RawFixes {
 impl Default for RawCalibration {
     fn default() -> Self {
         Self {
-            param_file: PathBuf::from("canodom-params.toml"),
+            param_file: None,
             command_id: None,
             arming_code: None,
             bounds_rel: 0.30,
@@ -353,8 +398,8 @@ pub struct OutputConfig {
 /// The live calibration session (`[calibration]`).
 #[derive(Clone, Debug, PartialEq)]
 pub struct CalibrationConfig {
-    /// The calibrated-parameter file (default `canodom-params.toml` beside
-    /// the configuration file).
+    /// The calibrated-parameter file, relative paths taken from the
+    /// configuration's folder (default: [`default_param_file`]).
     pub param_file: PathBuf,
     /// The only id `CALIB_CMD` is accepted on (default base id + 0x10).
     pub command_id: canodom_can::frame::FrameId,
@@ -437,7 +482,7 @@ impl Config {
             file: path.to_owned(),
             message: e.to_string().trim_end().to_owned(),
         })?;
-        Validator { file: path }.validate(raw, None)
+        Validator::new(path).validate(raw, None)
     }
 
     /// As [`Config::from_toml`], with the DBC given as text instead of read
@@ -455,7 +500,7 @@ impl Config {
             file: path.to_owned(),
             message: e.to_string().trim_end().to_owned(),
         })?;
-        let v = Validator { file: path };
+        let v = Validator::new(path);
         let name = raw.can.dbc.display().to_string();
         let db = Database::parse(dbc_text, &name)
             .map_err(|e| v.err("can.dbc", "a DBC that parses", e))?;
@@ -476,10 +521,62 @@ impl Config {
         idx.dedup();
         idx.iter().map(|&i| self.db.messages()[i].id()).collect()
     }
+
+    /// Checks that the parameter file can be created or replaced, as a commit
+    /// will (a temporary file beside it renamed over it), so a daemon that
+    /// could never keep a calibration refuses to start instead of failing at
+    /// the commit, after the operator has driven every run.
+    ///
+    /// Nothing is destroyed: an existing file is only opened for appending,
+    /// and the probe is the temporary file a commit writes anyway, removed
+    /// again. The folder is not created: a missing one is a mistake to report.
+    ///
+    /// # Errors
+    /// [`ConfigError::ParamFile`] naming the key, the path and the OS reason.
+    pub fn check_param_file(&self) -> Result<(), ConfigError> {
+        let path = &self.calibration.param_file;
+        probe_writable(path).map_err(|reason| ConfigError::ParamFile {
+            file: self.file.clone(),
+            path: path.clone(),
+            reason,
+        })
+    }
+}
+
+/// The operations a commit of `path` needs, without changing its content.
+fn probe_writable(path: &Path) -> std::io::Result<()> {
+    use std::fs::OpenOptions;
+    // An existing file the daemon cannot open for writing (or a folder) is
+    // refused: it was not meant to be replaced by this daemon.
+    match OpenOptions::new().append(true).open(path) {
+        Ok(_) => {}
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+        Err(e) => return Err(e),
+    }
+    let tmp = canodom_params::persist::temp_path(path);
+    // Not truncated, and removed again: a leftover of a crashed commit goes
+    // with it, which the next commit would have overwritten anyway.
+    OpenOptions::new()
+        .write(true)
+        .create(true)
+        .truncate(false)
+        .open(&tmp)?;
+    std::fs::remove_file(&tmp)
 }
 
 struct Validator<'a> {
     file: &'a Path,
+    /// `$STATE_DIRECTORY` as the process found it, for [`default_param_file`].
+    state_directory: Option<OsString>,
+}
+
+impl<'a> Validator<'a> {
+    fn new(file: &'a Path) -> Self {
+        Self {
+            file,
+            state_directory: std::env::var_os(STATE_DIRECTORY_ENV),
+        }
+    }
 }
 
 impl Validator<'_> {
@@ -527,11 +624,7 @@ impl Validator<'_> {
                 format!("{iface:?}"),
             ));
         }
-        let dbc_path = self
-            .file
-            .parent()
-            .unwrap_or(Path::new("."))
-            .join(&raw.can.dbc);
+        let dbc_path = beside(self.file, &raw.can.dbc);
         let db = match db {
             Some(db) => db,
             None => Database::from_file(&dbc_path).map_err(|e| {
@@ -1006,9 +1099,13 @@ impl Validator<'_> {
                 c.writeback_retries,
             ));
         }
-        if c.param_file.as_os_str().is_empty() {
-            return Err(self.err("calibration.param_file", "a file path", "\"\""));
-        }
+        let param_file = match &c.param_file {
+            Some(p) if p.as_os_str().is_empty() => {
+                return Err(self.err("calibration.param_file", "a file path", "\"\""));
+            }
+            Some(p) => beside(self.file, p),
+            None => default_param_file(self.file, self.state_directory.as_deref()),
+        };
         let mut bounds = canodom_params::persist::ParamBounds::around(
             params.rear_tread_m(),
             params.rear_mean_diameter_m(),
@@ -1024,11 +1121,7 @@ impl Validator<'_> {
             params.steering().offset_rad + offset_deg.to_radians(),
         );
         Ok(CalibrationConfig {
-            param_file: self
-                .file
-                .parent()
-                .unwrap_or(Path::new("."))
-                .join(&c.param_file),
+            param_file,
             command_id,
             arming_code: c.arming_code,
             bounds,
@@ -1222,5 +1315,96 @@ algorithm = "crc8_sae_j1850"
         assert!(s.contains("vehicle.steering_ratio"), "{s}");
         let s = invalid(&format!("{RC_CAR}\n[output]\nbase_id = 0x100\n"));
         assert!(s.contains("output.base_id"), "{s}");
+        let s = invalid(&format!("{RC_CAR}\n[calibration]\nparam_file = \"\"\n"));
+        assert!(s.contains("calibration.param_file"), "{s}");
+    }
+
+    #[test]
+    fn param_file_defaults_to_the_state_directory_under_systemd() {
+        let config = Path::new("/etc/canodom/canodom.toml");
+        let state = |s: &str| default_param_file(config, Some(OsStr::new(s)));
+        assert_eq!(
+            state("/var/lib/canodom"),
+            Path::new("/var/lib/canodom/canodom-params.toml")
+        );
+        // Several StateDirectory= entries: the first is canodom's.
+        assert_eq!(
+            state("/var/lib/canodom:/var/lib/other"),
+            Path::new("/var/lib/canodom/canodom-params.toml")
+        );
+        // Without systemd (or an empty variable): beside the configuration.
+        let beside_config = Path::new("/etc/canodom/canodom-params.toml");
+        assert_eq!(state(""), beside_config);
+        assert_eq!(default_param_file(config, None), beside_config);
+        assert_eq!(
+            default_param_file(Path::new("car.toml"), None),
+            Path::new("canodom-params.toml")
+        );
+    }
+
+    #[test]
+    fn relative_paths_are_taken_from_the_configuration_folder() {
+        let dir = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../data/dbc"));
+        let c = Config::from_toml(
+            &format!("{RC_CAR}\n[calibration]\nparam_file = \"../state/p.toml\"\n"),
+            &path(),
+        )
+        .unwrap();
+        assert_eq!(c.dbc_path, dir.join("rc_car.dbc"));
+        assert_eq!(c.calibration.param_file, dir.join("../state/p.toml"));
+        let c = Config::from_toml(
+            &format!("{RC_CAR}\n[calibration]\nparam_file = \"/var/lib/x/p.toml\"\n"),
+            &path(),
+        )
+        .unwrap();
+        assert_eq!(c.calibration.param_file, Path::new("/var/lib/x/p.toml"));
+    }
+
+    fn scratch(tag: &str) -> PathBuf {
+        let dir = std::env::temp_dir().join(format!("canodom-config-{tag}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        dir
+    }
+
+    fn with_param_file(param_file: &Path) -> Config {
+        let mut c = Config::from_toml(RC_CAR, &path()).unwrap();
+        c.calibration.param_file = param_file.to_owned();
+        c
+    }
+
+    #[test]
+    fn param_file_check_leaves_an_existing_file_and_no_probe() {
+        let dir = scratch("probe-ok");
+        let file = dir.join("p.toml");
+        with_param_file(&file).check_param_file().unwrap();
+        assert!(!file.exists(), "the check creates no parameter file");
+        std::fs::write(&file, "kept").unwrap();
+        with_param_file(&file).check_param_file().unwrap();
+        assert_eq!(std::fs::read_to_string(&file).unwrap(), "kept");
+        let left: Vec<_> = std::fs::read_dir(&dir).unwrap().collect();
+        assert_eq!(left.len(), 1, "only the parameter file: {left:?}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn param_file_check_names_key_path_and_one_os_reason() {
+        let dir = scratch("probe-bad");
+        // A file where a folder should be: refused even for root.
+        std::fs::write(dir.join("not-a-folder"), "").unwrap();
+        for file in [
+            dir.join("not-a-folder/p.toml"),
+            dir.join("missing/p.toml"),
+            dir,
+        ] {
+            let e = with_param_file(&file).check_param_file().unwrap_err();
+            assert!(matches!(e, ConfigError::ParamFile { .. }), "{e:?}");
+            let s = e.to_string();
+            assert!(s.contains("x.toml"), "{s}");
+            assert!(s.contains("calibration.param_file"), "{s}");
+            assert!(s.contains(&file.display().to_string()), "{s}");
+            assert_eq!(s.matches("(os error").count(), 1, "{s}");
+            assert!(std::error::Error::source(&e).is_none(), "printed once: {s}");
+        }
     }
 }

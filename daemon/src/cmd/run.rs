@@ -19,7 +19,11 @@ An ODOM_CMD frame with ODOM_REQUEST=1 publishes at once; ODOM_REQUEST=2 (RESET_P
 arming code when one is configured) moves the pose to the origin if the vehicle stands still. \
 The interface going down, away or \
 bus-off is retried with backoff. SIGINT/SIGTERM stop it cleanly; under systemd it sends \
-READY, WATCHDOG and STOPPING (see dist/canodom.service)."
+READY, WATCHDOG and STOPPING (see daemon/dist/canodom.service).\n\n\
+Before opening the bus it checks that the parameter file ([calibration] param_file) can be \
+created or replaced, and exits naming the path otherwise. Relative paths in the configuration \
+are taken from its folder; without param_file the file is canodom-params.toml in \
+$STATE_DIRECTORY when systemd sets it (StateDirectory=), else beside the configuration."
 )]
 pub struct RunArgs {
     /// The configuration file.
@@ -45,6 +49,10 @@ pub struct RunArgs {
 pub fn execute(args: &RunArgs) -> anyhow::Result<()> {
     let config = Arc::new(Config::load(&args.config)?);
     super::dbc_warnings(&config.db, args.strict)?;
+    // Before the bus is opened: a parameter file that can never be written
+    // would otherwise only show at the first commit, after a whole
+    // calibration drive.
+    config.check_param_file()?;
     let connector = SocketCan {
         iface: config.interface.clone(),
     };

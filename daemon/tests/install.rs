@@ -1,0 +1,130 @@
+//! A vehicle install that keeps its calibration (#24): the parameter file is
+//! checked before the bus is opened, defaults to systemd's state directory,
+//! and relative paths are taken from the configuration's folder.
+
+use crate::util::{manifest, rc_car_toml, tmp_dir};
+use canodom_pipeline::config::Config;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+/// An interface that does not exist: were the bus opened before the check,
+/// `run` would wait for it (retrying) instead of exiting.
+const NO_INTERFACE: &str = "canodomnone0";
+
+/// A folder holding the rc_car DBC and a configuration beside it that names
+/// it relatively, on [`NO_INTERFACE`], with `calibration` appended.
+fn install(name: &str, calibration: &str) -> (PathBuf, PathBuf) {
+    let dir = tmp_dir(name);
+    std::fs::copy(
+        manifest().join("../data/dbc/rc_car.dbc"),
+        dir.join("vehicle.dbc"),
+    )
+    .unwrap();
+    let text = std::fs::read_to_string(rc_car_toml()).unwrap();
+    let text = text
+        .replace(
+            "dbc = \"../../data/dbc/rc_car.dbc\"",
+            "dbc = \"vehicle.dbc\"",
+        )
+        .replace(
+            "interface = \"vcan0\"",
+            &format!("interface = \"{NO_INTERFACE}\""),
+        )
+        .replace(
+            "[calibration]\n",
+            &format!("[calibration]\n{calibration}\n"),
+        );
+    assert!(text.contains("vehicle.dbc") && text.contains(NO_INTERFACE));
+    let config = dir.join("canodom.toml");
+    std::fs::write(&config, text).unwrap();
+    // A file where the parameter file's folder should be: unwritable even for
+    // root, which the tests may run as.
+    std::fs::write(dir.join("not-a-folder"), "").unwrap();
+    (dir, config)
+}
+
+/// `canodom run` from the crate folder (not the config's), killed after
+/// 10 s; returns its output and how long it took.
+fn run(config: &Path, state_directory: Option<&Path>) -> (Output, Duration) {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_canodom"));
+    cmd.args(["run", "--config", config.to_str().unwrap()])
+        .current_dir(manifest())
+        .env_remove("STATE_DIRECTORY")
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped());
+    if let Some(dir) = state_directory {
+        cmd.env("STATE_DIRECTORY", dir);
+    }
+    let start = Instant::now();
+    let mut child = cmd.spawn().unwrap();
+    while child.try_wait().unwrap().is_none() {
+        if start.elapsed() > Duration::from_secs(10) {
+            child.kill().unwrap();
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    let elapsed = start.elapsed();
+    (child.wait_with_output().unwrap(), elapsed)
+}
+
+/// `run` failed at once, naming the key and `path` with one OS error.
+fn refused(out: &Output, elapsed: Duration, path: &Path) -> String {
+    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(!out.status.success(), "run went on:\n{stderr}");
+    assert!(
+        elapsed < Duration::from_secs(1),
+        "took {elapsed:?}:\n{stderr}"
+    );
+    assert!(stderr.contains("param_file"), "{stderr}");
+    assert!(stderr.contains(&path.display().to_string()), "{stderr}");
+    assert_eq!(stderr.matches("(os error").count(), 1, "{stderr}");
+    // The check comes before the bus: nothing about the interface.
+    assert!(!stderr.contains(NO_INTERFACE), "{stderr}");
+    stderr
+}
+
+#[test]
+fn run_refuses_an_unwritable_param_file_before_opening_the_bus() {
+    let (dir, config) = install("install-unwritable", "param_file = \"not-a-folder/p.toml\"");
+    let (out, elapsed) = run(&config, None);
+    // Relative to the config's folder, not to run's working directory.
+    let stderr = refused(&out, elapsed, &dir.join("not-a-folder/p.toml"));
+    assert!(stderr.contains("Not a directory"), "{stderr}");
+    eprintln!("{elapsed:?}: {stderr}");
+}
+
+#[test]
+fn run_puts_the_param_file_in_the_state_directory_by_default() {
+    let (dir, config) = install("install-state", "");
+    // systemd's state directory, here unwritable so `run` says where it looked.
+    let state = dir.join("not-a-folder");
+    let (out, elapsed) = run(&config, Some(&state));
+    refused(&out, elapsed, &state.join("canodom-params.toml"));
+}
+
+#[test]
+fn relative_paths_are_taken_from_the_config_folder() {
+    let (dir, config) = install("install-relative", "param_file = \"state/p.toml\"");
+    let c = Config::load(&config).unwrap();
+    assert_eq!(c.dbc_path, dir.join("vehicle.dbc"));
+    assert_eq!(c.calibration.param_file, dir.join("state/p.toml"));
+    // The folder is not created for it: a missing one is refused at start.
+    assert!(c.check_param_file().is_err());
+    std::fs::create_dir(dir.join("state")).unwrap();
+    c.check_param_file().unwrap();
+    assert!(!dir.join("state/p.toml").exists());
+}
+
+#[test]
+fn the_unit_keeps_the_calibration_in_its_state_directory() {
+    let unit = std::fs::read_to_string(manifest().join("dist/canodom.service")).unwrap();
+    assert!(unit.contains("\nStateDirectory=canodom\n"), "{unit}");
+    assert!(unit.contains("\nProtectSystem=strict\n"), "{unit}");
+    assert!(!unit.contains("example.invalid"), "{unit}");
+    // The comment names the real key (`params` is refused as unknown).
+    assert!(unit.contains("param_file = \"/var/lib/canodom/"), "{unit}");
+    assert!(!unit.contains("params ="), "{unit}");
+}
