@@ -2,7 +2,7 @@
 //! log canodom does not read is refused by name with the way forward instead
 //! of being skipped line by line as malformed `candump -L` records.
 
-use crate::candump::parse_line;
+use crate::candump::{LogReader, parse_line};
 
 /// How many of the first non-blank lines are looked at.
 const LINES_LOOKED_AT: usize = 20;
@@ -178,6 +178,65 @@ fn trim(line: &[u8]) -> &[u8] {
     &line[start..end.max(start)]
 }
 
+/// What reading a log met: enough to refuse a log nothing was read from
+/// and to warn of one that mixes buses.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct LogSeen {
+    /// Frames read (of the chosen interface).
+    pub frames: u64,
+    /// Malformed lines skipped.
+    pub malformed: u64,
+    /// The distinct interfaces of the log, in order of appearance.
+    pub interfaces: Vec<String>,
+    /// Lines skipped as another interface's.
+    pub other_interface_lines: u64,
+}
+
+impl LogSeen {
+    /// What `reader` met, with the frames and malformed lines its user counted.
+    pub fn of<R: std::io::Read>(reader: &LogReader<R>, frames: u64, malformed: u64) -> Self {
+        Self {
+            frames,
+            malformed,
+            interfaces: reader.interfaces().to_vec(),
+            other_interface_lines: reader.other_interface_lines(),
+        }
+    }
+
+    /// Why the log gave nothing to work on, when it did not (`interface`: the
+    /// one asked for), in words with the way forward.
+    pub fn refusal(&self, interface: Option<&str>) -> Option<String> {
+        if self.frames > 0 {
+            return None;
+        }
+        Some(match interface {
+            Some(name) if self.other_interface_lines > 0 => format!(
+                "no frame of interface {name}; the log holds {}",
+                self.interfaces.join(", ")
+            ),
+            _ if self.malformed > 0 => format!(
+                "no frame could be read: all {} lines are malformed; canodom reads \
+                 candump -L records such as `(1700000000.000100) can0 123#11223344` \
+                 (record with `candump -L can0 > drive.log`)",
+                self.malformed
+            ),
+            _ => "holds no frame (record with `candump -L can0 > drive.log`)".to_owned(),
+        })
+    }
+
+    /// A warning when the log mixes several interfaces and none was chosen.
+    pub fn mixed_buses(&self, interface: Option<&str>) -> Option<String> {
+        (interface.is_none() && self.interfaces.len() > 1).then(|| {
+            format!(
+                "holds frames of {} interfaces ({}), read as one bus; choose one with --interface {}",
+                self.interfaces.len(),
+                self.interfaces.join(", "),
+                self.interfaces[0]
+            )
+        })
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -231,6 +290,38 @@ mod tests {
             assert!(!format.is_read(), "{format:?}");
             assert!(format.way_forward().is_some(), "{format:?}");
         }
+    }
+
+    #[test]
+    fn what_a_log_held_decides_refusal_and_warning() {
+        let seen = |frames, malformed, interfaces: &[&str], other| LogSeen {
+            frames,
+            malformed,
+            interfaces: interfaces.iter().map(|s| (*s).to_owned()).collect(),
+            other_interface_lines: other,
+        };
+        assert_eq!(seen(5, 2, &["can0"], 0).refusal(None), None);
+        let r = seen(0, 3, &[], 0).refusal(None).unwrap();
+        assert!(r.contains("all 3 lines are malformed"), "{r}");
+        let r = seen(0, 0, &[], 0).refusal(None).unwrap();
+        assert!(r.contains("holds no frame"), "{r}");
+        let r = seen(0, 0, &["can0", "can1"], 7)
+            .refusal(Some("can2"))
+            .unwrap();
+        assert!(
+            r.contains("no frame of interface can2; the log holds can0, can1"),
+            "{r}"
+        );
+        let w = seen(9, 0, &["can0", "can1"], 0).mixed_buses(None).unwrap();
+        assert!(
+            w.contains("2 interfaces (can0, can1)") && w.contains("--interface can0"),
+            "{w}"
+        );
+        assert_eq!(
+            seen(9, 0, &["can0", "can1"], 4).mixed_buses(Some("can1")),
+            None
+        );
+        assert_eq!(seen(9, 0, &["can0"], 0).mixed_buses(None), None);
     }
 
     #[test]

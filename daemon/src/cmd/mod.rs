@@ -11,6 +11,7 @@ pub mod replay;
 pub mod run;
 pub mod simulate;
 
+pub use canodom_can::log_format::LogSeen;
 use std::path::Path;
 
 /// Every subcommand.
@@ -106,35 +107,6 @@ pub fn log_reader<R: std::io::Read>(
     }
 }
 
-/// What reading a log met, for [`check_log_read`].
-#[derive(Clone, Debug, Default, PartialEq, Eq)]
-pub struct LogSeen {
-    /// Frames read (of the chosen interface).
-    pub frames: u64,
-    /// Malformed lines skipped.
-    pub malformed: u64,
-    /// The distinct interfaces of the log, in order of appearance.
-    pub interfaces: Vec<String>,
-    /// Lines skipped as another interface's.
-    pub other_interface_lines: u64,
-}
-
-impl LogSeen {
-    /// What `reader` met, with the frames and malformed lines its user counted.
-    pub fn of<R: std::io::Read>(
-        reader: &canodom_can::candump::LogReader<R>,
-        frames: u64,
-        malformed: u64,
-    ) -> Self {
-        Self {
-            frames,
-            malformed,
-            interfaces: reader.interfaces().to_vec(),
-            other_interface_lines: reader.other_interface_lines(),
-        }
-    }
-}
-
 /// Refuses a log from which no frame was read (exit non-zero, saying why),
 /// and warns when a log mixes the frames of several interfaces without
 /// `--interface` choosing one.
@@ -147,34 +119,11 @@ pub fn check_log_read(
     seen: &LogSeen,
     interface: Option<&str>,
 ) -> anyhow::Result<()> {
-    let interfaces = seen.interfaces.join(", ");
-    if seen.frames == 0 {
-        match interface {
-            Some(name) if seen.other_interface_lines > 0 => anyhow::bail!(
-                "{}: no frame of interface {name}; the log holds {interfaces}",
-                path.display()
-            ),
-            _ if seen.malformed > 0 => anyhow::bail!(
-                "{}: no frame could be read: all {} lines are malformed; canodom reads \
-                 candump -L records such as `(1700000000.000100) can0 123#11223344` \
-                 (record with `candump -L can0 > drive.log`)",
-                path.display(),
-                seen.malformed
-            ),
-            _ => anyhow::bail!(
-                "{}: holds no frame (record with `candump -L can0 > drive.log`)",
-                path.display()
-            ),
-        }
+    if let Some(why) = seen.refusal(interface) {
+        anyhow::bail!("{}: {why}", path.display());
     }
-    if interface.is_none() && seen.interfaces.len() > 1 {
-        tracing::warn!(
-            "{label}: {} holds frames of {} interfaces ({interfaces}), read as one bus; \
-             choose one with --interface {}",
-            path.display(),
-            seen.interfaces.len(),
-            seen.interfaces[0]
-        );
+    if let Some(warning) = seen.mixed_buses(interface) {
+        tracing::warn!("{label}: {}: {warning}", path.display());
     }
     Ok(())
 }
