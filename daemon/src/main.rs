@@ -9,19 +9,8 @@ use std::io::IsTerminal as _;
 #[command(version, about, long_about = None, after_help = "Start with `canodom demo` (no CAN hardware needed), \
 then `canodom <COMMAND> --help`.")]
 struct Cli {
-    /// Log format on stderr.
-    #[arg(long, value_enum, default_value = "text", global = true)]
-    log_format: LogFormat,
     #[command(subcommand)]
     command: canodom::cmd::Command,
-}
-
-#[derive(Clone, Copy, Debug, clap::ValueEnum)]
-enum LogFormat {
-    /// Human-readable lines.
-    Text,
-    /// One JSON object per event.
-    Json,
 }
 
 fn main() -> std::process::ExitCode {
@@ -37,9 +26,13 @@ fn main() -> std::process::ExitCode {
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
         .with_ansi(std::io::stderr().is_terminal());
-    match cli.log_format {
-        LogFormat::Text => builder.init(),
-        LogFormat::Json => builder.json().init(),
+    // JSON logs are for the service (journald, collectors); the offline
+    // commands' results go to stdout in their own formats.
+    match &cli.command {
+        canodom::cmd::Command::Run(a) if a.log_format == canodom::cmd::run::LogFormat::Json => {
+            builder.json().init();
+        }
+        _ => builder.init(),
     }
     match cli.command.execute() {
         Ok(()) => std::process::ExitCode::SUCCESS,

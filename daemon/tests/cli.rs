@@ -234,11 +234,13 @@ fn run_stops_cleanly_on_sigterm_even_while_retrying() {
     let cfg = rc_car_toml();
     let child = Command::new(env!("CARGO_BIN_EXE_canodom"))
         .args([
-            "--log-format",
-            "json",
             "run",
             "--config",
             cfg.to_str().unwrap(),
+            "--log-format",
+            "json",
+            "--interface",
+            "canodomif9",
         ])
         .stderr(std::process::Stdio::piped())
         .spawn()
@@ -263,6 +265,8 @@ fn run_stops_cleanly_on_sigterm_even_while_retrying() {
         log.contains("shutdown requested") && log.contains("pipeline stopped"),
         "{log}"
     );
+    // --interface replaces the configuration's.
+    assert!(log.contains("canodomif9"), "{log}");
 }
 
 #[test]

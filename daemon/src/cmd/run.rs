@@ -11,10 +11,10 @@ use tracing::{info, warn};
 #[derive(Debug, clap::Args)]
 #[command(
     after_help = "Example:\n  canodom run --config /etc/canodom/rc_car.toml\n  \
-canodom --log-format json run --config car.toml\n\n\
+canodom run --config car.toml --interface vcan0 --log-format json\n\n\
 Reads the configured wheel and steering messages (kernel filters, kernel timestamps), checks \
 DLC, rolling counters, checksums and timeouts, runs the EKF, and publishes ODOM_POSITION, \
-ODOM_MOTION and ODOM_QUALITY (dbc/canodom.dbc, at output.base_id) at output.pose_rate_hz. \
+ODOM_MOTION and ODOM_QUALITY (protocol/dbc/canodom.dbc at output.base_id; `canodom dbc own` writes it for yours) at output.pose_rate_hz. \
 An ODOM_CMD frame with ODOM_REQUEST=1 publishes at once; ODOM_REQUEST=2 (RESET_POSE, with the \
 arming code when one is configured) moves the pose to the origin if the vehicle stands still. \
 The interface going down, away or \
@@ -33,13 +33,30 @@ pub struct RunArgs {
     /// covariance, statistics, parameters and what the filter learnt
     /// (steering offset, yaw-rate bias, ...); at start, take the learnt
     /// values back from it (refused with a warning if damaged or out of
-    /// bounds). See `canodom::state_file`.
+    /// bounds).
     #[arg(long)]
     pub state_file: Option<PathBuf>,
     /// Refuse a DBC file with a message that cannot be decoded (a signal past
     /// its end, ...) instead of leaving the message out with a warning.
     #[arg(long)]
     pub strict: bool,
+    /// The CAN interface, instead of the configuration's `interface`.
+    #[arg(long)]
+    pub interface: Option<String>,
+    /// Log events on stderr as human-readable lines or one JSON object each
+    /// (for journald and log collectors). The offline commands print their
+    /// results on stdout in their own formats (CSV, JSON lines, TOML).
+    #[arg(long, value_enum, default_value = "text")]
+    pub log_format: LogFormat,
+}
+
+/// How `run` writes its log events.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum LogFormat {
+    /// Human-readable lines.
+    Text,
+    /// One JSON object per event.
+    Json,
 }
 
 /// Runs the daemon.
@@ -47,7 +64,11 @@ pub struct RunArgs {
 /// # Errors
 /// Configuration, or the transport failing for good.
 pub fn execute(args: &RunArgs) -> anyhow::Result<()> {
-    let config = Arc::new(Config::load(&args.config)?);
+    let mut config = Config::load(&args.config)?;
+    if let Some(iface) = &args.interface {
+        config.interface.clone_from(iface);
+    }
+    let config = Arc::new(config);
     super::dbc_warnings(&config.db, args.strict)?;
     // Before the bus is opened: a parameter file that can never be written
     // would otherwise only show at the first commit, after a whole
