@@ -5,7 +5,8 @@
 //! result.
 
 use crate::files::{
-    PlotResult, ReportError, ReportFiles, draw_legend, json_line, svg_text, write_report,
+    PlotResult, ReportError, ReportFiles, draw_legend, json_line, square_view, svg_text,
+    write_report,
 };
 use canodom_calib::drive::{DriveCalibration, DriveSample, Estimate, Fix};
 use canodom_params::persist::ParamValues;
@@ -212,22 +213,13 @@ impl DriveReport {
 
     fn draw(&self, root: &DrawingArea<SVGBackend<'_>, plotters::coord::Shift>) -> PlotResult {
         root.fill(&WHITE)?;
-        let all = self
-            .fixes
-            .iter()
-            .chain(&self.rear_before)
-            .chain(&self.rear_after)
-            .chain(self.yaw_after.iter().flatten());
-        let (mut x0, mut x1, mut y0, mut y1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
-        for p in all.filter(|p| p[0].is_finite() && p[1].is_finite()) {
-            (x0, x1, y0, y1) = (x0.min(p[0]), x1.max(p[0]), y0.min(p[1]), y1.max(p[1]));
-        }
-        if x0 > x1 {
-            (x0, x1, y0, y1) = (-1.0, 1.0, -1.0, 1.0);
-        }
-        // Equal metres per pixel both ways, with a margin.
-        let span = (x1 - x0).max(y1 - y0).max(1.0) * 0.55;
-        let (cx, cy) = (0.5 * (x0 + x1), 0.5 * (y0 + y1));
+        let (xs, ys) = square_view(
+            self.fixes
+                .iter()
+                .chain(&self.rear_before)
+                .chain(&self.rear_after)
+                .chain(self.yaw_after.iter().flatten()),
+        );
         let title = format!(
             "canodom drive calibration: {} fixes over {:.0} m",
             self.fixes_used, self.distance_m
@@ -243,7 +235,7 @@ impl DriveReport {
             .margin(15)
             .x_label_area_size(40)
             .y_label_area_size(60)
-            .build_cartesian_2d((cx - span)..(cx + span), (cy - span)..(cy + span))?;
+            .build_cartesian_2d(xs, ys)?;
         chart
             .configure_mesh()
             .x_desc("x (m)")

@@ -127,3 +127,20 @@ where
         .draw()?;
     Ok(())
 }
+
+/// Axis ranges around `points` with equal metres per pixel both ways (a
+/// square view), a margin, and at least a metre: for the x-y pictures.
+pub(crate) fn square_view<'p>(
+    points: impl Iterator<Item = &'p [f64; 2]>,
+) -> (std::ops::Range<f64>, std::ops::Range<f64>) {
+    let (mut x0, mut x1, mut y0, mut y1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
+    for p in points.filter(|p| p[0].is_finite() && p[1].is_finite()) {
+        (x0, x1, y0, y1) = (x0.min(p[0]), x1.max(p[0]), y0.min(p[1]), y1.max(p[1]));
+    }
+    if x0 > x1 {
+        (x0, x1, y0, y1) = (-1.0, 1.0, -1.0, 1.0);
+    }
+    let span = (x1 - x0).max(y1 - y0).max(1.0) * 0.55;
+    let (cx, cy) = (0.5 * (x0 + x1), 0.5 * (y0 + y1));
+    ((cx - span)..(cx + span), (cy - span)..(cy + span))
+}

@@ -11,7 +11,9 @@
 //! `heading_rad` column when it has one, else from its course around the
 //! start (which needs the vehicle to be moving then).
 
-use crate::files::{PlotResult, ReportError, ReportFiles, draw_legend, json_line, svg_text};
+use crate::files::{
+    PlotResult, ReportError, ReportFiles, draw_legend, json_line, square_view, svg_text,
+};
 use canodom_calib::drive::Fix;
 use canodom_fusion::Pose;
 use plotters::prelude::*;
@@ -276,21 +278,12 @@ impl TruthComparison {
 
     fn draw(&self, root: &DrawingArea<SVGBackend<'_>, plotters::coord::Shift>) -> PlotResult {
         root.fill(&WHITE)?;
-        let (mut x0, mut x1, mut y0, mut y1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
-        for p in self
-            .truth_path
-            .iter()
-            .chain(&self.fused_path)
-            .chain(&self.rear_path)
-            .filter(|p| p[0].is_finite() && p[1].is_finite())
-        {
-            (x0, x1, y0, y1) = (x0.min(p[0]), x1.max(p[0]), y0.min(p[1]), y1.max(p[1]));
-        }
-        if x0 > x1 {
-            (x0, x1, y0, y1) = (-1.0, 1.0, -1.0, 1.0);
-        }
-        let span = (x1 - x0).max(y1 - y0).max(1.0) * 0.55;
-        let (cx, cy) = (0.5 * (x0 + x1), 0.5 * (y0 + y1));
+        let (xs, ys) = square_view(
+            self.truth_path
+                .iter()
+                .chain(&self.fused_path)
+                .chain(&self.rear_path),
+        );
         let title = format!(
             "canodom replay against the reference: {:.0} m in {:.0} s",
             self.distance_m, self.duration_s
@@ -305,7 +298,7 @@ impl TruthComparison {
             .margin(15)
             .x_label_area_size(40)
             .y_label_area_size(60)
-            .build_cartesian_2d((cx - span)..(cx + span), (cy - span)..(cy + span))?;
+            .build_cartesian_2d(xs, ys)?;
         chart
             .configure_mesh()
             .x_desc("x (m)")

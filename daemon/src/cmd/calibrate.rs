@@ -182,7 +182,7 @@ pub fn run_from_log(
     max_gap_s: f64,
     interface: Option<&str>,
 ) -> anyhow::Result<Run> {
-    let mut reader = super::log_reader(super::open_input(log, "calibrate")?, interface);
+    let mut frames = super::LogFrames::open(log, "calibrate", interface)?;
     let mut pipeline = Pipeline::new(config)?;
     let params = config.params;
     let tread_m = params.rear_tread_m();
@@ -191,8 +191,7 @@ pub fn run_from_log(
     let mut prev: Option<Pose> = None;
     // (sample, input faults so far)
     let mut samples: Vec<(RevSample, u64)> = Vec::new();
-    let mut malformed = 0u64;
-    while let Some((timestamp, frame)) = super::next_record(&mut reader, log, &mut malformed)? {
+    while let Some((timestamp, frame)) = frames.next_frame()? {
         let step = pipeline.push(timestamp, &frame);
         if frame.id() == steer_id {
             let data = frame.data();
@@ -231,12 +230,8 @@ pub fn run_from_log(
             input_faults(&pipeline),
         ));
     }
-    super::check_log_read(
-        "calibrate",
-        log,
-        &super::LogSeen::of(&reader, pipeline.stats().frames, malformed),
-        interface,
-    )?;
+    frames.finish(pipeline.stats().frames)?;
+    let malformed = frames.malformed();
     let moving = |s: &RevSample| s.rear_left_rev.abs().max(s.rear_right_rev.abs()) > MOVING_REV;
     let Some(first) = samples.iter().position(|(s, _)| moving(s)) else {
         bail!(

@@ -126,7 +126,7 @@ pub fn samples_from_log(
     log: &Path,
     interface: Option<&str>,
 ) -> anyhow::Result<DriveLog> {
-    let mut reader = super::log_reader(super::open_input(log, "calibrate")?, interface);
+    let mut frames = super::LogFrames::open(log, "calibrate", interface)?;
     let mut pipeline = Pipeline::new(config)?;
     if let Some(s) = set {
         pipeline.apply_params(Some((s.version, &s.values)))?;
@@ -140,8 +140,7 @@ pub fn samples_from_log(
         )
     };
     let mut samples = Vec::new();
-    let mut malformed = 0u64;
-    while let Some((timestamp, frame)) = super::next_record(&mut reader, log, &mut malformed)? {
+    while let Some((timestamp, frame)) = frames.next_frame()? {
         let Some(step) = pipeline.push(timestamp, &frame) else {
             continue;
         };
@@ -156,12 +155,8 @@ pub fn samples_from_log(
             yaw_rate_radps: step.yaw_rate_radps,
         });
     }
-    super::check_log_read(
-        "calibrate",
-        log,
-        &super::LogSeen::of(&reader, pipeline.stats().frames, malformed),
-        interface,
-    )?;
+    frames.finish(pipeline.stats().frames)?;
+    let malformed = frames.malformed();
     if samples.len() < 2 {
         bail!(
             "{}: {} filter steps ({}); is this the configured car's log?",

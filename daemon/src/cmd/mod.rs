@@ -160,33 +160,80 @@ pub fn write_timestamp(out: &mut Vec<u8>, t: canodom_can::candump::Timestamp) {
     let _ = write!(out, "{}.{:06}", t.secs(), t.subsec_micros());
 }
 
-/// The next frame of `log` with its time, skipping malformed lines (counted in
-/// `malformed`, the first five named on stderr); `None` at its end.
-///
-/// # Errors
-/// The log cannot be read.
-pub fn next_record<R: std::io::Read>(
-    reader: &mut canodom_can::candump::LogReader<R>,
-    log: &Path,
-    malformed: &mut u64,
-) -> anyhow::Result<
-    Option<(
-        canodom_can::candump::Timestamp,
-        canodom_can::frame::CanFrame,
-    )>,
-> {
-    loop {
-        match reader.next_record() {
-            Ok(r) => return Ok(r.map(|r| (r.timestamp, r.frame))),
-            Err(canodom_can::candump::ReadError::Malformed(m)) => {
-                *malformed += 1;
-                if *malformed <= 5 {
-                    eprintln!("calibrate: {}: {m}; skipped", log.display());
+/// The frames of one log for a command that works through them in order
+/// (calibrate): malformed lines skipped and counted (the first five named on
+/// stderr), one interface kept when asked, and the log refused at the end
+/// when nothing usable was in it.
+pub struct LogFrames<'a> {
+    reader: canodom_can::candump::LogReader<crate::progress::Progress<Box<dyn std::io::BufRead>>>,
+    path: &'a Path,
+    label: &'static str,
+    interface: Option<&'a str>,
+    malformed: u64,
+}
+
+impl<'a> LogFrames<'a> {
+    /// Opens `path` as [`open_input`] does.
+    ///
+    /// # Errors
+    /// As [`open_input`].
+    pub fn open(
+        path: &'a Path,
+        label: &'static str,
+        interface: Option<&'a str>,
+    ) -> anyhow::Result<Self> {
+        Ok(Self {
+            reader: log_reader(open_input(path, label)?, interface),
+            path,
+            label,
+            interface,
+            malformed: 0,
+        })
+    }
+
+    /// The next frame with its time; `None` at the end of the log.
+    ///
+    /// # Errors
+    /// The log cannot be read.
+    pub fn next_frame(
+        &mut self,
+    ) -> anyhow::Result<
+        Option<(
+            canodom_can::candump::Timestamp,
+            canodom_can::frame::CanFrame,
+        )>,
+    > {
+        loop {
+            match self.reader.next_record() {
+                Ok(r) => return Ok(r.map(|r| (r.timestamp, r.frame))),
+                Err(canodom_can::candump::ReadError::Malformed(m)) => {
+                    self.malformed += 1;
+                    if self.malformed <= 5 {
+                        eprintln!("{}: {}: {m}; skipped", self.label, self.path.display());
+                    }
+                }
+                Err(e @ canodom_can::candump::ReadError::Io(_)) => {
+                    return Err(anyhow::Error::new(e).context(format!("{}", self.path.display())));
                 }
             }
-            Err(e @ canodom_can::candump::ReadError::Io(_)) => {
-                return Err(anyhow::Error::new(e).context(format!("{}", log.display())));
-            }
         }
+    }
+
+    /// Malformed lines skipped so far.
+    pub fn malformed(&self) -> u64 {
+        self.malformed
+    }
+
+    /// [`check_log_read`] once the log is read, `frames` of it used.
+    ///
+    /// # Errors
+    /// No frame read.
+    pub fn finish(&self, frames: u64) -> anyhow::Result<()> {
+        check_log_read(
+            self.label,
+            self.path,
+            &LogSeen::of(&self.reader, frames, self.malformed),
+            self.interface,
+        )
     }
 }
