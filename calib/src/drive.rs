@@ -98,6 +98,71 @@ pub struct Fix {
     pub heading_rad: Option<f64>,
 }
 
+/// Reads a fixes CSV: a header naming `t_unix_s`, `x_m`, `y_m` and
+/// optionally `heading_rad` (any order, other columns ignored), then one fix
+/// a line; times on the log's clock (Unix seconds, as candump -L writes).
+/// `name` names the file in errors.
+///
+/// # Errors
+/// [`Error::FixesText`] for a missing column, a line that is not numbers, or
+/// times that do not increase, naming `name` and the line.
+pub fn parse_fixes(text: &str, name: &str) -> Result<Vec<Fix>> {
+    let err = |line: usize, reason: String| Error::FixesText {
+        name: name.to_owned(),
+        line,
+        reason,
+    };
+    let mut lines = text
+        .lines()
+        .enumerate()
+        .filter(|(_, l)| !l.trim().is_empty());
+    let Some((_, header)) = lines.next() else {
+        return Err(err(
+            0,
+            "empty; expected a header t_unix_s,x_m,y_m[,heading_rad]".to_owned(),
+        ));
+    };
+    let columns: Vec<&str> = header.split(',').map(str::trim).collect();
+    let column = |want: &str| columns.iter().position(|c| *c == want);
+    let (Some(t), Some(x), Some(y)) = (column("t_unix_s"), column("x_m"), column("y_m")) else {
+        return Err(err(
+            1,
+            format!(
+                "the header {header:?} lacks t_unix_s, x_m or y_m \
+                 (expected t_unix_s,x_m,y_m[,heading_rad])"
+            ),
+        ));
+    };
+    let heading = column("heading_rad");
+    let mut fixes: Vec<Fix> = Vec::new();
+    for (i, line) in lines {
+        let fields: Vec<&str> = line.split(',').map(str::trim).collect();
+        let number = |k: usize, what: &str| -> Result<f64> {
+            let text = fields
+                .get(k)
+                .ok_or_else(|| err(i + 1, format!("no {what} column")))?;
+            let v: f64 = text
+                .parse()
+                .map_err(|_| err(i + 1, format!("{what} {text:?} is not a number")))?;
+            if !v.is_finite() {
+                return Err(err(i + 1, format!("{what} {text:?} is not finite")));
+            }
+            Ok(v)
+        };
+        let fix = Fix {
+            t_s: number(t, "t_unix_s")?,
+            x_m: number(x, "x_m")?,
+            y_m: number(y, "y_m")?,
+            heading_rad: heading.map(|h| number(h, "heading_rad")).transpose()?,
+        };
+        if fixes.last().is_some_and(|prev| fix.t_s <= prev.t_s) {
+            return Err(err(i + 1, "the fixes' times must increase".to_owned()));
+        }
+        fixes.push(fix);
+    }
+    Ok(fixes)
+}
+
 /// The geometry in use.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DriveModel {
@@ -1224,6 +1289,32 @@ fn split(t: &[f64], fixes: &[Fix], options: &DriveOptions) -> Vec<Segment> {
 mod tests {
     #![allow(clippy::unwrap_used)]
     use super::*;
+
+    #[test]
+    fn fixes_parse_by_header_name_and_errors_name_the_line() {
+        let f = parse_fixes("x_m,t_unix_s,y_m\n1.0,100.5,2.0\n3,101.5,4\n", "f.csv").unwrap();
+        assert_eq!(f.len(), 2);
+        assert_eq!(
+            (f[1].t_s, f[1].x_m, f[1].y_m, f[1].heading_rad),
+            (101.5, 3.0, 4.0, None)
+        );
+        let f = parse_fixes("t_unix_s,x_m,y_m,heading_rad\n1,0,0,0.5\n", "f.csv").unwrap();
+        assert_eq!(f[0].heading_rad, Some(0.5));
+        let e = parse_fixes("t,x,y\n1,2,3\n", "f.csv")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("f.csv:1") && e.contains("t_unix_s"), "{e}");
+        let e = parse_fixes("t_unix_s,x_m,y_m\n1,2,3\n2,abc,3\n", "f.csv")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("f.csv:3") && e.contains("x_m"), "{e}");
+        let e = parse_fixes("t_unix_s,x_m,y_m\n2,0,0\n1,0,0\n", "f.csv")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("increase"), "{e}");
+        assert!(parse_fixes("", "f.csv").is_err());
+    }
+
     use proptest::prelude::*;
 
     const DEG: f64 = PI / 180.0;

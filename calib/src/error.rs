@@ -95,6 +95,16 @@ pub enum Error {
         /// The last sample's time.
         last_s: f64,
     },
+    /// A fixes (or reference trajectory) CSV that cannot be read.
+    #[error("{name}{}: {reason}", if *line > 0 { format!(":{line}") } else { String::new() })]
+    FixesText {
+        /// The file, as the user named it.
+        name: String,
+        /// 1-based line (1: the header; 0: the file as a whole).
+        line: usize,
+        /// What is wrong there.
+        reason: String,
+    },
     /// A vehicle parameter set could not be built from the result.
     #[error(transparent)]
     Fusion(#[from] canodom_fusion::Error),

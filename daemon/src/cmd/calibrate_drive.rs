@@ -22,57 +22,6 @@ use canodom_pipeline::pipeline::Pipeline;
 use std::fmt::Write as _;
 use std::path::Path;
 
-/// Reads a fixes CSV: a header naming `t_unix_s`, `x_m`, `y_m` and
-/// optionally `heading_rad` (any order, other columns ignored), then one fix
-/// a line; times on the log's clock (Unix seconds, as candump -L writes).
-///
-/// # Errors
-/// A missing column, or a line that is not numbers, naming `name` and the line.
-pub fn parse_fixes(text: &str, name: &str) -> anyhow::Result<Vec<Fix>> {
-    let mut lines = text
-        .lines()
-        .enumerate()
-        .filter(|(_, l)| !l.trim().is_empty());
-    let Some((_, header)) = lines.next() else {
-        bail!("{name}: empty; expected a header t_unix_s,x_m,y_m[,heading_rad]");
-    };
-    let columns: Vec<&str> = header.split(',').map(str::trim).collect();
-    let column = |want: &str| columns.iter().position(|c| *c == want);
-    let (Some(t), Some(x), Some(y)) = (column("t_unix_s"), column("x_m"), column("y_m")) else {
-        bail!(
-            "{name}:1: the header {header:?} lacks t_unix_s, x_m or y_m \
-             (expected t_unix_s,x_m,y_m[,heading_rad])"
-        );
-    };
-    let heading = column("heading_rad");
-    let mut fixes = Vec::new();
-    for (i, line) in lines {
-        let fields: Vec<&str> = line.split(',').map(str::trim).collect();
-        let number = |k: usize, what: &str| -> anyhow::Result<f64> {
-            let text = fields
-                .get(k)
-                .with_context(|| format!("{name}:{}: no {what} column", i + 1))?;
-            let v: f64 = text
-                .parse()
-                .with_context(|| format!("{name}:{}: {what} {text:?} is not a number", i + 1))?;
-            if !v.is_finite() {
-                bail!("{name}:{}: {what} {text:?} is not finite", i + 1);
-            }
-            Ok(v)
-        };
-        fixes.push(Fix {
-            t_s: number(t, "t_unix_s")?,
-            x_m: number(x, "x_m")?,
-            y_m: number(y, "y_m")?,
-            heading_rad: heading.map(|h| number(h, "heading_rad")).transpose()?,
-        });
-    }
-    if fixes.windows(2).any(|w| w[1].t_s <= w[0].t_s) {
-        bail!("{name}: the fixes' times must increase");
-    }
-    Ok(fixes)
-}
-
 /// The parameter file at `path` as it is (an empty one if it does not exist yet).
 ///
 /// # Errors
@@ -278,7 +227,7 @@ pub fn execute(
 ) -> anyhow::Result<()> {
     let text = std::fs::read_to_string(fixes_path)
         .with_context(|| format!("{}: cannot read the fixes", fixes_path.display()))?;
-    let all_fixes = parse_fixes(&text, &fixes_path.display().to_string())?;
+    let all_fixes = canodom_calib::drive::parse_fixes(&text, &fixes_path.display().to_string())?;
     let mut file = load_or_new(out, config)?;
     let base_set = file.current.clone();
     let base = values_in_use(config, base_set.as_ref());
@@ -357,31 +306,6 @@ pub fn execute(
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn fixes_parse_by_header_name_and_errors_name_the_line() {
-        let f = parse_fixes("x_m,t_unix_s,y_m\n1.0,100.5,2.0\n3,101.5,4\n", "f.csv").unwrap();
-        assert_eq!(f.len(), 2);
-        assert_eq!(
-            (f[1].t_s, f[1].x_m, f[1].y_m, f[1].heading_rad),
-            (101.5, 3.0, 4.0, None)
-        );
-        let f = parse_fixes("t_unix_s,x_m,y_m,heading_rad\n1,0,0,0.5\n", "f.csv").unwrap();
-        assert_eq!(f[0].heading_rad, Some(0.5));
-        let e = parse_fixes("t,x,y\n1,2,3\n", "f.csv")
-            .unwrap_err()
-            .to_string();
-        assert!(e.contains("f.csv:1") && e.contains("t_unix_s"), "{e}");
-        let e = parse_fixes("t_unix_s,x_m,y_m\n1,2,3\n2,abc,3\n", "f.csv")
-            .unwrap_err()
-            .to_string();
-        assert!(e.contains("f.csv:3") && e.contains("x_m"), "{e}");
-        let e = parse_fixes("t_unix_s,x_m,y_m\n2,0,0\n1,0,0\n", "f.csv")
-            .unwrap_err()
-            .to_string();
-        assert!(e.contains("increase"), "{e}");
-        assert!(parse_fixes("", "f.csv").is_err());
-    }
 
     fn estimate(value: f64, observable: bool) -> Estimate {
         Estimate {

@@ -142,7 +142,7 @@ pub fn execute(args: &ReplayArgs) -> anyhow::Result<()> {
             let text = std::fs::read_to_string(path).map_err(|e| {
                 anyhow::anyhow!("{}: cannot read the reference: {e}", path.display())
             })?;
-            Some(super::calibrate_drive::parse_fixes(
+            Some(canodom_calib::drive::parse_fixes(
                 &text,
                 &path.display().to_string(),
             )?)
