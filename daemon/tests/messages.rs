@@ -54,3 +54,21 @@ fn a_misspelt_signal_gets_a_suggestion() {
         "{err}"
     );
 }
+
+#[test]
+fn global_options_may_follow_the_subcommand() {
+    let cfg = rc_car_toml();
+    let cfg = cfg.to_str().unwrap();
+    // After the action as before it: the error is about the bus (none on
+    // the test host), not about the arguments.
+    for args in [
+        &["calib", "status", "--config", cfg, "--timeout-s", "0.2"][..],
+        &["calib", "--config", cfg, "status"],
+    ] {
+        let err = stderr_of(args);
+        assert!(!err.contains("unexpected argument"), "{args:?}: {err}");
+        assert!(err.contains("vcan0"), "{args:?}: {err}");
+    }
+    let err = stderr_of(&["calib", "status"]);
+    assert!(err.contains("--config FILE"), "{err}");
+}

@@ -48,11 +48,12 @@ configured arming code, rolling counter and CRC-8; answers are read from CALIB_S
 [output] base_id + 0x11."
 )]
 pub struct CalibArgs {
-    /// The daemon's configuration file (interface, base id, arming code).
-    #[arg(long)]
-    pub config: PathBuf,
+    /// The daemon's configuration file (interface, base id, arming code);
+    /// before or after the action (`calib status --config car.toml`).
+    #[arg(long, global = true)]
+    pub config: Option<PathBuf>,
     /// How long to wait for the daemon, seconds.
-    #[arg(long, default_value_t = 2.0, value_parser = parse_timeout)]
+    #[arg(long, global = true, default_value_t = 2.0, value_parser = parse_timeout)]
     pub timeout_s: f64,
     /// What to do.
     #[command(subcommand)]
@@ -848,7 +849,13 @@ pub fn execute(args: &CalibArgs) -> anyhow::Result<()> {
 }
 
 fn run(args: &CalibArgs) -> anyhow::Result<()> {
-    let config = Config::load(&args.config)?;
+    // Global so it may follow the action; clap cannot require a global option.
+    let Some(config_path) = &args.config else {
+        anyhow::bail!(
+            "calib needs the daemon's configuration: --config FILE (before or after the action)"
+        );
+    };
+    let config = Config::load(config_path)?;
     let timeout = Duration::from_secs_f64(args.timeout_s);
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()
