@@ -400,7 +400,7 @@ wire_codes! {
 /// A calibration command with its arguments.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Command {
-    /// Start a session on a track of corner radius `track_radius_mm`.
+    /// Start a session on the stadium track of semicircle radius `track_radius_mm`.
     StartSession {
         /// ρ, millimetres.
         track_radius_mm: u16,

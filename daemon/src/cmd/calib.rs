@@ -63,9 +63,9 @@ pub struct CalibArgs {
 /// One `calib` subcommand.
 #[derive(Debug, Clone, PartialEq, clap::Subcommand)]
 pub enum Action {
-    /// Start a session on the track of corner radius R (metres).
+    /// Start a session on the stadium track of semicircle radius ρ (metres; straights 2ρ).
     Start {
-        /// Track corner radius ρ, metres (track length (4 + 2π)·ρ).
+        /// The track's semicircle radius ρ, metres (straights 2ρ, lap (4 + 2π)·ρ; README: the track on the ground).
         #[arg(long, allow_negative_numbers = true, value_parser = parse_radius)]
         track_radius: f64,
         /// Runs per direction, 1..=15.
@@ -110,7 +110,7 @@ pub enum Action {
     Status,
     /// Show CALIB_STATUS as a live guide until Ctrl-C.
     Watch {
-        /// Track corner radius, metres, for the run's progress bar.
+        /// The track's semicircle radius ρ, metres, for the run's progress bar.
         #[arg(long, value_parser = parse_radius)]
         track_radius: Option<f64>,
         /// Stop after this many CALIB_STATUS frames (for scripts).
