@@ -13,6 +13,7 @@
 //! - [`signal`]: [`Signal`] metadata and the `Copy` [`SignalHandle`] for hot paths.
 //! - [`integrity`]: [`CounterCheck`] and [`Checksum`] (CRC-8 SAE J1850, configurable
 //!   CRC-8, sum, XOR).
+//! - [`describe`]: the whole database as data and as a text listing (`canodom dbc dump`).
 //! - [`frame_id`]: [`FrameId`], standard or extended.
 //! - [`error`]: the crate's [`Error`].
 //!
@@ -60,6 +61,7 @@
 #![deny(missing_docs)]
 
 pub mod database;
+pub mod describe;
 pub mod error;
 pub mod frame_id;
 pub mod integrity;

@@ -12,6 +12,7 @@ mod calibrate;
 mod cantools_decode;
 mod cli;
 mod config_errors;
+mod dbc_tools;
 mod drive_session;
 mod follow_session;
 mod install;

@@ -55,6 +55,16 @@ pub struct CalibArgs {
     /// How long to wait for the daemon, seconds.
     #[arg(long, global = true, default_value_t = 2.0, value_parser = parse_timeout)]
     pub timeout_s: f64,
+    /// Print the command as a `cansend` line (id, counter, arming code and
+    /// CRC filled in) instead of sending it; needs no interface.
+    #[arg(long, global = true)]
+    pub print_frame: bool,
+    /// With --print-frame: the rolling counter, 0..=15 (default: from the
+    /// clock, as a sent command takes it). The daemon refuses a counter equal
+    /// to the previous command's, so successive lines need different ones.
+    #[arg(long, global = true, requires = "print_frame",
+          value_parser = clap::value_parser!(u8).range(0..=15))]
+    pub counter: Option<u8>,
     /// What to do.
     #[command(subcommand)]
     pub action: Action,
@@ -564,6 +574,42 @@ fn initial_counter() -> u8 {
     ((ms / 64) % 16) as u8
 }
 
+/// The `cansend` line of the CALIB_CMD frame `action` sends, with
+/// `counter` (or one from the clock), the configured arming code and the CRC.
+///
+/// # Errors
+/// An action that sends no command (status, watch), or a base id the
+/// calibration frames do not fit.
+pub fn cansend_line(
+    config: &Config,
+    action: &Action,
+    counter: Option<u8>,
+) -> anyhow::Result<String> {
+    let Some(cmd) = command_for(action) else {
+        anyhow::bail!(
+            "--print-frame: this action sends no command, it reads CALIB_STATUS \
+             (`candump {} | canodom decode --dbc canodom.dbc -` shows it)",
+            config.interface
+        );
+    };
+    let wire = CalibWire::new(config.output.base_id)?;
+    let data = wire.encode_command(
+        cmd,
+        config.calibration.arming_code.unwrap_or(0),
+        counter.unwrap_or_else(initial_counter),
+    );
+    let id = match config.calibration.command_id {
+        canodom_can::frame::FrameId::Standard(id) => format!("{id:03X}"),
+        canodom_can::frame::FrameId::Extended(id) => format!("{id:08X}"),
+    };
+    let mut line = format!("cansend {} {id}#", config.interface);
+    for b in data {
+        use std::fmt::Write as _;
+        let _ = write!(line, "{b:02X}");
+    }
+    Ok(line)
+}
+
 /// Exit code when the daemon does not answer.
 const EXIT_NO_ANSWER: i32 = 2;
 
@@ -856,6 +902,10 @@ fn run(args: &CalibArgs) -> anyhow::Result<()> {
         );
     };
     let config = Config::load(config_path)?;
+    if args.print_frame {
+        println!("{}", cansend_line(&config, &args.action, args.counter)?);
+        return Ok(());
+    }
     let timeout = Duration::from_secs_f64(args.timeout_s);
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()

@@ -5,6 +5,7 @@
 pub mod calib;
 pub mod calibrate;
 pub mod calibrate_drive;
+pub mod dbc;
 pub mod decode;
 pub mod demo;
 pub mod replay;
@@ -21,6 +22,8 @@ pub enum Command {
     Run(run::RunArgs),
     /// Decode a candump log with a DBC into JSON lines.
     Decode(decode::DecodeArgs),
+    /// What a DBC file holds (to fill in `[signals]`), and canodom's own DBC at your base id.
+    Dbc(dbc::DbcArgs),
     /// Run the daemon's pipeline over a candump log, as fast as it can; pose CSV.
     Replay(replay::ReplayArgs),
     /// The simulated vehicle, onto an interface or into a candump log.
@@ -42,6 +45,7 @@ impl Command {
         match self {
             Self::Run(a) => run::execute(&a),
             Self::Decode(a) => decode::execute(&a),
+            Self::Dbc(a) => dbc::execute(&a),
             Self::Replay(a) => replay::execute(&a),
             Self::Simulate(a) => simulate::execute(&a),
             Self::Demo(a) => demo::execute(&a),
