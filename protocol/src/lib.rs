@@ -5,8 +5,10 @@
 //! Layout:
 //! - [`own_dbc`]: the DBC, its id map and the base id.
 //! - [`pose_frames`]: the published pose ([`pose_frames::PoseOutput`]) encoded into pose frames.
+//! - [`guide`]: the calibration's status in words, as an operator's client shows it.
 //! - [`calib_wire`]: the calibration commands, status and parameter frames as typed values.
 
 pub mod calib_wire;
+pub mod guide;
 pub mod own_dbc;
 pub mod pose_frames;
