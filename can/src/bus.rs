@@ -102,6 +102,22 @@ impl BusError {
         !matches!(self, Self::Unsendable | Self::Closed)
     }
 
+    /// What the operator can do about it, for the errors a setup causes.
+    pub fn hint(&self) -> Option<String> {
+        match self {
+            Self::NoSuchInterface { iface } => Some(format!(
+                "is CAN support in this kernel (`modprobe can_raw`), and does {iface} exist \
+                 (`ip link show {iface}`)? A real one comes with its driver; a virtual one for \
+                 tests: `ip link add dev {iface} type vcan && ip link set {iface} up`"
+            )),
+            Self::InterfaceDown { iface } => Some(format!(
+                "bring it up at the bus's bit rate: `ip link set {iface} up type can bitrate 500000` \
+                 (or `ip link set {iface} up` for vcan)"
+            )),
+            _ => None,
+        }
+    }
+
     /// Maps an OS error on `iface` to the typed variants. A raw CAN socket
     /// reports `ENETDOWN` once when its interface goes down and `ENODEV`
     /// when it is unregistered; the socket stays usable after the former,
@@ -730,6 +746,22 @@ mod tests {
             BusEvent::Frame(r) => r,
             other => panic!("expected a frame, got {other:?}"),
         }
+    }
+
+    #[test]
+    fn setup_errors_carry_a_hint_naming_the_interface() {
+        for e in [
+            BusError::NoSuchInterface {
+                iface: "can7".into(),
+            },
+            BusError::InterfaceDown {
+                iface: "can7".into(),
+            },
+        ] {
+            let hint = e.hint().unwrap();
+            assert!(hint.contains("ip link") && hint.contains("can7"), "{hint}");
+        }
+        assert!(BusError::Closed.hint().is_none());
     }
 
     #[tokio::test(start_paused = true)]

@@ -162,6 +162,10 @@ const BACKOFF_MAX: Duration = Duration::from_secs(5);
 /// longer. Other errors still back off up to [`BACKOFF_MAX`].
 const BACKOFF_MAX_LINK: Duration = Duration::from_millis(500);
 
+/// After the first few, one failed open in this many is logged (with the
+/// 500 ms retry cap, one line every 30 s).
+const OPEN_FAILURES_LOG_EVERY: u64 = 60;
+
 /// The next backoff after `current` failed with `cause`.
 fn next_backoff(current: Duration, cause: Option<&BusError>) -> Duration {
     let cap = match cause {
@@ -439,6 +443,10 @@ impl<C: Connector> LinkTask<C> {
     async fn run(mut self) -> Result<u64, BusError> {
         let mut backoff = BACKOFF_MIN;
         let mut connections = 0u64;
+        // Failed opens in a row: the first few are logged (the first with a
+        // hint), then one in OPEN_FAILURES_LOG_EVERY, so a missing interface
+        // does not fill the journal at the retry rate.
+        let mut failed_opens = 0u64;
         loop {
             if self.token.is_cancelled() {
                 return Ok(connections);
@@ -446,6 +454,7 @@ impl<C: Connector> LinkTask<C> {
             let mut cause = None;
             match self.connector.connect(&self.filters) {
                 Ok((mut rx, tx)) => {
+                    failed_opens = 0;
                     connections += 1;
                     info!(connections, "CAN interface open");
                     // A loss reported by a send on the previous socket is over.
@@ -473,7 +482,19 @@ impl<C: Connector> LinkTask<C> {
                     }
                 }
                 Err(e) if e.is_transient() => {
-                    warn!(cause = %e, retry_in_ms = backoff.as_millis() as u64, "cannot open CAN interface");
+                    failed_opens += 1;
+                    let retry_in_ms = backoff.as_millis() as u64;
+                    match e.hint() {
+                        Some(hint) if failed_opens == 1 => {
+                            warn!(cause = %e, retry_in_ms, hint, "cannot open CAN interface");
+                        }
+                        _ if failed_opens <= 5
+                            || failed_opens.is_multiple_of(OPEN_FAILURES_LOG_EVERY) =>
+                        {
+                            warn!(cause = %e, retry_in_ms, failed_opens, "cannot open CAN interface");
+                        }
+                        _ => {}
+                    }
                     cause = Some(e);
                 }
                 Err(e) => {

@@ -267,6 +267,12 @@ fn run_stops_cleanly_on_sigterm_even_while_retrying() {
     );
     // --interface replaces the configuration's.
     assert!(log.contains("canodomif9"), "{log}");
+    // How to make the interface, said once, not at every retry.
+    assert_eq!(
+        log.matches("ip link add dev canodomif9").count(),
+        1,
+        "{log}"
+    );
 }
 
 #[test]

@@ -289,10 +289,10 @@ impl Link<canodom_can::bus::SocketCanRx, canodom_can::bus::SocketCanTx> {
             IdFilter::exact(wire.params_id()),
         ];
         let (rx, tx) = open_socketcan(&iface, &filters).map_err(|e| {
-            anyhow::anyhow!(
-                "SocketCAN interface {iface} is unavailable ({e}): is CAN support in this \
-                 kernel and is {iface} up (`ip link show {iface}`)?"
-            )
+            let hint = e
+                .hint()
+                .unwrap_or_else(|| format!("`ip link show {iface}`"));
+            anyhow::anyhow!("SocketCAN interface {iface} is unavailable ({e}): {hint}")
         })?;
         Ok(Self {
             rx,
