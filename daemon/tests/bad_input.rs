@@ -291,9 +291,13 @@ fn other_frame_kinds_in_a_log_replay_as_the_pipeline_sees_them() {
     while let Some(record) = reader.next_record().unwrap() {
         if let Some(s) = reference.push(record.timestamp, &record.frame) {
             let (f, o) = (s.fused, s.odometry);
+            let p = reference.pose_output(record.timestamp);
+            let t0 = reference.first_frame_time().unwrap().as_micros();
+            let mut t_unix = Vec::new();
+            canodom_report::float_text::push_micros_as_seconds(&mut t_unix, t0 as i64 + s.t_us);
             writeln!(
                 expected,
-                "{},{},{},{},{},{},{},{}",
+                "{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
                 s.t_s,
                 f.x_m,
                 f.y_m,
@@ -301,7 +305,13 @@ fn other_frame_kinds_in_a_log_replay_as_the_pipeline_sees_them() {
                 o.x_m,
                 o.y_m,
                 o.heading_rad,
-                s.correction.as_str()
+                s.correction.as_str(),
+                String::from_utf8(t_unix).unwrap(),
+                p.speed_mps,
+                p.pos_std_m,
+                p.heading_std_rad,
+                u8::from(p.flags.pose_valid),
+                p.flags.bits()
             )
             .unwrap();
         }

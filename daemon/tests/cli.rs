@@ -94,8 +94,22 @@ fn simulate_decode_replay_round_trip() {
     let csv = std::fs::read_to_string(&pose).unwrap();
     assert_eq!(
         csv.lines().next().unwrap(),
-        "t_s,x_m,y_m,heading_rad,odo_x_m,odo_y_m,odo_heading_rad,correction"
+        "t_s,x_m,y_m,heading_rad,odo_x_m,odo_y_m,odo_heading_rad,correction,\
+         t_unix_s,speed_mps,pos_std_m,heading_std_rad,pose_valid,quality"
     );
+    // The absolute time is the log's (the simulator's epoch), the sample's
+    // columns are those of the pose frames `run` would publish.
+    let last: Vec<f64> = csv_rows(&csv).pop().unwrap();
+    assert!(
+        (last[7] - (1_700_000_000.0 + last[0])).abs() < 0.05,
+        "{last:?}"
+    );
+    assert!(
+        last[8] >= 0.0 && last[9] > 0.0 && last[10] > 0.0,
+        "{last:?}"
+    );
+    assert_eq!(last[11], 1.0, "pose valid at the end: {last:?}");
+    assert_eq!(last[12] as u8 & 1, 1, "{last:?}");
     // One correction a window (50 steps) and nothing in between.
     let corrections = csv_corrections(&csv);
     let closed = corrections.iter().filter(|c| !c.is_empty()).count();

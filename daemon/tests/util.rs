@@ -71,9 +71,14 @@ pub fn csv_rows(text: &str) -> Vec<Vec<f64>> {
 
 /// The `correction` column of replay's CSV, one entry a row.
 pub fn csv_corrections(text: &str) -> Vec<String> {
+    let column = text
+        .lines()
+        .next()
+        .and_then(|h| h.split(',').position(|name| name == "correction"))
+        .unwrap();
     text.lines()
         .skip(1)
-        .map(|l| l.rsplit(',').next().unwrap_or("").to_string())
+        .map(|l| l.split(',').nth(column).unwrap_or("").to_string())
         .collect()
 }
 

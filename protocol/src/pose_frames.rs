@@ -163,6 +163,26 @@ pub struct PoseFlags {
     pub nominal_params: bool,
 }
 
+impl PoseFlags {
+    /// The flags as ODOM_QUALITY orders them, POSE_VALID in bit 0 up to
+    /// NOMINAL_PARAMS in bit 7: one number for CSV columns and logs.
+    pub fn bits(self) -> u8 {
+        [
+            self.pose_valid,
+            self.rear_stale,
+            self.front_stale,
+            self.steer_stale,
+            self.counter_fault,
+            self.checksum_fault,
+            self.gate_reject,
+            self.nominal_params,
+        ]
+        .iter()
+        .enumerate()
+        .fold(0, |bits, (k, &on)| bits | (u8::from(on) << k))
+    }
+}
+
 /// What a pose frame carries.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PoseOutput {

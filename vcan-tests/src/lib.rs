@@ -331,7 +331,8 @@ pub fn read_csv(path: &Path) -> Result<Vec<Vec<f64>>, String> {
 }
 
 /// Runs `canodom replay` of `log` and returns its pose rows
-/// (`t_s,x_m,y_m,heading_rad,odo_x_m,odo_y_m,odo_heading_rad`; the
+/// (`t_s,x_m,y_m,heading_rad,odo_x_m,odo_y_m,odo_heading_rad`, then
+/// `t_unix_s,speed_mps,pos_std_m,heading_std_rad,pose_valid,quality`; the
 /// `correction` column left out) and its stderr.
 ///
 /// # Errors

@@ -9,14 +9,15 @@ use canodom_fusion::ekf::WindowOutcome;
 use canodom_pipeline::config::Config;
 use canodom_pipeline::pipeline::{Pipeline, Step};
 use canodom_pipeline::stats::{Reject, Stats};
-use canodom_report::float_text::push_csv_row;
+use canodom_report::float_text::{push_csv_row, push_f64, push_micros_as_seconds};
 use std::fmt::Write as _;
 use std::io::{Read, Write};
 use std::path::PathBuf;
 use std::sync::mpsc;
 
 /// The CSV header `replay` writes.
-pub const CSV_HEADER: &str = "t_s,x_m,y_m,heading_rad,odo_x_m,odo_y_m,odo_heading_rad,correction";
+pub const CSV_HEADER: &str = "t_s,x_m,y_m,heading_rad,odo_x_m,odo_y_m,odo_heading_rad,correction,\
+t_unix_s,speed_mps,pos_std_m,heading_std_rad,pose_valid,quality";
 
 /// Arguments of `replay`.
 #[derive(Debug, clap::Args)]
@@ -306,6 +307,12 @@ struct Row {
     t_us: i64,
     values: [f64; 6],
     correction: WindowOutcome,
+    /// The step's time on the log's clock, µs.
+    t_unix_us: i64,
+    /// Speed, position and heading standard deviations of the pose sample.
+    sample: [f64; 3],
+    /// The pose sample's flags ([`canodom_protocol::pose_frames::PoseFlags::bits`]).
+    quality: u8,
 }
 
 /// Appends `rows` to `text` as CSV lines.
@@ -317,6 +324,16 @@ fn push_rows(text: &mut Vec<u8>, rows: &[Row]) {
         text.pop();
         text.push(b',');
         text.extend_from_slice(row.correction.as_str().as_bytes());
+        text.push(b',');
+        push_micros_as_seconds(text, row.t_unix_us);
+        for v in row.sample {
+            text.push(b',');
+            push_f64(text, v);
+        }
+        text.push(b',');
+        text.push(b'0' + (row.quality & 1));
+        text.push(b',');
+        text.extend_from_slice(itoa::Buffer::new().format(row.quality).as_bytes());
         text.push(b'\n');
     }
 }
@@ -389,14 +406,22 @@ pub fn replay_log(
                 batch.rows.clear();
                 batch.text.clear();
                 for entry in &batch.records {
-                    let step = match entry {
-                        Entry::Classic(c) => pipeline.push_data(c.timestamp, c.id, c.payload()),
-                        Entry::Other(i) => batch
-                            .others
-                            .get(*i)
-                            .and_then(|(t, frame)| pipeline.push(*t, frame)),
+                    let (at, step) = match entry {
+                        Entry::Classic(c) => (
+                            c.timestamp,
+                            pipeline.push_data(c.timestamp, c.id, c.payload()),
+                        ),
+                        Entry::Other(i) => match batch.others.get(*i) {
+                            Some((t, frame)) => (*t, pipeline.push(*t, frame)),
+                            None => continue,
+                        },
                     };
                     if let Some(s) = step {
+                        // The sample `run` would publish at this frame.
+                        let p = pipeline.pose_output(at);
+                        let t0_us = pipeline
+                            .first_frame_time()
+                            .map_or(0, |t| t.as_micros() as i64);
                         batch.rows.push(Row {
                             t_us: s.t_us,
                             values: [
@@ -408,6 +433,9 @@ pub fn replay_log(
                                 s.odometry.heading_rad,
                             ],
                             correction: s.correction,
+                            t_unix_us: t0_us + s.t_us,
+                            sample: [p.speed_mps, p.pos_std_m, p.heading_std_rad],
+                            quality: p.flags.bits(),
                         });
                     }
                 }
