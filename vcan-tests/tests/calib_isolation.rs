@@ -186,8 +186,8 @@ async fn calibration_commands_on_wrong_id_bad_crc_or_wrong_arming_change_nothing
     // each once per reason, and no state but IDLE before the correct one.
     let (frames, _) = read_candump(&dir.join("bus.log")).unwrap();
     let status_id = status.wire.status_id();
-    let cmd_id = FrameId::standard(CMD_ID).unwrap();
-    let wrong_id = FrameId::standard(WRONG_ID).unwrap();
+    let cmd_id = FrameId::Standard(CMD_ID as u16);
+    let wrong_id = FrameId::Standard(WRONG_ID as u16);
     let sends: Vec<usize> = frames
         .iter()
         .enumerate()

@@ -95,7 +95,7 @@ fn wheel_gaps(log: &str) -> Option<u64> {
 /// Listens to status, commands and pose quality, and plays the parameter
 /// store ECU: every complete `CALIB_PARAMS` set is acknowledged STORED.
 fn listen_and_ack(wire: CalibWire, heard: Arc<Mutex<Heard>>) -> tokio::task::JoinHandle<()> {
-    let quality_id = FrameId::standard(BASE + 2).unwrap();
+    let quality_id = FrameId::Standard((BASE + 2) as u16);
     let db = Database::parse(&read(&repo_file("protocol/dbc/canodom.dbc")), "canodom.dbc").unwrap();
     let version = db.signal("ODOM_QUALITY.PARAM_VERSION").unwrap();
     let nominal = db.signal("ODOM_QUALITY.NOMINAL_PARAMS").unwrap();

@@ -737,7 +737,7 @@ async fn watch_poses(
 ) -> Result<Vec<PoseSample>, String> {
     use canodom_can::bus::{BusEvent, FrameSource, IdFilter, open_socketcan};
     let filters: Vec<IdFilter> = (0..3u32)
-        .map(|k| IdFilter::exact(FrameId::standard(RC_CAR_BASE + k).unwrap()))
+        .map(|k| IdFilter::exact(FrameId::Standard((RC_CAR_BASE + k) as u16)))
         .collect();
     let (mut rx, _tx) = open_socketcan("vcan0", &filters).map_err(|e| e.to_string())?;
     let decoder = PoseDecoder::load(RC_CAR_BASE)?;

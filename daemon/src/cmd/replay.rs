@@ -405,40 +405,7 @@ pub fn replay_log(
             while let Some(mut batch) = waiting.take() {
                 batch.rows.clear();
                 batch.text.clear();
-                for entry in &batch.records {
-                    let (at, step) = match entry {
-                        Entry::Classic(c) => (
-                            c.timestamp,
-                            pipeline.push_data(c.timestamp, c.id, c.payload()),
-                        ),
-                        Entry::Other(i) => match batch.others.get(*i) {
-                            Some((t, frame)) => (*t, pipeline.push(*t, frame)),
-                            None => continue,
-                        },
-                    };
-                    if let Some(s) = step {
-                        // The sample `run` would publish at this frame.
-                        let p = pipeline.pose_output(at);
-                        let t0_us = pipeline
-                            .first_frame_time()
-                            .map_or(0, |t| t.as_micros() as i64);
-                        batch.rows.push(Row {
-                            t_us: s.t_us,
-                            values: [
-                                s.fused.x_m,
-                                s.fused.y_m,
-                                s.fused.heading_rad,
-                                s.odometry.x_m,
-                                s.odometry.y_m,
-                                s.odometry.heading_rad,
-                            ],
-                            correction: s.correction,
-                            t_unix_us: t0_us + s.t_us,
-                            sample: [p.speed_mps, p.pos_std_m, p.heading_std_rad],
-                            quality: p.flags.bits(),
-                        });
-                    }
-                }
+                filter_batch(&mut pipeline, &mut batch);
                 waiting = filter_in.try_recv().ok();
                 if waiting.is_none() {
                     // Ahead of the reading thread (or past its end): write
@@ -500,6 +467,44 @@ pub fn replay_log(
             state: *pipeline.state(),
         })
     })
+}
+
+/// Runs one batch's records through the pipeline, a row per filter step
+/// with the pose sample `run` would publish at that frame.
+fn filter_batch(pipeline: &mut Pipeline, batch: &mut Batch) {
+    for entry in &batch.records {
+        let (at, step) = match entry {
+            Entry::Classic(c) => (
+                c.timestamp,
+                pipeline.push_data(c.timestamp, c.id, c.payload()),
+            ),
+            Entry::Other(i) => match batch.others.get(*i) {
+                Some((t, frame)) => (*t, pipeline.push(*t, frame)),
+                None => continue,
+            },
+        };
+        if let Some(s) = step {
+            let p = pipeline.pose_output(at);
+            let t0_us = pipeline
+                .first_frame_time()
+                .map_or(0, |t| t.as_micros() as i64);
+            batch.rows.push(Row {
+                t_us: s.t_us,
+                values: [
+                    s.fused.x_m,
+                    s.fused.y_m,
+                    s.fused.heading_rad,
+                    s.odometry.x_m,
+                    s.odometry.y_m,
+                    s.odometry.heading_rad,
+                ],
+                correction: s.correction,
+                t_unix_us: t0_us + s.t_us,
+                sample: [p.speed_mps, p.pos_std_m, p.heading_std_rad],
+                quality: p.flags.bits(),
+            });
+        }
+    }
 }
 
 /// The reading and writing side of [`replay`]: parses batches for the
