@@ -32,7 +32,12 @@ fn drive_rows() -> Vec<(i64, [f64; 6])> {
     text.lines()
         .skip(1)
         .map(|line| {
-            let mut fields = line.split(',').map(|f| f.parse::<f64>().expect("number"));
+            // The time and the six pose values lead the row; the columns
+            // after them (the correction's text, the pose sample) are not these.
+            let mut fields = line
+                .split(',')
+                .take(7)
+                .map(|f| f.parse::<f64>().expect("number"));
             let t_s = fields.next().expect("time");
             let values: Vec<f64> = fields.collect();
             let micros = (t_s * 1e6).round() as i64;
