@@ -9,9 +9,15 @@
 //! - [`frame`]: the CAN frame value type (classic, FD, remote, error frames).
 //! - [`candump`]: the `candump -L` log format, streaming parser and formatter, and [`candump::Timestamp`].
 //! - [`log_format`]: which CAN log format a file is, from its first bytes.
+//! - [`any_log`]: one reader for every log format read, through gzip/zstd compression.
+//! - [`candump_plain`], [`vector_asc`], [`vector_blf`]: plain candump output, Vector ASC and BLF.
 //! - [`bus`]: the transport trait, with the in-process bus and SocketCAN.
 
+pub mod any_log;
 pub mod bus;
 pub mod candump;
+pub mod candump_plain;
 pub mod frame;
 pub mod log_format;
+pub mod vector_asc;
+pub mod vector_blf;
