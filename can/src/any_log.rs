@@ -127,7 +127,9 @@ impl<R: BufRead> Lines<R> {
     pub(crate) fn next_line(&mut self) -> io::Result<Option<(u64, &[u8], bool)>> {
         self.buf.clear();
         let limit = crate::candump::MAX_LINE_BYTES as u64 + 1;
-        let n = (&mut self.inner).take(limit).read_until(b'\n', &mut self.buf)?;
+        let n = (&mut self.inner)
+            .take(limit)
+            .read_until(b'\n', &mut self.buf)?;
         if n == 0 {
             return Ok(None);
         }

@@ -148,8 +148,7 @@ fn parse(line: &[u8]) -> Option<Parsed<'_>> {
         _ => None,
     };
     let iface = words.next()?;
-    if iface.len() > crate::candump::MAX_IFACE_BYTES
-        || !iface.bytes().all(|b| b.is_ascii_graphic())
+    if iface.len() > crate::candump::MAX_IFACE_BYTES || !iface.bytes().all(|b| b.is_ascii_graphic())
     {
         return None;
     }
@@ -287,7 +286,8 @@ mod tests {
 
     #[test]
     fn bad_lines_are_named_by_number_and_untimed_logs_say_so() {
-        let (ok, bad) = read_all("  can0  123   [2]  01\n  can0  123   [1]  01\n  can0  12   [1]  01\n");
+        let (ok, bad) =
+            read_all("  can0  123   [2]  01\n  can0  123   [1]  01\n  can0  12   [1]  01\n");
         assert_eq!(ok.len(), 1);
         assert_eq!(bad, [1, 3]);
         let mut r = PlainReader::new(&b"  can0  123   [1]  01\n"[..]);

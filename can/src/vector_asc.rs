@@ -108,8 +108,7 @@ impl<R: BufRead> AscReader<R> {
             let Some(event) = classify(text) else {
                 continue;
             };
-            let Some((rel_us, channel, frame, direction)) = parse_event(event, self.decimal)
-            else {
+            let Some((rel_us, channel, frame, direction)) = parse_event(event, self.decimal) else {
                 return Err(bad(Reason::BadAscEvent));
             };
             let rel_us = rel_us as i64;
@@ -243,7 +242,10 @@ fn parse_event(text: &str, decimal: bool) -> Option<(u64, &str, CanFrame, Option
 }
 
 fn second_channel(channel: &str) -> Option<&str> {
-    channel.bytes().all(|b| b.is_ascii_digit()).then_some(channel)
+    channel
+        .bytes()
+        .all(|b| b.is_ascii_digit())
+        .then_some(channel)
 }
 
 fn error_frame() -> Option<CanFrame> {
@@ -321,12 +323,8 @@ fn parse_date(text: &str) -> Option<i64> {
         Some("am") if hour == 12 => hour = 0,
         _ => {}
     }
-    let naive = NaiveDate::from_ymd_opt(year, month, day)?.and_hms_milli_opt(
-        hour,
-        minute,
-        second,
-        millis,
-    )?;
+    let naive = NaiveDate::from_ymd_opt(year, month, day)?
+        .and_hms_milli_opt(hour, minute, second, millis)?;
     let local = chrono::Local.from_local_datetime(&naive).earliest()?;
     Some(local.timestamp_micros())
 }

@@ -65,6 +65,11 @@ pub struct BlfReader<R> {
     iface: String,
 }
 
+/// A broken structure at byte offset `at` of the (decompressed) file.
+fn corrupt(at: u64, why: &str) -> ReadError {
+    ReadError::Corrupt(format!("byte offset {at}: {why}"))
+}
+
 fn u16_at(b: &[u8], at: usize) -> Option<u16> {
     Some(u16::from_le_bytes(b.get(at..at + 2)?.try_into().ok()?))
 }
@@ -94,10 +99,6 @@ impl<R: Read> BlfReader<R> {
         }
     }
 
-    fn corrupt(&self, at: u64, why: &str) -> ReadError {
-        ReadError::Corrupt(format!("byte offset {at}: {why}"))
-    }
-
     /// Reads exactly `buf.len()` bytes; `false` at a clean end before any.
     fn read_exact_or_end(&mut self, buf: &mut [u8]) -> Result<bool, ReadError> {
         let mut got = 0;
@@ -105,7 +106,10 @@ impl<R: Read> BlfReader<R> {
             match self.inner.read(&mut buf[got..]) {
                 Ok(0) if got == 0 => return Ok(false),
                 Ok(0) => {
-                    return Err(self.corrupt(self.offset + got as u64, "the file ends inside an object"));
+                    return Err(corrupt(
+                        self.offset + got as u64,
+                        "the file ends inside an object",
+                    ));
                 }
                 Ok(n) => got += n,
                 Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
@@ -119,29 +123,30 @@ impl<R: Read> BlfReader<R> {
     fn header(&mut self) -> Result<(), ReadError> {
         let mut fixed = [0u8; 72];
         if !self.read_exact_or_end(&mut fixed)? || &fixed[..4] != b"LOGG" {
-            return Err(self.corrupt(0, "no BLF file header (LOGG)"));
+            return Err(corrupt(0, "no BLF file header (LOGG)"));
         }
         let size = u32_at(&fixed, 4).unwrap_or(0) as usize;
         if !(72..=4096).contains(&size) {
-            return Err(self.corrupt(4, "implausible BLF header size"));
+            return Err(corrupt(4, "implausible BLF header size"));
         }
         let mut rest = vec![0u8; size - 72];
         if !self.read_exact_or_end(&mut rest)? && !rest.is_empty() {
-            return Err(self.corrupt(72, "the file ends inside its header"));
+            return Err(corrupt(72, "the file ends inside its header"));
         }
         // SYSTEMTIME: year, month, weekday, day, hour, minute, second, ms.
         let st: [u16; 8] = std::array::from_fn(|i| u16_at(&fixed, 40 + 2 * i).unwrap_or(0));
-        self.start_us = chrono::NaiveDate::from_ymd_opt(i32::from(st[0]), u32::from(st[1]), u32::from(st[3]))
-            .and_then(|d| {
-                d.and_hms_milli_opt(
-                    u32::from(st[4]),
-                    u32::from(st[5]),
-                    u32::from(st[6]),
-                    u32::from(st[7]),
-                )
-            })
-            // python-can: an invalid SYSTEMTIME (all zero: no wall clock) is time 0.
-            .map_or(0, |t| t.and_utc().timestamp_micros());
+        self.start_us =
+            chrono::NaiveDate::from_ymd_opt(i32::from(st[0]), u32::from(st[1]), u32::from(st[3]))
+                .and_then(|d| {
+                    d.and_hms_milli_opt(
+                        u32::from(st[4]),
+                        u32::from(st[5]),
+                        u32::from(st[6]),
+                        u32::from(st[7]),
+                    )
+                })
+                // python-can: an invalid SYSTEMTIME (all zero: no wall clock) is time 0.
+                .map_or(0, |t| t.and_utc().timestamp_micros());
         self.started = true;
         Ok(())
     }
@@ -155,24 +160,24 @@ impl<R: Read> BlfReader<R> {
                 return Ok(false);
             }
             if &base[..4] != b"LOBJ" {
-                return Err(self.corrupt(at, "no object (LOBJ) where one must start"));
+                return Err(corrupt(at, "no object (LOBJ) where one must start"));
             }
             let size = u32_at(&base, 8).unwrap_or(0) as usize;
             let kind = u32_at(&base, 12).unwrap_or(0);
             if !(OBJ_BASE..=MAX_OBJECT).contains(&size) {
-                return Err(self.corrupt(at, "implausible object size"));
+                return Err(corrupt(at, "implausible object size"));
             }
             // The object, then padding to 4 bytes as python-can reads it.
             let mut body = vec![0u8; size - OBJ_BASE + size % 4];
             if !self.read_exact_or_end(&mut body)? && !body.is_empty() {
-                return Err(self.corrupt(at, "the file ends inside an object"));
+                return Err(corrupt(at, "the file ends inside an object"));
             }
             body.truncate(size - OBJ_BASE);
             if kind != LOG_CONTAINER {
                 continue;
             }
             let (Some(method), Some(content)) = (u16_at(&body, 0), body.get(16..)) else {
-                return Err(self.corrupt(at, "log container too short"));
+                return Err(corrupt(at, "log container too short"));
             };
             // Keep the unparsed tail: an object may span two containers.
             self.data.drain(..self.pos);
@@ -182,11 +187,11 @@ impl<R: Read> BlfReader<R> {
                 2 => {
                     let mut z = flate2::read::ZlibDecoder::new(content).take(MAX_OBJECT as u64);
                     if let Err(e) = z.read_to_end(&mut self.data) {
-                        return Err(self.corrupt(at, &format!("log container does not inflate: {e}")));
+                        return Err(corrupt(at, &format!("log container does not inflate: {e}")));
                     }
                 }
                 m => {
-                    return Err(self.corrupt(at, &format!("unknown compression method {m}")));
+                    return Err(corrupt(at, &format!("unknown compression method {m}")));
                 }
             }
             return Ok(true);
@@ -198,6 +203,9 @@ impl<R: Read> BlfReader<R> {
     /// # Errors
     /// [`ReadError::Corrupt`] for a broken structure, [`Reason::BadBlfObject`]
     /// for a CAN object too short for its type; I/O.
+    // One loop as python-can's `_parse_data`: split up, the cases of an
+    // object spanning two containers would be scattered over functions.
+    #[allow(clippy::too_many_lines)]
     pub fn next_record(&mut self) -> Result<Option<Record<'_>>, ReadError> {
         if !self.started {
             self.header()?;
@@ -214,40 +222,49 @@ impl<R: Read> BlfReader<R> {
                         continue;
                     }
                     if self.data.len() - self.pos >= 4 {
-                        return Err(self.corrupt(self.offset, "the last container ends inside an object"));
+                        return Err(corrupt(
+                            self.offset,
+                            "the last container ends inside an object",
+                        ));
                     }
                     return Ok(None);
                 }
-                return Err(self.corrupt(
+                return Err(corrupt(
                     self.offset,
                     &format!("no object after object {} in a container", self.objects),
                 ));
             };
             let pos = self.pos + skip;
             let obj = &self.data[pos..];
-            let (Some(header_size), Some(version), Some(size), Some(kind)) = (
-                u16_at(obj, 4),
-                u16_at(obj, 6),
-                u32_at(obj, 8),
-                u32_at(obj, 12),
-            ) else {
+            let (Some(version), Some(size), Some(kind)) =
+                (u16_at(obj, 6), u32_at(obj, 8), u32_at(obj, 12))
+            else {
                 // The base header spans into the next container.
                 self.pos = pos;
                 if self.next_container()? {
                     continue;
                 }
-                return Err(self.corrupt(self.offset, "the last container ends inside an object"));
+                return Err(corrupt(
+                    self.offset,
+                    "the last container ends inside an object",
+                ));
             };
             let size = size as usize;
             if size < OBJ_BASE {
-                return Err(self.corrupt(self.offset, &format!("object {} has an implausible size", self.objects + 1)));
+                return Err(corrupt(
+                    self.offset,
+                    &format!("object {} has an implausible size", self.objects + 1),
+                ));
             }
             if obj.len() < size {
                 self.pos = pos;
                 if self.next_container()? {
                     continue;
                 }
-                return Err(self.corrupt(self.offset, "the last container ends inside an object"));
+                return Err(corrupt(
+                    self.offset,
+                    "the last container ends inside an object",
+                ));
             }
             self.objects += 1;
             self.pos = pos + size;
@@ -258,7 +275,6 @@ impl<R: Read> BlfReader<R> {
                 // python-can skips an object of an unknown header version.
                 _ => continue,
             };
-            let _ = header_size;
             if !matches!(
                 kind,
                 CAN_MESSAGE | CAN_MESSAGE2 | CAN_FD_MESSAGE | CAN_FD_MESSAGE_64 | CAN_ERROR_EXT
@@ -382,9 +398,19 @@ fn parse_can(kind: u32, b: &[u8]) -> Option<(u16, CanFrame, Direction)> {
             let have = b.get(40..).map_or(0, |d| d.len().min(valid));
             data[..have].copy_from_slice(&b[40..40 + have]);
             let frame = if flags & 0x1000 != 0 {
-                CanFrame::new_fd(id, fd_flags(flags & 0x2000 != 0, flags & 0x4000 != 0), &data[..valid]).ok()?
+                CanFrame::new_fd(
+                    id,
+                    fd_flags(flags & 0x2000 != 0, flags & 0x4000 != 0),
+                    &data[..valid],
+                )
+                .ok()?
             } else {
-                classic(id, flags & 0x0010 != 0, dlc, &data[..dlc_len(dlc).min(CLASSIC_MAX_LEN)])?
+                classic(
+                    id,
+                    flags & 0x0010 != 0,
+                    dlc,
+                    &data[..dlc_len(dlc).min(CLASSIC_MAX_LEN)],
+                )?
             };
             Some((u16::from(channel), frame, dir(direction != 0)))
         }
@@ -455,9 +481,17 @@ mod tests {
     #[test]
     fn can_messages_with_their_times_and_channels() {
         let file = blf(&[
-            (CAN_MESSAGE, can_message(1, 0, 0x110, &[5, 0xB1]), 10_000_000),
+            (
+                CAN_MESSAGE,
+                can_message(1, 0, 0x110, &[5, 0xB1]),
+                10_000_000,
+            ),
             (96, vec![0; 12], 15_000_000),
-            (CAN_MESSAGE2, can_message(2, 1, 0x8000_1234, &[1]), 19_999_999),
+            (
+                CAN_MESSAGE2,
+                can_message(2, 1, 0x8000_1234, &[1]),
+                19_999_999,
+            ),
         ]);
         let mut r = BlfReader::new(&file[..]);
         let a = r.next_record().unwrap().unwrap().to_string();
@@ -471,9 +505,15 @@ mod tests {
     fn a_broken_file_names_the_byte_offset() {
         let mut file = blf(&[(CAN_MESSAGE, can_message(1, 0, 0x110, &[5]), 0)]);
         file[144] = b'X';
-        let err = BlfReader::new(&file[..]).next_record().unwrap_err().to_string();
+        let err = BlfReader::new(&file[..])
+            .next_record()
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("byte offset 144"), "{err}");
-        let err = BlfReader::new(&b"LOGG"[..]).next_record().unwrap_err().to_string();
+        let err = BlfReader::new(&b"LOGG"[..])
+            .next_record()
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("byte offset"), "{err}");
     }
 }

@@ -6,12 +6,17 @@
 //! same order with the same times. `check_python_can.sh` regenerates the
 //! fixtures and re-runs this.
 
+// Test helpers outside #[test] functions unwrap too: a failure is a test failure.
+#![allow(clippy::unwrap_used)]
+
 use canodom_can::any_log::AnyLogReader;
 use canodom_can::candump::{LogReader, ReadError, format_frame};
 use std::path::PathBuf;
 
 fn fixture(name: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/logs").join(name)
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/fixtures/logs")
+        .join(name)
 }
 
 /// (µs, candump frame text) of every record canodom reads from `name`.
@@ -71,7 +76,12 @@ fn local_offset_us() -> i64 {
 #[test]
 fn every_format_reads_as_python_can_reads_it() {
     let original = reading("drive.log");
-    assert_same("python-can's reading of drive.log", &reading("drive.log.pycan.txt"), &original, 0);
+    assert_same(
+        "python-can's reading of drive.log",
+        &reading("drive.log.pycan.txt"),
+        &original,
+        0,
+    );
     for (file, oracle, shift) in [
         ("drive.pycan.log", "drive.pycan.log.pycan.txt", 0),
         ("drive.asc", "drive.asc.pycan.txt", local_offset_us()),
