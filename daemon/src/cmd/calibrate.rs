@@ -182,7 +182,8 @@ pub fn run_from_log(
     max_gap_s: f64,
     interface: Option<&str>,
 ) -> anyhow::Result<Run> {
-    let mut reader = super::log_reader(super::open_input(log, "calibrate")?, interface);
+    let mut reader = super::log_reader(super::open_input(log, "calibrate")?, interface, true)
+        .map_err(|e| e.context(log.display().to_string()))?;
     let mut pipeline = Pipeline::new(config)?;
     let params = config.params;
     let tread_m = params.rear_tread_m();

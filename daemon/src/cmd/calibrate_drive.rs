@@ -126,7 +126,8 @@ pub fn samples_from_log(
     log: &Path,
     interface: Option<&str>,
 ) -> anyhow::Result<DriveLog> {
-    let mut reader = super::log_reader(super::open_input(log, "calibrate")?, interface);
+    let mut reader = super::log_reader(super::open_input(log, "calibrate")?, interface, true)
+        .map_err(|e| e.context(log.display().to_string()))?;
     let mut pipeline = Pipeline::new(config)?;
     if let Some(s) = set {
         pipeline.apply_params(Some((s.version, &s.values)))?;
