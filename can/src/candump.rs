@@ -193,11 +193,18 @@ pub enum Reason {
     TrailingGarbage,
     /// Longer than [`MAX_LINE_BYTES`].
     LineTooLong,
+    /// A Vector ASC CAN event line that cannot be read (`crate::vector_asc`).
+    BadAscEvent,
+    /// A plain `candump` line (without `-L`) that cannot be read (`crate::candump_plain`).
+    BadPlainRecord,
+    /// A Vector BLF CAN object that cannot be read (`crate::vector_blf`);
+    /// its "line" is the object's number.
+    BadBlfObject,
 }
 
 impl Reason {
     /// Every reason, for statistics tables that list zero counts too.
-    pub const ALL: [Self; 13] = [
+    pub const ALL: [Self; 16] = [
         Self::BadTimestamp,
         Self::BadInterface,
         Self::BadId,
@@ -211,6 +218,9 @@ impl Reason {
         Self::BadErrorFrame,
         Self::TrailingGarbage,
         Self::LineTooLong,
+        Self::BadAscEvent,
+        Self::BadPlainRecord,
+        Self::BadBlfObject,
     ];
 
     /// Stable snake_case name, used as a statistics key.
@@ -229,6 +239,31 @@ impl Reason {
             Self::BadErrorFrame => "bad_error_frame",
             Self::TrailingGarbage => "trailing_garbage",
             Self::LineTooLong => "line_too_long",
+            Self::BadAscEvent => "bad_asc_event",
+            Self::BadPlainRecord => "bad_plain_record",
+            Self::BadBlfObject => "bad_blf_object",
+        }
+    }
+}
+
+impl Reason {
+    /// What a malformed record is called in its format, for messages.
+    pub fn record_kind(self) -> &'static str {
+        match self {
+            Self::BadAscEvent => "ASC event",
+            Self::BadPlainRecord => "plain candump record",
+            Self::BadBlfObject => "BLF object",
+            _ => "candump record",
+        }
+    }
+
+    /// What the number of a malformed record counts: lines of a text log,
+    /// objects of a BLF file.
+    pub fn unit(self) -> &'static str {
+        if self == Self::BadBlfObject {
+            "object"
+        } else {
+            "line"
         }
     }
 }
@@ -276,7 +311,7 @@ impl MalformedCounts {
 
 /// A malformed line: where and why.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
-#[error("line {line_no}: malformed candump record ({reason})")]
+#[error("{} {line_no}: malformed {} ({reason})", reason.unit(), reason.record_kind())]
 pub struct Malformed {
     /// 1-based line number.
     pub line_no: u64,
@@ -293,6 +328,10 @@ pub enum ReadError {
     /// This line is bad; the next call reads the following line.
     #[error(transparent)]
     Malformed(#[from] Malformed),
+    /// A binary log's structure is broken where it says (BLF: the byte
+    /// offset); reading cannot go on.
+    #[error("{0}")]
+    Corrupt(String),
 }
 
 /// Bytes [`LogReader::new`] reads at a time: large reads keep the per-line
@@ -1182,7 +1221,7 @@ mod tests {
                 Ok(Some(r)) => out.push((r.iface.to_owned(), r.frame.id().raw())),
                 Ok(None) => return (out, reader),
                 Err(ReadError::Malformed(_)) => {}
-                Err(e @ ReadError::Io(_)) => panic!("{e}"),
+                Err(e @ (ReadError::Io(_) | ReadError::Corrupt(_))) => panic!("{e}"),
             }
         }
     }
@@ -1488,7 +1527,7 @@ mod tests {
                 Ok(Some(_)) => frames += 1,
                 Ok(None) => break,
                 Err(ReadError::Malformed(m)) => counts.add(m.reason),
-                Err(ReadError::Io(e)) => panic!("{e}"),
+                Err(e @ (ReadError::Io(_) | ReadError::Corrupt(_))) => panic!("{e}"),
             }
         }
         assert_eq!(frames, 2);
@@ -1772,7 +1811,7 @@ mod tests {
                     Ok(Some(rec)) => got.push(Ok((r_line(&rec), rec.frame))),
                     Ok(None) => break,
                     Err(ReadError::Malformed(m)) => got.push(Err(m)),
-                    Err(ReadError::Io(e)) => panic!("{e}"),
+                    Err(e @ (ReadError::Io(_) | ReadError::Corrupt(_))) => panic!("{e}"),
                 }
             }
             prop_assert_eq!(got, reference);

@@ -1,5 +1,5 @@
 //! CAN on the wire and on disk, for canodom: the frame value type, log
-//! timestamps, the `candump -L` log format, and the transports frames travel
+//! timestamps, the CAN log formats it reads (`candump -L` and the rest), and the transports frames travel
 //! through (an in-process bus for tests and demos, SocketCAN for vehicles).
 //!
 //! It knows nothing of what frames mean: decoding is `canodom-dbc`'s job,
@@ -9,9 +9,17 @@
 //! - [`frame`]: the CAN frame value type (classic, FD, remote, error frames).
 //! - [`candump`]: the `candump -L` log format, streaming parser and formatter, and [`candump::Timestamp`].
 //! - [`log_format`]: which CAN log format a file is, from its first bytes.
+//! - [`any_log`]: one reader for every log format read, through gzip/zstd compression.
+//! - [`candump_plain`], [`vector_asc`], [`vector_blf`]: plain candump output, Vector ASC and BLF.
+//! - [`log_lines`]: what those readers share (interfaces met and filtered, bounded text lines).
 //! - [`bus`]: the transport trait, with the in-process bus and SocketCAN.
 
+pub mod any_log;
 pub mod bus;
 pub mod candump;
+pub mod candump_plain;
 pub mod frame;
 pub mod log_format;
+pub mod log_lines;
+pub mod vector_asc;
+pub mod vector_blf;

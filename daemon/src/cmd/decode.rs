@@ -1,6 +1,7 @@
 //! `canodom decode`: a candump log to JSON lines, one object per decoded
 //! frame, hand-written into one reused buffer (no per-frame allocation).
 
+use anyhow::Context as _;
 use canodom_can::candump::ReadError;
 use canodom_can::frame::FrameKind;
 use canodom_dbc::{Database, Value};
@@ -102,7 +103,10 @@ pub fn decode(
     args: &DecodeArgs,
     diag: &mut impl Write,
 ) -> anyhow::Result<DecodeCounts> {
-    let mut reader = super::log_reader(input, args.interface.as_deref());
+    let mut reader = super::log_reader(input, args.interface.as_deref(), false)
+        .with_context(|| args.log.display().to_string())?;
+    // Plain candump output has no time: its frames print `"t": null`.
+    let timed = reader.has_time();
     let mut counts = DecodeCounts::default();
     let mut line = Vec::with_capacity(512);
     loop {
@@ -118,7 +122,9 @@ pub fn decode(
                 writeln!(diag, "{}: {m}; skipped", args.log.display())?;
                 continue;
             }
-            Err(e @ ReadError::Io(_)) => return Err(e.into()),
+            Err(e @ (ReadError::Io(_) | ReadError::Corrupt(_))) => {
+                return Err(anyhow::Error::new(e).context(args.log.display().to_string()));
+            }
         };
         counts.frames += 1;
         let frame = record.frame;
@@ -134,7 +140,11 @@ pub fn decode(
         }
         line.clear();
         line.extend_from_slice(b"{\"t\": ");
-        super::write_timestamp(&mut line, record.timestamp);
+        if timed {
+            super::write_timestamp(&mut line, record.timestamp);
+        } else {
+            line.extend_from_slice(b"null");
+        }
         line.extend_from_slice(b", \"iface\": ");
         write_json_str(&mut line, record.iface);
         line.extend_from_slice(b", \"id\": ");

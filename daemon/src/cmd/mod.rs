@@ -12,6 +12,7 @@ pub mod replay;
 pub mod run;
 pub mod simulate;
 
+pub use canodom_can::any_log::AnyLogReader;
 pub use canodom_can::log_format::LogSeen;
 use std::path::Path;
 
@@ -55,20 +56,17 @@ impl Command {
     }
 }
 
-/// Opens a log path, `-` meaning standard input, buffered, and refuses by
-/// name a log of a format canodom does not read (plain candump, Vector ASC
-/// or BLF, python-can CSV, TRC, compressed), judged from its first bytes,
-/// with the way forward. A progress line is drawn on stderr when it is a
-/// terminal.
+/// Opens a log path, `-` meaning standard input, buffered, with a progress
+/// line drawn on stderr when it is a terminal. Its format is judged from
+/// its content by [`log_reader`].
 ///
 /// # Errors
-/// The file cannot be opened or read, or is of a format not read.
+/// The file cannot be opened.
 pub fn open_input(
     path: &Path,
     label: &'static str,
 ) -> anyhow::Result<crate::progress::Progress<Box<dyn std::io::BufRead>>> {
-    use std::io::BufRead as _;
-    let (mut reader, total): (Box<dyn std::io::BufRead>, _) = if path == Path::new("-") {
+    let (reader, total): (Box<dyn std::io::BufRead>, _) = if path == Path::new("-") {
         (
             Box::new(std::io::BufReader::with_capacity(
                 1 << 16,
@@ -85,30 +83,44 @@ pub fn open_input(
             len,
         )
     };
-    let head = reader
-        .fill_buf()
-        .map_err(|e| anyhow::anyhow!("{}: cannot read: {e}", path.display()))?;
-    let format = canodom_can::log_format::sniff(head);
-    if let Some(way) = format.way_forward() {
-        anyhow::bail!(
-            "{}: this is {}, and canodom reads candump -L logs; {way}",
-            path.display(),
-            format.name()
-        );
-    }
     Ok(crate::progress::Progress::new(reader, label, total))
 }
 
-/// A log reader over `input`, keeping only interface `interface` when given.
-pub fn log_reader<R: std::io::Read>(
-    input: R,
+/// A reader of whatever log `input` holds (candump -L, plain or timed
+/// candump, Vector ASC or BLF, each perhaps gzip- or zstd-compressed: judged
+/// from the content), keeping only interface `interface` when given. A log
+/// of a format not read (python-can CSV, PEAK TRC, an empty one) is refused
+/// by name with the way forward, and so is one without time (plain candump
+/// output) when the command `needs_time`. The error does not name the file:
+/// the caller adds it.
+///
+/// # Errors
+/// As above, or its first bytes cannot be read or decompressed.
+pub fn log_reader<'a>(
+    input: impl std::io::BufRead + 'a,
     interface: Option<&str>,
-) -> canodom_can::candump::LogReader<R> {
-    let reader = canodom_can::candump::LogReader::new(input);
-    match interface {
+    needs_time: bool,
+) -> anyhow::Result<AnyLogReader<'a>> {
+    use canodom_can::any_log::OpenError;
+    let (reader, format, _) = match AnyLogReader::open(input) {
+        Ok(opened) => opened,
+        Err(e @ OpenError::Io(_)) => return Err(e.into()),
+        Err(e) => {
+            let way = e.way_forward().unwrap_or("");
+            anyhow::bail!("{e}; {way}");
+        }
+    };
+    if needs_time && !reader.has_time() {
+        anyhow::bail!(
+            "this is {}: {}",
+            format.name(),
+            canodom_can::log_format::LogFormat::untimed_way_forward()
+        );
+    }
+    Ok(match interface {
         Some(name) => reader.only_interface(name),
         None => reader,
-    }
+    })
 }
 
 /// Refuses a log from which no frame was read (exit non-zero, saying why),
@@ -169,7 +181,7 @@ pub fn write_timestamp(out: &mut Vec<u8>, t: canodom_can::candump::Timestamp) {
 /// stderr), one interface kept when asked, and the log refused at the end
 /// when nothing usable was in it.
 pub struct LogFrames<'a> {
-    reader: canodom_can::candump::LogReader<crate::progress::Progress<Box<dyn std::io::BufRead>>>,
+    reader: AnyLogReader<'static>,
     path: &'a Path,
     label: &'static str,
     interface: Option<&'a str>,
@@ -187,7 +199,8 @@ impl<'a> LogFrames<'a> {
         interface: Option<&'a str>,
     ) -> anyhow::Result<Self> {
         Ok(Self {
-            reader: log_reader(open_input(path, label)?, interface),
+            reader: log_reader(open_input(path, label)?, interface, true)
+                .map_err(|e| anyhow::anyhow!("{}: {e:#}", path.display()))?,
             path,
             label,
             interface,
@@ -216,7 +229,10 @@ impl<'a> LogFrames<'a> {
                         eprintln!("{}: {}: {m}; skipped", self.label, self.path.display());
                     }
                 }
-                Err(e @ canodom_can::candump::ReadError::Io(_)) => {
+                Err(
+                    e @ (canodom_can::candump::ReadError::Io(_)
+                    | canodom_can::candump::ReadError::Corrupt(_)),
+                ) => {
                     return Err(anyhow::Error::new(e).context(format!("{}", self.path.display())));
                 }
             }

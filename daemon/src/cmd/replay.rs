@@ -3,7 +3,7 @@
 
 use anyhow::Context as _;
 use canodom_can::candump::Timestamp;
-use canodom_can::candump::{ClassicData, LogReader, MalformedCounts, ReadError};
+use canodom_can::candump::{ClassicData, MalformedCounts, ReadError};
 use canodom_can::frame::CanFrame;
 use canodom_fusion::ekf::WindowOutcome;
 use canodom_pipeline::config::Config;
@@ -169,7 +169,8 @@ pub fn execute(args: &ReplayArgs) -> anyhow::Result<()> {
         &mut input,
         &mut w,
         &mut std::io::stderr(),
-    )?;
+    )
+    .with_context(|| args.log.display().to_string())?;
     w.flush()?;
     input.finish();
     super::check_log_read(
@@ -394,7 +395,9 @@ pub fn replay_log(
             .apply_params(Some((set.version, &set.values)))
             .with_context(|| format!("parameter set version {}", set.version))?;
     }
-    let mut reader = super::log_reader(input, options.interface);
+    // Read unbuffered by LogReader's own large blocks (a BufReader passes
+    // reads larger than its buffer straight through); other formats use it.
+    let mut reader = super::log_reader(std::io::BufReader::new(input), options.interface, true)?;
     let mut kept = options.keep_track.then(Vec::new);
     writeln!(out, "{CSV_HEADER}")?;
     let (to_filter, filter_in) = mpsc::channel::<Batch>();
@@ -510,8 +513,8 @@ fn filter_batch(pipeline: &mut Pipeline, batch: &mut Batch) {
 /// The reading and writing side of [`replay`]: parses batches for the
 /// filter thread and writes the rows of those it has finished, in order.
 /// Returns the malformed line counts.
-fn feed<R: Read>(
-    reader: &mut LogReader<R>,
+fn feed(
+    reader: &mut super::AnyLogReader<'_>,
     to_filter: &mpsc::Sender<Batch>,
     from_filter: &mpsc::Receiver<Batch>,
     out: &mut impl Write,
@@ -589,7 +592,7 @@ fn feed<R: Read>(
                         writeln!(diag, "replay: {m}; skipped")?;
                     }
                 }
-                Err(e @ ReadError::Io(_)) => return Err(e.into()),
+                Err(e @ (ReadError::Io(_) | ReadError::Corrupt(_))) => return Err(e.into()),
             }
         }
         to_filter.send(batch).map_err(|_| filter_gone())?;
