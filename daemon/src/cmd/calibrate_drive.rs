@@ -19,7 +19,7 @@ use canodom_calib::drive::{
 use canodom_can::candump::LogReader;
 use canodom_params::persist::{ParamFile, ParamSet, ParamValues, PersistError};
 use canodom_pipeline::config::Config;
-use canodom_pipeline::pipeline::Pipeline;
+use canodom_pipeline::pipeline::{Outcome, Pipeline};
 use std::fmt::Write as _;
 use std::path::Path;
 
@@ -146,7 +146,7 @@ pub fn samples_from_log(
     while let Some((timestamp, frame)) =
         super::calibrate::next_record(&mut reader, log, &mut malformed)?
     {
-        let Some(step) = pipeline.push(timestamp, &frame) else {
+        let Outcome::Step(step, _) = pipeline.push(timestamp, &frame) else {
             continue;
         };
         let t0 = pipeline

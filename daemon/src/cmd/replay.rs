@@ -7,7 +7,7 @@ use canodom_can::candump::{ClassicData, LogReader, MalformedCounts, ReadError};
 use canodom_can::frame::CanFrame;
 use canodom_fusion::ekf::WindowOutcome;
 use canodom_pipeline::config::Config;
-use canodom_pipeline::pipeline::{Pipeline, Step};
+use canodom_pipeline::pipeline::{Outcome, Pipeline, Step};
 use canodom_pipeline::stats::Stats;
 use canodom_report::float_text::push_csv_row;
 use std::fmt::Write as _;
@@ -245,14 +245,14 @@ pub fn replay_with(
                 batch.rows.clear();
                 batch.text.clear();
                 for entry in &batch.records {
-                    let step = match entry {
+                    let outcome = match entry {
                         Entry::Classic(c) => pipeline.push_data(c.timestamp, c.id, c.payload()),
-                        Entry::Other(i) => batch
-                            .others
-                            .get(*i)
-                            .and_then(|(t, frame)| pipeline.push(*t, frame)),
+                        Entry::Other(i) => match batch.others.get(*i) {
+                            Some((t, frame)) => pipeline.push(*t, frame),
+                            None => continue,
+                        },
                     };
-                    if let Some(s) = step {
+                    if let Outcome::Step(s, _) = outcome {
                         batch.rows.push(Row {
                             t_us: s.t_us,
                             values: [
