@@ -29,8 +29,8 @@ use canodom_can::frame::{CanFrame, ErrorSeverity, FrameId};
 use canodom_dbc::{Checksum, Database, SignalHandle};
 use canodom_fusion::ekf::State;
 use canodom_pipeline::config::Config;
-use canodom_pipeline::pipeline::{Pipeline, Step};
-use canodom_pipeline::stats::{Reject, Stats};
+use canodom_pipeline::pipeline::{Outcome, Pipeline, Step};
+use canodom_pipeline::stats::{Reasons, Reject, Stats};
 use canodom_protocol::calib_wire::CalibWire;
 use canodom_protocol::own_dbc::{OwnFrame, dbc_for_base};
 use canodom_protocol::pose_frames::PoseEncoder;
@@ -670,6 +670,25 @@ impl OdomCommands {
     }
 }
 
+/// The input faults the live calibration is told of, by code (the index
+/// here, from 1): a run that meets one is cut there.
+const FAULT_CODES: [Reject; 5] = [
+    Reject::WheelFault,
+    Reject::WheelGap,
+    Reject::BadCounter,
+    Reject::BadChecksum,
+    Reject::NonFinite,
+];
+
+/// The calibration's fault code of a frame that came with `reasons`: the
+/// first of [`FAULT_CODES`] among them (a frame can earn several).
+fn fault_code(reasons: Reasons) -> Option<u8> {
+    FAULT_CODES
+        .iter()
+        .position(|&r| reasons.contains(r))
+        .and_then(|i| u8::try_from(i + 1).ok())
+}
+
 /// Owns the pipeline (see the module doc).
 struct PipelineTask<Tx> {
     pipeline: Pipeline,
@@ -808,25 +827,11 @@ impl<Tx: FrameSink + Clone> PipelineTask<Tx> {
                     }
                     return;
                 }
-                let faults = |s: &Stats| {
-                    [
-                        Reject::WheelFault,
-                        Reject::WheelGap,
-                        Reject::BadCounter,
-                        Reject::BadChecksum,
-                        Reject::NonFinite,
-                    ]
-                    .map(|r| s.get(r))
-                };
-                let before = faults(self.pipeline.stats());
-                let step = self.pipeline.push(r.timestamp, &r.frame);
-                let after = faults(self.pipeline.stats());
-                if let Some(i) = (0..after.len()).find(|&i| after[i] > before[i]) {
-                    // The fault code is the index in the list above, from 1.
-                    self.live
-                        .on_fault(r.timestamp, u8::try_from(i + 1).unwrap_or(u8::MAX));
+                let outcome = self.pipeline.push(r.timestamp, &r.frame);
+                if let Some(code) = fault_code(outcome.reasons()) {
+                    self.live.on_fault(r.timestamp, code);
                 }
-                if let Some(step) = step {
+                if let Outcome::Step(step, _) = outcome {
                     let out = self.live.on_step(
                         r.timestamp,
                         step.rear_rev,

@@ -289,7 +289,11 @@ fn other_frame_kinds_in_a_log_replay_as_the_pipeline_sees_them() {
     let mut expected = format!("{}\n", canodom::cmd::replay::CSV_HEADER);
     let mut reader = canodom_can::candump::LogReader::new(mixed.as_bytes());
     while let Some(record) = reader.next_record().unwrap() {
-        if let Some(s) = reference.push(record.timestamp, &record.frame) {
+        if let Some(s) = reference
+            .push(record.timestamp, &record.frame)
+            .step()
+            .copied()
+        {
             let (f, o) = (s.fused, s.odometry);
             let p = reference.pose_output(record.timestamp);
             let t0 = reference.first_frame_time().unwrap().as_micros();

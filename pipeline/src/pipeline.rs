@@ -27,7 +27,7 @@
 //! while the rear is stale the pose says `POSE_VALID = 0`.
 
 use crate::config::{Config, InputsConfig, WheelKind};
-use crate::stats::{Reject, Stats};
+use crate::stats::{Reasons, Reject, Stats};
 use canodom_can::candump::Timestamp;
 use canodom_can::frame::{CanFrame, FrameKind};
 use canodom_dbc::{Checksum, CounterCheck, CounterStatus, FrameId, SignalHandle};
@@ -69,6 +69,47 @@ pub struct Step {
     /// The yaw rate the step used (rad/s, left positive, scale corrected,
     /// bias not removed); `None` without a fresh yaw-rate sensor.
     pub yaw_rate_radps: Option<f64>,
+}
+
+/// What [`Pipeline::push`] did with one frame: the caller learns from the
+/// answer what it would otherwise have to work out by comparing the
+/// statistics before and after. Every reason here was also counted in
+/// [`Pipeline::stats`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Outcome {
+    /// The frame was used and stepped the filter (a rear-wheel frame); the
+    /// reasons are what it came with (a gap, a wheel fault, a gate rejection).
+    Step(Step, Reasons),
+    /// The frame was used without a step: front wheels, steering, yaw rate,
+    /// or a rear frame whose step the filter refused (`FilterError` among the
+    /// reasons, the previous state kept).
+    Used(Reasons),
+    /// The frame was not used, for this reason: not a configured input
+    /// (`UnknownId`), not a data frame, or a failed check.
+    Rejected(Reject),
+}
+
+impl Outcome {
+    /// The filter step the frame caused, if any.
+    pub fn step(&self) -> Option<&Step> {
+        match self {
+            Self::Step(step, _) => Some(step),
+            Self::Used(_) | Self::Rejected(_) => None,
+        }
+    }
+
+    /// Every reason the frame was counted under: the rejection, or what a
+    /// used frame came with.
+    pub fn reasons(&self) -> Reasons {
+        match *self {
+            Self::Step(_, reasons) | Self::Used(reasons) => reasons,
+            Self::Rejected(reason) => {
+                let mut one = Reasons::default();
+                one.insert(reason);
+                one
+            }
+        }
+    }
 }
 
 /// Health of one input message (see the module doc).
@@ -462,19 +503,32 @@ impl Pipeline {
         self.t0_us.map(Timestamp::from_micros)
     }
 
-    /// Offers one frame received at `t`; returns the filter step it caused.
-    /// Never panics, whatever the frame holds.
-    pub fn push(&mut self, t: Timestamp, frame: &CanFrame) -> Option<Step> {
+    /// Offers one frame received at `t`; says what became of it (the filter
+    /// step it caused, or why it was not used). Never panics, whatever the
+    /// frame holds.
+    pub fn push(&mut self, t: Timestamp, frame: &CanFrame) -> Outcome {
         if matches!(frame.kind(), FrameKind::Data { .. } | FrameKind::Fd { .. }) {
             return self.push_data(t, frame.id(), frame.data());
         }
         self.stats.frames += 1;
-        self.stats.add(if self.input_index(frame.id()).is_some() {
+        self.reject(if self.input_index(frame.id()).is_some() {
             Reject::NotData
         } else {
             Reject::UnknownId
-        });
-        None
+        })
+    }
+
+    /// Counts a frame not used for `reason`.
+    fn reject(&mut self, reason: Reject) -> Outcome {
+        self.stats.add(reason);
+        Outcome::Rejected(reason)
+    }
+
+    /// Counts `reason` for a frame that is still used, and notes it in the
+    /// frame's `reasons`.
+    fn remark(stats: &mut Stats, reasons: &mut Reasons, reason: Reject) {
+        stats.add(reason);
+        reasons.insert(reason);
     }
 
     /// The index into `inputs` of the message with this id.
@@ -496,11 +550,10 @@ impl Pipeline {
         t: Timestamp,
         id: canodom_can::frame::FrameId,
         data: &[u8],
-    ) -> Option<Step> {
+    ) -> Outcome {
         self.stats.frames += 1;
         let Some(idx) = self.input_index(id) else {
-            self.stats.add(Reject::UnknownId);
-            return None;
+            return self.reject(Reject::UnknownId);
         };
         let t_us = t.as_micros();
         let input = &mut self.inputs[idx];
@@ -511,8 +564,7 @@ impl Pipeline {
                 Reject::BadChecksum => self.latched.checksum_fault = true,
                 _ => {}
             }
-            self.stats.add(reason);
-            return None;
+            return self.reject(reason);
         }
         // Every configured signal of this message must be finite before any is used.
         let (rear, front, steering, yaw) = (input.rear, input.front, input.steering, input.yaw);
@@ -551,15 +603,14 @@ impl Pipeline {
                 && speeds.front_right.is_finite())
         {
             self.inputs[idx].health.bad(&self.inputs_cfg);
-            self.stats.add(Reject::NonFinite);
-            return None;
+            return self.reject(Reject::NonFinite);
         }
         let steer_rad = steer_signal.map(|u| self.steer_map.angle_rad(u));
         if steer_rad.is_some_and(|phi| phi.abs() >= std::f64::consts::FRAC_PI_2) {
             self.inputs[idx].health.bad(&self.inputs_cfg);
-            self.stats.add(Reject::SteerRange);
-            return None;
+            return self.reject(Reject::SteerRange);
         }
+        let mut reasons = Reasons::default();
         let health = &mut self.inputs[idx].health;
         // A wheel frame after a silence long enough that one must have been
         // lost: two periods, less a margin for the jitter of timestamps (a
@@ -570,7 +621,7 @@ impl Pipeline {
                 t_us.saturating_sub(last) as f64 > LOST_FRAME_PERIODS * health.period_s * 1e6
             })
         {
-            self.stats.add(Reject::WheelGap);
+            Self::remark(&mut self.stats, &mut reasons, Reject::WheelGap);
         }
         health.good(t_us, &self.inputs_cfg);
         self.stats.used += 1;
@@ -590,17 +641,19 @@ impl Pipeline {
             self.yaw_radps = Some(w / self.yaw_scale);
         }
         if front {
-            let fl = self.wheel(Wheel::FrontLeft, t_s, raws.front_left);
-            let fr = self.wheel(Wheel::FrontRight, t_s, raws.front_right);
+            let fl = self.wheel(Wheel::FrontLeft, t_s, raws.front_left, &mut reasons);
+            let fr = self.wheel(Wheel::FrontRight, t_s, raws.front_right, &mut reasons);
             self.front_acc_m.0 += fl;
             self.front_acc_m.1 += fr;
         }
         if rear {
-            let rl = self.wheel(Wheel::RearLeft, t_s, raws.rear_left) * self.rear_scale.0;
-            let rr = self.wheel(Wheel::RearRight, t_s, raws.rear_right) * self.rear_scale.1;
-            return self.step(t_s, t_rel_us, t_us, rl, rr);
+            let rl =
+                self.wheel(Wheel::RearLeft, t_s, raws.rear_left, &mut reasons) * self.rear_scale.0;
+            let rr = self.wheel(Wheel::RearRight, t_s, raws.rear_right, &mut reasons)
+                * self.rear_scale.1;
+            return self.step(t_s, t_rel_us, t_us, rl, rr, reasons);
         }
-        None
+        Outcome::Used(reasons)
     }
 
     /// DLC, checksum and counter checks; `Some(reason)` rejects the frame.
@@ -635,13 +688,19 @@ impl Pipeline {
     }
 
     /// Feeds one wheel decoder the signal's (raw bits, physical value); the
-    /// distance it integrated (0 on a fault).
+    /// distance it integrated (0 on a fault, noted in `reasons`).
     // Inlined into its four call sites, each with a constant wheel, the choice
     // of decoder is made at compile time instead of by a jump table whose
     // target changes on every call.
     #[allow(clippy::inline_always)]
     #[inline(always)]
-    fn wheel(&mut self, w: Wheel, t_s: f64, (raw, value): (u64, f64)) -> f64 {
+    fn wheel(
+        &mut self,
+        w: Wheel,
+        t_s: f64,
+        (raw, value): (u64, f64),
+        reasons: &mut Reasons,
+    ) -> f64 {
         let step: WheelStep = match &mut self.decoders {
             Decoders::Ticks(d) => wheel_mut(d, w).push(t_s, raw),
             Decoders::Speed(d) => wheel_mut(d, w).push(t_s, value),
@@ -650,12 +709,20 @@ impl Pipeline {
             // Judged once per frame against the message's learnt period
             // (`push_data`): the decoders know only the nominal one.
             None | Some(InputFault::MissedSamples { .. }) => {}
-            Some(_) => self.stats.add(Reject::WheelFault),
+            Some(_) => Self::remark(&mut self.stats, reasons, Reject::WheelFault),
         }
         step.distance_m
     }
 
-    fn step(&mut self, t_s: f64, t_rel_us: i64, t_us: u64, rl: f64, rr: f64) -> Option<Step> {
+    fn step(
+        &mut self,
+        t_s: f64,
+        t_rel_us: i64,
+        t_us: u64,
+        rl: f64,
+        rr: f64,
+        mut reasons: Reasons,
+    ) -> Outcome {
         let front_fresh = self.role_fresh(t_us, |i| i.front);
         let steer_fresh = self.role_fresh(t_us, |i| i.steering);
         let input = OdometryInput {
@@ -679,8 +746,8 @@ impl Pipeline {
             (&*b, a)
         };
         if self.ekf.step_into(prev, next, &input).is_err() {
-            self.stats.add(Reject::FilterError);
-            return None;
+            Self::remark(&mut self.stats, &mut reasons, Reject::FilterError);
+            return Outcome::Used(reasons);
         }
         self.current ^= 1;
         let state = &self.states[self.current];
@@ -692,7 +759,7 @@ impl Pipeline {
             WindowOutcome::RejectedKeptRear | WindowOutcome::RejectedUsedFront
         ) {
             self.latched.gate_reject = true;
-            self.stats.add(Reject::GateReject);
+            Self::remark(&mut self.stats, &mut reasons, Reject::GateReject);
             if correction == WindowOutcome::RejectedKeptRear {
                 self.stats.gate.kept_rear += 1;
             } else {
@@ -731,7 +798,7 @@ impl Pipeline {
             yaw_rate_radps: input.yaw_rate_radps,
         };
         self.last_step = Some(step);
-        Some(step)
+        Outcome::Step(step, reasons)
     }
 
     fn role_fresh(&self, now_us: u64, role: impl Fn(&Input) -> bool) -> bool {

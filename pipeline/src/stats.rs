@@ -73,6 +73,39 @@ impl Reject {
     }
 }
 
+/// A set of [`Reject`] reasons, one bit each: what a frame that was still
+/// used came with (a wheel gap, a wheel decoder's fault, a gate rejection, a
+/// refused filter step). A set, not one reason, because one frame can earn
+/// several (a gap and a wheel fault), and the calibration's fault report
+/// picks among them by its own order.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub struct Reasons(u16);
+
+// One bit per reason must fit the set.
+const _: () = assert!(Reject::ALL.len() <= u16::BITS as usize);
+
+impl Reasons {
+    /// Adds `reason`.
+    pub fn insert(&mut self, reason: Reject) {
+        self.0 |= 1 << reason as u16;
+    }
+
+    /// Whether `reason` is in the set.
+    pub fn contains(self, reason: Reject) -> bool {
+        self.0 & (1 << reason as u16) != 0
+    }
+
+    /// Whether the set is empty (the frame was used without a remark).
+    pub fn is_empty(self) -> bool {
+        self.0 == 0
+    }
+
+    /// The reasons in the set, in [`Reject::ALL`]'s order.
+    pub fn iter(self) -> impl Iterator<Item = Reject> {
+        Reject::ALL.into_iter().filter(move |&r| self.contains(r))
+    }
+}
+
 /// Frame and step counts of a pipeline.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Stats {
@@ -194,6 +227,25 @@ mod tests {
             ),
             "{line}"
         );
+    }
+
+    #[test]
+    fn reasons_hold_each_reason_once_in_print_order() {
+        let mut r = Reasons::default();
+        assert!(r.is_empty());
+        r.insert(Reject::GateReject);
+        r.insert(Reject::WheelFault);
+        r.insert(Reject::GateReject);
+        assert!(r.contains(Reject::WheelFault) && !r.contains(Reject::WheelGap));
+        assert_eq!(
+            r.iter().collect::<Vec<_>>(),
+            [Reject::WheelFault, Reject::GateReject]
+        );
+        assert!(Reject::ALL.iter().all(|&x| {
+            let mut one = Reasons::default();
+            one.insert(x);
+            one.iter().eq([x])
+        }));
     }
 
     #[test]

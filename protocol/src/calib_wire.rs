@@ -13,12 +13,13 @@
 //! machine unchanged, `14..=18` the run [`Rejection`]s (`13 + code`), `19..`
 //! refusals of the protocol and the daemon.
 
-use crate::own_dbc::{BaseId, OwnFrame, dbc_for_base};
+use crate::own_dbc::{BaseId, OwnDbc, OwnFrame};
 use canodom_calib::run::Rejection;
 use canodom_calib::session::{Instruction, Phase, Refusal};
 use canodom_calib::track::Direction;
 use canodom_can::frame::{CanFrame, FrameError, FrameId};
 use canodom_dbc::{Checksum, Database, SignalHandle};
+use std::sync::Arc;
 
 /// Why a frame could not be encoded or decoded.
 #[derive(Debug, thiserror::Error)]
@@ -661,7 +662,7 @@ struct StatusHandles {
 /// The codec of the four calibration frames at one base id.
 #[derive(Debug)]
 pub struct CalibWire {
-    db: Database,
+    db: Arc<Database>,
     ids: [FrameId; 4],
     crc: Checksum,
     cmd: [SignalHandle; 7],
@@ -694,7 +695,17 @@ impl CalibWire {
     /// # Errors
     /// Only if the shipped DBC is broken (a unit test proves it is not).
     pub fn new(base: BaseId) -> Result<Self> {
-        let db = Database::parse(&dbc_for_base(base), "canodom.dbc")?;
+        Self::with_dbc(&OwnDbc::new(base)?)
+    }
+
+    /// The codec on an already parsed own DBC (the daemon parses it once
+    /// for every codec).
+    ///
+    /// # Errors
+    /// Only if the shipped DBC lacks a signal (a unit test proves it does not).
+    pub fn with_dbc(own: &OwnDbc) -> Result<Self> {
+        let base = own.base();
+        let db = own.shared_database();
         let s = |m: &str, n: &str| db.signal(&format!("{m}.{n}"));
         let st = |n: &str| s(STATUS, n);
         let p = |n: &str| s(PARAMS, n);

@@ -19,7 +19,9 @@
 //! J1850 `CHECKSUM` over bytes 0..=6 in byte 7, as in `rc_car.dbc`.
 
 use canodom_can::frame::{FrameId, MAX_EXTENDED_ID, MAX_STANDARD_ID};
+use canodom_dbc::Database;
 use std::fmt::Write as _;
+use std::sync::Arc;
 
 /// The DBC text for the default base id.
 pub const OWN_DBC: &str = include_str!("../dbc/canodom.dbc");
@@ -198,6 +200,46 @@ pub fn dbc_for_base(base: BaseId) -> String {
         "this file is written for the default base_id 0x600",
         &format!("this file is written for base_id {raw_base:#X}"),
     )
+}
+
+/// canodom's own DBC for one base id, rewritten ([`dbc_for_base`]) and
+/// parsed once: the pose encoder, the calibration wire codec and the daemon's
+/// `ODOM_CMD` checks all take their signals from this one copy, where each
+/// used to rewrite and parse the text again at start.
+#[derive(Clone, Debug)]
+pub struct OwnDbc {
+    base: BaseId,
+    /// Shared, not copied: each codec keeps it to hand out for decoding.
+    db: Arc<Database>,
+}
+
+impl OwnDbc {
+    /// The shipped DBC moved to `base`, parsed.
+    ///
+    /// # Errors
+    /// Only if the shipped DBC is broken (a unit test proves it is not).
+    pub fn new(base: BaseId) -> Result<Self, canodom_dbc::Error> {
+        let db = Database::parse(&dbc_for_base(base), "canodom.dbc")?;
+        Ok(Self {
+            base,
+            db: Arc::new(db),
+        })
+    }
+
+    /// The base id the DBC was written for.
+    pub fn base(&self) -> BaseId {
+        self.base
+    }
+
+    /// The parsed DBC.
+    pub fn database(&self) -> &Database {
+        &self.db
+    }
+
+    /// A shared handle on the parsed DBC, for a codec that keeps it.
+    pub fn shared_database(&self) -> Arc<Database> {
+        Arc::clone(&self.db)
+    }
 }
 
 #[cfg(test)]

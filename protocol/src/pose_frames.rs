@@ -3,16 +3,17 @@
 //! id, with the shared rolling counter and CRC-8 SAE J1850, through the same
 //! DBC codec users decode them with.
 
-use crate::own_dbc::{BaseId, OwnFrame, dbc_for_base};
+use crate::own_dbc::{BaseId, OwnDbc, OwnFrame};
 use canodom_can::candump::Timestamp;
 use canodom_can::frame::{CanFrame, FrameError};
 use canodom_dbc::{Checksum, Database, SignalHandle};
+use std::sync::Arc;
 
 /// Encodes pose samples; owns the rolling counter.
 #[derive(Debug)]
 pub struct PoseEncoder {
     ids: [canodom_can::frame::FrameId; 3],
-    db: Database,
+    db: Arc<Database>,
     x: SignalHandle,
     y: SignalHandle,
     heading: SignalHandle,
@@ -44,7 +45,17 @@ impl PoseEncoder {
     /// # Errors
     /// Only if the shipped DBC is broken (a unit test proves it is not).
     pub fn new(base: BaseId) -> Result<Self, PoseEncodeError> {
-        let db = Database::parse(&dbc_for_base(base), "canodom.dbc")?;
+        Self::with_dbc(&OwnDbc::new(base)?)
+    }
+
+    /// An encoder on an already parsed own DBC (the daemon parses it once
+    /// for every codec).
+    ///
+    /// # Errors
+    /// Only if the shipped DBC is broken (a unit test proves it is not).
+    pub fn with_dbc(own: &OwnDbc) -> Result<Self, PoseEncodeError> {
+        let base = own.base();
+        let db = own.shared_database();
         let s = |p: &str| db.signal(p);
         Ok(Self {
             ids: [
@@ -212,6 +223,7 @@ pub struct PoseOutput {
 mod tests {
     use super::PoseFlags;
     use super::*;
+    use crate::own_dbc::dbc_for_base;
     use canodom_can::candump::Timestamp;
     use canodom_dbc::FrameId;
 

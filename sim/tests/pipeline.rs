@@ -101,7 +101,7 @@ fn gate_decisions_are_reported_per_step_per_action_and_per_wheel() {
         enc.encode(&s, &mut buf);
         let t = Timestamp::from_micros(1_000_000 + (s.t_s * 1e6).round() as u64);
         for f in &buf {
-            if let Some(step) = p.push(t, f) {
+            if let Some(step) = p.push(t, f).step() {
                 *outcomes.entry(step.correction).or_default() += 1;
             }
         }

@@ -15,7 +15,7 @@ use canodom_calib::run::{InputFault, Tolerances};
 use canodom_calib::{CalibrationResult, Direction, RearParams, RevSample, Run, RunRecorder, Track};
 use canodom_fusion::{Pose, VehicleParams};
 use canodom_pipeline::config::Config;
-use canodom_pipeline::pipeline::Pipeline;
+use canodom_pipeline::pipeline::{Outcome, Pipeline};
 use canodom_pipeline::stats::Reject;
 use serde::Deserialize;
 use std::collections::HashMap;
@@ -192,7 +192,7 @@ pub fn run_from_log(
     // (sample, input faults so far)
     let mut samples: Vec<(RevSample, u64)> = Vec::new();
     while let Some((timestamp, frame)) = frames.next_frame()? {
-        let step = pipeline.push(timestamp, &frame);
+        let outcome = pipeline.push(timestamp, &frame);
         if frame.id() == steer_id {
             let data = frame.data();
             let u = config
@@ -210,7 +210,9 @@ pub fn run_from_log(
                 steer_signal = u;
             }
         }
-        let Some(step) = step else { continue };
+        let Outcome::Step(step, _) = outcome else {
+            continue;
+        };
         let pose = step.odometry;
         let (rear_m, t_s) = match prev {
             None => ([0.0, 0.0], step.t_s),

@@ -18,7 +18,7 @@ use canodom_calib::drive::{
 };
 use canodom_params::persist::{ParamFile, ParamSet, ParamValues, PersistError};
 use canodom_pipeline::config::Config;
-use canodom_pipeline::pipeline::Pipeline;
+use canodom_pipeline::pipeline::{Outcome, Pipeline};
 use std::fmt::Write as _;
 use std::path::Path;
 
@@ -90,7 +90,7 @@ pub fn samples_from_log(
     };
     let mut samples = Vec::new();
     while let Some((timestamp, frame)) = frames.next_frame()? {
-        let Some(step) = pipeline.push(timestamp, &frame) else {
+        let Outcome::Step(step, _) = pipeline.push(timestamp, &frame) else {
             continue;
         };
         let t0 = pipeline

@@ -479,10 +479,13 @@ fn filter_batch(pipeline: &mut Pipeline, batch: &mut Batch) {
         let (at, step) = match entry {
             Entry::Classic(c) => (
                 c.timestamp,
-                pipeline.push_data(c.timestamp, c.id, c.payload()),
+                pipeline
+                    .push_data(c.timestamp, c.id, c.payload())
+                    .step()
+                    .copied(),
             ),
             Entry::Other(i) => match batch.others.get(*i) {
-                Some((t, frame)) => (*t, pipeline.push(*t, frame)),
+                Some((t, frame)) => (*t, pipeline.push(*t, frame).step().copied()),
                 None => continue,
             },
         };
