@@ -32,7 +32,7 @@ use canodom_pipeline::config::Config;
 use canodom_pipeline::pipeline::{Outcome, Pipeline, Step};
 use canodom_pipeline::stats::{Reasons, Reject, Stats};
 use canodom_protocol::calib_wire::CalibWire;
-use canodom_protocol::own_dbc::{OwnFrame, dbc_for_base};
+use canodom_protocol::own_dbc::{OwnDbc, OwnFrame};
 use canodom_protocol::pose_frames::PoseEncoder;
 use std::future::Future;
 use std::sync::Arc;
@@ -252,9 +252,13 @@ pub async fn run<C: Connector>(
     if let Some(learnt) = &observers.restore_learnt {
         pipeline.restore_learnt(learnt);
     }
-    let live = live_calibration(&config, nominal)?;
+    // canodom's own DBC, rewritten for the base id and parsed once for the
+    // pose encoder, the calibration wire and the ODOM_CMD checks.
+    let own = OwnDbc::new(config.output.base_id)
+        .map_err(canodom_protocol::pose_frames::PoseEncodeError::from)?;
+    let live = live_calibration(&config, &own, nominal)?;
     let (calib_cmd_id, calib_ack_id) = (config.calibration.command_id, live.1);
-    let encoder = PoseEncoder::new(config.output.base_id)?;
+    let encoder = PoseEncoder::with_dbc(&own)?;
     let cmd_id = OwnFrame::OdomCmd.id(config.output.base_id);
     let fixes = config.calibration.fixes.map(|f| {
         let id = config.db.messages()[f.message_index].id();
@@ -289,9 +293,7 @@ pub async fn run<C: Connector>(
         token: token.clone(),
     };
     let link_handle = tracker.spawn(link.run());
-    let own_db = Database::parse(&dbc_for_base(config.output.base_id), "canodom.dbc")
-        .map_err(canodom_protocol::pose_frames::PoseEncodeError::from)?;
-    let odom_commands = OdomCommands::new(&own_db, config.calibration.arming_code)
+    let odom_commands = OdomCommands::new(own.database(), config.calibration.arming_code)
         .map_err(canodom_protocol::pose_frames::PoseEncodeError::from)?;
     let task = PipelineTask {
         pipeline,
@@ -348,11 +350,12 @@ pub async fn run<C: Connector>(
 /// `CALIB_ACK` id.
 fn live_calibration(
     config: &Config,
+    own: &OwnDbc,
     nominal: canodom_fusion::VehicleParams,
 ) -> Result<(LiveCalibration, FrameId), RunError> {
     let cal = &config.calibration;
     let file = canodom_params::persist::load(&cal.param_file, &cal.bounds).unwrap_or_default();
-    let wire = CalibWire::new(config.output.base_id)?;
+    let wire = CalibWire::with_dbc(own)?;
     let ack_id = wire.ack_id();
     let path = cal.param_file.clone();
     let persister: Persister =
@@ -996,7 +999,11 @@ mod tests {
     #[test]
     fn odom_commands_are_checked_for_crc_counter_arming_and_standstill() {
         let base = canodom_protocol::own_dbc::BaseId::new(0x600, false).unwrap();
-        let db = Database::parse(&dbc_for_base(base), "canodom.dbc").unwrap();
+        let db = Database::parse(
+            &canodom_protocol::own_dbc::dbc_for_base(base),
+            "canodom.dbc",
+        )
+        .unwrap();
         let mut open = OdomCommands::new(&db, None).unwrap();
         assert_eq!(
             open.judge(&odom_cmd(1, 0, 0), false),
