@@ -7,8 +7,9 @@
 //! `dump::Reader` (issue #21: our parser is kept only while it earns its
 //! place; the figures are in `candump.rs`'s module doc).
 
-use canodom_can::candump::{LogReader, Record, Timestamp, format_record};
+use canodom_can::candump::{LogReader, Record, format_record};
 use canodom_can::frame::{CanFrame, FrameId};
+use canodom_can::time::Timestamp;
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use std::hint::black_box;
 use std::time::Duration;

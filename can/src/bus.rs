@@ -15,8 +15,8 @@
 //! Filters follow the kernel's `CAN_RAW_FILTER` semantics on both transports,
 //! so a configuration behaves the same in `demo` and on a vehicle.
 
-use crate::candump::Timestamp;
 use crate::frame::{CanFrame, ErrorFrame, FrameId, FrameKind, MAX_EXTENDED_ID};
+use crate::time::Timestamp;
 use std::future::Future;
 use std::io;
 use std::sync::Arc;
@@ -459,8 +459,8 @@ mod socketcan_bus {
         BusError, BusEvent, FrameSink, FrameSource, IdFilter, MEMINFO_LEN, Received, SO_MEMINFO,
         drops_from_meminfo,
     };
-    use crate::candump::Timestamp;
     use crate::frame::{CanFrame, FrameId, FrameKind, MAX_EXTENDED_ID};
+    use crate::time::Timestamp;
     use socketcan::{
         CanAnyFrame, CanDataFrame, CanFdFrame, CanFilter, CanRemoteFrame, EmbeddedFrame, Id,
         SocketOptions, id::FdFlags, tokio::CanFdSocket,

@@ -22,9 +22,10 @@
 //! is not read. Lines that start with a tab (`candump -e`'s error frame
 //! explanations) are skipped.
 
-use crate::candump::{Direction, Malformed, ReadError, Reason, Record, Timestamp};
+use crate::candump::{Direction, Malformed, ReadError, Reason, Record};
 use crate::frame::{CAN_ERR_FLAG, CLASSIC_MAX_LEN, CanFrame, FrameId, MAX_EXTENDED_ID};
 use crate::log_lines::{Interfaces, Lines};
+use crate::time::Timestamp;
 use std::io::BufRead;
 
 /// Reader of plain or `-t` timed candump output.

@@ -7,7 +7,8 @@
 //!
 //! Layout:
 //! - [`frame`]: the CAN frame value type (classic, FD, remote, error frames).
-//! - [`candump`]: the `candump -L` log format, streaming parser and formatter, and [`candump::Timestamp`].
+//! - [`time`]: [`time::Timestamp`], microseconds since the epoch, the time of every frame.
+//! - [`candump`]: the `candump -L` log format, streaming parser and formatter.
 //! - [`log_format`]: which CAN log format a file is, from its first bytes.
 //! - [`any_log`]: one reader for every log format read, through gzip/zstd compression.
 //! - [`candump_plain`], [`vector_asc`], [`vector_blf`]: plain candump output, Vector ASC and BLF.
@@ -21,5 +22,6 @@ pub mod candump_plain;
 pub mod frame;
 pub mod log_format;
 pub mod log_lines;
+pub mod time;
 pub mod vector_asc;
 pub mod vector_blf;

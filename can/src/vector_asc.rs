@@ -30,10 +30,11 @@
 //! [`Reason::BadAscEvent`] with its line number. Vector's error frames carry
 //! no error class: they are read as error frames of class 0.
 
-use crate::candump::{Direction, Malformed, ReadError, Reason, Record, Timestamp};
+use crate::candump::{Direction, Malformed, ReadError, Reason, Record};
 use crate::candump_plain::parse_decimal_micros;
 use crate::frame::{CLASSIC_MAX_LEN, CanFrame, FD_MAX_LEN, FrameId};
 use crate::log_lines::{Interfaces, Lines};
+use crate::time::Timestamp;
 use std::io::BufRead;
 
 /// Reader of a Vector ASC log.

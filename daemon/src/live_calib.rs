@@ -25,8 +25,8 @@ use canodom_calib::steering::{
     ArcEstimate, ArcOptions, SteeringFit, SteeringProvenance, estimate_arc, fit_steering,
 };
 use canodom_calib::track::{Direction, Track};
-use canodom_can::candump::Timestamp;
 use canodom_can::frame::CanFrame;
+use canodom_can::time::Timestamp;
 use canodom_fusion::{Pose, VehicleParams, Wheel};
 use canodom_params::persist::{ParamFile, ParamValues};
 use canodom_pipeline::config::CalibrationConfig;

@@ -24,8 +24,8 @@ use crate::sd_notify::Notifier;
 use canodom_can::bus::{
     BusError, BusEvent, FrameSink, FrameSource, IdFilter, InProcessBus, Received,
 };
-use canodom_can::candump::Timestamp;
 use canodom_can::frame::{CanFrame, ErrorSeverity, FrameId};
+use canodom_can::time::Timestamp;
 use canodom_dbc::{Checksum, Database, SignalHandle};
 use canodom_fusion::ekf::State;
 use canodom_pipeline::config::Config;
@@ -1103,7 +1103,7 @@ mod tests {
         ));
         assert_eq!(p.param_version(), Some(2));
         assert!((p.params().rear_tread_m() - 0.305).abs() < 1e-12);
-        let out = p.pose_output(canodom_can::candump::Timestamp::from_micros(0));
+        let out = p.pose_output(canodom_can::time::Timestamp::from_micros(0));
         assert_eq!((out.param_version, out.flags.nominal_params), (2, false));
         // One flipped digit in a value: the checksum no longer matches.
         let text = std::fs::read_to_string(&c.calibration.param_file).unwrap();
@@ -1117,7 +1117,7 @@ mod tests {
         assert!(e.to_string().contains("params.toml"), "{e}");
         assert_eq!(p.param_version(), None);
         assert!((p.params().rear_tread_m() - 0.30).abs() < 1e-12);
-        let out = p.pose_output(canodom_can::candump::Timestamp::from_micros(0));
+        let out = p.pose_output(canodom_can::time::Timestamp::from_micros(0));
         assert_eq!((out.param_version, out.flags.nominal_params), (0, true));
         // A set outside the configured bounds (±30 %) is refused at start too.
         let mut far = ParamFile::default();

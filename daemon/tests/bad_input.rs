@@ -3,8 +3,8 @@
 
 use crate::util::{frames_of, rc_car, simulated_log};
 use canodom::cmd::replay::replay;
-use canodom_can::candump::Timestamp;
 use canodom_can::frame::{CanFrame, FrameId};
+use canodom_can::time::Timestamp;
 use canodom_pipeline::config::Config;
 use canodom_pipeline::pipeline::Pipeline;
 use canodom_pipeline::stats::Reject;

@@ -110,7 +110,8 @@ fn dbc_dump_agrees_with_cantools_on_the_toyota_file() {
 
 #[test]
 fn dbc_own_at_another_base_decodes_the_daemons_frames() {
-    use canodom_can::candump::{Record, Timestamp, format_record};
+    use canodom_can::candump::{Record, format_record};
+    use canodom_can::time::Timestamp;
     use canodom_protocol::own_dbc::BaseId;
     use canodom_protocol::pose_frames::{PoseEncoder, PoseFlags, PoseOutput};
     let dir = tmp_dir("dbc_own");

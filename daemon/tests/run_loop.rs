@@ -4,8 +4,8 @@
 use crate::util::rc_car;
 use canodom::server::{InProcessDaemon, Observers, run};
 use canodom_can::bus::{BusEvent, FrameSink, FrameSource, InProcessBus, LinkState, Received};
-use canodom_can::candump::Timestamp;
 use canodom_can::frame::{CanFrame, ErrorFrame};
+use canodom_can::time::Timestamp;
 use canodom_dbc::{Checksum, Database, FrameId};
 use canodom_pipeline::config::Config;
 use canodom_pipeline::pipeline::Pipeline;

@@ -1,7 +1,8 @@
 //! Shared helpers: configurations, simulated logs, pipelines.
 
-use canodom_can::candump::{LogReader, Timestamp};
+use canodom_can::candump::LogReader;
 use canodom_can::frame::CanFrame;
+use canodom_can::time::Timestamp;
 use canodom_pipeline::config::Config;
 use canodom_sim::drive::{simulator, write_log};
 use canodom_sim::vehicle::PathKind;

@@ -28,8 +28,8 @@
 
 use crate::config::{Config, InputsConfig, WheelKind};
 use crate::stats::{Reasons, Reject, Stats};
-use canodom_can::candump::Timestamp;
 use canodom_can::frame::{CanFrame, FrameKind};
+use canodom_can::time::Timestamp;
 use canodom_dbc::{Checksum, CounterCheck, CounterStatus, FrameId, SignalHandle};
 use canodom_fusion::ekf::{Ekf, Learnt, LearntPair, OdometryInput, State, WindowOutcome};
 pub use canodom_protocol::pose_frames::{PoseFlags, PoseOutput};

@@ -4,8 +4,8 @@
 //! DBC codec users decode them with.
 
 use crate::own_dbc::{BaseId, OwnDbc, OwnFrame};
-use canodom_can::candump::Timestamp;
 use canodom_can::frame::{CanFrame, FrameError};
+use canodom_can::time::Timestamp;
 use canodom_dbc::{Checksum, Database, SignalHandle};
 use std::sync::Arc;
 
@@ -224,7 +224,7 @@ mod tests {
     use super::PoseFlags;
     use super::*;
     use crate::own_dbc::dbc_for_base;
-    use canodom_can::candump::Timestamp;
+    use canodom_can::time::Timestamp;
     use canodom_dbc::FrameId;
 
     fn pose(x: f64) -> PoseOutput {

@@ -4,8 +4,9 @@
 
 use crate::vehicle::{PathKind, SampleEncoder, TrueParamsFile, sim_config};
 use canodom_can::bus::FrameSink;
-use canodom_can::candump::{Record, Timestamp, format_record};
+use canodom_can::candump::{Record, format_record};
 use canodom_can::frame::CanFrame;
+use canodom_can::time::Timestamp;
 use canodom_fusion::VehicleParams;
 use canodom_fusion::sim::{Sample, Simulator, SlipConfig, SlipWheels, SteeringSensor};
 use canodom_pipeline::config::{Config, WheelKind};

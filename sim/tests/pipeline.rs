@@ -4,8 +4,8 @@
 // A failure to build the fixture is a test failure.
 #![allow(clippy::unwrap_used)]
 
-use canodom_can::candump::Timestamp;
 use canodom_can::frame::CanFrame;
+use canodom_can::time::Timestamp;
 use canodom_fusion::ekf::WindowOutcome;
 use canodom_fusion::sim::Simulator;
 use canodom_pipeline::config::Config;

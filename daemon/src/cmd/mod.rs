@@ -171,7 +171,7 @@ pub fn dbc_warnings(db: &canodom_dbc::Database, strict: bool) -> anyhow::Result<
 }
 
 /// `secs.micros` without padding: a valid JSON number and CSV field.
-pub fn write_timestamp(out: &mut Vec<u8>, t: canodom_can::candump::Timestamp) {
+pub fn write_timestamp(out: &mut Vec<u8>, t: canodom_can::time::Timestamp) {
     use std::io::Write as _;
     let _ = write!(out, "{}.{:06}", t.secs(), t.subsec_micros());
 }
@@ -214,12 +214,7 @@ impl<'a> LogFrames<'a> {
     /// The log cannot be read.
     pub fn next_frame(
         &mut self,
-    ) -> anyhow::Result<
-        Option<(
-            canodom_can::candump::Timestamp,
-            canodom_can::frame::CanFrame,
-        )>,
-    > {
+    ) -> anyhow::Result<Option<(canodom_can::time::Timestamp, canodom_can::frame::CanFrame)>> {
         loop {
             match self.reader.next_record() {
                 Ok(r) => return Ok(r.map(|r| (r.timestamp, r.frame))),

@@ -2,9 +2,9 @@
 //! log's timestamps, as fast as the machine goes; one CSV row per filter step.
 
 use anyhow::Context as _;
-use canodom_can::candump::Timestamp;
 use canodom_can::candump::{ClassicData, MalformedCounts, ReadError};
 use canodom_can::frame::CanFrame;
+use canodom_can::time::Timestamp;
 use canodom_fusion::ekf::WindowOutcome;
 use canodom_pipeline::config::Config;
 use canodom_pipeline::pipeline::{Pipeline, Step};
@@ -87,7 +87,7 @@ pub struct ReplaySummary {
     /// Every step at its absolute time, when [`ReplayOptions::keep_track`] asked.
     pub track: Vec<canodom_report::truth::TrackPoint>,
     /// Time of the first input frame, which steps' `t_s` count from.
-    pub first_frame: Option<canodom_can::candump::Timestamp>,
+    pub first_frame: Option<canodom_can::time::Timestamp>,
 }
 
 /// How [`replay_log`] reads and what it keeps.
@@ -231,7 +231,7 @@ fn compare_with_truth(
     args: &ReplayArgs,
     truth: &[canodom_calib::drive::Fix],
     track: &[canodom_report::truth::TrackPoint],
-    first_frame: Option<canodom_can::candump::Timestamp>,
+    first_frame: Option<canodom_can::time::Timestamp>,
 ) -> anyhow::Result<()> {
     // Seconds after the log's first frame, on the log's clock.
     let start = args
