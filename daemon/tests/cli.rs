@@ -24,7 +24,15 @@ fn ok(args: &[&str]) -> (String, String) {
 
 #[test]
 fn every_command_has_help_with_an_example() {
-    for cmd in ["run", "decode", "replay", "simulate", "demo", "calibrate"] {
+    for cmd in [
+        "run",
+        "decode",
+        "dbc",
+        "replay",
+        "simulate",
+        "demo",
+        "calibrate",
+    ] {
         let (help, _) = ok(&[cmd, "--help"]);
         assert!(help.contains("Example"), "{cmd} --help:\n{help}");
         assert!(

@@ -21,11 +21,11 @@ use std::path::Path;
 pub enum Command {
     /// The daemon: fused odometry from SocketCAN, published on CAN.
     Run(run::RunArgs),
-    /// Decode a candump log with a DBC into JSON lines.
+    /// Decode a CAN log (candump, Vector ASC/BLF, compressed) with a DBC into JSON lines.
     Decode(decode::DecodeArgs),
     /// What a DBC file holds (to fill in `[signals]`), and canodom's own DBC at your base id.
     Dbc(dbc::DbcArgs),
-    /// Run the daemon's pipeline over a candump log, as fast as it can; pose CSV.
+    /// Run the daemon's pipeline over a CAN log, as fast as it can; pose CSV (and --truth errors).
     Replay(replay::ReplayArgs),
     /// The simulated vehicle, onto an interface or into a candump log.
     Simulate(simulate::SimulateArgs),
