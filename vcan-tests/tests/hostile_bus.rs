@@ -372,7 +372,7 @@ fn hostile_bus_at_8000_fps_rejects_counted_exactly_no_drops_then_sigterm_saves_t
     // The state file: complete (it parses, every field there), and the
     // daemon's exact counts.
     let saved: SavedState =
-        toml::from_str(&read(&state)).unwrap_or_else(|e| panic!("{e}:\n{}", read(&state)));
+        serde_json::from_str(&read(&state)).unwrap_or_else(|e| panic!("{e}:\n{}", read(&state)));
     let rejects = &saved.stats.rejects;
     let reject = |k: &str| {
         *rejects
@@ -545,7 +545,7 @@ fn hostile_bus_at_8000_fps_rejects_counted_exactly_no_drops_then_sigterm_saves_t
     metric("latency_max_us", lat.last().copied().unwrap_or(0));
 }
 
-/// The part of `run --state-file`'s TOML these checks read, parsed here
+/// The part of `run --state-file`'s JSON these checks read, parsed here
 /// rather than with the daemon's own reader so the file is judged as any
 /// other program would read it.
 #[derive(Debug, serde::Deserialize)]
