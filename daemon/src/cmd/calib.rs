@@ -233,16 +233,11 @@ pub fn cansend_line(
         config.calibration.arming_code.unwrap_or(0),
         counter.unwrap_or_else(initial_counter),
     );
-    let id = match config.calibration.command_id {
-        canodom_can::frame::FrameId::Standard(id) => format!("{id:03X}"),
-        canodom_can::frame::FrameId::Extended(id) => format!("{id:08X}"),
-    };
-    let mut line = format!("cansend {} {id}#", config.interface);
-    for b in data {
-        use std::fmt::Write as _;
-        let _ = write!(line, "{b:02X}");
-    }
-    Ok(line)
+    // cansend takes the frame as candump -L writes it.
+    let frame = CalibWire::frame(config.calibration.command_id, &data)?;
+    let mut line = format!("cansend {} ", config.interface).into_bytes();
+    canodom_can::candump::format_frame(&mut line, &frame);
+    Ok(String::from_utf8_lossy(&line).into_owned())
 }
 
 /// Exit code when the daemon does not answer.
