@@ -14,7 +14,14 @@
 //! - [`steering`]: the steering map φ = k·u + c from constant-command arcs (§10).
 //! - [`drive`]: rear wheels, steering map and yaw-rate sensor from an
 //!   ordinary drive with sparse position fixes (least squares over the drive).
-//! - [`session`]: the guided-session state machine the daemon drives.
+//! - [`session`]: the guided-session state machine (runs on the track).
+//! - [`arcs`]: the steering calibration as driven: constant-command arcs and their fit.
+//! - [`drive_record`]: a drive recorded against position fixes, and its fitting job.
+//! - [`standstill`]: whether the vehicle stands still.
+//! - [`calibrator`]: the whole calibration state of a running vehicle (session,
+//!   arcs, drive, history, standstill), the state machine the daemon drives.
+//! - [`history`]: calibrated parameter values, their bounds, and the file of
+//!   committed sets with commit and rollback.
 //! - [`synth`]: a noise-free run generator for tests and benchmarks.
 //!
 //! # Example: a guided session as the daemon drives it
@@ -65,11 +72,16 @@
 //! # }
 //! ```
 
+pub mod arcs;
+pub mod calibrator;
 pub mod drive;
+pub mod drive_record;
 pub mod error;
+pub mod history;
 pub mod methods;
 pub mod run;
 pub mod session;
+pub mod standstill;
 pub mod steering;
 pub mod synth;
 pub mod track;

@@ -175,6 +175,23 @@ impl SteeringFit {
             offset_rad: self.offset_rad,
         }
     }
+
+    /// Standard deviations of the gain and the offset (least squares,
+    /// residual variance over n − 2); NaN with no degree of freedom left.
+    pub fn std_devs(&self) -> (f64, f64) {
+        let n = self.arcs.len() as f64;
+        let mean_u = self.arcs.iter().map(|a| a.command).sum::<f64>() / n;
+        let sxx: f64 = self.arcs.iter().map(|a| (a.command - mean_u).powi(2)).sum();
+        let dof = n - 2.0;
+        if dof <= 0.0 || sxx <= 0.0 {
+            return (f64::NAN, f64::NAN);
+        }
+        let var = self.residuals_rad.iter().map(|r| r * r).sum::<f64>() / dof;
+        (
+            (var / sxx).sqrt(),
+            (var * (1.0 / n + mean_u * mean_u / sxx)).sqrt(),
+        )
+    }
 }
 
 /// Least-squares fit of φ = k·u + c over the arcs whose curvature did not

@@ -95,6 +95,16 @@ pub enum BusError {
 }
 
 impl BusError {
+    /// Whether a send error means the link itself is gone (the receiver
+    /// must reopen): the socket error that tells of it is shared by both
+    /// halves of a raw CAN socket, and a send that meets it consumes it.
+    pub fn is_link_loss(&self) -> bool {
+        matches!(
+            self,
+            BusError::InterfaceDown { .. } | BusError::NoSuchInterface { .. }
+        )
+    }
+
     /// Whether reopening the interface later may succeed (the caller retries
     /// with backoff); `false` when the in-process bus is gone for good or
     /// for programming errors such as sending an error frame.

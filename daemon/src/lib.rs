@@ -6,12 +6,14 @@
 //!
 //! Layout:
 //! - [`cmd`]: the subcommands (run, decode, replay, calibrate, simulate, demo, calib).
-//! - [`server`]: the async daemon (link and pipeline tasks), generic over the transport.
-//! - [`live_calib`]: the live calibration adapter: CAN commands in, session actions carried out.
+//! - [`server`]: the async daemon (link, odometry and calibration tasks), generic over the transport.
+//! - [`live_calib`]: the live calibration on the wire: CAN commands in, the calibrator's outputs as frames.
+//! - [`calib_task`]: the calibration task: the live calibration, its stores and jobs off the frame path.
 //! - [`state_file`]: the end state `run --state-file` saves on SIGTERM.
 //! - [`sd_notify`]: systemd readiness and watchdog notifications.
 //! - [`progress`]: a progress line on terminals for long offline work.
 
+pub mod calib_task;
 pub mod cmd;
 pub mod live_calib;
 pub mod progress;

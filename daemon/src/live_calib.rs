@@ -1,33 +1,34 @@
-//! The live calibration session over CAN: `CALIB_CMD` in, `CALIB_STATUS`,
+//! The live calibration over CAN: `CALIB_CMD` in, `CALIB_STATUS`,
 //! `CALIB_PARAMS` out, `CALIB_ACK` back (issue 6).
 //!
-//! [`LiveCalibration`] is pure: no async, no clock. Time comes in as bus
-//! timestamps, frames come in already routed by id, and what the daemon must
-//! do comes out as [`Output`]s. The one side effect it cannot defer, storing
-//! the parameter file, goes through a [`Persister`] the caller supplies, so a
-//! commit whose file cannot be written is refused before anything changes
-//! (`PERSIST_FAILED`): a command is either carried out whole or not at all.
+//! [`LiveCalibration`] is the wire side of `canodom_calib::calibrator`: it
+//! checks and decodes commands, hands them to the [`Calibrator`] that owns
+//! the whole calibration state, and turns its outputs into frames, applies,
+//! reports, and the two slow effects it asks for, [`Output::Persist`] and
+//! [`Output::Compute`], which the caller carries out away from the frame
+//! path and reports back ([`LiveCalibration::on_persisted`],
+//! [`LiveCalibration::on_computed`]). It keeps only what the wire needs:
+//! the command counter, the answer sequence, the status schedule and the
+//! write-back of `CALIB_PARAMS` with its retries. No async, no clock: time
+//! comes in as bus timestamps.
 //!
 //! Checks of a command, in order: CRC-8 (`BAD_CHECKSUM`), a counter equal to
 //! the previous command's (`BAD_COUNTER`: a duplicate frame), the arming code
-//! (`BAD_ARMING_CODE`), the command code (`UNKNOWN_COMMAND`), then the session
-//! state (calib's refusals) and the daemon's own conditions (bounds,
-//! uncertainty, write-back in progress). Every command, carried out or
-//! refused, is answered on status page 1 (`LAST_CMD`, `CMD_REASON`, `CMD_SEQ`)
-//! at once.
+//! (`BAD_ARMING_CODE`), the command code (`UNKNOWN_COMMAND`), then the
+//! calibrator's refusals (session state, bounds, uncertainty, write-back in
+//! progress, busy while a store or a computation is out). Every command,
+//! carried out or refused, is answered on status page 1 (`LAST_CMD`,
+//! `CMD_REASON`, `CMD_SEQ`): at once, or for COMMIT, ROLLBACK and COMPUTE
+//! when the store or the computation is done.
 
-use canodom_calib::CalibrationResult;
-use canodom_calib::RearParams;
-use canodom_calib::drive::{DriveCalibration, DriveModel, DriveSample, Fix, calibrate_drive};
-use canodom_calib::run::{InputFault, RevSample, Run};
-use canodom_calib::session::{Action, Event, Instruction, Phase, Session, SessionConfig};
-use canodom_calib::steering::{
-    ArcEstimate, ArcOptions, SteeringFit, SteeringProvenance, estimate_arc, fit_steering,
+use canodom_calib::calibrator::{
+    Calibrator, CalibratorConfig, Command as CalibCommand, Committed, Job, JobOutcome,
+    Output as CalibOutput,
 };
-use canodom_calib::track::{Direction, Track};
+use canodom_calib::session::{Instruction, Phase};
 use canodom_can::frame::CanFrame;
 use canodom_can::time::Timestamp;
-use canodom_fusion::{Pose, VehicleParams, Wheel};
+use canodom_fusion::{Pose, VehicleParams};
 use canodom_params::persist::{ParamFile, ParamValues};
 use canodom_pipeline::config::CalibrationConfig;
 use canodom_protocol::calib_wire::{
@@ -42,32 +43,6 @@ use canodom_report::steering_report::SteeringReport;
 const ACTIVE_STATUS_S: f64 = 0.1;
 /// Status period otherwise, s.
 const IDLE_STATUS_S: f64 = 1.0;
-/// A steering arc ends when the signal moves the nominal road-wheel angle
-/// by more than this from the arc's first sample, rad (0.25°): a servo
-/// holding a command jitters far less, a new command moves it by degrees.
-const ARC_SIGNAL_TOL_RAD: f64 = 0.25 * std::f64::consts::PI / 180.0;
-/// Arcs whose signals differ by less than this (nominal angle, rad) count
-/// as one command when judging whether the fit has enough distinct ones.
-const DISTINCT_SIGNAL_RAD: f64 = 1.0 * std::f64::consts::PI / 180.0;
-/// Distinct commands a steering fit needs: two fix a line, a third checks it.
-const MIN_STEERING_COMMANDS: usize = 3;
-
-/// The steering calibration (§10) in progress: constant-command arcs driven
-/// with the calibrated rear set in use.
-#[derive(Debug, Clone, Default)]
-struct SteeringCollect {
-    /// Arcs closed and long enough to estimate.
-    arcs: Vec<ArcEstimate>,
-    /// Samples of the arc being driven.
-    current: Vec<RevSample>,
-    /// Distance of the arc being driven, m.
-    current_m: f64,
-    /// The fit of `compute`, awaiting commit.
-    fit: Option<SteeringFit>,
-}
-
-/// Stores the parameter file durably; `Err` carries the cause for the log.
-pub type Persister = Box<dyn FnMut(&ParamFile) -> Result<(), String> + Send>;
 
 /// What the daemon must do.
 #[derive(Debug, Clone)]
@@ -79,6 +54,12 @@ pub enum Output {
     Apply(u16, ParamValues),
     /// Write this report of a committed session or steering map (version, report).
     Report(u16, Box<Report>),
+    /// Store this parameter file durably, off the frame path, then call
+    /// [`LiveCalibration::on_persisted`].
+    Persist(ParamFile),
+    /// Run this calibration job off the frame path, then call
+    /// [`LiveCalibration::on_computed`].
+    Compute(Job),
 }
 
 /// The parameter write-back in progress.
@@ -92,133 +73,23 @@ struct WriteBack {
 }
 
 /// The live calibration (see the module doc).
+#[derive(Debug)]
 pub struct LiveCalibration {
     wire: CalibWire,
     config: CalibrationConfig,
-    nominal: VehicleParams,
-    session: Option<Session>,
-    session_config: SessionConfig,
-    file: ParamFile,
-    persister: Persister,
-    /// Set committed or rolled back to but not yet applied (moving).
-    pending_apply: Option<(u16, ParamValues)>,
+    calibrator: Calibrator,
     last_counter: Option<u8>,
     last_cmd: u8,
     cmd_reason: Reason,
     cmd_seq: u8,
-    /// Accepted and rejected runs, [CW, CCW].
-    accepted: [u8; 2],
-    rejected: [u8; 2],
-    reject_reason: Reason,
-    run_direction: Option<Direction>,
-    run_distance_m: f64,
-    result: Option<CalibrationResult>,
-    /// The track and runs the result came from (for the report).
-    computed_from: Option<(Track, Vec<Run>)>,
     writeback: Option<WriteBack>,
-    still_since_s: Option<f64>,
-    last_step_s: Option<f64>,
     next_status_s: Option<f64>,
     status_counter: u8,
     params_counter: u8,
-    steering: Option<SteeringCollect>,
-    /// A drive recorded against the bus's position fixes (START_DRIVE).
-    drive: Option<DriveCollect>,
-}
-
-/// Steps of a recorded drive are merged into bins of this length: the fit
-/// needs the shape of the drive, not every 10 ms, and runs inline (#21
-/// moves computations off the runtime thread), so a ten-minute drive is
-/// 12,000 samples, a fraction of a second to fit.
-const DRIVE_BIN_S: f64 = 0.05;
-
-/// The most samples a drive keeps (20 minutes of bins): the rest is not recorded.
-const DRIVE_MAX_SAMPLES: usize = 24_000;
-
-/// Mean Earth radius, metres, for latitude/longitude fixes turned into a
-/// local frame (equirectangular around the first fix: centimetres over the
-/// kilometres of a calibration drive).
-const EARTH_RADIUS_M: f64 = 6_371_000.0;
-
-/// A drive being recorded for calibration against the bus's fixes.
-#[derive(Debug, Default)]
-struct DriveCollect {
-    samples: Vec<DriveSample>,
-    /// The open bin: its distances, the last steering angle, and ∫ω dt, ∫dt.
-    bin: Option<(DriveSample, f64, f64)>,
-    fixes: Vec<Fix>,
-    /// Latitude and longitude of the first fix (geodetic fixes only), degrees.
-    origin: Option<(f64, f64)>,
-    /// The computed set, with the fit it came from.
-    result: Option<(DriveCalibration, ParamValues)>,
-}
-
-impl DriveCollect {
-    /// Adds one filter step to the open bin, closing it after [`DRIVE_BIN_S`].
-    fn push(
-        &mut self,
-        t_s: f64,
-        left_m: f64,
-        right_m: f64,
-        steer: Option<f64>,
-        yaw: Option<f64>,
-        dt_s: f64,
-    ) {
-        if self.samples.len() >= DRIVE_MAX_SAMPLES {
-            return;
-        }
-        let (bin, yaw_dt, dt) = self.bin.get_or_insert((
-            DriveSample {
-                t_s,
-                rear_left_m: 0.0,
-                rear_right_m: 0.0,
-                steer_angle_rad: None,
-                yaw_rate_radps: None,
-            },
-            0.0,
-            0.0,
-        ));
-        bin.t_s = t_s;
-        bin.rear_left_m += left_m;
-        bin.rear_right_m += right_m;
-        bin.steer_angle_rad = steer.or(bin.steer_angle_rad);
-        if let Some(w) = yaw {
-            *yaw_dt += w * dt_s;
-            *dt += dt_s;
-        }
-        let start = self.samples.last().map_or(f64::NEG_INFINITY, |s| s.t_s);
-        if t_s - start >= DRIVE_BIN_S {
-            self.flush();
-        }
-    }
-
-    /// Closes the open bin.
-    fn flush(&mut self) {
-        if let Some((mut bin, yaw_dt, dt)) = self.bin.take() {
-            bin.yaw_rate_radps = (dt > 0.0).then(|| yaw_dt / dt);
-            self.samples.push(bin);
-        }
-    }
-}
-
-impl std::fmt::Debug for LiveCalibration {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("LiveCalibration")
-            .field("phase", &self.phase())
-            .field("file", &self.file)
-            .finish_non_exhaustive()
-    }
 }
 
 fn seconds(t: Timestamp) -> f64 {
     t.as_micros() as f64 * 1e-6
-}
-
-fn dir_index(d: Direction) -> usize {
-    match d {
-        Direction::Cw => 0,
-        Direction::Ccw => 1,
-    }
 }
 
 impl LiveCalibration {
@@ -229,54 +100,45 @@ impl LiveCalibration {
         config: CalibrationConfig,
         nominal: VehicleParams,
         file: ParamFile,
-        persister: Persister,
     ) -> Self {
-        let session_config = SessionConfig {
-            standstill_speed_mps: config.standstill_speed_mps,
-            standstill_time_s: config.standstill_time_s,
-            ..SessionConfig::default()
-        };
-        let mut me = Self {
+        let calibrator = Calibrator::new(
+            CalibratorConfig {
+                standstill_speed_mps: config.standstill_speed_mps,
+                standstill_time_s: config.standstill_time_s,
+                bounds: config.bounds,
+                max_tread_std_m: config.max_tread_std_m,
+                max_ratio_std: config.max_ratio_std,
+                max_steer_gain_std_rel: config.max_steer_gain_std_rel,
+                max_steer_offset_std_rad: config.max_steer_offset_std_rad,
+                max_history: config.max_history,
+                fixes_available: config.fixes.is_some(),
+            },
+            nominal,
+            file,
+        );
+        Self {
             wire,
             config,
-            nominal,
-            session: None,
-            session_config,
-            file,
-            persister,
-            pending_apply: None,
+            calibrator,
             last_counter: None,
             last_cmd: 0,
             cmd_reason: Reason::None,
             cmd_seq: 0,
-            accepted: [0; 2],
-            rejected: [0; 2],
-            reject_reason: Reason::None,
-            run_direction: None,
-            run_distance_m: 0.0,
-            result: None,
-            computed_from: None,
             writeback: None,
-            still_since_s: None,
-            last_step_s: None,
             next_status_s: None,
             status_counter: 0,
             params_counter: 0,
-            steering: None,
-            drive: None,
-        };
-        me.session = Some(me.fresh_session());
-        me
+        }
     }
 
     /// The parameter file as the daemon last stored it.
     pub fn file(&self) -> &ParamFile {
-        &self.file
+        self.calibrator.file()
     }
 
     /// The session's phase.
     pub fn phase(&self) -> Phase {
-        self.session.as_ref().map_or(Phase::Idle, Session::phase)
+        self.calibrator.phase()
     }
 
     /// The write-back state.
@@ -284,101 +146,20 @@ impl LiveCalibration {
         self.writeback.map_or(Writeback::Idle, |w| w.state)
     }
 
-    fn current_values(&self) -> ParamValues {
-        self.file.current.as_ref().map_or_else(
-            || {
-                let steer = self.nominal.steering();
-                ParamValues {
-                    rear_tread_m: self.nominal.rear_tread_m(),
-                    rear_left_diameter_m: self.nominal.wheel_diameter_m(Wheel::RearLeft),
-                    rear_right_diameter_m: self.nominal.wheel_diameter_m(Wheel::RearRight),
-                    steering_gain: steer.gain,
-                    steering_offset_rad: steer.offset_rad,
-                    yaw_rate_bias_radps: None,
-                    yaw_rate_scale: None,
-                }
-            },
-            |s| s.values,
-        )
-    }
-
-    fn vehicle(&self, v: &ParamValues) -> VehicleParams {
-        self.nominal
-            .with_rear(
-                v.rear_tread_m,
-                v.rear_left_diameter_m,
-                v.rear_right_diameter_m,
-            )
-            .and_then(|p| p.with_steering(v.steering_map()))
-            .unwrap_or(self.nominal)
-    }
-
-    /// A session over the parameters in the file: the runs are recorded with
-    /// the parameters the odometry uses.
-    fn fresh_session(&self) -> Session {
-        Session::new(
-            self.vehicle(&self.current_values()),
-            SteeringProvenance::Independent,
-            self.session_config,
-        )
-    }
-
     /// Whether the vehicle has stood still (below the configured standstill
     /// speed for the configured time) at `t`, as the calibration judges it.
     pub fn is_standstill(&self, t: Timestamp) -> bool {
-        self.standstill(seconds(t))
+        self.calibrator.is_standstill(seconds(t))
     }
 
-    fn standstill(&self, t_s: f64) -> bool {
-        match (self.last_step_s, self.still_since_s) {
-            // No wheel data: nothing moves the vehicle we could see.
-            (None, _) => true,
-            (Some(_), None) => false,
-            (Some(_), Some(since)) => t_s - since >= self.config.standstill_time_s,
-        }
+    /// The standstill judge, as the calibration keeps it.
+    pub fn standstill(&self) -> canodom_calib::standstill::Standstill {
+        self.calibrator.standstill()
     }
 
-    fn event(&mut self, event: Event) -> Vec<Action> {
-        let session = self.session.take().unwrap_or_else(|| self.fresh_session());
-        let before = session.instruction();
-        let (session, actions) = session.on_event(event);
-        self.session = Some(session);
-        for a in &actions {
-            match a {
-                Action::RunStarted { .. } => {
-                    self.run_distance_m = 0.0;
-                    self.run_direction = match self.instruction() {
-                        Instruction::Drive { direction, .. }
-                        | Instruction::Go { direction, .. }
-                        | Instruction::GoToStart { direction, .. } => Some(direction),
-                        _ => match before {
-                            Instruction::Go { direction, .. }
-                            | Instruction::GoToStart { direction, .. } => Some(direction),
-                            _ => None,
-                        },
-                    };
-                }
-                Action::RunAccepted { .. } => {
-                    if let Some(d) = self.run_direction {
-                        self.accepted[dir_index(d)] = self.accepted[dir_index(d)].saturating_add(1);
-                    }
-                }
-                Action::RunRejected { reason, .. } => {
-                    if let Some(d) = self.run_direction {
-                        self.rejected[dir_index(d)] = self.rejected[dir_index(d)].saturating_add(1);
-                    }
-                    self.reject_reason = Reason::of_rejection(reason);
-                }
-                _ => {}
-            }
-        }
-        actions
-    }
-
-    fn instruction(&self) -> Instruction {
-        self.session
-            .as_ref()
-            .map_or(Instruction::Idle, Session::instruction)
+    /// Whether a store of the parameter file is out (else a job, if anything).
+    pub fn is_storing(&self) -> bool {
+        self.calibrator.is_storing()
     }
 
     /// A filter step: `rear_rev` wheel revolutions (left, right) since the
@@ -392,115 +173,29 @@ impl LiveCalibration {
         yaw_rate_radps: Option<f64>,
     ) -> Vec<Output> {
         let t_s = seconds(t);
-        let p = self.vehicle(&self.current_values());
-        if let Some(drive) = self.drive.as_mut().filter(|d| d.result.is_none()) {
-            let dt_s = self.last_step_s.map_or(0.0, |last| (t_s - last).max(0.0));
-            let (dl, dr) = (
-                std::f64::consts::PI * p.wheel_diameter_m(Wheel::RearLeft) * rear_rev.0,
-                std::f64::consts::PI * p.wheel_diameter_m(Wheel::RearRight) * rear_rev.1,
-            );
-            let steer = steer_signal.map(|u| p.steering().angle_rad(u));
-            drive.push(t_s, dl, dr, steer, yaw_rate_radps, dt_s);
-        }
-        let distance_m = 0.5
-            * std::f64::consts::PI
-            * (p.wheel_diameter_m(Wheel::RearLeft) * rear_rev.0
-                + p.wheel_diameter_m(Wheel::RearRight) * rear_rev.1);
-        // The first step has no interval: any distance is motion.
-        let dt_s = self.last_step_s.map_or(0.0, |last| (t_s - last).max(0.0));
-        let moving =
-            !distance_m.is_finite() || distance_m.abs() > self.config.standstill_speed_mps * dt_s;
-        if moving {
-            self.still_since_s = None;
-        } else if self.still_since_s.is_none() {
-            self.still_since_s = Some(t_s);
-        }
-        self.last_step_s = Some(t_s);
-        if self.steering.is_some() {
-            self.steering_sample(t_s, rear_rev, steer_signal, distance_m, moving);
-        }
-        let phase = self.phase();
-        if matches!(phase, Phase::Positioning | Phase::Recording) {
-            if phase == Phase::Recording && distance_m.is_finite() {
-                self.run_distance_m += distance_m.abs();
-            }
-            let before = self.instruction();
-            self.event(Event::Sample(RevSample {
-                t_s,
-                rear_left_rev: rear_rev.0,
-                rear_right_rev: rear_rev.1,
-                front_rev: None,
-                steer_signal: steer_signal.unwrap_or(0.0),
-            }));
-            if self.instruction() != before {
-                // The driver's next move changed: tell at once.
-                let mut out = self.status(t_s);
-                out.extend(self.apply_if_still(t_s));
-                return out;
-            }
-        }
-        self.apply_if_still(t_s)
+        let out = self
+            .calibrator
+            .on_step(t_s, rear_rev, steer_signal, yaw_rate_radps);
+        self.carry(t_s, out)
     }
 
     /// A position fix from the bus: a local x and y in metres, or (`geodetic`)
     /// latitude and longitude in degrees. Recorded while a drive is.
     pub fn on_fix(&mut self, t: Timestamp, first: f64, second: f64, geodetic: bool) {
-        let Some(drive) = self.drive.as_mut().filter(|d| d.result.is_none()) else {
-            return;
-        };
-        if !(first.is_finite() && second.is_finite()) {
-            return;
-        }
-        let (x_m, y_m) = if geodetic {
-            let (lat0, lon0) = *drive.origin.get_or_insert((first, second));
-            (
-                EARTH_RADIUS_M * lat0.to_radians().cos() * (second - lon0).to_radians(),
-                EARTH_RADIUS_M * (first - lat0).to_radians(),
-            )
-        } else {
-            (first, second)
-        };
-        let t_s = seconds(t);
-        if drive.fixes.last().is_none_or(|f| t_s > f.t_s) {
-            drive.fixes.push(Fix {
-                t_s,
-                x_m,
-                y_m,
-                heading_rad: None,
-            });
-        }
+        self.calibrator.on_fix(seconds(t), first, second, geodetic);
     }
 
     /// The input path refused or faulted a wheel frame (`code`: the
     /// decoder's fault code): a run recording now is rejected at its end.
     pub fn on_fault(&mut self, t: Timestamp, code: u8) {
-        if let Some(st) = self.steering.as_mut() {
-            // The arc lost samples: its curvature would be wrong.
-            st.current.clear();
-            st.current_m = 0.0;
-        }
-        if self.phase() == Phase::Recording {
-            self.event(Event::InputFault {
-                t_s: seconds(t),
-                fault: InputFault::Decoder { code },
-            });
-        }
-    }
-
-    fn apply_if_still(&mut self, t_s: f64) -> Vec<Output> {
-        match self.pending_apply {
-            Some((v, values)) if self.standstill(t_s) => {
-                self.pending_apply = None;
-                vec![Output::Apply(v, values)]
-            }
-            _ => Vec::new(),
-        }
+        self.calibrator.on_fault(seconds(t), code);
     }
 
     /// Periodic work: status frames, write-back timeouts, deferred applies.
     pub fn tick(&mut self, t: Timestamp) -> Vec<Output> {
         let t_s = seconds(t);
-        let mut out = self.apply_if_still(t_s);
+        let applies = self.calibrator.tick(t_s);
+        let mut out = self.carry(t_s, applies);
         if let Some(wb) = self.writeback
             && wb.state == Writeback::Pending
             && t_s >= wb.deadline_s
@@ -552,537 +247,172 @@ impl LiveCalibration {
     /// result, so a result sent ahead of the answer would pass it by.
     pub fn on_command(&mut self, t: Timestamp, frame: &CanFrame) -> Vec<Output> {
         let t_s = seconds(t);
-        let mut effects = Vec::new();
-        let reason = self.judge(t_s, frame, &mut effects);
-        self.cmd_reason = reason;
-        self.cmd_seq = (self.cmd_seq + 1) % 8;
-        let mut out = self.status(t_s);
-        out.extend(effects);
-        out
+        match self.judge(frame) {
+            Err(reason) => self.answer(t_s, reason),
+            Ok(None) => match self.request_params() {
+                Some(frames) => {
+                    let mut out = self.answer(t_s, Reason::None);
+                    out.extend(frames);
+                    out
+                }
+                None => self.answer(t_s, Reason::OutOfBounds),
+            },
+            Ok(Some(command)) => {
+                let writeback_pending = self.writeback() == Writeback::Pending;
+                let out = self.calibrator.on_command(t_s, command, writeback_pending);
+                self.carry(t_s, out)
+            }
+        }
     }
 
-    /// Carries out the command or refuses it; the reason (`None` = done).
-    fn judge(&mut self, t_s: f64, frame: &CanFrame, out: &mut Vec<Output>) -> Reason {
-        let data = frame.data();
-        let Ok(cmd) = self.wire.decode_command(data) else {
+    /// The store of the last [`Output::Persist`] finished (`Err`: its cause,
+    /// for the log): the command that asked for it is answered.
+    pub fn on_persisted(&mut self, t: Timestamp, stored: &Result<(), String>) -> Vec<Output> {
+        if let Err(cause) = stored {
+            tracing::warn!(%cause, "calibrated parameters not stored; command refused, nothing changed");
+        }
+        let t_s = seconds(t);
+        let out = self.calibrator.on_persisted(t_s, stored.is_ok());
+        self.carry(t_s, out)
+    }
+
+    /// The job of the last [`Output::Compute`] finished: the command that
+    /// asked for it is answered.
+    pub fn on_computed(&mut self, t: Timestamp, outcome: JobOutcome) -> Vec<Output> {
+        if let JobOutcome::Drive(Err(e)) | JobOutcome::Rear(Err(e)) = &outcome {
+            tracing::warn!(cause = %e, "calibration failed");
+        }
+        let t_s = seconds(t);
+        let out = self.calibrator.on_computed(outcome);
+        self.carry(t_s, out)
+    }
+
+    /// The wire checks of a command and its meaning: `Ok(None)` for
+    /// REQUEST_PARAMS, which the wire side answers itself.
+    fn judge(&mut self, frame: &CanFrame) -> Result<Option<CalibCommand>, Reason> {
+        let Ok(cmd) = self.wire.decode_command(frame.data()) else {
             self.last_cmd = 0;
-            return Reason::BadChecksum;
+            return Err(Reason::BadChecksum);
         };
         self.last_cmd = cmd.cmd_raw;
         if !cmd.checksum_ok {
-            return Reason::BadChecksum;
+            return Err(Reason::BadChecksum);
         }
         let repeated = self.last_counter == Some(cmd.counter);
         self.last_counter = Some(cmd.counter);
         if repeated {
-            return Reason::BadCounter;
+            return Err(Reason::BadCounter);
         }
         if self
             .config
             .arming_code
             .is_some_and(|code| code != cmd.arming_code)
         {
-            return Reason::BadArmingCode;
+            return Err(Reason::BadArmingCode);
         }
         let Some(command) = cmd.command else {
-            return Reason::UnknownCommand;
+            return Err(Reason::UnknownCommand);
         };
-        if let Some(reason) = self.drive_command(command, t_s, out) {
-            return reason;
-        }
-        match command {
-            Command::StartSession { .. } if self.steering.is_some() => Reason::SessionActive,
+        Ok(Some(match command {
             Command::StartSession {
                 track_radius_mm,
                 runs_per_direction,
-            } => {
-                let runs = if runs_per_direction == 0 {
+            } => CalibCommand::StartSession {
+                radius_m: f64::from(track_radius_mm) * 1e-3,
+                runs_per_direction: if runs_per_direction == 0 {
                     DEFAULT_RUNS_PER_DIRECTION
                 } else {
                     runs_per_direction
-                };
-                if self.phase() == Phase::Idle {
-                    // Record with the parameters in use now.
-                    self.session = Some(self.fresh_session());
-                }
-                let r = self.session_event(Event::StartSession {
-                    radius_m: f64::from(track_radius_mm) * 1e-3,
-                    runs_per_direction: runs,
-                });
-                if r == Reason::None {
-                    self.accepted = [0; 2];
-                    self.rejected = [0; 2];
-                    self.reject_reason = Reason::None;
-                    self.result = None;
-                    self.run_distance_m = 0.0;
-                }
-                r
-            }
-            Command::StartSteering => self.start_steering(),
-            Command::StartDrive => self.start_drive(),
-            Command::Abort if self.steering.is_some() => {
-                self.steering = None;
-                Reason::None
-            }
-            Command::Compute if self.steering.is_some() => self.compute_steering(),
-            Command::Commit if self.steering.is_some() => self.commit_steering(t_s, out),
-            Command::EndRun => self.session_event(Event::EndRun),
-            Command::StartRun => self.session_event(Event::StartRun),
+                },
+            },
+            Command::StartRun => CalibCommand::StartRun,
+            Command::EndRun => CalibCommand::EndRun,
             Command::EndPose {
                 dx_mm,
                 dy_mm,
                 dtheta_decideg,
-            } => self.session_event(Event::MeasuredEndPose(Pose {
+            } => CalibCommand::EndPose(Pose {
                 x_m: f64::from(dx_mm) * 1e-3,
                 y_m: f64::from(dy_mm) * 1e-3,
                 heading_rad: (f64::from(dtheta_decideg) * 0.1).to_radians(),
-            })),
-            Command::Abort => {
-                let r = self.session_event(Event::Abort);
-                if r == Reason::None {
-                    self.result = None;
-                }
-                r
-            }
-            Command::Compute => self.compute(),
-            Command::Commit => self.commit(t_s, out),
-            Command::Rollback => self.rollback(t_s, out),
-            Command::RequestParams => {
-                let set = self.wire_set();
-                match self.wire.encode_params(&set, self.params_counter) {
-                    Ok(pages) => {
-                        self.params_counter = self.params_counter.wrapping_add(1);
-                        out.extend(Self::frames(self.wire.params_id(), &pages));
-                        Reason::None
-                    }
-                    Err(_) => Reason::OutOfBounds,
-                }
-            }
-        }
+            }),
+            Command::Abort => CalibCommand::Abort,
+            Command::Compute => CalibCommand::Compute,
+            Command::Commit => CalibCommand::Commit,
+            Command::Rollback => CalibCommand::Rollback,
+            Command::StartSteering => CalibCommand::StartSteering,
+            Command::StartDrive => CalibCommand::StartDrive,
+            Command::RequestParams => return Ok(None),
+        }))
     }
 
-    /// Feeds a command event to the session; its refusal as a wire reason.
-    fn session_event(&mut self, event: Event) -> Reason {
-        let actions = self.event(event);
-        actions
-            .iter()
-            .find_map(|a| match a {
-                Action::Refused { reason, .. } => Some(Reason::of_refusal(*reason)),
-                _ => None,
-            })
-            .unwrap_or(Reason::None)
+    /// Answers the last command: status page 1 with the reason and the next
+    /// `CMD_SEQ`.
+    fn answer(&mut self, t_s: f64, reason: Reason) -> Vec<Output> {
+        self.cmd_reason = reason;
+        self.cmd_seq = (self.cmd_seq + 1) % 8;
+        self.status(t_s)
     }
 
-    fn compute(&mut self) -> Reason {
-        let actions = self.event(Event::Compute);
-        if let Some(Action::Refused { reason, .. }) = actions.first() {
-            return Reason::of_refusal(*reason);
-        }
-        // The exact method takes some 20 ms: inline keeps the core pure.
-        let Some(job) = self.session.as_ref().and_then(Session::calibration_job) else {
-            return Reason::ComputeFailed;
-        };
-        let outcome = job.run();
-        self.computed_from = Some((job.track, job.runs));
-        let actions = self.event(Event::Computed(outcome));
-        match actions.iter().find_map(|a| match a {
-            Action::ResultReady(r) => Some(*r),
-            _ => None,
-        }) {
-            Some(r) => {
-                self.result = Some(r);
-                Reason::None
-            }
-            None => Reason::ComputeFailed,
-        }
-    }
-
-    fn values_of(&self, r: &CalibrationResult) -> ParamValues {
-        ParamValues {
-            rear_tread_m: r.rear.tread_m,
-            rear_left_diameter_m: r.rear.left_diameter_m,
-            rear_right_diameter_m: r.rear.right_diameter_m,
-            ..self.current_values()
-        }
-    }
-
-    fn commit(&mut self, t_s: f64, out: &mut Vec<Output>) -> Reason {
-        let (Phase::Computed, Some(result)) = (self.phase(), self.result) else {
-            return Reason::NothingToCommit;
-        };
-        if self.writeback() == Writeback::Pending {
-            return Reason::WritebackBusy;
-        }
-        let values = self.values_of(&result);
-        if self.config.bounds.check(&values).is_err() {
-            return Reason::OutOfBounds;
-        }
-        let uncertain = |std: Option<f64>, max: f64| std.is_none_or(|s| s.is_nan() || s > max);
-        if uncertain(result.tread_std_m, self.config.max_tread_std_m)
-            || uncertain(result.ratio_std, self.config.max_ratio_std)
-        {
-            return Reason::UncertaintyTooHigh;
-        }
-        let method = format!("{:?}", result.method).to_lowercase();
-        let version = match self.store_committed(values, &method, t_s) {
-            Ok(v) => v,
-            Err(reason) => return reason,
-        };
-        let actions = self.event(Event::Commit);
-        if let Some(Action::Refused { reason, .. }) = actions.first() {
-            // Not reachable after the checks above; the file is stored, so
-            // keep it consistent with what is in use.
-            tracing::warn!(?reason, "session refused a checked commit");
-        }
-        self.result = None;
-        if let Some((track, runs)) = self.computed_from.take() {
-            out.push(Output::Report(
-                version,
-                Box::new(Report::Rear(CalibrationReport::build(
-                    &result,
-                    track,
-                    &runs,
-                    &[],
-                ))),
-            ));
-        }
-        self.adopt(t_s, version, values, out);
-        Reason::None
-    }
-
-    /// Commits `values` to the parameter file and stores it durably; the
-    /// new version, or `PERSIST_FAILED` (and no change) when it cannot be
-    /// stored.
-    fn store_committed(
-        &mut self,
-        values: ParamValues,
-        method: &str,
-        t_s: f64,
-    ) -> Result<u16, Reason> {
-        let mut file = self.file.clone();
-        // Bus timestamps are Unix time on a live bus.
-        let created = t_s.max(0.0) as u64;
-        let version = file
-            .commit(values, method, created, self.config.max_history)
-            .version;
-        if let Err(cause) = (self.persister)(&file) {
-            tracing::warn!(%cause, method, "calibrated parameters not stored; commit refused");
-            return Err(Reason::PersistFailed);
-        }
-        self.file = file;
-        Ok(version)
-    }
-
-    /// Applies (now or at the next standstill) and writes back a set.
-    fn adopt(&mut self, t_s: f64, version: u16, values: ParamValues, out: &mut Vec<Output>) {
-        self.pending_apply = Some((version, values));
-        out.extend(self.apply_if_still(t_s));
-        self.session = Some(self.fresh_session());
+    /// REQUEST_PARAMS: the set in use, once, not as a write-back; `None`
+    /// when it does not fit the wire's ranges.
+    fn request_params(&mut self) -> Option<Vec<Output>> {
         let set = self.wire_set();
-        out.extend(self.send_params(t_s, set, 1));
+        let pages = self.wire.encode_params(&set, self.params_counter).ok()?;
+        self.params_counter = self.params_counter.wrapping_add(1);
+        Some(Self::frames(self.wire.params_id(), &pages))
     }
 
-    fn rollback(&mut self, t_s: f64, out: &mut Vec<Output>) -> Reason {
-        if self.phase() != Phase::Idle || self.steering.is_some() {
-            return Reason::SessionActive;
-        }
-        if self.writeback() == Writeback::Pending {
-            return Reason::WritebackBusy;
-        }
-        let mut file = self.file.clone();
-        let Some(set) = file.rollback().cloned() else {
-            return Reason::NothingToRollback;
-        };
-        if let Err(cause) = (self.persister)(&file) {
-            tracing::warn!(%cause, "rolled-back parameters not stored; rollback refused");
-            return Reason::PersistFailed;
-        }
-        self.file = file;
-        self.adopt(t_s, set.version, set.values, out);
-        Reason::None
-    }
-
-    /// The commands a recorded drive answers itself (`None` for the others).
-    fn drive_command(
-        &mut self,
-        command: Command,
-        t_s: f64,
-        out: &mut Vec<Output>,
-    ) -> Option<Reason> {
-        self.drive.as_ref()?;
-        Some(match command {
-            Command::StartSession { .. } | Command::StartSteering => Reason::SessionActive,
-            Command::Abort => {
-                self.drive = None;
-                Reason::None
-            }
-            Command::Compute => self.compute_drive(),
-            Command::Commit => self.commit_drive(t_s, out),
-            _ => return None,
-        })
-    }
-
-    /// Starts recording a drive against the bus's position fixes: only with
-    /// no session, and with `[calibration.fixes]` configured.
-    fn start_drive(&mut self) -> Reason {
-        if self.phase() != Phase::Idle || self.steering.is_some() || self.drive.is_some() {
-            return Reason::SessionActive;
-        }
-        if self.config.fixes.is_none() {
-            return Reason::NotSupported;
-        }
-        self.drive = Some(DriveCollect::default());
-        self.result = None;
-        Reason::None
-    }
-
-    /// Fits the recorded drive to its fixes (`canodom_calib::drive`).
-    fn compute_drive(&mut self) -> Reason {
-        let base = self.current_values();
-        let p = self.vehicle(&base);
-        let Some(drive) = self.drive.as_mut() else {
-            return Reason::NoSession;
-        };
-        drive.flush();
-        if drive.fixes.len() < 3 || drive.samples.len() < 3 {
-            return Reason::TooFewSamples;
-        }
-        let model = DriveModel {
-            rear_tread_m: p.rear_tread_m(),
-            wheelbase_m: p.wheelbase_m(),
-        };
-        // Fixes outside the recorded steps say nothing about them.
-        let (first, last) = (
-            drive.samples[0].t_s,
-            drive.samples[drive.samples.len() - 1].t_s,
-        );
-        let fixes: Vec<Fix> = drive
-            .fixes
-            .iter()
-            .copied()
-            .filter(|f| f.t_s >= first && f.t_s <= last)
-            .collect();
-        match calibrate_drive(&drive.samples, &fixes, &model) {
-            Ok(cal) => {
-                let values = crate::cmd::calibrate_drive::calibrated_values(&base, &cal);
-                drive.result = Some((cal, values));
-                Reason::None
-            }
-            Err(e) => {
-                tracing::warn!(cause = %e, samples = drive.samples.len(), fixes = fixes.len(), "drive calibration failed");
-                Reason::ComputeFailed
+    /// Turns the calibrator's outputs into the daemon's, in order. The
+    /// answer's status pages take the answer's place but show the state
+    /// after everything the command caused (the write-back it started too).
+    fn carry(&mut self, t_s: f64, outputs: Vec<CalibOutput>) -> Vec<Output> {
+        let mut out = Vec::new();
+        let mut answer = None;
+        for o in outputs {
+            match o {
+                CalibOutput::Answer(result) => {
+                    answer = Some((
+                        out.len(),
+                        result.err().map_or(Reason::None, Reason::of_refused),
+                    ));
+                }
+                CalibOutput::InstructionChanged => out.extend(self.status(t_s)),
+                CalibOutput::Persist(file) => out.push(Output::Persist(file)),
+                CalibOutput::Compute(job) => out.push(Output::Compute(job)),
+                CalibOutput::Apply { version, values } => out.push(Output::Apply(version, values)),
+                CalibOutput::Adopted { .. } => {
+                    let set = self.wire_set();
+                    out.extend(self.send_params(t_s, set, 1));
+                }
+                CalibOutput::Report { version, committed } => {
+                    let report = match *committed {
+                        Committed::Rear {
+                            result,
+                            track,
+                            runs,
+                        } => Report::Rear(CalibrationReport::build(&result, track, &runs, &[])),
+                        Committed::Steering {
+                            fit,
+                            before,
+                            gain_std_rel,
+                            offset_std_rad,
+                        } => Report::Steering(SteeringReport::build(
+                            &fit,
+                            before,
+                            gain_std_rel,
+                            offset_std_rad,
+                        )),
+                    };
+                    out.push(Output::Report(version, Box::new(report)));
+                }
             }
         }
-    }
-
-    /// Commits a computed drive the way a rear result is committed: bounds,
-    /// stored, applied at standstill, written back.
-    fn commit_drive(&mut self, t_s: f64, out: &mut Vec<Output>) -> Reason {
-        let Some((_, values)) = self.drive.as_ref().and_then(|d| d.result) else {
-            return Reason::NothingToCommit;
-        };
-        if self.writeback() == Writeback::Pending {
-            return Reason::WritebackBusy;
+        if let Some((at, reason)) = answer {
+            let pages = self.answer(t_s, reason);
+            out.splice(at..at, pages);
         }
-        if self.config.bounds.check(&values).is_err() {
-            return Reason::OutOfBounds;
-        }
-        let version = match self.store_committed(values, "drive", t_s) {
-            Ok(v) => v,
-            Err(reason) => return reason,
-        };
-        self.drive = None;
-        self.adopt(t_s, version, values, out);
-        Reason::None
-    }
-
-    /// Starts the steering calibration (§10): only with the rear session idle
-    /// and a calibrated rear set in use, since a map fitted with uncalibrated
-    /// rear odometry makes the car drive the path on which that odometry
-    /// closes (the trap of §10); without one, `NOTHING_TO_COMMIT` (no
-    /// calibrated set to build on).
-    fn start_steering(&mut self) -> Reason {
-        if self.phase() != Phase::Idle || self.steering.is_some() {
-            return Reason::SessionActive;
-        }
-        if self.file.current.as_ref().is_none_or(|s| s.version == 0) {
-            return Reason::NothingToCommit;
-        }
-        self.steering = Some(SteeringCollect::default());
-        self.result = None;
-        Reason::None
-    }
-
-    /// One step while collecting steering arcs: extends the current arc or
-    /// closes it when the signal changed or the vehicle stopped.
-    fn steering_sample(
-        &mut self,
-        t_s: f64,
-        rear_rev: (f64, f64),
-        steer_signal: Option<f64>,
-        distance_m: f64,
-        moving: bool,
-    ) {
-        let nominal_gain = self.nominal.steering().gain;
-        let Some(st) = self.steering.as_ref() else {
-            return;
-        };
-        if st.fit.is_some() {
-            return;
-        }
-        let same_command = match (st.current.first(), steer_signal) {
-            (Some(first), Some(u)) => {
-                (nominal_gain * (u - first.steer_signal)).abs() <= ARC_SIGNAL_TOL_RAD
-            }
-            (None, _) => true,
-            (Some(_), None) => false,
-        };
-        let usable = moving && distance_m.is_finite() && steer_signal.is_some();
-        if !(usable && same_command) {
-            self.close_arc();
-        }
-        if let (true, Some(u), Some(st)) = (usable, steer_signal, self.steering.as_mut()) {
-            st.current.push(RevSample {
-                t_s,
-                rear_left_rev: rear_rev.0,
-                rear_right_rev: rear_rev.1,
-                front_rev: None,
-                steer_signal: u,
-            });
-            st.current_m += distance_m.abs();
-        }
-    }
-
-    /// Ends the current arc; estimates it with the rear set in use when it
-    /// is long enough after the settling time (else it is dropped).
-    fn close_arc(&mut self) {
-        let v = self.current_values();
-        let wheelbase_m = self.nominal.wheelbase_m();
-        let Some(st) = self.steering.as_mut() else {
-            return;
-        };
-        let samples = std::mem::take(&mut st.current);
-        st.current_m = 0.0;
-        if samples.is_empty() {
-            return;
-        }
-        let rear = RearParams {
-            tread_m: v.rear_tread_m,
-            left_diameter_m: v.rear_left_diameter_m,
-            right_diameter_m: v.rear_right_diameter_m,
-        };
-        match estimate_arc(&samples, &rear, wheelbase_m, &ArcOptions::default()) {
-            Ok(arc) if arc.curvature_per_m.is_finite() => st.arcs.push(arc),
-            Ok(_) => {}
-            Err(e) => tracing::debug!(%e, "steering arc dropped"),
-        }
-    }
-
-    /// Fits the steering map over the arcs: `RUNS_INCOMPLETE` with fewer
-    /// than three distinct commands.
-    fn compute_steering(&mut self) -> Reason {
-        if self.steering.as_ref().is_some_and(|s| s.fit.is_some()) {
-            return Reason::SessionActive;
-        }
-        self.close_arc();
-        let nominal_gain = self.nominal.steering().gain;
-        let Some(st) = self.steering.as_mut() else {
-            return Reason::NoSession;
-        };
-        let mut commands: Vec<f64> = Vec::new();
-        for a in &st.arcs {
-            if !commands
-                .iter()
-                .any(|&u| (nominal_gain * (u - a.command)).abs() < DISTINCT_SIGNAL_RAD)
-            {
-                commands.push(a.command);
-            }
-        }
-        if commands.len() < MIN_STEERING_COMMANDS {
-            return Reason::RunsIncomplete;
-        }
-        match fit_steering(&st.arcs, false) {
-            Ok(fit) if fit.gain.is_finite() && fit.offset_rad.is_finite() => {
-                st.fit = Some(fit);
-                Reason::None
-            }
-            _ => Reason::ComputeFailed,
-        }
-    }
-
-    /// The fitted map with the rear values in use.
-    fn steering_values(&self, fit: &SteeringFit) -> ParamValues {
-        let map = fit.map();
-        ParamValues {
-            steering_gain: map.gain,
-            steering_offset_rad: map.offset_rad,
-            ..self.current_values()
-        }
-    }
-
-    /// Commits a steering fit the way a rear result is committed: bounds,
-    /// uncertainty limits, stored, applied at standstill, written back.
-    fn commit_steering(&mut self, t_s: f64, out: &mut Vec<Output>) -> Reason {
-        let Some(fit) = self.steering.as_ref().and_then(|s| s.fit.clone()) else {
-            return Reason::NothingToCommit;
-        };
-        if self.writeback() == Writeback::Pending {
-            return Reason::WritebackBusy;
-        }
-        let values = self.steering_values(&fit);
-        if self.config.bounds.check(&values).is_err() {
-            return Reason::OutOfBounds;
-        }
-        // The figures the operator saw on the result pages.
-        let (gain_std_rel, offset_std_rad) = self.steering_uncertainty(&fit);
-        let uncertain = |std: f64, max: f64| std.is_nan() || std > max;
-        if uncertain(gain_std_rel.abs(), self.config.max_steer_gain_std_rel)
-            || uncertain(offset_std_rad, self.config.max_steer_offset_std_rad)
-        {
-            return Reason::UncertaintyTooHigh;
-        }
-        let before = self.current_values().steering_map();
-        let version = match self.store_committed(values, "steering", t_s) {
-            Ok(v) => v,
-            Err(reason) => return reason,
-        };
-        self.steering = None;
-        out.push(Output::Report(
-            version,
-            Box::new(Report::Steering(SteeringReport::build(
-                &fit,
-                before,
-                gain_std_rel.abs(),
-                offset_std_rad,
-            ))),
-        ));
-        self.adopt(t_s, version, values, out);
-        Reason::None
-    }
-
-    /// The fit's uncertainty as the result pages show it and a commit judges
-    /// it: the gain's standard deviation relative to the nominal gain (as the
-    /// gain itself goes on the wire), the offset's in radians.
-    fn steering_uncertainty(&self, fit: &SteeringFit) -> (f64, f64) {
-        let (gain_std, offset_std_rad) = Self::fit_std(fit);
-        (gain_std / self.nominal.steering().gain, offset_std_rad)
-    }
-
-    /// Standard deviations of the fit's gain and offset (least squares,
-    /// residual variance over n − 2); NaN with no degree of freedom left.
-    fn fit_std(fit: &SteeringFit) -> (f64, f64) {
-        let n = fit.arcs.len() as f64;
-        let mean_u = fit.arcs.iter().map(|a| a.command).sum::<f64>() / n;
-        let sxx: f64 = fit.arcs.iter().map(|a| (a.command - mean_u).powi(2)).sum();
-        let dof = n - 2.0;
-        if dof <= 0.0 || sxx <= 0.0 {
-            return (f64::NAN, f64::NAN);
-        }
-        let var = fit.residuals_rad.iter().map(|r| r * r).sum::<f64>() / dof;
-        (
-            (var / sxx).sqrt(),
-            (var * (1.0 / n + mean_u * mean_u / sxx)).sqrt(),
-        )
+        out
     }
 
     /// The steering map on the wire, relative to the nominal map: the
@@ -1090,16 +420,16 @@ impl LiveCalibration {
     /// raw signal's unit is the vehicle's, so an absolute gain may be 0.017
     /// for degrees and would not fit STEER_GAIN's range around 1).
     fn wire_steering(&self, v: &ParamValues) -> (f64, f64) {
-        let n = self.nominal.steering();
+        let n = self.calibrator.nominal().steering();
         let gain = v.steering_gain / n.gain;
         (gain, v.steering_offset_rad - gain * n.offset_rad)
     }
 
     fn wire_set(&self) -> WireSet {
-        let v = self.current_values();
+        let v = self.calibrator.current_values();
         let (steer_gain, steer_offset_rad) = self.wire_steering(&v);
         WireSet {
-            version: self.file.current.as_ref().map_or(0, |s| s.version),
+            version: self.file().current.as_ref().map_or(0, |s| s.version),
             rear_tread_m: v.rear_tread_m,
             rear_left_diameter_m: v.rear_left_diameter_m,
             rear_right_diameter_m: v.rear_right_diameter_m,
@@ -1140,8 +470,9 @@ impl LiveCalibration {
     /// The result pages of a rear result or a steering fit awaiting commit.
     fn result_pages(&self) -> Vec<StatusPage> {
         let mut pages = Vec::new();
-        if let Some(r) = self.result {
-            let (steer_gain, steer_offset_rad) = self.wire_steering(&self.values_of(&r));
+        let next_version = self.file().last_version.checked_add(1).unwrap_or(1);
+        if let Some(r) = self.calibrator.result() {
+            let (steer_gain, steer_offset_rad) = self.wire_steering(&self.calibrator.values_of(r));
             pages.extend([
                 StatusPage::ResultGeometry {
                     rear_tread_m: r.rear.tread_m,
@@ -1160,13 +491,14 @@ impl LiveCalibration {
                 },
                 StatusPage::ResultExtra {
                     steer_offset_std_rad: 0.0,
-                    version: self.file.last_version.checked_add(1).unwrap_or(1),
+                    version: next_version,
                 },
             ]);
         }
-        if let Some(fit) = self.steering.as_ref().and_then(|s| s.fit.as_ref()) {
-            let (steer_gain, steer_offset_rad) = self.wire_steering(&self.steering_values(fit));
-            let (gain_std_rel, offset_std_rad) = self.steering_uncertainty(fit);
+        if let Some(fit) = self.calibrator.steering().and_then(|s| s.fit()) {
+            let (steer_gain, steer_offset_rad) =
+                self.wire_steering(&self.calibrator.steering_values(fit));
+            let (gain_std_rel, offset_std_rad) = self.calibrator.steering_uncertainty(fit);
             pages.extend([
                 StatusPage::ResultSteering {
                     steer_gain,
@@ -1175,7 +507,7 @@ impl LiveCalibration {
                 },
                 StatusPage::ResultExtra {
                     steer_offset_std_rad: offset_std_rad,
-                    version: self.file.last_version.checked_add(1).unwrap_or(1),
+                    version: next_version,
                 },
             ]);
         }
@@ -1184,16 +516,16 @@ impl LiveCalibration {
 
     /// The status pages now; schedules the next.
     fn status(&mut self, t_s: f64) -> Vec<Output> {
-        let phase = self.phase();
-        let active = phase != Phase::Idle || self.steering.is_some();
+        let cal = &self.calibrator;
+        let phase = cal.phase();
         self.next_status_s = Some(
-            t_s + if active {
+            t_s + if cal.is_active() {
                 ACTIVE_STATUS_S
             } else {
                 IDLE_STATUS_S
             },
         );
-        let instruction = self.instruction();
+        let instruction = cal.instruction();
         let (run, runs, direction) = match instruction {
             Instruction::GoToStart {
                 run,
@@ -1210,7 +542,7 @@ impl LiveCalibration {
                 runs,
                 direction,
             } => (run, runs, Some(direction)),
-            Instruction::Stop { run, runs } => (run, runs, self.run_direction),
+            Instruction::Stop { run, runs } => (run, runs, cal.run_direction()),
             _ => (0, 0, None),
         };
         let wb = self.writeback;
@@ -1218,23 +550,24 @@ impl LiveCalibration {
         // shows as RECORDING while arcs are collected (RUN_INDEX = arcs
         // estimated so far, RUN_DISTANCE = the current arc's length) and as
         // COMPUTED once a fit awaits commit (RESULT_STEERING pages).
-        let (state, run, run_distance_m) = match &self.steering {
-            Some(st) if st.fit.is_some() => (State::Computed, 0, 0.0),
+        let (state, run, run_distance_m) = match cal.steering() {
+            Some(st) if st.fit().is_some() => (State::Computed, 0, 0.0),
             Some(st) => (
                 State::Recording,
-                u8::try_from(st.arcs.len()).unwrap_or(u8::MAX),
-                st.current_m,
+                u8::try_from(st.arcs().len()).unwrap_or(u8::MAX),
+                st.current_m(),
             ),
             None => (
                 State::of(phase),
                 run,
                 if phase == Phase::Recording {
-                    self.run_distance_m
+                    cal.run_distance_m()
                 } else {
                     0.0
                 },
             ),
         };
+        let (accepted, rejected) = (cal.accepted(), cal.rejected());
         let mut pages = vec![
             StatusPage::Progress(Progress {
                 state,
@@ -1245,18 +578,20 @@ impl LiveCalibration {
                 start_point: StartPoint::of(direction),
                 run_distance_m,
                 writeback: wb.map_or(Writeback::Idle, |w| w.state),
-                standstill: self.standstill(t_s),
+                standstill: cal.is_standstill(t_s),
                 writeback_attempts: wb.map_or(0, |w| w.attempts),
             }),
             StatusPage::Counts(Counts {
-                cw_accepted: self.accepted[0],
-                cw_rejected: self.rejected[0],
-                ccw_accepted: self.accepted[1],
-                ccw_rejected: self.rejected[1],
-                reject_reason: self.reject_reason,
+                cw_accepted: accepted[0],
+                cw_rejected: rejected[0],
+                ccw_accepted: accepted[1],
+                ccw_rejected: rejected[1],
+                reject_reason: cal
+                    .reject_reason()
+                    .map_or(Reason::None, Reason::of_rejection),
                 last_cmd: self.last_cmd,
                 cmd_reason: self.cmd_reason,
-                active_version: self.file.current.as_ref().map_or(0, |s| s.version),
+                active_version: self.file().current.as_ref().map_or(0, |s| s.version),
                 cmd_seq: self.cmd_seq,
             }),
         ];
@@ -1277,6 +612,9 @@ impl LiveCalibration {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use canodom_calib::session::Instruction;
+    use canodom_calib::track::Track;
+    use canodom_fusion::Wheel;
     use canodom_fusion::{SteeringMap, VehicleParams};
     use canodom_pipeline::config::Config;
     use canodom_pipeline::pipeline::Pipeline;
@@ -1301,26 +639,113 @@ mod tests {
         }
     }
 
-    /// A core over `file`; `fail` makes every store fail.
-    fn core(c: &Config, file: ParamFile, fail: bool) -> (LiveCalibration, CalibWire, Stored) {
-        let stored: Stored = Arc::default();
-        let s = Arc::clone(&stored);
-        let persister: Persister = Box::new(move |f: &ParamFile| {
-            if fail {
-                return Err("disk full".into());
+    /// A live calibration whose stores and jobs are carried out at once,
+    /// as the calibration task does them off the frame path: what a test
+    /// sees is what the bus sees once they are done.
+    struct Live {
+        inner: LiveCalibration,
+        stored: Stored,
+        fail: bool,
+    }
+
+    impl std::ops::Deref for Live {
+        type Target = LiveCalibration;
+        fn deref(&self) -> &LiveCalibration {
+            &self.inner
+        }
+    }
+
+    impl Live {
+        fn settle(&mut self, t: Timestamp, mut out: Vec<Output>) -> Vec<Output> {
+            let mut done = Vec::new();
+            while !out.is_empty() {
+                let mut next = Vec::new();
+                for o in out {
+                    match o {
+                        Output::Persist(file) => {
+                            let stored = if self.fail {
+                                Err("disk full".to_owned())
+                            } else {
+                                self.stored.lock().unwrap().push(file);
+                                Ok(())
+                            };
+                            next.extend(self.inner.on_persisted(t, &stored));
+                        }
+                        Output::Compute(job) => next.extend(self.inner.on_computed(t, job.run())),
+                        other => done.push(other),
+                    }
+                }
+                out = next;
             }
-            s.lock().unwrap().push(f.clone());
-            Ok(())
-        });
+            done
+        }
+        fn on_command(&mut self, t: Timestamp, frame: &CanFrame) -> Vec<Output> {
+            let out = self.inner.on_command(t, frame);
+            self.settle(t, out)
+        }
+        fn on_step(
+            &mut self,
+            t: Timestamp,
+            rear_rev: (f64, f64),
+            steer_signal: Option<f64>,
+            yaw_rate_radps: Option<f64>,
+        ) -> Vec<Output> {
+            let out = self
+                .inner
+                .on_step(t, rear_rev, steer_signal, yaw_rate_radps);
+            self.settle(t, out)
+        }
+        fn tick(&mut self, t: Timestamp) -> Vec<Output> {
+            let out = self.inner.tick(t);
+            self.settle(t, out)
+        }
+        fn on_ack(&mut self, t: Timestamp, frame: &CanFrame) -> Vec<Output> {
+            self.inner.on_ack(t, frame)
+        }
+        fn on_fault(&mut self, t: Timestamp, code: u8) {
+            self.inner.on_fault(t, code);
+        }
+        fn on_fix(&mut self, t: Timestamp, first: f64, second: f64, geodetic: bool) {
+            self.inner.on_fix(t, first, second, geodetic);
+        }
+        fn instruction(&self) -> Instruction {
+            self.inner.calibrator.instruction()
+        }
+        fn current_values(&self) -> ParamValues {
+            self.inner.calibrator.current_values()
+        }
+        fn vehicle(&self, v: &ParamValues) -> VehicleParams {
+            let nominal = *self.inner.calibrator.nominal();
+            nominal
+                .with_rear(
+                    v.rear_tread_m,
+                    v.rear_left_diameter_m,
+                    v.rear_right_diameter_m,
+                )
+                .and_then(|p| p.with_steering(v.steering_map()))
+                .unwrap_or(nominal)
+        }
+    }
+
+    /// A live calibration over `file`; `fail` makes every store fail.
+    fn core(c: &Config, file: ParamFile, fail: bool) -> (Live, CalibWire, Stored) {
+        let stored: Stored = Arc::default();
         let nominal = *Pipeline::new(c).unwrap().params();
         let live = LiveCalibration::new(
             CalibWire::new(c.output.base_id).unwrap(),
             c.calibration.clone(),
             nominal,
             file,
-            persister,
         );
-        (live, CalibWire::new(c.output.base_id).unwrap(), stored)
+        (
+            Live {
+                inner: live,
+                stored: Arc::clone(&stored),
+                fail,
+            },
+            CalibWire::new(c.output.base_id).unwrap(),
+            stored,
+        )
     }
 
     fn at(ms: u64) -> Timestamp {
@@ -1566,7 +991,7 @@ mod tests {
     }
 
     /// Drives a whole noise-free session of `truth` to Computed; the time.
-    fn computed_session(live: &mut LiveCalibration, w: &CalibWire, truth: &VehicleParams) -> u64 {
+    fn computed_session(live: &mut Live, w: &CalibWire, truth: &VehicleParams) -> u64 {
         use canodom_calib::synth::lap;
         let start = Command::StartSession {
             track_radius_mm: 780,
@@ -1575,7 +1000,7 @@ mod tests {
         let _ = live.on_command(at(0), &cmd(w, w.encode_command(start, 0, 1)));
         let track = Track::new(0.78).unwrap();
         let mut ms = 0;
-        let rest = |live: &mut LiveCalibration, ms: &mut u64| {
+        let rest = |live: &mut Live, ms: &mut u64| {
             for _ in 0..150 {
                 *ms += 10;
                 let _ = live.on_step(at(*ms), (0.0, 0.0), Some(0.0), None);
@@ -1693,7 +1118,7 @@ mod tests {
                 nominal.wheel_diameter_m(Wheel::RearRight) * 1.015,
             )
             .unwrap();
-        let commit = |live: &mut LiveCalibration, w: &CalibWire, ms: u64| {
+        let commit = |live: &mut Live, w: &CalibWire, ms: u64| {
             live.on_command(at(ms), &cmd(w, w.encode_command(Command::Commit, 0, 3)))
         };
         // Bounds tighter than the result: refused, still computed.
@@ -1766,7 +1191,7 @@ mod tests {
         });
         assert!(answer.unwrap() < first_params.unwrap(), "{out:?}");
         assert_eq!(live.writeback(), Writeback::Idle);
-        let statuses = |live: &mut LiveCalibration, from: u64, to: u64| {
+        let statuses = |live: &mut Live, from: u64, to: u64| {
             (from..to)
                 .step_by(50)
                 .filter(|&ms| progress(&w, &live.tick(at(ms))).is_some())
@@ -1804,7 +1229,7 @@ mod tests {
     }
 
     /// Drives one constant-command arc of `truth` then stands still 1.5 s.
-    fn drive_arc(live: &mut LiveCalibration, truth: &VehicleParams, u: f64, ms: &mut u64) {
+    fn drive_arc(live: &mut Live, truth: &VehicleParams, u: f64, ms: &mut u64) {
         use canodom_calib::synth::arc;
         for s in arc(truth, u, 3.0, 0.5, 100.0).unwrap() {
             *ms += 10;

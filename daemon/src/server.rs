@@ -1,25 +1,31 @@
 //! The daemon proper (`canodom run`, and the far end of `canodom demo`):
-//! two tasks joined by a bounded channel, generic over the transport so the
+//! three tasks joined by bounded channels, generic over the transport so the
 //! tests and the demo run this very code on the in-process bus.
 //!
 //! - [`LinkTask`] owns the connection: opens it with kernel filters for the
 //!   configured ids, forwards frames, and on an interface going down or away,
 //!   or a bus-off, logs, waits with exponential backoff (watching the
 //!   shutdown token) and reopens. It hands each new sending half to the
-//!   pipeline task through a `watch` channel (`None` while disconnected).
-//! - [`PipelineTask`] owns the [`Pipeline`]: feeds it every frame, publishes
-//!   the pose at the configured rate (and after each step with
+//!   other tasks through a `watch` channel (`None` while disconnected).
+//! - [`OdometryTask`] owns the [`Pipeline`]: feeds it every wheel frame,
+//!   publishes the pose at the configured rate (and after each step with
 //!   `publish_on_update`, and on an `ODOM_CMD` PUBLISH_NOW request), moves
-//!   the pose to the origin on `ODOM_CMD` RESET_POSE at standstill, logs one
-//!   line of statistics periodically, and pets the systemd watchdog.
+//!   the pose to the origin on `ODOM_CMD` RESET_POSE at standstill, applies
+//!   the sets the calibration hands back, logs one line of statistics
+//!   periodically, and pets the systemd watchdog. The calibration's frames,
+//!   its filter steps and input faults go on to the calibration task.
+//! - [`CalibTask`] owns the live calibration (see [`crate::calib_task`]).
 //!
 //! Shutdown (tokio's guide): one `CancellationToken` cloned into each task,
 //! watched at every await, tasks spawned on a `TaskTracker` that `run` closes
 //! and waits for under a timeout. On cancel the link task stops reading and
-//! drops its sender; the pipeline task drains every frame already queued
-//! before it returns, so nothing received is lost.
+//! drops its sender; the odometry task drains every frame already queued
+//! and then drops its sender to the calibration task, which handles what is
+//! queued and finishes a store in flight before it returns, so nothing
+//! received is lost.
 
-use crate::live_calib::{LiveCalibration, Output, Persister};
+use crate::calib_task::{CalibInput, CalibTask, OdometryLinks, still_at};
+use crate::live_calib::LiveCalibration;
 use crate::sd_notify::Notifier;
 use canodom_can::bus::{
     BusError, BusEvent, FrameSink, FrameSource, IdFilter, InProcessBus, Received,
@@ -28,7 +34,7 @@ use canodom_can::frame::{CanFrame, ErrorSeverity, FrameId};
 use canodom_can::time::Timestamp;
 use canodom_dbc::{Checksum, Database, SignalHandle};
 use canodom_fusion::ekf::State;
-use canodom_pipeline::config::Config;
+use canodom_pipeline::config::{Config, FixSignals};
 use canodom_pipeline::pipeline::{Outcome, Pipeline, Step};
 use canodom_pipeline::stats::{Reasons, Reject, Stats};
 use canodom_protocol::calib_wire::CalibWire;
@@ -130,10 +136,6 @@ pub enum RunError {
     Calibration(#[from] canodom_protocol::calib_wire::WireError),
 }
 
-/// How often the live calibration's clock runs (status periods and ACK
-/// timeouts are multiples of it).
-const CALIB_TICK: Duration = Duration::from_millis(50);
-
 /// Optional observers (the demo's display, tests).
 #[derive(Clone, Debug, Default)]
 pub struct Observers {
@@ -173,16 +175,6 @@ fn next_backoff(current: Duration, cause: Option<&BusError>) -> Duration {
         _ => BACKOFF_MAX,
     };
     (current * 2).min(cap)
-}
-
-/// Whether a send error means the link itself is gone (the receiver must
-/// reopen): the socket error that tells of it is shared by both halves of a
-/// raw CAN socket, and a send that meets it consumes it.
-fn is_link_loss(e: &BusError) -> bool {
-    matches!(
-        e,
-        BusError::InterfaceDown { .. } | BusError::NoSuchInterface { .. }
-    )
 }
 
 /// The daemon's run loop on an in-process bus, with no CAN hardware: how
@@ -256,29 +248,23 @@ pub async fn run<C: Connector>(
     // pose encoder, the calibration wire and the ODOM_CMD checks.
     let own = OwnDbc::new(config.output.base_id)
         .map_err(canodom_protocol::pose_frames::PoseEncodeError::from)?;
-    let live = live_calibration(&config, &own, nominal)?;
-    let (calib_cmd_id, calib_ack_id) = (config.calibration.command_id, live.1);
+    let (live, calib_ack_id) = live_calibration(&config, &own, nominal)?;
+    let calib_cmd_id = config.calibration.command_id;
     let encoder = PoseEncoder::with_dbc(&own)?;
     let cmd_id = OwnFrame::OdomCmd.id(config.output.base_id);
-    let fixes = config.calibration.fixes.map(|f| {
-        let id = config.db.messages()[f.message_index].id();
-        (id, f)
-    });
-    let filters: Vec<IdFilter> = config
-        .input_ids()
-        .into_iter()
-        .chain([cmd_id, calib_cmd_id, calib_ack_id])
+    let fix_id = |f: &FixSignals| config.db.messages()[f.message_index].id();
+    let fixes = config.calibration.fixes.map(|f| (fix_id(&f), f));
+    // The kernel passes only what the daemon reads: wheels, steering and
+    // its own commands, acknowledgements and position fixes.
+    let own_ids = [cmd_id, calib_cmd_id, calib_ack_id];
+    let filters = (config.input_ids().into_iter().chain(own_ids))
         .chain(fixes.map(|(id, _)| id))
         .map(IdFilter::exact)
         .collect();
-    let notifier = match Notifier::from_env() {
-        Ok(n) => n,
-        Err(e) => {
-            warn!(cause = %e, "sd_notify socket unusable; running without systemd notifications");
-            None
-        }
-    };
-
+    let notifier = Notifier::from_env().unwrap_or_else(|e| {
+        warn!(cause = %e, "sd_notify socket unusable; running without systemd notifications");
+        None
+    });
     let (frames_tx, frames_rx) = mpsc::channel(1024);
     let (sink_tx, sink_rx) = watch::channel(None);
     let (lost_tx, lost_rx) = mpsc::channel(1);
@@ -295,7 +281,15 @@ pub async fn run<C: Connector>(
     let link_handle = tracker.spawn(link.run());
     let odom_commands = OdomCommands::new(own.database(), config.calibration.arming_code)
         .map_err(canodom_protocol::pose_frames::PoseEncodeError::from)?;
-    let task = PipelineTask {
+    let (calib, links) = CalibTask::new(
+        live,
+        sink_rx.clone(),
+        lost_tx.clone(),
+        config.calibration.param_file.clone(),
+        report_root(&config.calibration.param_file),
+    );
+    let calib_handle = tracker.spawn(calib.run());
+    let task = OdometryTask {
         pipeline,
         encoder,
         frames: frames_rx,
@@ -310,15 +304,13 @@ pub async fn run<C: Connector>(
         odom_refusals: OdomRefusals::default(),
         notifier,
         observers,
-        clock: None,
         published: 0,
         lost: 0,
         link_lost: lost_tx,
         outages: Arc::clone(&outages),
-        live: live.0,
+        links,
         calib_cmd_id,
         calib_ack_id,
-        report_root: report_root(&config.calibration.param_file),
     };
     let pipeline_handle = tracker.spawn(task.run());
     tracker.close();
@@ -340,6 +332,9 @@ pub async fn run<C: Connector>(
     let mut summary = pipeline_handle
         .await
         .map_err(|e| RunError::Task(e.to_string()))?;
+    calib_handle
+        .await
+        .map_err(|e| RunError::Task(e.to_string()))?;
     summary.connections = connections;
     summary.outages = outages.load(Ordering::Relaxed);
     Ok(summary)
@@ -357,11 +352,8 @@ fn live_calibration(
     let file = canodom_params::persist::load(&cal.param_file, &cal.bounds).unwrap_or_default();
     let wire = CalibWire::with_dbc(own)?;
     let ack_id = wire.ack_id();
-    let path = cal.param_file.clone();
-    let persister: Persister =
-        Box::new(move |f| canodom_params::persist::store(&path, f).map_err(|e| e.to_string()));
     Ok((
-        LiveCalibration::new(wire, cal.clone(), nominal, file, persister),
+        LiveCalibration::new(wire, cal.clone(), nominal, file),
         ack_id,
     ))
 }
@@ -435,7 +427,7 @@ struct LinkTask<C: Connector> {
     /// the in-process bus) counts what overflows as lost.
     frames: mpsc::Sender<LinkEvent>,
     sink: watch::Sender<Option<C::Tx>>,
-    /// Link losses the pipeline task met while sending (see [`is_link_loss`]).
+    /// Link losses the pipeline task met while sending (see [`BusError::is_link_loss`]).
     link_lost: mpsc::Receiver<BusError>,
     outages: Arc<AtomicU64>,
     token: CancellationToken,
@@ -693,7 +685,7 @@ fn fault_code(reasons: Reasons) -> Option<u8> {
 }
 
 /// Owns the pipeline (see the module doc).
-struct PipelineTask<Tx> {
+struct OdometryTask<Tx> {
     pipeline: Pipeline,
     encoder: PoseEncoder,
     frames: mpsc::Receiver<LinkEvent>,
@@ -704,26 +696,26 @@ struct PipelineTask<Tx> {
     publish_on_update: bool,
     cmd_id: FrameId,
     /// The bus's position fixes (`[calibration.fixes]`): their id and signals.
-    fixes: Option<(FrameId, canodom_pipeline::config::FixSignals)>,
+    fixes: Option<(FrameId, FixSignals)>,
     odom_commands: OdomCommands,
     odom_refusals: OdomRefusals,
     notifier: Option<Notifier>,
     observers: Observers,
-    /// Last frame's bus timestamp and when it arrived: the pose flags are
-    /// judged on the bus clock, whatever clock this process runs on.
-    clock: Option<(Timestamp, Instant)>,
     published: u64,
     lost: u64,
-    /// Tells the link task of a link loss a send met (see [`is_link_loss`]).
+    /// Tells the link task of a link loss a send met (see [`BusError::is_link_loss`]).
     link_lost: mpsc::Sender<BusError>,
     outages: Arc<AtomicU64>,
-    live: LiveCalibration,
+    /// The channels to the calibration task (its input sender is dropped
+    /// with this task, after the last frame). The bus clock it keeps there
+    /// is the last frame's bus timestamp and when it arrived: the pose flags
+    /// are judged on the bus clock, whatever clock this process runs on.
+    links: OdometryLinks,
     calib_cmd_id: FrameId,
     calib_ack_id: FrameId,
-    report_root: std::path::PathBuf,
 }
 
-impl<Tx: FrameSink + Clone> PipelineTask<Tx> {
+impl<Tx: FrameSink + Clone> OdometryTask<Tx> {
     #[instrument(skip(self))]
     async fn run(mut self) -> Summary {
         let mut pose_tick = tokio::time::interval(self.pose_period);
@@ -739,24 +731,17 @@ impl<Tx: FrameSink + Clone> PipelineTask<Tx> {
         {
             warn!(cause = %e, "sd_notify READY failed");
         }
-        let mut calib_tick = tokio::time::interval(CALIB_TICK);
-        calib_tick.set_missed_tick_behavior(MissedTickBehavior::Delay);
         let mut last_stats = *self.pipeline.stats();
         let mut last_stats_at = Instant::now();
         loop {
             tokio::select! {
                 biased;
+                Some((version, values)) = self.links.apply.recv() => self.apply_params(version, &values),
                 event = self.frames.recv() => match event {
                     Some(event) => self.handle(event).await,
                     None => break,
                 },
                 _ = pose_tick.tick() => self.publish().await,
-                _ = calib_tick.tick() => {
-                    if let Some(now) = self.now() {
-                        let out = self.live.tick(now);
-                        self.carry_out(out).await;
-                    }
-                }
                 _ = stats_tick.tick() => {
                     let s = *self.pipeline.stats();
                     let secs = last_stats_at.elapsed().as_secs_f64().max(1e-9);
@@ -783,6 +768,8 @@ impl<Tx: FrameSink + Clone> PipelineTask<Tx> {
                 }
             }
         }
+        // The calibration task handles what it was sent, and ends when this
+        // task (its input sender with it) is gone.
         if let Some(n) = &self.notifier {
             let _ = n.stopping();
         }
@@ -802,46 +789,65 @@ impl<Tx: FrameSink + Clone> PipelineTask<Tx> {
         }
     }
 
+    /// Hands an input to the calibration task; waits when it is behind
+    /// (it needs every step of a run), and drops nothing.
+    async fn to_calibration(&self, input: CalibInput) {
+        if self.links.inputs.send(input).await.is_err() {
+            debug!("calibration task stopped; input dropped");
+        }
+    }
+
     async fn handle(&mut self, event: LinkEvent) {
         match event {
             LinkEvent::Lost(n) => self.lost += n,
             LinkEvent::Frame(r) => {
-                self.clock = Some((r.timestamp, Instant::now()));
-                if r.frame.id() == self.calib_cmd_id {
-                    let out = self.live.on_command(r.timestamp, &r.frame);
-                    self.carry_out(out).await;
+                (self.links.clock).send_replace(Some((r.timestamp, Instant::now())));
+                let id = r.frame.id();
+                if id == self.calib_cmd_id {
+                    self.to_calibration(CalibInput::Command(r.timestamp, r.frame))
+                        .await;
                     return;
                 }
-                if r.frame.id() == self.calib_ack_id {
-                    let out = self.live.on_ack(r.timestamp, &r.frame);
-                    self.carry_out(out).await;
+                if id == self.calib_ack_id {
+                    self.to_calibration(CalibInput::Ack(r.timestamp, r.frame))
+                        .await;
                     return;
                 }
-                if r.frame.id() == self.cmd_id {
+                if id == self.cmd_id {
                     self.command(r.timestamp, &r.frame).await;
                     return;
                 }
-                if let Some((id, f)) = &self.fixes
-                    && r.frame.id() == *id
+                if let Some((fix_id, f)) = &self.fixes
+                    && id == *fix_id
                 {
                     let data = r.frame.data();
-                    if let (Some(a), Some(b)) = (f.first.decode(data), f.second.decode(data)) {
-                        self.live.on_fix(r.timestamp, a, b, f.geodetic);
+                    if let (Some(first), Some(second)) =
+                        (f.first.decode(data), f.second.decode(data))
+                    {
+                        let geodetic = f.geodetic;
+                        self.to_calibration(CalibInput::Fix {
+                            t: r.timestamp,
+                            first,
+                            second,
+                            geodetic,
+                        })
+                        .await;
                     }
                     return;
                 }
                 let outcome = self.pipeline.push(r.timestamp, &r.frame);
                 if let Some(code) = fault_code(outcome.reasons()) {
-                    self.live.on_fault(r.timestamp, code);
+                    self.to_calibration(CalibInput::Fault(r.timestamp, code))
+                        .await;
                 }
                 if let Outcome::Step(step, _) = outcome {
-                    let out = self.live.on_step(
-                        r.timestamp,
-                        step.rear_rev,
-                        step.steer_signal,
-                        step.yaw_rate_radps,
-                    );
-                    self.carry_out(out).await;
+                    self.to_calibration(CalibInput::Step {
+                        t: r.timestamp,
+                        rear_rev: step.rear_rev,
+                        steer_signal: step.steer_signal,
+                        yaw_rate_radps: step.yaw_rate_radps,
+                    })
+                    .await;
                     if let Some(w) = &self.observers.steps {
                         w.send_replace(Some(step));
                     }
@@ -861,7 +867,7 @@ impl<Tx: FrameSink + Clone> PipelineTask<Tx> {
     /// anything refused is counted, and logged with its reason (see
     /// [`OdomRefusals`]).
     async fn command(&mut self, t: Timestamp, frame: &CanFrame) {
-        let standstill = self.live.is_standstill(t);
+        let standstill = still_at(&self.links.standstill, t);
         match self.odom_commands.judge(frame.data(), standstill) {
             Ok(OdomRequest::Nothing) => {}
             Ok(OdomRequest::PublishNow) => self.publish().await,
@@ -884,51 +890,18 @@ impl<Tx: FrameSink + Clone> PipelineTask<Tx> {
 
     /// The bus clock now: the last frame's timestamp plus the time since.
     fn now(&self) -> Option<Timestamp> {
-        let (t, at) = self.clock?;
+        let (t, at) = (*self.links.clock.borrow())?;
         Some(Timestamp::from_micros(
             t.as_micros() + at.elapsed().as_micros() as u64,
         ))
     }
 
-    /// Does what the live calibration asks: frames, applies, reports.
-    async fn carry_out(&mut self, outputs: Vec<Output>) {
-        for o in outputs {
-            match o {
-                Output::Send(f) => self.send(&f).await,
-                Output::Apply(version, values) => {
-                    match self.pipeline.apply_params(Some((version, &values))) {
-                        Ok(()) => info!(version, "calibrated parameters applied"),
-                        Err(e) => {
-                            error!(version, cause = %e, "calibrated parameters refused by the filter");
-                        }
-                    }
-                }
-                Output::Report(version, report) => {
-                    let dir = self.report_root.join(version.to_string());
-                    // SVG rendering is file work: keep it off the frame path.
-                    tokio::task::spawn_blocking(move || match canodom_report::files::write_report(
-                        &dir, &*report,
-                    ) {
-                        Ok((svg, _)) => {
-                            info!(report = %svg.display(), "calibration report written");
-                        }
-                        Err(e) => {
-                            warn!(cause = %e, "calibration report not written");
-                        }
-                    });
-                }
-            }
-        }
-    }
-
-    async fn send(&mut self, frame: &CanFrame) {
-        let tx = self.sink.borrow().clone();
-        let Some(tx) = tx else { return };
-        if let Err(e) = tx.send(frame).await {
-            if is_link_loss(&e) {
-                let _ = self.link_lost.try_send(e);
-            } else {
-                debug!(cause = %e, "calibration frame not sent");
+    /// A set the calibration committed or rolled back to, at standstill.
+    fn apply_params(&mut self, version: u16, values: &canodom_params::persist::ParamValues) {
+        match self.pipeline.apply_params(Some((version, values))) {
+            Ok(()) => info!(version, "calibrated parameters applied"),
+            Err(e) => {
+                error!(version, cause = %e, "calibrated parameters refused by the filter");
             }
         }
     }
@@ -943,7 +916,7 @@ impl<Tx: FrameSink + Clone> PipelineTask<Tx> {
         let Some(tx) = tx else { return };
         for f in &frames {
             if let Err(e) = tx.send(f).await {
-                if is_link_loss(&e) {
+                if e.is_link_loss() {
                     // The receiver may never see this error: hand it over so
                     // the outage is logged, counted and the socket reopened.
                     let _ = self.link_lost.try_send(e);
@@ -1167,9 +1140,12 @@ mod tests {
             b = next_backoff(b, Some(&other));
         }
         assert_eq!(b, BACKOFF_MAX);
-        assert!(is_link_loss(&down) && is_link_loss(&gone) && !is_link_loss(&other));
-        assert!(!is_link_loss(&BusError::TxQueueFull {
-            iface: "vcan0".into()
-        }));
+        assert!(down.is_link_loss() && gone.is_link_loss() && !other.is_link_loss());
+        assert!(
+            !BusError::TxQueueFull {
+                iface: "vcan0".into()
+            }
+            .is_link_loss()
+        );
     }
 }

@@ -14,6 +14,7 @@
 //! refusals of the protocol and the daemon.
 
 use crate::own_dbc::{BaseId, OwnDbc, OwnFrame};
+use canodom_calib::calibrator::Refused;
 use canodom_calib::run::Rejection;
 use canodom_calib::session::{Instruction, Phase, Refusal};
 use canodom_calib::track::Direction;
@@ -373,6 +374,20 @@ impl Reason {
             Refusal::NothingToRollback => Self::NothingToRollback,
             Refusal::Busy => Self::Busy,
             Refusal::AllRunsDone => Self::AllRunsDone,
+        }
+    }
+
+    /// The wire reason of a refused live-calibration command.
+    pub fn of_refused(refused: Refused) -> Self {
+        match refused {
+            Refused::Session(refusal) => Self::of_refusal(refusal),
+            Refused::OutOfBounds => Self::OutOfBounds,
+            Refused::UncertaintyTooHigh => Self::UncertaintyTooHigh,
+            Refused::ComputeFailed => Self::ComputeFailed,
+            Refused::PersistFailed => Self::PersistFailed,
+            Refused::NotSupported => Self::NotSupported,
+            Refused::WritebackBusy => Self::WritebackBusy,
+            Refused::TooFewSamples => Self::TooFewSamples,
         }
     }
 

@@ -14,7 +14,7 @@
 
 use anyhow::{Context as _, bail};
 use canodom_calib::drive::{
-    DriveCalibration, DriveModel, DriveSample, Estimate, Fix, calibrate_drive,
+    DriveCalibration, DriveModel, DriveSample, Estimate, Fix, calibrate_drive, calibrated_values,
 };
 use canodom_params::persist::{ParamFile, ParamSet, ParamValues, PersistError};
 use canodom_pipeline::config::Config;
@@ -119,37 +119,6 @@ pub fn samples_from_log(
         stats: pipeline.stats().to_string(),
         malformed,
     })
-}
-
-/// The parameter values after the calibration `cal` of a drive recorded
-/// with `base`: every observable correction applied, the rest as in `base`.
-pub fn calibrated_values(base: &ParamValues, cal: &DriveCalibration) -> ParamValues {
-    let mut v = *base;
-    let used = |e: &Estimate, held: f64| if e.observable { e.value } else { held };
-    let s = used(&cal.speed_scale, 1.0);
-    let r = used(&cal.rear_ratio, 1.0);
-    v.rear_left_diameter_m *= s * 2.0 / (1.0 + r);
-    v.rear_right_diameter_m *= s * 2.0 * r / (1.0 + r);
-    // φ = g·(gain·u + offset) + o.
-    let g = cal.steer_gain.map_or(1.0, |e| used(&e, 1.0));
-    let o = cal.steer_offset_rad.map_or(0.0, |e| used(&e, 0.0));
-    v.steering_gain *= g;
-    v.steering_offset_rad = g * v.steering_offset_rad + o;
-    // The samples carried ω_raw / c0 (c0 the scale in use): ω_raw = c0·c·ω + c0·b.
-    let c0 = base.yaw_rate_scale.unwrap_or(1.0);
-    let b0 = base.yaw_rate_bias_radps.unwrap_or(0.0);
-    if let (Some(bias), Some(scale)) = (cal.yaw_bias_radps, cal.yaw_scale) {
-        let c = used(&scale, 1.0);
-        if scale.observable || bias.observable {
-            v.yaw_rate_scale = Some(c0 * c);
-        }
-        if bias.observable {
-            v.yaw_rate_bias_radps = Some(c0 * bias.value);
-        } else if scale.observable {
-            v.yaw_rate_bias_radps = Some(b0);
-        }
-    }
-    v
 }
 
 /// The human report of a drive calibration: every parameter with its σ,

@@ -1,0 +1,1242 @@
+//! The whole calibration state of a running vehicle: the guided rear
+//! session ([`crate::session`]), the steering arcs ([`crate::arcs`]), a drive
+//! against position fixes ([`crate::drive_record`]), the history of
+//! committed sets ([`crate::history`]), the standstill judge and the set
+//! waiting for a standstill to be applied.
+//!
+//! [`Calibrator`] is a plain state machine: operator commands, filter steps,
+//! fixes, input faults and clock ticks come in; [`Output`]s say what must be
+//! done. The two slow effects are asked for, not done: [`Output::Persist`]
+//! (store the file durably, then [`Calibrator::on_persisted`]) and
+//! [`Output::Compute`] (run the [`Job`], then [`Calibrator::on_computed`]), so
+//! the caller can do them away from its frame path. Until that answer comes
+//! every command is refused as busy; a commit whose file cannot be stored
+//! changes nothing (`PersistFailed`): a command is carried out whole or not
+//! at all.
+//!
+//! Each command is answered once ([`Output::Answer`]), at once or when the
+//! persistence or the computation it started has finished; the answer comes
+//! before whatever the command caused.
+
+use canodom_fusion::{Pose, SteeringMap, VehicleParams, Wheel};
+
+use crate::arcs::{ArcCollector, ArcFitError, ArcGeometry};
+use crate::drive::{DriveCalibration, DriveModel};
+use crate::drive_record::{DriveJob, DriveRecorder, DriveStep};
+use crate::error::Result;
+use crate::history::{ParamBounds, ParamFile, ParamValues};
+use crate::methods::CalibrationResult;
+use crate::run::{InputFault, RearParams, Rejection, RevSample, Run};
+use crate::session::{
+    Action, CalibrationJob, Event, Instruction, Phase, Refusal, Session, SessionConfig,
+};
+use crate::standstill::Standstill;
+use crate::steering::{SteeringFit, SteeringProvenance};
+use crate::track::{Direction, Track};
+
+/// Settings of the live calibration, fixed at start.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CalibratorConfig {
+    /// Below this rear-axle speed the vehicle stands still, m/s.
+    pub standstill_speed_mps: f64,
+    /// How long it must stay below it, s.
+    pub standstill_time_s: f64,
+    /// Bounds a committed set must lie in.
+    pub bounds: ParamBounds,
+    /// Largest tread standard deviation a rear commit accepts, m.
+    pub max_tread_std_m: f64,
+    /// Largest diameter-ratio standard deviation a rear commit accepts.
+    pub max_ratio_std: f64,
+    /// Largest steering-gain standard deviation a steering commit accepts,
+    /// relative to the nominal gain.
+    pub max_steer_gain_std_rel: f64,
+    /// Largest steering-offset standard deviation a steering commit accepts, rad.
+    pub max_steer_offset_std_rad: f64,
+    /// Previous sets kept in the file for rollback.
+    pub max_history: usize,
+    /// Whether position fixes are on the bus (a drive can be calibrated).
+    pub fixes_available: bool,
+}
+
+/// An operator command.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Command {
+    /// Start a guided session on a track of radius `radius_m`.
+    StartSession {
+        /// ρ of the track.
+        radius_m: f64,
+        /// Runs per direction.
+        runs_per_direction: u8,
+    },
+    /// Start recording the next run now.
+    StartRun,
+    /// End the run being recorded now.
+    EndRun,
+    /// The measured end pose of the last accepted run.
+    EndPose(Pose),
+    /// Drop the session, steering arcs or drive in progress.
+    Abort,
+    /// Compute the calibration of what is in progress.
+    Compute,
+    /// Store and apply the computed result.
+    Commit,
+    /// Restore the set in use before the last commit.
+    Rollback,
+    /// Start collecting steering arcs (§10).
+    StartSteering,
+    /// Start recording a drive against the bus's position fixes.
+    StartDrive,
+}
+
+/// Why a command was refused.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Refused {
+    /// The guided session refused it.
+    Session(Refusal),
+    /// The result lies outside the configured bounds.
+    OutOfBounds,
+    /// The result's uncertainty exceeds the configured limit.
+    UncertaintyTooHigh,
+    /// The computation failed (the recorded data is kept).
+    ComputeFailed,
+    /// The parameter file could not be stored (nothing changed).
+    PersistFailed,
+    /// Position fixes are not configured: no drive calibration.
+    NotSupported,
+    /// The previous set's write-back still waits for its acknowledgement.
+    WritebackBusy,
+    /// Too few samples or fixes were recorded to compute.
+    TooFewSamples,
+}
+
+/// A computation to run away from the frame path: pure and owned.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Job {
+    /// The rear calibration of the session's accepted runs.
+    Rear(CalibrationJob),
+    /// The fit of a recorded drive to its fixes.
+    Drive(DriveJob),
+}
+
+/// What a [`Job`] gave.
+#[derive(Debug, Clone)]
+pub enum JobOutcome {
+    /// Of [`Job::Rear`].
+    Rear(Result<CalibrationResult>),
+    /// Of [`Job::Drive`]: the calibration and the values it gives.
+    Drive(Result<(DriveCalibration, ParamValues)>),
+}
+
+impl Job {
+    /// Runs the job (some 20 ms for a rear session, up to a second for a
+    /// long drive).
+    pub fn run(&self) -> JobOutcome {
+        match self {
+            Job::Rear(job) => JobOutcome::Rear(job.run()),
+            Job::Drive(job) => JobOutcome::Drive(job.run()),
+        }
+    }
+}
+
+/// What a commit stored, for its report.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Committed {
+    /// A rear result, with the track and runs it came from.
+    Rear {
+        /// The result.
+        result: CalibrationResult,
+        /// The track.
+        track: Track,
+        /// The accepted runs.
+        runs: Vec<Run>,
+    },
+    /// A steering map.
+    Steering {
+        /// The fit.
+        fit: SteeringFit,
+        /// The map in use before.
+        before: SteeringMap,
+        /// The gain's standard deviation relative to the nominal gain.
+        gain_std_rel: f64,
+        /// The offset's standard deviation, rad.
+        offset_std_rad: f64,
+    },
+}
+
+/// What the caller must do.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Output {
+    /// The answer to the last command (`Ok`: carried out).
+    Answer(std::result::Result<(), Refused>),
+    /// Store this file durably, then call [`Calibrator::on_persisted`].
+    Persist(ParamFile),
+    /// Run this job, then call [`Calibrator::on_computed`].
+    Compute(Job),
+    /// Put this set into the running odometry now (the vehicle stands still).
+    Apply {
+        /// The set's version.
+        version: u16,
+        /// Its values.
+        values: ParamValues,
+    },
+    /// A new set is in use (committed or rolled back to): write it back.
+    Adopted {
+        /// The set's version.
+        version: u16,
+    },
+    /// Write the report of this committed set.
+    Report {
+        /// The set's version.
+        version: u16,
+        /// What was committed.
+        committed: Box<Committed>,
+    },
+    /// What the driver should do changed: tell at once.
+    InstructionChanged,
+}
+
+/// The step a stored file completes.
+#[derive(Debug, Clone)]
+enum AfterStore {
+    Rear {
+        result: CalibrationResult,
+        values: ParamValues,
+    },
+    Drive {
+        values: ParamValues,
+    },
+    Steering {
+        fit: SteeringFit,
+        values: ParamValues,
+        before: SteeringMap,
+        stds: (f64, f64),
+    },
+    Rollback {
+        values: ParamValues,
+    },
+}
+
+/// The slow effect being carried out by the caller.
+#[derive(Debug, Clone)]
+enum Pending {
+    Store {
+        file: ParamFile,
+        version: u16,
+        then: Box<AfterStore>,
+    },
+    ComputeRear {
+        track: Track,
+        runs: Vec<Run>,
+    },
+    ComputeDrive,
+}
+
+fn dir_index(d: Direction) -> usize {
+    match d {
+        Direction::Cw => 0,
+        Direction::Ccw => 1,
+    }
+}
+
+/// The live calibration state (see the module doc).
+#[derive(Debug, Clone)]
+pub struct Calibrator {
+    config: CalibratorConfig,
+    nominal: VehicleParams,
+    /// Taken out only while it handles an event.
+    session: Option<Session>,
+    file: ParamFile,
+    standstill: Standstill,
+    pending: Option<Pending>,
+    /// Set committed or rolled back to but not yet applied (moving).
+    pending_apply: Option<(u16, ParamValues)>,
+    /// Accepted and rejected runs, [CW, CCW].
+    accepted: [u8; 2],
+    rejected: [u8; 2],
+    reject_reason: Option<Rejection>,
+    run_direction: Option<Direction>,
+    run_distance_m: f64,
+    result: Option<CalibrationResult>,
+    /// The track and runs the result came from (for the report).
+    computed_from: Option<(Track, Vec<Run>)>,
+    steering: Option<ArcCollector>,
+    drive: Option<DriveRecorder>,
+    drive_result: Option<(DriveCalibration, ParamValues)>,
+}
+
+impl Calibrator {
+    /// The calibration of a vehicle with `nominal` parameters whose
+    /// parameter file holds `file` (its current set is in use).
+    pub fn new(config: CalibratorConfig, nominal: VehicleParams, file: ParamFile) -> Self {
+        let mut me = Self {
+            config,
+            nominal,
+            session: None,
+            file,
+            standstill: Standstill::new(config.standstill_speed_mps, config.standstill_time_s),
+            pending: None,
+            pending_apply: None,
+            accepted: [0; 2],
+            rejected: [0; 2],
+            reject_reason: None,
+            run_direction: None,
+            run_distance_m: 0.0,
+            result: None,
+            computed_from: None,
+            steering: None,
+            drive: None,
+            drive_result: None,
+        };
+        me.session = Some(me.fresh_session());
+        me
+    }
+
+    /// The parameter file as last stored.
+    pub fn file(&self) -> &ParamFile {
+        &self.file
+    }
+
+    /// The nominal parameters.
+    pub fn nominal(&self) -> &VehicleParams {
+        &self.nominal
+    }
+
+    /// The guided session's phase.
+    pub fn phase(&self) -> Phase {
+        self.session.as_ref().map_or(Phase::Idle, Session::phase)
+    }
+
+    /// What the driver should do now.
+    pub fn instruction(&self) -> Instruction {
+        self.session
+            .as_ref()
+            .map_or(Instruction::Idle, Session::instruction)
+    }
+
+    /// Whether a session or a steering calibration is in progress.
+    pub fn is_active(&self) -> bool {
+        self.phase() != Phase::Idle || self.steering.is_some()
+    }
+
+    /// The direction of the run being driven (or last driven).
+    pub fn run_direction(&self) -> Option<Direction> {
+        self.run_direction
+    }
+
+    /// The distance of the run being recorded, m.
+    pub fn run_distance_m(&self) -> f64 {
+        self.run_distance_m
+    }
+
+    /// Accepted runs, [CW, CCW].
+    pub fn accepted(&self) -> [u8; 2] {
+        self.accepted
+    }
+
+    /// Rejected runs, [CW, CCW].
+    pub fn rejected(&self) -> [u8; 2] {
+        self.rejected
+    }
+
+    /// Why the last run was rejected.
+    pub fn reject_reason(&self) -> Option<&Rejection> {
+        self.reject_reason.as_ref()
+    }
+
+    /// The rear result awaiting commit.
+    pub fn result(&self) -> Option<&CalibrationResult> {
+        self.result.as_ref()
+    }
+
+    /// The steering calibration in progress.
+    pub fn steering(&self) -> Option<&ArcCollector> {
+        self.steering.as_ref()
+    }
+
+    /// Whether the vehicle has stood still long enough at `t_s`.
+    pub fn is_standstill(&self, t_s: f64) -> bool {
+        self.standstill.is_still(t_s)
+    }
+
+    /// The standstill judge.
+    pub fn standstill(&self) -> Standstill {
+        self.standstill
+    }
+
+    /// Whether a store of the file is out.
+    pub fn is_storing(&self) -> bool {
+        matches!(self.pending, Some(Pending::Store { .. }))
+    }
+
+    /// Whether a persistence or computation is out.
+    pub fn is_busy(&self) -> bool {
+        self.pending.is_some()
+    }
+
+    /// The values in use: the file's current set, or the nominal ones.
+    pub fn current_values(&self) -> ParamValues {
+        self.file.current.as_ref().map_or_else(
+            || {
+                let steer = self.nominal.steering();
+                ParamValues {
+                    rear_tread_m: self.nominal.rear_tread_m(),
+                    rear_left_diameter_m: self.nominal.wheel_diameter_m(Wheel::RearLeft),
+                    rear_right_diameter_m: self.nominal.wheel_diameter_m(Wheel::RearRight),
+                    steering_gain: steer.gain,
+                    steering_offset_rad: steer.offset_rad,
+                    yaw_rate_bias_radps: None,
+                    yaw_rate_scale: None,
+                }
+            },
+            |s| s.values,
+        )
+    }
+
+    /// The values a rear result gives, the rest as in use.
+    pub fn values_of(&self, r: &CalibrationResult) -> ParamValues {
+        ParamValues {
+            rear_tread_m: r.rear.tread_m,
+            rear_left_diameter_m: r.rear.left_diameter_m,
+            rear_right_diameter_m: r.rear.right_diameter_m,
+            ..self.current_values()
+        }
+    }
+
+    /// The values a steering fit gives, the rest as in use.
+    pub fn steering_values(&self, fit: &SteeringFit) -> ParamValues {
+        let map = fit.map();
+        ParamValues {
+            steering_gain: map.gain,
+            steering_offset_rad: map.offset_rad,
+            ..self.current_values()
+        }
+    }
+
+    /// The fit's uncertainty as a commit judges it: the gain's standard
+    /// deviation relative to the nominal gain, the offset's in radians.
+    pub fn steering_uncertainty(&self, fit: &SteeringFit) -> (f64, f64) {
+        let (gain_std, offset_std_rad) = fit.std_devs();
+        (gain_std / self.nominal.steering().gain, offset_std_rad)
+    }
+
+    fn vehicle(&self, v: &ParamValues) -> VehicleParams {
+        self.nominal
+            .with_rear(
+                v.rear_tread_m,
+                v.rear_left_diameter_m,
+                v.rear_right_diameter_m,
+            )
+            .and_then(|p| p.with_steering(v.steering_map()))
+            .unwrap_or(self.nominal)
+    }
+
+    /// A session over the values in use: runs are recorded with the
+    /// parameters the odometry uses.
+    fn fresh_session(&self) -> Session {
+        Session::new(
+            self.vehicle(&self.current_values()),
+            SteeringProvenance::Independent,
+            SessionConfig {
+                standstill_speed_mps: self.config.standstill_speed_mps,
+                standstill_time_s: self.config.standstill_time_s,
+                ..SessionConfig::default()
+            },
+        )
+    }
+
+    fn arc_geometry(&self) -> ArcGeometry {
+        let v = self.current_values();
+        ArcGeometry {
+            nominal_gain: self.nominal.steering().gain,
+            rear: RearParams {
+                tread_m: v.rear_tread_m,
+                left_diameter_m: v.rear_left_diameter_m,
+                right_diameter_m: v.rear_right_diameter_m,
+            },
+            wheelbase_m: self.nominal.wheelbase_m(),
+        }
+    }
+
+    /// Feeds the session and keeps the run counts.
+    fn event(&mut self, event: Event) -> Vec<Action> {
+        let before = self.instruction();
+        let session = self.session.take().unwrap_or_else(|| self.fresh_session());
+        let (session, actions) = session.on_event(event);
+        self.session = Some(session);
+        for a in &actions {
+            match a {
+                Action::RunStarted { .. } => {
+                    self.run_distance_m = 0.0;
+                    self.run_direction = match self.instruction() {
+                        Instruction::Drive { direction, .. }
+                        | Instruction::Go { direction, .. }
+                        | Instruction::GoToStart { direction, .. } => Some(direction),
+                        _ => match before {
+                            Instruction::Go { direction, .. }
+                            | Instruction::GoToStart { direction, .. } => Some(direction),
+                            _ => None,
+                        },
+                    };
+                }
+                Action::RunAccepted { .. } => {
+                    if let Some(d) = self.run_direction {
+                        self.accepted[dir_index(d)] = self.accepted[dir_index(d)].saturating_add(1);
+                    }
+                }
+                Action::RunRejected { reason, .. } => {
+                    if let Some(d) = self.run_direction {
+                        self.rejected[dir_index(d)] = self.rejected[dir_index(d)].saturating_add(1);
+                    }
+                    self.reject_reason = Some(*reason);
+                }
+                _ => {}
+            }
+        }
+        actions
+    }
+
+    /// Feeds a command event to the session; its refusal.
+    fn session_event(&mut self, event: Event) -> std::result::Result<(), Refused> {
+        let actions = self.event(event);
+        actions
+            .iter()
+            .find_map(|a| match a {
+                Action::Refused { reason, .. } => Some(Err(Refused::Session(*reason))),
+                _ => None,
+            })
+            .unwrap_or(Ok(()))
+    }
+
+    /// A filter step at `t_s`: `rear_rev` wheel revolutions (left, right)
+    /// since the previous step, the steering signal, and the yaw rate the
+    /// filter used.
+    pub fn on_step(
+        &mut self,
+        t_s: f64,
+        rear_rev: (f64, f64),
+        steer_signal: Option<f64>,
+        yaw_rate_radps: Option<f64>,
+    ) -> Vec<Output> {
+        let p = self.vehicle(&self.current_values());
+        let (left_m, right_m) = (
+            std::f64::consts::PI * p.wheel_diameter_m(Wheel::RearLeft) * rear_rev.0,
+            std::f64::consts::PI * p.wheel_diameter_m(Wheel::RearRight) * rear_rev.1,
+        );
+        if let Some(drive) = self.drive.as_mut() {
+            drive.step(&DriveStep {
+                t_s,
+                rear_left_m: left_m,
+                rear_right_m: right_m,
+                steer_angle_rad: steer_signal.map(|u| p.steering().angle_rad(u)),
+                yaw_rate_radps,
+                dt_s: self.standstill.interval_s(t_s),
+            });
+        }
+        let distance_m = 0.5 * (left_m + right_m);
+        let moving = self.standstill.step(t_s, distance_m);
+        let sample = RevSample {
+            t_s,
+            rear_left_rev: rear_rev.0,
+            rear_right_rev: rear_rev.1,
+            front_rev: None,
+            steer_signal: steer_signal.unwrap_or(0.0),
+        };
+        let geometry = self.arc_geometry();
+        if let Some(st) = self.steering.as_mut() {
+            st.step(
+                sample,
+                steer_signal.is_some(),
+                distance_m,
+                moving,
+                &geometry,
+            );
+        }
+        let mut out = Vec::new();
+        let phase = self.phase();
+        if matches!(phase, Phase::Positioning | Phase::Recording) {
+            if phase == Phase::Recording && distance_m.is_finite() {
+                self.run_distance_m += distance_m.abs();
+            }
+            let before = self.instruction();
+            self.event(Event::Sample(sample));
+            if self.instruction() != before {
+                out.push(Output::InstructionChanged);
+            }
+        }
+        out.extend(self.apply_if_still(t_s));
+        out
+    }
+
+    /// A position fix from the bus: a local x and y in metres, or
+    /// (`geodetic`) latitude and longitude in degrees; kept while a drive
+    /// is recorded.
+    pub fn on_fix(&mut self, t_s: f64, first: f64, second: f64, geodetic: bool) {
+        if let Some(drive) = self.drive.as_mut() {
+            drive.fix(t_s, first, second, geodetic);
+        }
+    }
+
+    /// The input path refused or faulted a wheel frame (`code`: the
+    /// decoder's fault code): a run recording now is rejected at its end,
+    /// and the steering arc being driven is dropped.
+    pub fn on_fault(&mut self, t_s: f64, code: u8) {
+        if let Some(st) = self.steering.as_mut() {
+            st.fault();
+        }
+        if self.phase() == Phase::Recording {
+            self.event(Event::InputFault {
+                t_s,
+                fault: InputFault::Decoder { code },
+            });
+        }
+    }
+
+    /// The clock: a set waiting for a standstill is applied when there is one.
+    pub fn tick(&mut self, t_s: f64) -> Vec<Output> {
+        self.apply_if_still(t_s)
+    }
+
+    fn apply_if_still(&mut self, t_s: f64) -> Vec<Output> {
+        match self.pending_apply {
+            Some((version, values)) if self.is_standstill(t_s) => {
+                self.pending_apply = None;
+                vec![Output::Apply { version, values }]
+            }
+            _ => Vec::new(),
+        }
+    }
+
+    /// An operator command at `t_s`; `writeback_pending` says whether the
+    /// previous set still waits for its acknowledgement (a new set is not
+    /// stored meanwhile).
+    pub fn on_command(
+        &mut self,
+        t_s: f64,
+        command: Command,
+        writeback_pending: bool,
+    ) -> Vec<Output> {
+        if self.pending.is_some() {
+            return vec![Output::Answer(Err(Refused::Session(Refusal::Busy)))];
+        }
+        let mut out = Vec::new();
+        match self.judge(t_s, command, writeback_pending, &mut out) {
+            Some(answer) => {
+                out.insert(0, Output::Answer(answer));
+                out
+            }
+            // Persisting or computing: answered when that is done.
+            None => out,
+        }
+    }
+
+    /// Carries out the command or refuses it; `None` when the answer waits
+    /// for an effect the caller carries out.
+    fn judge(
+        &mut self,
+        t_s: f64,
+        command: Command,
+        writeback_pending: bool,
+        out: &mut Vec<Output>,
+    ) -> Option<std::result::Result<(), Refused>> {
+        if self.drive.is_some() {
+            match command {
+                Command::StartSession { .. } | Command::StartSteering => {
+                    return Some(Err(Refused::Session(Refusal::SessionActive)));
+                }
+                Command::Abort => {
+                    self.drive = None;
+                    self.drive_result = None;
+                    return Some(Ok(()));
+                }
+                Command::Compute => return self.compute_drive(out),
+                Command::Commit => return self.commit_drive(t_s, writeback_pending, out),
+                _ => {}
+            }
+        }
+        let steering = self.steering.is_some();
+        Some(match command {
+            Command::StartSession { .. } if steering => {
+                Err(Refused::Session(Refusal::SessionActive))
+            }
+            Command::StartSession {
+                radius_m,
+                runs_per_direction,
+            } => {
+                if self.phase() == Phase::Idle {
+                    // Record with the parameters in use now.
+                    self.session = Some(self.fresh_session());
+                }
+                let r = self.session_event(Event::StartSession {
+                    radius_m,
+                    runs_per_direction,
+                });
+                if r.is_ok() {
+                    self.accepted = [0; 2];
+                    self.rejected = [0; 2];
+                    self.reject_reason = None;
+                    self.result = None;
+                    self.run_distance_m = 0.0;
+                }
+                r
+            }
+            Command::StartSteering => self.start_steering(),
+            Command::StartDrive => self.start_drive(),
+            Command::Abort if steering => {
+                self.steering = None;
+                Ok(())
+            }
+            Command::Compute if steering => self.compute_steering(),
+            Command::Commit if steering => {
+                return self.commit_steering(t_s, writeback_pending, out);
+            }
+            Command::EndRun => self.session_event(Event::EndRun),
+            Command::StartRun => self.session_event(Event::StartRun),
+            Command::EndPose(pose) => self.session_event(Event::MeasuredEndPose(pose)),
+            Command::Abort => {
+                let r = self.session_event(Event::Abort);
+                if r.is_ok() {
+                    self.result = None;
+                }
+                r
+            }
+            Command::Compute => return self.compute(out),
+            Command::Commit => return self.commit(t_s, writeback_pending, out),
+            Command::Rollback => return self.rollback(writeback_pending, out),
+        })
+    }
+
+    fn compute(&mut self, out: &mut Vec<Output>) -> Option<std::result::Result<(), Refused>> {
+        let actions = self.event(Event::Compute);
+        if let Some(Action::Refused { reason, .. }) = actions.first() {
+            return Some(Err(Refused::Session(*reason)));
+        }
+        let Some(job) = self.session.as_ref().and_then(Session::calibration_job) else {
+            return Some(Err(Refused::ComputeFailed));
+        };
+        self.pending = Some(Pending::ComputeRear {
+            track: job.track,
+            runs: job.runs.clone(),
+        });
+        out.push(Output::Compute(Job::Rear(job)));
+        None
+    }
+
+    /// The outcome of the [`Job`] of the last [`Output::Compute`].
+    pub fn on_computed(&mut self, outcome: JobOutcome) -> Vec<Output> {
+        let answer = match (self.pending.take(), outcome) {
+            (Some(Pending::ComputeRear { track, runs }), JobOutcome::Rear(outcome)) => {
+                self.computed_from = Some((track, runs));
+                let actions = self.event(Event::Computed(outcome));
+                match actions.iter().find_map(|a| match a {
+                    Action::ResultReady(r) => Some(*r),
+                    _ => None,
+                }) {
+                    Some(r) => {
+                        self.result = Some(r);
+                        Ok(())
+                    }
+                    None => Err(Refused::ComputeFailed),
+                }
+            }
+            (Some(Pending::ComputeDrive), JobOutcome::Drive(outcome)) => {
+                match (outcome, self.drive.as_mut()) {
+                    (Ok(result), Some(_)) => {
+                        self.drive_result = Some(result);
+                        Ok(())
+                    }
+                    (_, drive) => {
+                        if let Some(d) = drive {
+                            d.reopen();
+                        }
+                        Err(Refused::ComputeFailed)
+                    }
+                }
+            }
+            (pending, _) => {
+                // Not the outcome of what is out: keep waiting for that.
+                self.pending = pending;
+                return Vec::new();
+            }
+        };
+        vec![Output::Answer(answer)]
+    }
+
+    /// Checks a set to commit against the bounds and prepares storing it.
+    fn store(
+        &mut self,
+        values: ParamValues,
+        method: &str,
+        t_s: f64,
+        then: AfterStore,
+        out: &mut Vec<Output>,
+    ) -> Option<std::result::Result<(), Refused>> {
+        let mut file = self.file.clone();
+        // Bus timestamps are Unix time on a live bus.
+        let created = t_s.max(0.0) as u64;
+        let version = file
+            .commit(values, method, created, self.config.max_history)
+            .version;
+        out.push(Output::Persist(file.clone()));
+        self.pending = Some(Pending::Store {
+            file,
+            version,
+            then: Box::new(then),
+        });
+        None
+    }
+
+    fn commit(
+        &mut self,
+        t_s: f64,
+        writeback_pending: bool,
+        out: &mut Vec<Output>,
+    ) -> Option<std::result::Result<(), Refused>> {
+        let (Phase::Computed, Some(result)) = (self.phase(), self.result) else {
+            return Some(Err(Refused::Session(Refusal::NothingToCommit)));
+        };
+        if writeback_pending {
+            return Some(Err(Refused::WritebackBusy));
+        }
+        let values = self.values_of(&result);
+        if self.config.bounds.check(&values).is_err() {
+            return Some(Err(Refused::OutOfBounds));
+        }
+        let uncertain = |std: Option<f64>, max: f64| std.is_none_or(|s| s.is_nan() || s > max);
+        if uncertain(result.tread_std_m, self.config.max_tread_std_m)
+            || uncertain(result.ratio_std, self.config.max_ratio_std)
+        {
+            return Some(Err(Refused::UncertaintyTooHigh));
+        }
+        let method = format!("{:?}", result.method).to_lowercase();
+        self.store(
+            values,
+            &method,
+            t_s,
+            AfterStore::Rear { result, values },
+            out,
+        )
+    }
+
+    fn rollback(
+        &mut self,
+        writeback_pending: bool,
+        out: &mut Vec<Output>,
+    ) -> Option<std::result::Result<(), Refused>> {
+        if self.phase() != Phase::Idle || self.steering.is_some() {
+            return Some(Err(Refused::Session(Refusal::SessionActive)));
+        }
+        if writeback_pending {
+            return Some(Err(Refused::WritebackBusy));
+        }
+        let mut file = self.file.clone();
+        let Some(set) = file.rollback().cloned() else {
+            return Some(Err(Refused::Session(Refusal::NothingToRollback)));
+        };
+        out.push(Output::Persist(file.clone()));
+        self.pending = Some(Pending::Store {
+            file,
+            version: set.version,
+            then: Box::new(AfterStore::Rollback { values: set.values }),
+        });
+        None
+    }
+
+    /// Whether the file of the last [`Output::Persist`] was stored at `t_s`
+    /// (`Err`: it was not, and the command that asked is refused with
+    /// nothing changed).
+    pub fn on_persisted(&mut self, t_s: f64, stored: bool) -> Vec<Output> {
+        let Some(Pending::Store {
+            file,
+            version,
+            then,
+        }) = self.pending.take()
+        else {
+            return Vec::new();
+        };
+        if !stored {
+            return vec![Output::Answer(Err(Refused::PersistFailed))];
+        }
+        self.file = file;
+        let mut out = vec![Output::Answer(Ok(()))];
+        let values = match *then {
+            AfterStore::Rear { result, values } => {
+                let actions = self.event(Event::Commit);
+                debug_assert!(
+                    !matches!(actions.first(), Some(Action::Refused { .. })),
+                    "the session refused a checked commit"
+                );
+                self.result = None;
+                if let Some((track, runs)) = self.computed_from.take() {
+                    out.push(Output::Report {
+                        version,
+                        committed: Box::new(Committed::Rear {
+                            result,
+                            track,
+                            runs,
+                        }),
+                    });
+                }
+                values
+            }
+            AfterStore::Drive { values } => {
+                self.drive = None;
+                self.drive_result = None;
+                values
+            }
+            AfterStore::Steering {
+                fit,
+                values,
+                before,
+                stds,
+            } => {
+                self.steering = None;
+                out.push(Output::Report {
+                    version,
+                    committed: Box::new(Committed::Steering {
+                        fit,
+                        before,
+                        gain_std_rel: stds.0.abs(),
+                        offset_std_rad: stds.1,
+                    }),
+                });
+                values
+            }
+            AfterStore::Rollback { values } => values,
+        };
+        self.adopt(t_s, version, values, &mut out);
+        out
+    }
+
+    /// Applies (now or at the next standstill) and writes back a set.
+    fn adopt(&mut self, t_s: f64, version: u16, values: ParamValues, out: &mut Vec<Output>) {
+        self.pending_apply = Some((version, values));
+        out.extend(self.apply_if_still(t_s));
+        self.session = Some(self.fresh_session());
+        out.push(Output::Adopted { version });
+    }
+
+    /// Starts recording a drive against the bus's fixes: only with no
+    /// session, and with fixes configured.
+    fn start_drive(&mut self) -> std::result::Result<(), Refused> {
+        if self.phase() != Phase::Idle || self.steering.is_some() || self.drive.is_some() {
+            return Err(Refused::Session(Refusal::SessionActive));
+        }
+        if !self.config.fixes_available {
+            return Err(Refused::NotSupported);
+        }
+        self.drive = Some(DriveRecorder::default());
+        self.drive_result = None;
+        self.result = None;
+        Ok(())
+    }
+
+    fn compute_drive(&mut self, out: &mut Vec<Output>) -> Option<std::result::Result<(), Refused>> {
+        let base = self.current_values();
+        let p = self.vehicle(&base);
+        let model = DriveModel {
+            rear_tread_m: p.rear_tread_m(),
+            wheelbase_m: p.wheelbase_m(),
+        };
+        let drive = self.drive.as_mut()?;
+        match drive.job(model, base) {
+            Ok(job) => {
+                self.pending = Some(Pending::ComputeDrive);
+                out.push(Output::Compute(Job::Drive(job)));
+                None
+            }
+            Err(_) => Some(Err(Refused::TooFewSamples)),
+        }
+    }
+
+    fn commit_drive(
+        &mut self,
+        t_s: f64,
+        writeback_pending: bool,
+        out: &mut Vec<Output>,
+    ) -> Option<std::result::Result<(), Refused>> {
+        let Some((_, values)) = self.drive_result else {
+            return Some(Err(Refused::Session(Refusal::NothingToCommit)));
+        };
+        if writeback_pending {
+            return Some(Err(Refused::WritebackBusy));
+        }
+        if self.config.bounds.check(&values).is_err() {
+            return Some(Err(Refused::OutOfBounds));
+        }
+        self.store(values, "drive", t_s, AfterStore::Drive { values }, out)
+    }
+
+    /// Starts the steering calibration (§10): only with the rear session
+    /// idle and a calibrated rear set in use, since a map fitted with
+    /// uncalibrated rear odometry makes the car drive the path on which that
+    /// odometry closes (the trap of §10); without one, nothing to build on.
+    fn start_steering(&mut self) -> std::result::Result<(), Refused> {
+        if self.phase() != Phase::Idle || self.steering.is_some() {
+            return Err(Refused::Session(Refusal::SessionActive));
+        }
+        if self.file.current.as_ref().is_none_or(|s| s.version == 0) {
+            return Err(Refused::Session(Refusal::NothingToCommit));
+        }
+        self.steering = Some(ArcCollector::default());
+        self.result = None;
+        Ok(())
+    }
+
+    /// Fits the steering map over the arcs: `RunsIncomplete` with fewer than
+    /// three distinct commands.
+    fn compute_steering(&mut self) -> std::result::Result<(), Refused> {
+        let geometry = self.arc_geometry();
+        let Some(st) = self.steering.as_mut() else {
+            return Err(Refused::Session(Refusal::NoSession));
+        };
+        if st.fit().is_some() {
+            return Err(Refused::Session(Refusal::SessionActive));
+        }
+        match st.compute(&geometry) {
+            Ok(_) => Ok(()),
+            Err(ArcFitError::TooFewCommands) => Err(Refused::Session(Refusal::RunsIncomplete)),
+            Err(ArcFitError::FitFailed) => Err(Refused::ComputeFailed),
+        }
+    }
+
+    /// Commits a steering fit the way a rear result is committed: bounds,
+    /// uncertainty limits, stored, applied at standstill, written back.
+    fn commit_steering(
+        &mut self,
+        t_s: f64,
+        writeback_pending: bool,
+        out: &mut Vec<Output>,
+    ) -> Option<std::result::Result<(), Refused>> {
+        let Some(fit) = self.steering.as_ref().and_then(|s| s.fit().cloned()) else {
+            return Some(Err(Refused::Session(Refusal::NothingToCommit)));
+        };
+        if writeback_pending {
+            return Some(Err(Refused::WritebackBusy));
+        }
+        let values = self.steering_values(&fit);
+        if self.config.bounds.check(&values).is_err() {
+            return Some(Err(Refused::OutOfBounds));
+        }
+        // The figures the operator saw on the result pages.
+        let stds = self.steering_uncertainty(&fit);
+        let uncertain = |std: f64, max: f64| std.is_nan() || std > max;
+        if uncertain(stds.0.abs(), self.config.max_steer_gain_std_rel)
+            || uncertain(stds.1, self.config.max_steer_offset_std_rad)
+        {
+            return Some(Err(Refused::UncertaintyTooHigh));
+        }
+        let before = self.current_values().steering_map();
+        self.store(
+            values,
+            "steering",
+            t_s,
+            AfterStore::Steering {
+                fit,
+                values,
+                before,
+                stds,
+            },
+            out,
+        )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::synth::lap;
+
+    fn nominal() -> VehicleParams {
+        VehicleParams::nominal(0.25, 0.30, 0.09, 1000).unwrap()
+    }
+
+    fn config() -> CalibratorConfig {
+        CalibratorConfig {
+            standstill_speed_mps: 0.01,
+            standstill_time_s: 1.0,
+            bounds: ParamBounds::around(0.30, 0.09, 0.3, 10f64.to_radians()),
+            max_tread_std_m: 0.005,
+            max_ratio_std: 0.002,
+            max_steer_gain_std_rel: 0.02,
+            max_steer_offset_std_rad: 0.5f64.to_radians(),
+            max_history: 10,
+            fixes_available: false,
+        }
+    }
+
+    fn values(tread_m: f64) -> ParamValues {
+        ParamValues::plain(tread_m, 0.09)
+    }
+
+    fn answers(out: &[Output]) -> Vec<std::result::Result<(), Refused>> {
+        out.iter()
+            .filter_map(|o| match o {
+                Output::Answer(a) => Some(*a),
+                _ => None,
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_rollback_waits_for_its_store_refuses_meanwhile_and_a_failed_store_changes_nothing() {
+        let mut file = ParamFile::default();
+        file.commit(values(0.30), "exact", 1, 10);
+        file.commit(values(0.31), "exact", 2, 10);
+        let mut cal = Calibrator::new(config(), nominal(), file.clone());
+        let out = cal.on_command(1.0, Command::Rollback, false);
+        let [Output::Persist(stored)] = out.as_slice() else {
+            panic!("a rollback asks for a store and waits: {out:?}");
+        };
+        assert_eq!(stored.current.as_ref().map(|s| s.version), Some(1));
+        assert!(cal.is_busy() && cal.is_storing());
+        for command in [Command::Rollback, Command::StartSteering, Command::Abort] {
+            assert_eq!(
+                answers(&cal.on_command(1.1, command, false)),
+                vec![Err(Refused::Session(Refusal::Busy))]
+            );
+        }
+        let out = cal.on_persisted(1.2, false);
+        assert_eq!(answers(&out), vec![Err(Refused::PersistFailed)]);
+        assert_eq!(
+            out.len(),
+            1,
+            "a failed store applies and writes back nothing"
+        );
+        assert_eq!(cal.file(), &file, "the file in use is unchanged");
+        assert!(!cal.is_busy());
+        // Again, stored this time: answered first, then applied (no step yet:
+        // standing still) and handed out for write-back.
+        let _ = cal.on_command(2.0, Command::Rollback, false);
+        let out = cal.on_persisted(2.1, true);
+        assert_eq!(
+            out,
+            vec![
+                Output::Answer(Ok(())),
+                Output::Apply {
+                    version: 1,
+                    values: values(0.30)
+                },
+                Output::Adopted { version: 1 },
+            ]
+        );
+        assert_eq!(cal.file().current.as_ref().map(|s| s.version), Some(1));
+        assert_eq!(
+            answers(&cal.on_command(3.0, Command::Rollback, true)),
+            vec![Err(Refused::WritebackBusy)]
+        );
+        // An answer nobody waits for is ignored.
+        assert!(cal.on_persisted(3.1, true).is_empty());
+    }
+
+    #[test]
+    fn a_session_computes_as_a_job_and_commits_after_its_store() {
+        let truth = VehicleParams::nominal(0.25, 0.285, 0.09, 1000).unwrap();
+        let mut cal = Calibrator::new(config(), nominal(), ParamFile::default());
+        let start = Command::StartSession {
+            radius_m: 0.78,
+            runs_per_direction: 2,
+        };
+        assert_eq!(answers(&cal.on_command(0.0, start, false)), vec![Ok(())]);
+        let track = Track::new(0.78).unwrap();
+        let mut t_s = 0.0;
+        let rest = |cal: &mut Calibrator, t_s: &mut f64| {
+            for _ in 0..150 {
+                *t_s += 0.01;
+                let _ = cal.on_step(*t_s, (0.0, 0.0), Some(0.0), None);
+            }
+        };
+        rest(&mut cal, &mut t_s);
+        for _ in 0..4 {
+            let Instruction::Go { direction, .. } = cal.instruction() else {
+                panic!("{:?}", cal.instruction());
+            };
+            for s in lap(&truth, track, direction, 0.3, 100.0).unwrap() {
+                t_s += 0.01;
+                let _ = cal.on_step(
+                    t_s,
+                    (s.rear_left_rev, s.rear_right_rev),
+                    Some(s.steer_signal),
+                    None,
+                );
+            }
+            rest(&mut cal, &mut t_s);
+        }
+        assert_eq!(cal.accepted(), [2, 2]);
+        let out = cal.on_command(t_s, Command::Compute, false);
+        let [Output::Compute(job)] = out.as_slice() else {
+            panic!("compute hands out a job: {out:?}");
+        };
+        assert!(matches!(job, Job::Rear(_)));
+        let outcome = job.run();
+        assert_eq!(
+            answers(&cal.on_command(t_s, Command::Commit, false)),
+            vec![Err(Refused::Session(Refusal::Busy))]
+        );
+        // The outcome of another kind of job is not this one's.
+        assert!(
+            cal.on_computed(JobOutcome::Drive(Err(crate::Error::Numerical {
+                context: "test"
+            })))
+            .is_empty()
+        );
+        assert!(cal.is_busy());
+        assert_eq!(answers(&cal.on_computed(outcome)), vec![Ok(())]);
+        let tread_m = cal.result().map(|r| r.rear.tread_m).unwrap();
+        assert!((tread_m - 0.285).abs() < 1e-4, "{tread_m}");
+        let out = cal.on_command(t_s, Command::Commit, false);
+        let [Output::Persist(file)] = out.as_slice() else {
+            panic!("commit asks for a store: {out:?}");
+        };
+        assert_eq!(
+            file.current.as_ref().map(|s| s.method.as_str()),
+            Some("exact")
+        );
+        let out = cal.on_persisted(t_s + 0.01, true);
+        assert_eq!(out[0], Output::Answer(Ok(())));
+        assert!(matches!(
+            &out[1],
+            Output::Report { version: 1, committed } if matches!(**committed, Committed::Rear { .. })
+        ));
+        assert!(out.contains(&Output::Adopted { version: 1 }));
+        assert_eq!(cal.phase(), Phase::Idle);
+        assert!(cal.result().is_none());
+        let in_use = cal.current_values();
+        assert!((in_use.rear_tread_m - 0.285).abs() < 1e-4);
+    }
+
+    #[test]
+    fn a_drive_needs_fixes_configured_and_enough_of_them() {
+        let mut cal = Calibrator::new(config(), nominal(), ParamFile::default());
+        assert_eq!(
+            answers(&cal.on_command(0.0, Command::StartDrive, false)),
+            vec![Err(Refused::NotSupported)]
+        );
+        let mut cal = Calibrator::new(
+            CalibratorConfig {
+                fixes_available: true,
+                ..config()
+            },
+            nominal(),
+            ParamFile::default(),
+        );
+        assert_eq!(
+            answers(&cal.on_command(0.0, Command::StartDrive, false)),
+            vec![Ok(())]
+        );
+        for k in 1..=100 {
+            let _ = cal.on_step(f64::from(k) * 0.01, (0.01, 0.01), Some(0.0), None);
+        }
+        assert_eq!(
+            answers(&cal.on_command(1.0, Command::Compute, false)),
+            vec![Err(Refused::TooFewSamples)]
+        );
+        assert_eq!(
+            answers(&cal.on_command(1.0, Command::Commit, false)),
+            vec![Err(Refused::Session(Refusal::NothingToCommit))]
+        );
+        assert_eq!(
+            answers(&cal.on_command(1.0, Command::Abort, false)),
+            vec![Ok(())]
+        );
+    }
+}

@@ -1,0 +1,274 @@
+//! A drive recorded for calibration against the bus's position fixes
+//! (START_DRIVE): the filter's steps merged into short bins, the fixes in a
+//! local frame, and the job that fits them ([`crate::drive`]).
+
+use crate::drive::{DriveCalibration, DriveModel, DriveSample, Fix, calibrate_drive};
+use crate::error::Result;
+use crate::history::ParamValues;
+
+/// Steps are merged into bins of this length: the fit needs the shape of the
+/// drive, not every 10 ms, so a ten-minute drive is 12,000 samples, a
+/// fraction of a second to fit.
+const DRIVE_BIN_S: f64 = 0.05;
+
+/// The most samples a drive keeps (20 minutes of bins): the rest is not recorded.
+const DRIVE_MAX_SAMPLES: usize = 24_000;
+
+/// Mean Earth radius, metres, for latitude/longitude fixes turned into a
+/// local frame (equirectangular around the first fix: centimetres over the
+/// kilometres of a calibration drive).
+const EARTH_RADIUS_M: f64 = 6_371_000.0;
+
+/// One filter step as the drive records it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DriveStep {
+    /// Bus time, s.
+    pub t_s: f64,
+    /// Rear-left distance of the step with the diameters in use, m.
+    pub rear_left_m: f64,
+    /// Rear-right distance, m.
+    pub rear_right_m: f64,
+    /// The road-wheel angle of the map in use, rad.
+    pub steer_angle_rad: Option<f64>,
+    /// The yaw rate the filter used, rad/s.
+    pub yaw_rate_radps: Option<f64>,
+    /// Length of the step, s.
+    pub dt_s: f64,
+}
+
+/// Why a recorded drive cannot be fitted yet.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct TooFewSamples;
+
+/// The fit of a recorded drive: pure and owned, to run away from the frame path.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DriveJob {
+    /// The binned steps.
+    pub samples: Vec<DriveSample>,
+    /// The fixes within the steps' time span.
+    pub fixes: Vec<Fix>,
+    /// The geometry in use.
+    pub model: DriveModel,
+    /// The values in use while recording.
+    pub base: ParamValues,
+}
+
+impl DriveJob {
+    /// Fits the drive; the calibration and the values it gives.
+    ///
+    /// # Errors
+    /// As [`calibrate_drive`].
+    pub fn run(&self) -> Result<(DriveCalibration, ParamValues)> {
+        let cal = calibrate_drive(&self.samples, &self.fixes, &self.model)?;
+        let values = crate::drive::calibrated_values(&self.base, &cal);
+        Ok((cal, values))
+    }
+}
+
+/// A drive being recorded (see the module doc).
+#[derive(Debug, Clone, Default)]
+pub struct DriveRecorder {
+    samples: Vec<DriveSample>,
+    /// The open bin: its distances, the last steering angle, and ∫ω dt, ∫dt.
+    bin: Option<(DriveSample, f64, f64)>,
+    fixes: Vec<Fix>,
+    /// Latitude and longitude of the first fix (geodetic fixes only), degrees.
+    origin: Option<(f64, f64)>,
+    /// A job is out or a result awaits commit: the recording is closed.
+    closed: bool,
+}
+
+impl DriveRecorder {
+    /// Whether the recording is closed (a fit is running or awaits commit).
+    pub fn is_closed(&self) -> bool {
+        self.closed
+    }
+
+    /// Adds one filter step to the open bin, closing the bin after
+    /// [`DRIVE_BIN_S`].
+    pub fn step(&mut self, step: &DriveStep) {
+        if self.closed || self.samples.len() >= DRIVE_MAX_SAMPLES {
+            return;
+        }
+        let (bin, yaw_dt, dt) = self.bin.get_or_insert((
+            DriveSample {
+                t_s: step.t_s,
+                rear_left_m: 0.0,
+                rear_right_m: 0.0,
+                steer_angle_rad: None,
+                yaw_rate_radps: None,
+            },
+            0.0,
+            0.0,
+        ));
+        bin.t_s = step.t_s;
+        bin.rear_left_m += step.rear_left_m;
+        bin.rear_right_m += step.rear_right_m;
+        bin.steer_angle_rad = step.steer_angle_rad.or(bin.steer_angle_rad);
+        if let Some(w) = step.yaw_rate_radps {
+            *yaw_dt += w * step.dt_s;
+            *dt += step.dt_s;
+        }
+        let start = self.samples.last().map_or(f64::NEG_INFINITY, |s| s.t_s);
+        if step.t_s - start >= DRIVE_BIN_S {
+            self.flush();
+        }
+    }
+
+    /// A position fix: a local x and y in metres, or (`geodetic`) latitude
+    /// and longitude in degrees (turned into metres around the first fix).
+    /// Fixes that are not finite or not later than the last are dropped.
+    pub fn fix(&mut self, t_s: f64, first: f64, second: f64, geodetic: bool) {
+        if self.closed || !(first.is_finite() && second.is_finite()) {
+            return;
+        }
+        let (x_m, y_m) = if geodetic {
+            let (lat0, lon0) = *self.origin.get_or_insert((first, second));
+            (
+                EARTH_RADIUS_M * lat0.to_radians().cos() * (second - lon0).to_radians(),
+                EARTH_RADIUS_M * (first - lat0).to_radians(),
+            )
+        } else {
+            (first, second)
+        };
+        if self.fixes.last().is_none_or(|f| t_s > f.t_s) {
+            self.fixes.push(Fix {
+                t_s,
+                x_m,
+                y_m,
+                heading_rad: None,
+            });
+        }
+    }
+
+    /// Closes the open bin.
+    fn flush(&mut self) {
+        if let Some((mut bin, yaw_dt, dt)) = self.bin.take() {
+            bin.yaw_rate_radps = (dt > 0.0).then(|| yaw_dt / dt);
+            self.samples.push(bin);
+        }
+    }
+
+    /// Closes the recording and hands out the fit to run: the fixes outside
+    /// the recorded steps say nothing about them and are left out.
+    ///
+    /// # Errors
+    /// [`TooFewSamples`] with fewer than three fixes or three bins; the
+    /// recording goes on.
+    pub fn job(
+        &mut self,
+        model: DriveModel,
+        base: ParamValues,
+    ) -> std::result::Result<DriveJob, TooFewSamples> {
+        self.flush();
+        if self.fixes.len() < 3 || self.samples.len() < 3 {
+            return Err(TooFewSamples);
+        }
+        let (first, last) = (
+            self.samples[0].t_s,
+            self.samples[self.samples.len() - 1].t_s,
+        );
+        let fixes = self
+            .fixes
+            .iter()
+            .copied()
+            .filter(|f| f.t_s >= first && f.t_s <= last)
+            .collect();
+        self.closed = true;
+        Ok(DriveJob {
+            samples: self.samples.clone(),
+            fixes,
+            model,
+            base,
+        })
+    }
+
+    /// The fit failed: record on, to fit again later.
+    pub fn reopen(&mut self) {
+        self.closed = false;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn step(t_s: f64) -> DriveStep {
+        DriveStep {
+            t_s,
+            rear_left_m: 0.01,
+            rear_right_m: 0.012,
+            steer_angle_rad: Some(0.1),
+            yaw_rate_radps: Some(0.2),
+            dt_s: 0.01,
+        }
+    }
+
+    #[test]
+    fn steps_are_binned_and_fixes_outside_the_drive_left_out() {
+        let mut d = DriveRecorder::default();
+        d.fix(-1.0, 0.0, 0.0, false);
+        for k in 0..=100 {
+            d.step(&step(f64::from(k) * 0.01));
+        }
+        for k in 0..5 {
+            d.fix(f64::from(k) * 0.2, f64::from(k), 0.0, false);
+        }
+        d.fix(0.5, 9.0, 9.0, false); // not later than the last: dropped
+        d.fix(0.9, f64::NAN, 0.0, false); // not finite: dropped
+        let base = ParamValues::plain(0.25, 0.09);
+        let model = DriveModel {
+            rear_tread_m: 0.25,
+            wheelbase_m: 0.3,
+        };
+        let job = d.job(model, base).unwrap();
+        assert!(d.is_closed());
+        // 1 s of 10 ms steps in bins of at least 50 ms.
+        assert!(
+            (18..=21).contains(&job.samples.len()),
+            "{}",
+            job.samples.len()
+        );
+        let total: f64 = job.samples.iter().map(|s| s.rear_left_m).sum();
+        assert!(
+            (total - 1.01).abs() < 1e-9,
+            "every step's distance is kept: {total}"
+        );
+        assert!(
+            job.samples
+                .iter()
+                .all(|s| s.yaw_rate_radps.is_some_and(|w| (w - 0.2).abs() < 1e-12))
+        );
+        assert_eq!(job.fixes.len(), 5, "the fix before the drive is left out");
+        d.step(&step(2.0));
+        assert_eq!(d.samples.len(), job.samples.len(), "closed: no more steps");
+        d.reopen();
+        d.step(&step(2.0));
+        assert_eq!(d.samples.len(), job.samples.len() + 1);
+    }
+
+    #[test]
+    fn geodetic_fixes_become_metres_around_the_first() {
+        let mut d = DriveRecorder::default();
+        d.fix(0.0, 48.0, 11.0, true);
+        d.fix(1.0, 48.001, 11.0, true);
+        let north = d.fixes[1].y_m;
+        assert!((north - 111.19).abs() < 0.1, "{north}");
+        assert!(d.fixes[1].x_m.abs() < 1e-9);
+    }
+
+    #[test]
+    fn too_few_fixes_keep_recording() {
+        let mut d = DriveRecorder::default();
+        for k in 0..100 {
+            d.step(&step(f64::from(k) * 0.01));
+        }
+        let model = DriveModel {
+            rear_tread_m: 0.25,
+            wheelbase_m: 0.3,
+        };
+        let base = ParamValues::plain(0.25, 0.09);
+        assert_eq!(d.job(model, base), Err(TooFewSamples));
+        assert!(!d.is_closed());
+    }
+}

@@ -1,0 +1,320 @@
+//! The calibration task: owns the [`LiveCalibration`] and carries out what
+//! it asks for, away from the odometry task's frame path.
+//!
+//! The odometry task forwards the calibration's frames (`CALIB_CMD`,
+//! `CALIB_ACK`, the bus's position fixes), every filter step and every input
+//! fault over one bounded channel, in bus order; this task answers on the
+//! bus, sends status and parameter frames, hands sets to apply back over a
+//! second bounded channel, and publishes the standstill judgement the
+//! odometry's RESET_POSE needs. Storing the parameter file (`fsync`) and
+//! computing a calibration run on tokio's blocking pool; the calibration
+//! refuses commands as busy until they are done, so at most one is out.
+//!
+//! Shutdown: when the odometry task has drained its frames it drops its
+//! sender; this task handles everything still queued, waits for a store in
+//! flight (a commit is stored whole or not at all), and returns.
+
+use crate::live_calib::{LiveCalibration, Output};
+use canodom_calib::calibrator::{Job, JobOutcome};
+use canodom_calib::standstill::Standstill;
+use canodom_can::bus::{BusError, FrameSink};
+use canodom_can::frame::CanFrame;
+use canodom_can::time::Timestamp;
+use canodom_params::persist::{ParamFile, ParamValues};
+use std::path::PathBuf;
+use std::time::Duration;
+use tokio::sync::{mpsc, watch};
+use tokio::task::JoinHandle;
+use tokio::time::{Instant, MissedTickBehavior};
+use tracing::{debug, info, warn};
+
+/// How often the live calibration's clock runs (status periods and ACK
+/// timeouts are multiples of it).
+const CALIB_TICK: Duration = Duration::from_millis(50);
+
+/// What the odometry task forwards, in bus order.
+#[derive(Debug, Clone, Copy)]
+pub enum CalibInput {
+    /// A `CALIB_CMD` frame.
+    Command(Timestamp, CanFrame),
+    /// A `CALIB_ACK` frame.
+    Ack(Timestamp, CanFrame),
+    /// A position fix: local x/y in metres or (geodetic) latitude/longitude.
+    Fix {
+        /// Bus time.
+        t: Timestamp,
+        /// x or latitude.
+        first: f64,
+        /// y or longitude.
+        second: f64,
+        /// Whether the fix is latitude/longitude.
+        geodetic: bool,
+    },
+    /// The input path refused or faulted a wheel frame.
+    Fault(Timestamp, u8),
+    /// A filter step.
+    Step {
+        /// Bus time.
+        t: Timestamp,
+        /// Rear wheel revolutions (left, right) since the previous step.
+        rear_rev: (f64, f64),
+        /// The steering signal.
+        steer_signal: Option<f64>,
+        /// The yaw rate the filter used.
+        yaw_rate_radps: Option<f64>,
+    },
+}
+
+/// A set the odometry must put into the filter (version, values).
+pub type ApplyParams = (u16, ParamValues);
+
+/// The bus clock the odometry task keeps: the last frame's bus timestamp and
+/// when it arrived.
+pub type BusClock = watch::Receiver<Option<(Timestamp, Instant)>>;
+
+/// A slow effect carried out on the blocking pool.
+enum Effect {
+    Persisted(Result<(), String>),
+    Computed(Box<JobOutcome>),
+}
+
+/// The calibration task (see the module doc).
+pub struct CalibTask<Tx> {
+    /// The calibration over CAN.
+    pub live: LiveCalibration,
+    /// Inputs from the odometry task.
+    pub inputs: mpsc::Receiver<CalibInput>,
+    /// Sets to apply, to the odometry task.
+    pub apply: mpsc::Sender<ApplyParams>,
+    /// The standstill judgement, to the odometry task.
+    pub standstill: watch::Sender<Standstill>,
+    /// The bus clock.
+    pub clock: BusClock,
+    /// The sending half of the transport (`None` while disconnected).
+    pub sink: watch::Receiver<Option<Tx>>,
+    /// Tells the link task of a link loss a send met.
+    pub link_lost: mpsc::Sender<BusError>,
+    /// The parameter file.
+    pub param_file: PathBuf,
+    /// Where reports of committed sets go (one folder per version).
+    pub report_root: PathBuf,
+}
+
+/// The odometry task's ends of the channels to the calibration task.
+#[derive(Debug)]
+pub struct OdometryLinks {
+    /// Inputs to the calibration (bounded: the odometry waits, nothing is dropped).
+    pub inputs: mpsc::Sender<CalibInput>,
+    /// Sets to apply.
+    pub apply: mpsc::Receiver<ApplyParams>,
+    /// The bus clock the odometry keeps.
+    pub clock: watch::Sender<Option<(Timestamp, Instant)>>,
+    /// The calibration's standstill judgement.
+    pub standstill: watch::Receiver<Standstill>,
+}
+
+impl<Tx: FrameSink + Clone> CalibTask<Tx> {
+    /// The task over `live`, and the odometry task's ends of its channels.
+    pub fn new(
+        live: LiveCalibration,
+        sink: watch::Receiver<Option<Tx>>,
+        link_lost: mpsc::Sender<BusError>,
+        param_file: PathBuf,
+        report_root: PathBuf,
+    ) -> (Self, OdometryLinks) {
+        // Bounded both ways: calibration inputs wait for the calibration
+        // task (nothing it needs may be dropped), and sets to apply are few.
+        let (inputs_tx, inputs) = mpsc::channel(1024);
+        let (apply, apply_rx) = mpsc::channel(4);
+        let (clock_tx, clock) = watch::channel(None);
+        let (standstill, standstill_rx) = watch::channel(live.standstill());
+        let task = Self {
+            live,
+            inputs,
+            apply,
+            standstill,
+            clock,
+            sink,
+            link_lost,
+            param_file,
+            report_root,
+        };
+        let links = OdometryLinks {
+            inputs: inputs_tx,
+            apply: apply_rx,
+            clock: clock_tx,
+            standstill: standstill_rx,
+        };
+        (task, links)
+    }
+
+    /// Runs until the odometry task closes the input channel.
+    pub async fn run(mut self) {
+        let mut tick = tokio::time::interval(CALIB_TICK);
+        tick.set_missed_tick_behavior(MissedTickBehavior::Delay);
+        let mut effect: Option<JoinHandle<Effect>> = None;
+        loop {
+            tokio::select! {
+                biased;
+                done = finish(&mut effect), if effect.is_some() => {
+                    let out = self.finished(done);
+                    effect = self.carry_out(out).await;
+                }
+                input = self.inputs.recv() => match input {
+                    Some(input) => {
+                        let out = self.handle(input);
+                        if let Some(h) = self.carry_out(out).await {
+                            effect = Some(h);
+                        }
+                    }
+                    None => break,
+                },
+                _ = tick.tick() => {
+                    if let Some(now) = self.now() {
+                        let out = self.live.tick(now);
+                        if let Some(h) = self.carry_out(out).await {
+                            effect = Some(h);
+                        }
+                    }
+                }
+            }
+        }
+        // The odometry stopped: a store in flight still completes, and its
+        // answer goes out if the bus is still there.
+        while let Some(h) = effect.take() {
+            let out = self.finished(h.await);
+            effect = self.carry_out(out).await;
+        }
+    }
+
+    fn handle(&mut self, input: CalibInput) -> Vec<Output> {
+        match input {
+            CalibInput::Command(t, frame) => self.live.on_command(t, &frame),
+            CalibInput::Ack(t, frame) => self.live.on_ack(t, &frame),
+            CalibInput::Fix {
+                t,
+                first,
+                second,
+                geodetic,
+            } => {
+                self.live.on_fix(t, first, second, geodetic);
+                Vec::new()
+            }
+            CalibInput::Fault(t, code) => {
+                self.live.on_fault(t, code);
+                Vec::new()
+            }
+            CalibInput::Step {
+                t,
+                rear_rev,
+                steer_signal,
+                yaw_rate_radps,
+            } => {
+                let out = self.live.on_step(t, rear_rev, steer_signal, yaw_rate_radps);
+                self.standstill.send_replace(self.live.standstill());
+                out
+            }
+        }
+    }
+
+    /// A store or a computation came back: the calibration hears of it.
+    fn finished(&mut self, done: Result<Effect, tokio::task::JoinError>) -> Vec<Output> {
+        let now = self.now().unwrap_or(Timestamp::from_micros(0));
+        match done {
+            Ok(Effect::Persisted(stored)) => self.live.on_persisted(now, &stored),
+            Ok(Effect::Computed(outcome)) => self.live.on_computed(now, *outcome),
+            // A panic in the store or the job: the command fails whole.
+            Err(e) if self.live.is_storing() => self
+                .live
+                .on_persisted(now, &Err(format!("store task failed: {e}"))),
+            Err(e) => {
+                warn!(cause = %e, "calibration job failed");
+                self.live.on_computed(
+                    now,
+                    JobOutcome::Rear(Err(canodom_calib::Error::Numerical {
+                        context: "the calibration job panicked",
+                    })),
+                )
+            }
+        }
+    }
+
+    /// The bus clock now: the last frame's timestamp plus the time since.
+    fn now(&self) -> Option<Timestamp> {
+        let (t, at) = (*self.clock.borrow())?;
+        Some(Timestamp::from_micros(
+            t.as_micros() + at.elapsed().as_micros() as u64,
+        ))
+    }
+
+    /// Does what the live calibration asks: frames, applies, reports; a
+    /// store or a job goes to the blocking pool and its handle comes back.
+    async fn carry_out(&mut self, outputs: Vec<Output>) -> Option<JoinHandle<Effect>> {
+        let mut effect = None;
+        for o in outputs {
+            match o {
+                Output::Send(f) => self.send(&f).await,
+                Output::Apply(version, values) => {
+                    // Lossless: the odometry task takes sets as they come.
+                    if self.apply.send((version, values)).await.is_err() {
+                        debug!(version, "odometry stopped; set not applied");
+                    }
+                }
+                Output::Report(version, report) => {
+                    let dir = self.report_root.join(version.to_string());
+                    // SVG rendering is file work: keep it off the frame path.
+                    tokio::task::spawn_blocking(move || match canodom_report::files::write_report(
+                        &dir, &*report,
+                    ) {
+                        Ok((svg, _)) => {
+                            info!(report = %svg.display(), "calibration report written");
+                        }
+                        Err(e) => warn!(cause = %e, "calibration report not written"),
+                    });
+                }
+                Output::Persist(file) => effect = Some(self.store(file)),
+                Output::Compute(job) => effect = Some(Self::compute(job)),
+            }
+        }
+        effect
+    }
+
+    fn store(&self, file: ParamFile) -> JoinHandle<Effect> {
+        let path = self.param_file.clone();
+        tokio::task::spawn_blocking(move || {
+            Effect::Persisted(
+                canodom_params::persist::store(&path, &file).map_err(|e| e.to_string()),
+            )
+        })
+    }
+
+    fn compute(job: Job) -> JoinHandle<Effect> {
+        tokio::task::spawn_blocking(move || Effect::Computed(Box::new(job.run())))
+    }
+
+    async fn send(&mut self, frame: &CanFrame) {
+        let tx = self.sink.borrow().clone();
+        let Some(tx) = tx else { return };
+        if let Err(e) = tx.send(frame).await {
+            if e.is_link_loss() {
+                let _ = self.link_lost.try_send(e);
+            } else {
+                debug!(cause = %e, "calibration frame not sent");
+            }
+        }
+    }
+}
+
+/// The effect in flight, when it finishes (never without one).
+async fn finish(effect: &mut Option<JoinHandle<Effect>>) -> Result<Effect, tokio::task::JoinError> {
+    match effect {
+        Some(handle) => handle.await,
+        None => std::future::pending().await,
+    }
+}
+
+/// Whether the odometry may move the pose now (RESET_POSE) by the
+/// calibration's standstill judgement at bus time `t`.
+pub fn still_at(judge: &watch::Receiver<Standstill>, t: Timestamp) -> bool {
+    judge.borrow().is_still(t.as_micros() as f64 * 1e-6)
+}
