@@ -309,17 +309,66 @@ pub struct LogReader<R> {
     line_no: u64,
     /// The interface name of the last record parsed on the fast path.
     iface: String,
-    /// Only records of this interface are returned, when set.
-    only_iface: Option<String>,
-    /// Lines of other interfaces skipped by [`Self::only_interface`].
-    other_iface_lines: u64,
-    /// The distinct interface names seen, in order of appearance (at most
-    /// [`MAX_INTERFACES_LISTED`]).
-    interfaces: Vec<String>,
+    /// The interfaces seen and the `--interface` filter.
+    interfaces: Interfaces,
 }
 
 /// How many distinct interface names [`LogReader::interfaces`] keeps.
 pub const MAX_INTERFACES_LISTED: usize = 32;
+
+/// The interfaces a log reader has met (in order of appearance, at most
+/// [`MAX_INTERFACES_LISTED`]) and the filter it applies, with the records
+/// filtered out counted: the same for every log format.
+#[derive(Debug, Default)]
+pub(crate) struct Interfaces {
+    only: Option<String>,
+    seen: Vec<String>,
+    other_lines: u64,
+}
+
+impl Interfaces {
+    /// Notes `name`; `true` when the filter lets its records through (a
+    /// record filtered out is counted).
+    pub(crate) fn pass(&mut self, name: &str) -> bool {
+        self.pass_bytes(name.as_bytes())
+    }
+
+    /// As [`Self::pass`] for a name as read (a name that is not UTF-8 is
+    /// not listed).
+    pub(crate) fn pass_bytes(&mut self, name: &[u8]) -> bool {
+        if self.seen.len() < MAX_INTERFACES_LISTED
+            && !self.seen.iter().any(|n| n.as_bytes() == name)
+            && let Ok(text) = std::str::from_utf8(name)
+        {
+            // Owned only for a name not seen before (rare): reading does
+            // not allocate per line.
+            self.seen.push(text.to_owned());
+        }
+        let passes = self
+            .only
+            .as_deref()
+            .is_none_or(|only| only.as_bytes() == name);
+        if !passes {
+            self.other_lines += 1;
+        }
+        passes
+    }
+
+    /// The names met.
+    pub(crate) fn seen(&self) -> &[String] {
+        &self.seen
+    }
+
+    /// Records filtered out.
+    pub(crate) fn other_lines(&self) -> u64 {
+        self.other_lines
+    }
+
+    /// Lets only `name`'s records through.
+    pub(crate) fn only(&mut self, name: &str) {
+        self.only = Some(name.to_owned());
+    }
+}
 
 impl<R: Read> LogReader<R> {
     /// Wraps a reader (buffered or not: the reader does its own buffering).
@@ -339,9 +388,7 @@ impl<R: Read> LogReader<R> {
             eof: false,
             line_no: 0,
             iface: String::new(),
-            only_iface: None,
-            other_iface_lines: 0,
-            interfaces: Vec::new(),
+            interfaces: Interfaces::default(),
         }
     }
 
@@ -349,30 +396,20 @@ impl<R: Read> LogReader<R> {
     /// interfaces are skipped and counted ([`Self::other_interface_lines`]).
     #[must_use]
     pub fn only_interface(mut self, name: &str) -> Self {
-        self.only_iface = Some(name.to_owned());
+        self.interfaces.only(name);
         self
     }
 
     /// The distinct interface names of the lines read so far, filtered out or
     /// not, in order of appearance: more than one means the log mixes buses.
     pub fn interfaces(&self) -> &[String] {
-        &self.interfaces
+        self.interfaces.seen()
     }
 
     /// Lines skipped because they belong to another interface than the one
     /// asked for with [`Self::only_interface`].
     pub fn other_interface_lines(&self) -> u64 {
-        self.other_iface_lines
-    }
-
-    /// Notes an interface name; `true` when the filter lets its lines through.
-    fn note_interface(&mut self, name: &str) -> bool {
-        if self.interfaces.len() < MAX_INTERFACES_LISTED
-            && !self.interfaces.iter().any(|n| n == name)
-        {
-            self.interfaces.push(name.to_owned());
-        }
-        self.only_iface.as_deref().is_none_or(|only| only == name)
+        self.interfaces.other_lines()
     }
 
     /// Number of the line most recently read (1-based; 0 before the first).
@@ -428,10 +465,9 @@ impl<R: Read> LogReader<R> {
                 let name = std::str::from_utf8(&self.buf[range.clone()])
                     .ok()?
                     .to_owned();
-                if !self.note_interface(&name) {
+                if !self.interfaces.pass(&name) {
                     self.start += line.consumed;
                     self.line_no += 1;
-                    self.other_iface_lines += 1;
                     continue;
                 }
                 self.iface = name;
@@ -494,18 +530,7 @@ impl<R: Read> LogReader<R> {
             else {
                 break (line_start, len);
             };
-            let new = !self.interfaces.iter().any(|n| n.as_bytes() == iface);
-            let passes = self
-                .only_iface
-                .as_deref()
-                .is_none_or(|only| only.as_bytes() == iface);
-            // Owned only for a name not seen before (rare), so the general
-            // path does not allocate per line.
-            if new && let Ok(name) = std::str::from_utf8(iface).map(str::to_owned) {
-                self.note_interface(&name);
-            }
-            if !passes {
-                self.other_iface_lines += 1;
+            if !self.interfaces.pass_bytes(iface) {
                 continue;
             }
             break (line_start, len);

@@ -22,9 +22,10 @@
 //! is not read. Lines that start with a tab (`candump -e`'s error frame
 //! explanations) are skipped.
 
+use crate::candump::Interfaces;
 use crate::candump::{Direction, Malformed, ReadError, Reason, Record};
 use crate::frame::{CAN_ERR_FLAG, CLASSIC_MAX_LEN, CanFrame, FrameId, MAX_EXTENDED_ID};
-use crate::log_lines::{Interfaces, Lines};
+use crate::log_lines::Lines;
 use crate::time::Timestamp;
 use std::io::BufRead;
 
@@ -68,13 +69,10 @@ impl<R: BufRead> PlainReader<R> {
     /// [`Reason::LineTooLong`]); I/O.
     pub fn next_record(&mut self) -> Result<Option<Record<'_>>, ReadError> {
         loop {
-            let Some((line_no, line, too_long)) = self.lines.next_line()? else {
+            let Some((line_no, line)) = self.lines.next_line()? else {
                 return Ok(None);
             };
             let bad = |reason| ReadError::Malformed(Malformed { line_no, reason });
-            if too_long {
-                return Err(bad(Reason::LineTooLong));
-            }
             if line.first() == Some(&b'\t') || line.iter().all(u8::is_ascii_whitespace) {
                 continue;
             }

@@ -1,48 +1,11 @@
-//! What the readers of every log format share: the interfaces met and the
-//! `--interface` filter, and the bounded lines of a text log. Below the
+//! What the readers of every log format share besides
+//! [`crate::candump::Interfaces`]: the bounded lines of a text log, and what
+//! a reader tells of the interfaces it met. Below the
 //! readers ([`crate::candump_plain`], [`crate::vector_asc`],
 //! [`crate::vector_blf`]) and [`crate::any_log`], which chooses among them.
 
-use crate::candump::LogReader;
-use std::io::{self, BufRead, Read};
-
-/// The interfaces a reader has met and the filter it applies: the same
-/// bookkeeping as [`LogReader`]'s, for the other formats.
-#[derive(Debug, Default)]
-pub(crate) struct Interfaces {
-    only: Option<String>,
-    seen: Vec<String>,
-    other_lines: u64,
-}
-
-impl Interfaces {
-    /// Notes `name`; `true` when the filter lets its records through (a
-    /// record filtered out is counted).
-    pub(crate) fn pass(&mut self, name: &str) -> bool {
-        if self.seen.len() < crate::candump::MAX_INTERFACES_LISTED
-            && !self.seen.iter().any(|n| n == name)
-        {
-            self.seen.push(name.to_owned());
-        }
-        let passes = self.only.as_deref().is_none_or(|only| only == name);
-        if !passes {
-            self.other_lines += 1;
-        }
-        passes
-    }
-
-    pub(crate) fn seen(&self) -> &[String] {
-        &self.seen
-    }
-
-    pub(crate) fn other_lines(&self) -> u64 {
-        self.other_lines
-    }
-
-    pub(crate) fn only(&mut self, name: &str) {
-        self.only = Some(name.to_owned());
-    }
-}
+use crate::candump::{LogReader, Malformed, ReadError, Reason};
+use std::io::{BufRead, Read};
 
 /// Lines of a text log, each at most [`crate::candump::MAX_LINE_BYTES`]
 /// (a longer one is cut there and its rest skipped, so a corrupt file
@@ -63,9 +26,13 @@ impl<R: BufRead> Lines<R> {
         }
     }
 
-    /// The next line's number, the line without its line end, and whether
-    /// it was too long; `None` at the end.
-    pub(crate) fn next_line(&mut self) -> io::Result<Option<(u64, &[u8], bool)>> {
+    /// The next line's number and the line without its line end; `None` at
+    /// the end.
+    ///
+    /// # Errors
+    /// A line too long ([`Reason::LineTooLong`], its rest skipped, so the
+    /// next call reads on); I/O.
+    pub(crate) fn next_line(&mut self) -> Result<Option<(u64, &[u8])>, ReadError> {
         self.buf.clear();
         let limit = crate::candump::MAX_LINE_BYTES as u64 + 1;
         let n = (&mut self.inner)
@@ -92,10 +59,16 @@ impl<R: BufRead> Lines<R> {
                 self.inner.consume(len);
             }
         }
+        if too_long {
+            return Err(ReadError::Malformed(Malformed {
+                line_no: self.line_no,
+                reason: Reason::LineTooLong,
+            }));
+        }
         while matches!(self.buf.last(), Some(b'\n' | b'\r')) {
             self.buf.pop();
         }
-        Ok(Some((self.line_no, &self.buf, too_long)))
+        Ok(Some((self.line_no, &self.buf)))
     }
 }
 

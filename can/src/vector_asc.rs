@@ -30,10 +30,11 @@
 //! [`Reason::BadAscEvent`] with its line number. Vector's error frames carry
 //! no error class: they are read as error frames of class 0.
 
+use crate::candump::Interfaces;
 use crate::candump::{Direction, Malformed, ReadError, Reason, Record};
 use crate::candump_plain::parse_decimal_micros;
 use crate::frame::{CLASSIC_MAX_LEN, CanFrame, FD_MAX_LEN, FrameId};
-use crate::log_lines::{Interfaces, Lines};
+use crate::log_lines::Lines;
 use crate::time::Timestamp;
 use std::io::BufRead;
 
@@ -74,13 +75,10 @@ impl<R: BufRead> AscReader<R> {
     /// its line number), a line too long; I/O.
     pub fn next_record(&mut self) -> Result<Option<Record<'_>>, ReadError> {
         loop {
-            let Some((line_no, line, too_long)) = self.lines.next_line()? else {
+            let Some((line_no, line)) = self.lines.next_line()? else {
                 return Ok(None);
             };
             let bad = |reason| ReadError::Malformed(Malformed { line_no, reason });
-            if too_long {
-                return Err(bad(Reason::LineTooLong));
-            }
             let Ok(text) = std::str::from_utf8(line) else {
                 // Comments may be in any code page; an event is ASCII.
                 continue;

@@ -27,9 +27,9 @@
 //! a CAN object too short for its type is [`Reason::BadBlfObject`], named
 //! by its number among the objects.
 
+use crate::candump::Interfaces;
 use crate::candump::{Direction, Malformed, ReadError, Reason, Record};
 use crate::frame::{CLASSIC_MAX_LEN, CanFrame, FD_MAX_LEN, FrameId, MAX_EXTENDED_ID};
-use crate::log_lines::Interfaces;
 use crate::time::Timestamp;
 use std::io::{self, Read};
 

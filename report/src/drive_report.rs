@@ -5,11 +5,12 @@
 //! result.
 
 use crate::files::{
-    PlotResult, ReportError, ReportFiles, draw_legend, json_line, square_view, svg_text,
-    write_report,
+    PlotResult, PlottedReport, ReportError, draw_legend, draw_line, square_view, write_report,
+    xy_chart,
 };
 use canodom_calib::drive::{DriveCalibration, DriveSample, Estimate, Fix};
 use canodom_params::persist::ParamValues;
+use plotters::coord::Shift;
 use plotters::prelude::*;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
@@ -211,62 +212,6 @@ impl DriveReport {
         }
     }
 
-    fn draw(&self, root: &DrawingArea<SVGBackend<'_>, plotters::coord::Shift>) -> PlotResult {
-        root.fill(&WHITE)?;
-        let (xs, ys) = square_view(
-            self.fixes
-                .iter()
-                .chain(&self.rear_before)
-                .chain(&self.rear_after)
-                .chain(self.yaw_after.iter().flatten()),
-        );
-        let title = format!(
-            "canodom drive calibration: {} fixes over {:.0} m",
-            self.fixes_used, self.distance_m
-        );
-        let root = root.titled(&title, ("sans-serif", 22))?;
-        let (top, bottom) = root.split_vertically(430);
-        self.draw_errors(&bottom)?;
-        let mut chart = ChartBuilder::on(&top)
-            .caption(
-                "the drive, dead-reckoned from the first fix",
-                ("sans-serif", 16),
-            )
-            .margin(15)
-            .x_label_area_size(40)
-            .y_label_area_size(60)
-            .build_cartesian_2d(xs, ys)?;
-        chart
-            .configure_mesh()
-            .x_desc("x (m)")
-            .y_desc("y (m)")
-            .draw()?;
-        let paths = [
-            (Some(&self.rear_before), RED, "rear wheels, before"),
-            (Some(&self.rear_after), BLUE, "rear wheels, calibrated"),
-            (self.yaw_after.as_ref(), GREEN, "yaw rate, calibrated"),
-        ];
-        for (path, colour, label) in paths {
-            let Some(path) = path else { continue };
-            chart
-                .draw_series(LineSeries::new(
-                    path.iter().map(|p| (p[0], p[1])),
-                    colour.stroke_width(2),
-                ))?
-                .label(label)
-                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour));
-        }
-        chart
-            .draw_series(
-                self.fixes
-                    .iter()
-                    .map(|p| Circle::new((p[0], p[1]), 3, BLACK.filled())),
-            )?
-            .label("fixes")
-            .legend(|(x, y)| Circle::new((x + 10, y), 3, BLACK.filled()));
-        draw_legend(&mut chart)
-    }
-
     /// The distance of each reckoning from each fix, over time: what the
     /// trajectory's scale hides on a long straight road.
     fn draw_errors(
@@ -305,22 +250,9 @@ impl DriveReport {
             if points.is_empty() {
                 continue;
             }
-            chart
-                .draw_series(LineSeries::new(points, colour.stroke_width(2)))?
-                .label(label)
-                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour));
+            draw_line(&mut chart, points, colour, label)?;
         }
         draw_legend(&mut chart)
-    }
-}
-
-impl ReportFiles for DriveReport {
-    fn json(&self) -> Result<String, ReportError> {
-        json_line(self)
-    }
-
-    fn svg(&self) -> Result<String, ReportError> {
-        svg_text((900, 900), |root| self.draw(root))
     }
 }
 
@@ -337,4 +269,48 @@ pub fn write_drive_report(
     cal: &DriveCalibration,
 ) -> Result<(PathBuf, PathBuf), ReportError> {
     write_report(dir, &DriveReport::build(samples, fixes, before, after, cal))
+}
+impl PlottedReport for DriveReport {
+    const SVG_SIZE_PX: (u32, u32) = (900, 900);
+
+    fn draw(&self, root: &DrawingArea<SVGBackend<'_>, Shift>) -> PlotResult {
+        root.fill(&WHITE)?;
+        let (xs, ys) = square_view(
+            self.fixes
+                .iter()
+                .chain(&self.rear_before)
+                .chain(&self.rear_after)
+                .chain(self.yaw_after.iter().flatten()),
+        );
+        let title = format!(
+            "canodom drive calibration: {} fixes over {:.0} m",
+            self.fixes_used, self.distance_m
+        );
+        let root = root.titled(&title, ("sans-serif", 22))?;
+        let (top, bottom) = root.split_vertically(430);
+        self.draw_errors(&bottom)?;
+        let mut chart = xy_chart(
+            &top,
+            "the drive, dead-reckoned from the first fix",
+            (xs, ys),
+        )?;
+        let paths = [
+            (Some(&self.rear_before), RED, "rear wheels, before"),
+            (Some(&self.rear_after), BLUE, "rear wheels, calibrated"),
+            (self.yaw_after.as_ref(), GREEN, "yaw rate, calibrated"),
+        ];
+        for (path, colour, label) in paths {
+            let Some(path) = path else { continue };
+            draw_line(&mut chart, path.iter().map(|p| (p[0], p[1])), colour, label)?;
+        }
+        chart
+            .draw_series(
+                self.fixes
+                    .iter()
+                    .map(|p| Circle::new((p[0], p[1]), 3, BLACK.filled())),
+            )?
+            .label("fixes")
+            .legend(|(x, y)| Circle::new((x + 10, y), 3, BLACK.filled()));
+        draw_legend(&mut chart)
+    }
 }

@@ -44,7 +44,7 @@ pub enum ReportError {
 }
 
 /// What drawing with plotters returns (its errors are generic over the backend).
-pub(crate) type PlotResult = Result<(), Box<dyn std::error::Error>>;
+pub type PlotResult = Result<(), Box<dyn std::error::Error>>;
 
 /// `value` as one line of JSON (compact: a rear report's paths make it long).
 pub(crate) fn json_line(value: &impl Serialize) -> Result<String, ReportError> {
@@ -90,6 +90,29 @@ pub trait ReportFiles {
     fn svg(&self) -> Result<String, ReportError>;
 }
 
+/// A report drawn as one SVG picture and written as one line of JSON: every
+/// such report is a [`ReportFiles`] through this.
+pub trait PlottedReport: Serialize {
+    /// The picture's size, (width, height) in pixels.
+    const SVG_SIZE_PX: (u32, u32);
+
+    /// Paints the picture on `root`.
+    ///
+    /// # Errors
+    /// What plotters met drawing.
+    fn draw(&self, root: &DrawingArea<SVGBackend<'_>, Shift>) -> PlotResult;
+}
+
+impl<T: PlottedReport> ReportFiles for T {
+    fn json(&self) -> Result<String, ReportError> {
+        json_line(self)
+    }
+
+    fn svg(&self) -> Result<String, ReportError> {
+        svg_text(T::SVG_SIZE_PX, |root| self.draw(root))
+    }
+}
+
 /// Writes `calibration.svg` and `calibration.json` into `dir` (created if
 /// missing), each atomically; returns their paths (SVG, JSON).
 ///
@@ -111,9 +134,55 @@ pub fn write_report(
     Ok((svg_path, json_path))
 }
 
+/// One labelled line of a chart, 2 px wide, with its legend entry.
+pub(crate) fn draw_line<'a, 'b: 'a, X, Y>(
+    chart: &mut ChartContext<'a, SVGBackend<'b>, Cartesian2d<X, Y>>,
+    points: impl IntoIterator<Item = (f64, f64)>,
+    colour: RGBColor,
+    label: &str,
+) -> PlotResult
+where
+    X: plotters::coord::ranged1d::Ranged<ValueType = f64>,
+    Y: plotters::coord::ranged1d::Ranged<ValueType = f64>,
+{
+    chart
+        .draw_series(LineSeries::new(points, colour.stroke_width(2)))?
+        .label(label)
+        .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour));
+    Ok(())
+}
+
+/// A chart of positions in metres on `area`, under `caption`, with its mesh
+/// drawn: the top half of the drive and reference pictures.
+pub(crate) fn xy_chart<'a, 'b>(
+    area: &'a DrawingArea<SVGBackend<'b>, Shift>,
+    caption: &str,
+    (xs, ys): (std::ops::Range<f64>, std::ops::Range<f64>),
+) -> Result<
+    ChartContext<
+        'a,
+        SVGBackend<'b>,
+        Cartesian2d<plotters::coord::types::RangedCoordf64, plotters::coord::types::RangedCoordf64>,
+    >,
+    Box<dyn std::error::Error>,
+> {
+    let mut chart = ChartBuilder::on(area)
+        .caption(caption, ("sans-serif", 16))
+        .margin(15)
+        .x_label_area_size(40)
+        .y_label_area_size(60)
+        .build_cartesian_2d(xs, ys)?;
+    chart
+        .configure_mesh()
+        .x_desc("x (m)")
+        .y_desc("y (m)")
+        .draw()?;
+    Ok(chart)
+}
+
 /// A chart's legend, top left, on a translucent white box.
-pub(crate) fn draw_legend<'a, X, Y>(
-    chart: &mut ChartContext<'a, SVGBackend<'a>, Cartesian2d<X, Y>>,
+pub(crate) fn draw_legend<'a, 'b: 'a, X, Y>(
+    chart: &mut ChartContext<'a, SVGBackend<'b>, Cartesian2d<X, Y>>,
 ) -> PlotResult
 where
     X: plotters::coord::ranged1d::Ranged<ValueType = f64>,

@@ -7,11 +7,10 @@
 //! [`SteeringReport::build`] is pure; [`crate::report::write_report`] writes
 //! it (atomically, like the rear report).
 
-use crate::files::{
-    AFTER_COLOUR, BEFORE_COLOUR, PlotResult, ReportError, ReportFiles, json_line, svg_text,
-};
+use crate::files::{AFTER_COLOUR, BEFORE_COLOUR, PlotResult, PlottedReport, draw_line};
 use canodom_calib::steering::SteeringFit;
 use canodom_fusion::SteeringMap;
+use plotters::coord::Shift;
 use plotters::prelude::*;
 use serde::Serialize;
 
@@ -107,8 +106,15 @@ impl SteeringReport {
                 .collect(),
         }
     }
+}
 
-    fn draw(&self, root: &DrawingArea<SVGBackend<'_>, plotters::coord::Shift>) -> PlotResult {
+const SVG_W: u32 = 900;
+const SVG_H: u32 = 600;
+
+impl PlottedReport for SteeringReport {
+    const SVG_SIZE_PX: (u32, u32) = (SVG_W, SVG_H);
+
+    fn draw(&self, root: &DrawingArea<SVGBackend<'_>, Shift>) -> PlotResult {
         root.fill(&WHITE)?;
         let (u0, u1) = self
             .arcs
@@ -169,13 +175,12 @@ impl SteeringReport {
             (self.before, BEFORE_COLOUR, "map used while driving"),
             (self.calibrated, AFTER_COLOUR, "fitted map"),
         ] {
-            chart
-                .draw_series(LineSeries::new(
-                    [u0, u1].map(|u| (u, deg(map.angle_rad(u)))),
-                    colour.stroke_width(2),
-                ))?
-                .label(label)
-                .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], colour));
+            draw_line(
+                &mut chart,
+                [u0, u1].map(|u| (u, deg(map.angle_rad(u)))),
+                colour,
+                label,
+            )?;
         }
         chart
             .draw_series(
@@ -194,23 +199,10 @@ impl SteeringReport {
     }
 }
 
-/// JSON: one line; SVG: angle against command, the arcs as dots, the fitted
-/// line and the map used before, in degrees.
-impl ReportFiles for SteeringReport {
-    fn json(&self) -> Result<String, ReportError> {
-        json_line(self)
-    }
-    fn svg(&self) -> Result<String, ReportError> {
-        svg_text((SVG_W, SVG_H), |root| self.draw(root))
-    }
-}
-
-const SVG_W: u32 = 900;
-const SVG_H: u32 = 600;
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::files::ReportFiles;
     use canodom_calib::steering::{ArcEstimate, fit_steering};
 
     fn arc(command: f64, steer_angle_rad: f64) -> ArcEstimate {

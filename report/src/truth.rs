@@ -12,10 +12,11 @@
 //! start (which needs the vehicle to be moving then).
 
 use crate::files::{
-    PlotResult, ReportError, ReportFiles, draw_legend, json_line, square_view, svg_text,
+    PlotResult, PlottedReport, ReportError, draw_legend, draw_line, square_view, xy_chart,
 };
 use canodom_calib::drive::Fix;
 use canodom_fusion::Pose;
+use plotters::coord::Shift;
 use plotters::prelude::*;
 use serde::Serialize;
 
@@ -275,8 +276,12 @@ impl TruthComparison {
             line("rear-only", &self.rear)
         )
     }
+}
 
-    fn draw(&self, root: &DrawingArea<SVGBackend<'_>, plotters::coord::Shift>) -> PlotResult {
+impl PlottedReport for TruthComparison {
+    const SVG_SIZE_PX: (u32, u32) = (900, 900);
+
+    fn draw(&self, root: &DrawingArea<SVGBackend<'_>, Shift>) -> PlotResult {
         root.fill(&WHITE)?;
         let (xs, ys) = square_view(
             self.truth_path
@@ -290,20 +295,11 @@ impl TruthComparison {
         );
         let root = root.titled(&title, ("sans-serif", 22))?;
         let (top, bottom) = root.split_vertically(430);
-        let mut chart = ChartBuilder::on(&top)
-            .caption(
-                "the replay, dead-reckoned from the reference at the start",
-                ("sans-serif", 16),
-            )
-            .margin(15)
-            .x_label_area_size(40)
-            .y_label_area_size(60)
-            .build_cartesian_2d(xs, ys)?;
-        chart
-            .configure_mesh()
-            .x_desc("x (m)")
-            .y_desc("y (m)")
-            .draw()?;
+        let mut chart = xy_chart(
+            &top,
+            "the replay, dead-reckoned from the reference at the start",
+            (xs, ys),
+        )?;
         let fused_label = format!("fused: end {:.2} m", self.fused.end_error_m);
         let rear_label = format!("rear-only: end {:.2} m", self.rear.end_error_m);
         for (path, colour, label) in [
@@ -311,13 +307,7 @@ impl TruthComparison {
             (&self.rear_path, RED, rear_label.as_str()),
             (&self.fused_path, BLUE, fused_label.as_str()),
         ] {
-            chart
-                .draw_series(LineSeries::new(
-                    path.iter().map(|p| (p[0], p[1])),
-                    colour.stroke_width(2),
-                ))?
-                .label(label)
-                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour));
+            draw_line(&mut chart, path.iter().map(|p| (p[0], p[1])), colour, label)?;
         }
         if let Some(p) = self.truth_path.first() {
             chart.draw_series(std::iter::once(Circle::new(
@@ -347,31 +337,21 @@ impl TruthComparison {
             .y_desc("error (m)")
             .draw()?;
         for (k, colour, label) in [(2, RED, "rear-only"), (1, BLUE, "fused")] {
-            chart
-                .draw_series(LineSeries::new(
-                    self.errors_over_time.iter().map(|e| (e[0], e[k])),
-                    colour.stroke_width(2),
-                ))?
-                .label(label)
-                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour));
+            draw_line(
+                &mut chart,
+                self.errors_over_time.iter().map(|e| (e[0], e[k])),
+                colour,
+                label,
+            )?;
         }
         draw_legend(&mut chart)
-    }
-}
-
-impl ReportFiles for TruthComparison {
-    fn json(&self) -> Result<String, ReportError> {
-        json_line(self)
-    }
-
-    fn svg(&self) -> Result<String, ReportError> {
-        svg_text((900, 900), |root| self.draw(root))
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::files::ReportFiles;
 
     /// A reference driving a quarter circle of radius 20 m at 10 m/s from
     /// (100, 50) heading north, at 20 Hz.
