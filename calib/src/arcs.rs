@@ -147,3 +147,85 @@ impl ArcCollector {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const TREAD_M: f64 = 0.25;
+    const DIAMETER_M: f64 = 0.09;
+    const WHEELBASE_M: f64 = 0.3;
+    /// The true map: φ = 0.9·u + 0.02 rad, u in radians of nominal angle.
+    fn true_angle_rad(u: f64) -> f64 {
+        0.9 * u + 0.02
+    }
+
+    fn geometry() -> ArcGeometry {
+        ArcGeometry {
+            nominal_gain: 1.0,
+            rear: RearParams {
+                tread_m: TREAD_M,
+                left_diameter_m: DIAMETER_M,
+                right_diameter_m: DIAMETER_M,
+            },
+            wheelbase_m: WHEELBASE_M,
+        }
+    }
+
+    /// `seconds` of driving at 0.5 m/s with command `u`, 100 Hz, from `t_s`.
+    fn drive(arcs: &mut ArcCollector, t_s: &mut f64, u: f64, seconds: f64) {
+        let kappa = true_angle_rad(u).tan() / WHEELBASE_M;
+        let ds = 0.005;
+        let circumference = std::f64::consts::PI * DIAMETER_M;
+        for _ in 0..(seconds * 100.0) as usize {
+            *t_s += 0.01;
+            let sample = RevSample {
+                t_s: *t_s,
+                rear_left_rev: ds * (1.0 - 0.5 * kappa * TREAD_M) / circumference,
+                rear_right_rev: ds * (1.0 + 0.5 * kappa * TREAD_M) / circumference,
+                front_rev: None,
+                steer_signal: u,
+            };
+            arcs.step(sample, true, ds, true, &geometry());
+        }
+    }
+
+    #[test]
+    fn arcs_split_at_each_new_command_and_fit_the_true_map() {
+        let mut arcs = ArcCollector::default();
+        let mut t_s = 0.0;
+        drive(&mut arcs, &mut t_s, -0.2, 8.0);
+        drive(&mut arcs, &mut t_s, 0.1, 8.0);
+        assert_eq!(arcs.arcs().len(), 1, "a new command closes the arc before it");
+        assert_eq!(
+            arcs.clone().compute(&geometry()).map(|_| ()),
+            Err(ArcFitError::TooFewCommands),
+            "two commands fix a line but cannot check it"
+        );
+        drive(&mut arcs, &mut t_s, 0.3, 8.0);
+        let fit = arcs.compute(&geometry()).expect("three commands fit");
+        assert_eq!(fit.arcs.len(), 3);
+        assert!((fit.gain - 0.9).abs() < 0.01, "{}", fit.gain);
+        assert!((fit.offset_rad - 0.02).abs() < 0.005, "{}", fit.offset_rad);
+        let (gain_std, offset_std) = fit.std_devs();
+        assert!(gain_std < 1e-3 && offset_std < 1e-3, "{gain_std} {offset_std}");
+        // A fit awaits commit: more driving changes nothing.
+        drive(&mut arcs, &mut t_s, 0.5, 8.0);
+        assert_eq!(arcs.arcs().len(), 3);
+        assert_eq!(arcs.current_m(), 0.0);
+    }
+
+    #[test]
+    fn a_fault_drops_the_arc_being_driven_and_short_arcs_are_dropped() {
+        let mut arcs = ArcCollector::default();
+        let mut t_s = 0.0;
+        drive(&mut arcs, &mut t_s, 0.1, 8.0);
+        assert!(arcs.current_m() > 3.9);
+        arcs.fault();
+        assert_eq!(arcs.current_m(), 0.0);
+        // Shorter than the settling time: nothing to estimate.
+        drive(&mut arcs, &mut t_s, 0.2, 1.0);
+        drive(&mut arcs, &mut t_s, 0.3, 1.0);
+        assert!(arcs.arcs().is_empty());
+    }
+}
