@@ -4,6 +4,7 @@
 //! when the car has one), and `calibration.json`, every number of the
 //! result.
 
+use crate::files::TRAJECTORY_AXES;
 use crate::files::{
     PlotResult, PlottedReport, ReportError, draw_legend, draw_line, square_view, write_report,
     xy_chart,
@@ -270,6 +271,7 @@ pub fn write_drive_report(
 ) -> Result<(PathBuf, PathBuf), ReportError> {
     write_report(dir, &DriveReport::build(samples, fixes, before, after, cal))
 }
+
 impl PlottedReport for DriveReport {
     const SVG_SIZE_PX: (u32, u32) = (900, 900);
 
@@ -292,6 +294,7 @@ impl PlottedReport for DriveReport {
         let mut chart = xy_chart(
             &top,
             "the drive, dead-reckoned from the first fix",
+            &TRAJECTORY_AXES,
             (xs, ys),
         )?;
         let paths = [

@@ -152,11 +152,35 @@ where
     Ok(())
 }
 
+/// How an x-y chart in metres looks: caption size, margin, label areas,
+/// how the unit is written and whether minor grid lines are drawn.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct MetreAxes {
+    pub caption_px: u32,
+    pub margin_px: u32,
+    pub x_label_area_px: u32,
+    pub y_label_area_px: u32,
+    /// `"x (m)"` and `"y (m)"`, or the rear report's `"x [m]"` and `"y [m]"`.
+    pub descs: (&'static str, &'static str),
+    pub minor_lines: bool,
+}
+
+/// The look of the drive and reference pictures' x-y charts.
+pub(crate) const TRAJECTORY_AXES: MetreAxes = MetreAxes {
+    caption_px: 16,
+    margin_px: 15,
+    x_label_area_px: 40,
+    y_label_area_px: 60,
+    descs: ("x (m)", "y (m)"),
+    minor_lines: true,
+};
+
 /// A chart of positions in metres on `area`, under `caption`, with its mesh
-/// drawn: the top half of the drive and reference pictures.
+/// drawn.
 pub(crate) fn xy_chart<'a, 'b>(
     area: &'a DrawingArea<SVGBackend<'b>, Shift>,
     caption: &str,
+    axes: &MetreAxes,
     (xs, ys): (std::ops::Range<f64>, std::ops::Range<f64>),
 ) -> Result<
     ChartContext<
@@ -167,16 +191,17 @@ pub(crate) fn xy_chart<'a, 'b>(
     Box<dyn std::error::Error>,
 > {
     let mut chart = ChartBuilder::on(area)
-        .caption(caption, ("sans-serif", 16))
-        .margin(15)
-        .x_label_area_size(40)
-        .y_label_area_size(60)
+        .caption(caption, ("sans-serif", axes.caption_px))
+        .margin(axes.margin_px)
+        .x_label_area_size(axes.x_label_area_px)
+        .y_label_area_size(axes.y_label_area_px)
         .build_cartesian_2d(xs, ys)?;
-    chart
-        .configure_mesh()
-        .x_desc("x (m)")
-        .y_desc("y (m)")
-        .draw()?;
+    let mut mesh = chart.configure_mesh();
+    mesh.x_desc(axes.descs.0).y_desc(axes.descs.1);
+    if !axes.minor_lines {
+        mesh.light_line_style(WHITE);
+    }
+    mesh.draw()?;
     Ok(chart)
 }
 

@@ -20,7 +20,8 @@
 //! report ([`SteeringReport`]), written the same way.
 
 use crate::files::{
-    AFTER_COLOUR, BEFORE_COLOUR, PlotResult, ReportError, ReportFiles, json_line, svg_text,
+    AFTER_COLOUR, BEFORE_COLOUR, MetreAxes, PlotResult, ReportError, ReportFiles, json_line,
+    svg_text, xy_chart,
 };
 use canodom_calib::methods::centroids;
 use canodom_calib::{CalibrationResult, Direction, Method, RearParams, Run, Track};
@@ -452,6 +453,18 @@ fn run_path_sets(report: &CalibrationReport) -> [(PathOf, RGBColor, f64, Option<
     ]
 }
 
+/// The look of a rear report's charts (world metres, no minor lines).
+fn world_axes(caption_px: u32) -> MetreAxes {
+    MetreAxes {
+        caption_px,
+        margin_px: MARGIN,
+        x_label_area_px: LABEL_AREA,
+        y_label_area_px: LABEL_AREA,
+        descs: ("x [m]", "y [m]"),
+        minor_lines: false,
+    }
+}
+
 fn draw_paths(report: &CalibrationReport, area: &DrawingArea<SVGBackend<'_>, Shift>) -> PlotResult {
     let all = report.track.path_m.iter().chain(
         report
@@ -466,21 +479,12 @@ fn draw_paths(report: &CalibrationReport, area: &DrawingArea<SVGBackend<'_>, Shi
         (y0 - pad, y1 + pad),
         plot_px(area, true),
     );
-    let mut chart = ChartBuilder::on(area)
-        .caption(
-            "odometry paths of every run (world frame): before and after calibration",
-            ("sans-serif", 18),
-        )
-        .margin(MARGIN)
-        .x_label_area_size(LABEL_AREA)
-        .y_label_area_size(LABEL_AREA)
-        .build_cartesian_2d(xr, yr)?;
-    chart
-        .configure_mesh()
-        .x_desc("x [m]")
-        .y_desc("y [m]")
-        .light_line_style(WHITE)
-        .draw()?;
+    let mut chart = xy_chart(
+        area,
+        "odometry paths of every run (world frame): before and after calibration",
+        &world_axes(18),
+        (xr, yr),
+    )?;
     let key = |c: RGBColor| {
         move |(x, y): (i32, i32)| Rectangle::new([(x, y - 4), (x + 18, y + 4)], c.filled())
     };
@@ -586,25 +590,12 @@ fn draw_ends(
         (start[1] - reach, start[1] + reach),
         plot_px(area, true),
     );
-    let mut chart = ChartBuilder::on(area)
-        .caption(
-            format!(
-                "{} ends around S_{} (end error from the start)",
-                name.to_uppercase(),
-                name.to_uppercase()
-            ),
-            ("sans-serif", 16),
-        )
-        .margin(MARGIN)
-        .x_label_area_size(LABEL_AREA)
-        .y_label_area_size(LABEL_AREA)
-        .build_cartesian_2d(xr, yr)?;
-    chart
-        .configure_mesh()
-        .x_desc("x [m]")
-        .y_desc("y [m]")
-        .light_line_style(WHITE)
-        .draw()?;
+    let caption = format!(
+        "{} ends around S_{} (end error from the start)",
+        name.to_uppercase(),
+        name.to_uppercase()
+    );
+    let mut chart = xy_chart(area, &caption, &world_axes(16), (xr, yr))?;
     chart.draw_series(std::iter::once(
         EmptyElement::at((start[0], start[1]))
             + Cross::new((0, 0), 7, BLACK.stroke_width(2))

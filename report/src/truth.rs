@@ -11,6 +11,7 @@
 //! `heading_rad` column when it has one, else from its course around the
 //! start (which needs the vehicle to be moving then).
 
+use crate::files::TRAJECTORY_AXES;
 use crate::files::{
     PlotResult, PlottedReport, ReportError, draw_legend, draw_line, square_view, xy_chart,
 };
@@ -298,6 +299,7 @@ impl PlottedReport for TruthComparison {
         let mut chart = xy_chart(
             &top,
             "the replay, dead-reckoned from the reference at the start",
+            &TRAJECTORY_AXES,
             (xs, ys),
         )?;
         let fused_label = format!("fused: end {:.2} m", self.fused.end_error_m);
