@@ -8,11 +8,12 @@
 //! Layout:
 //! - [`frame`]: the CAN frame value type (classic, FD, remote, error frames).
 //! - [`time`]: [`time::Timestamp`], microseconds since the epoch, the time of every frame.
-//! - [`candump`]: the `candump -L` log format, streaming parser and formatter.
+//! - [`candump`]: the `candump -L` log format, streaming parser and formatter, and the
+//!   interfaces a log reader met and filters (shared by every reader).
 //! - [`log_format`]: which CAN log format a file is, from its first bytes.
 //! - [`any_log`]: one reader for every log format read, through gzip/zstd compression.
 //! - [`candump_plain`], [`vector_asc`], [`vector_blf`]: plain candump output, Vector ASC and BLF.
-//! - [`log_lines`]: what those readers share (interfaces met and filtered, bounded text lines).
+//! - [`log_lines`]: what the text readers share (bounded lines) and what a reader tells of its interfaces.
 //! - [`bus`]: the transport trait, with the in-process bus and SocketCAN.
 
 pub mod any_log;

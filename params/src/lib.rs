@@ -1,9 +1,10 @@
-//! canodom's calibrated-parameter file: the parameter values a calibration
-//! produces, the bounds they must stay within, the history of committed sets
-//! for rollback, and their atomic, durable storage as TOML.
+//! canodom's calibrated-parameter file: the history of committed sets
+//! (`canodom_calib::history`: values, bounds, commit and rollback) stored as
+//! TOML with a checksum per set, atomically and durably.
 //!
 //! Layout:
-//! - [`persist`]: values, bounds, the history file, load and store.
+//! - [`persist`]: the file's TOML layout, load (with every check) and store;
+//!   re-exports the history types.
 //! - [`atomic_file`]: atomic, durable file replacement (parameters, state, reports).
 
 pub mod atomic_file;
