@@ -985,7 +985,7 @@ impl Validator<'_> {
         let base_id = BaseId::new(o.base_id, o.extended).map_err(|err| {
             self.err(
                 "output.base_id",
-                "a base id whose frames (base + 0x13) fit the id format",
+                "a base id whose frames (base + 0x16) fit the id format",
                 err,
             )
         })?;
@@ -1004,7 +1004,7 @@ impl Validator<'_> {
             if own {
                 return Err(self.err(
                     "output.base_id",
-                    "own frame ids (base .. base + 0x13) clear of the input messages",
+                    "own frame ids (base .. base + 0x16) clear of the input messages",
                     format!("{:#x}", o.base_id),
                 ));
             }
