@@ -5,6 +5,8 @@
 //! Layout:
 //! - [`persist`]: values, bounds, the history file, load and store.
 //! - [`atomic_file`]: atomic, durable file replacement (parameters, state, reports).
+//! - [`freshness`]: SecOC freshness values, written ahead so a restart refuses old frames.
 
 pub mod atomic_file;
+pub mod freshness;
 pub mod persist;
