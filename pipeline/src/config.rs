@@ -11,7 +11,8 @@
 //! `[ekf]` (noise and gate; defaults are `canodom_fusion`'s `EkfConfig::new`)
 //! and `[output]` (own frames' base id, pose rate), and `[calibration]` (the
 //! live session over CAN: command id, arming code, parameter file, bounds,
-//! uncertainty limits, write-back timing; see [`CalibrationConfig`]).
+//! uncertainty limits, write-back timing; see [`CalibrationConfig`]), and
+//! `[security]` (the SecOC key and lockout; see [`crate::security`]).
 
 use canodom_dbc::{Checksum, ChecksumAlgorithm, Database, SignalHandle};
 use canodom_fusion::ekf::EkfConfig;
@@ -70,6 +71,16 @@ pub enum ConfigError {
         /// The OS error of the failed probe.
         reason: std::io::Error,
     },
+    /// `[security] key_file` is unreadable, open to group or others, or not a key.
+    #[error("{file}: key `security.key_file`: {}: {reason}", path.display())]
+    KeyFile {
+        /// The configuration file.
+        file: PathBuf,
+        /// The key file.
+        path: PathBuf,
+        /// Why it is refused (never any of its content).
+        reason: String,
+    },
 }
 
 /// The variable systemd sets to the unit's state directory (`StateDirectory=`;
@@ -119,6 +130,8 @@ struct RawConfig {
     output: RawOutput,
     #[serde(default)]
     calibration: RawCalibration,
+    #[serde(default)]
+    security: crate::security::RawSecurity,
 }
 
 #[derive(Debug, Deserialize)]
@@ -458,6 +471,8 @@ pub struct Config {
     pub output: OutputConfig,
     /// The live calibration session.
     pub calibration: CalibrationConfig,
+    /// Authentication of commands and write-back (`[security]`).
+    pub security: crate::security::SecurityConfig,
 }
 
 impl Config {
@@ -1052,6 +1067,7 @@ impl Validator<'_> {
             inputs,
             ekf,
             output,
+            security: crate::security::validate(self.file, &raw.security, &calibration.param_file)?,
             calibration,
         })
     }
@@ -1201,7 +1217,7 @@ fn checksum_byte(m: &canodom_dbc::Message, h: SignalHandle) -> Option<usize> {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
     pub(crate) const RC_CAR: &str = r#"

@@ -7,7 +7,9 @@
 //! - [`config`]: the TOML configuration, validated once into typed values.
 //! - [`pipeline`]: the frame → EKF core shared by run, replay, calibrate and demo.
 //! - [`stats`]: reject reasons and counters.
+//! - [`security`]: `[security]` and the SecOC gate the daemon passes frames through.
 
 pub mod config;
 pub mod pipeline;
+pub mod security;
 pub mod stats;

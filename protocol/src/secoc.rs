@@ -484,11 +484,12 @@ impl Receiver {
         self.lockout.trips()
     }
 
-    /// The last accepted freshness value of a secured id.
-    pub fn last_accepted(&self, secured: FrameId) -> Option<u32> {
+    /// The last accepted freshness value of a secured id (or of the secured
+    /// id an authenticator id belongs to).
+    pub fn last_accepted(&self, id: FrameId) -> Option<u32> {
         self.links
             .iter()
-            .find(|l| l.link.secured == secured)
+            .find(|l| l.link.secured == id || l.link.authenticator == id)
             .and_then(|l| l.last_accepted)
     }
 
