@@ -30,6 +30,7 @@ use canodom_dbc::{Checksum, Database, SignalHandle};
 use canodom_fusion::ekf::State;
 use canodom_pipeline::config::Config;
 use canodom_pipeline::pipeline::{Outcome, Pipeline, Step};
+use canodom_pipeline::security::{Admit, SecurityGate};
 use canodom_pipeline::stats::{Reasons, Reject, Stats};
 use canodom_protocol::calib_wire::CalibWire;
 use canodom_protocol::own_dbc::{OwnDbc, OwnFrame};
@@ -128,6 +129,9 @@ pub enum RunError {
     /// The calibration frames cannot be built at the configured base id.
     #[error("calibration frames: {0}")]
     Calibration(#[from] canodom_protocol::calib_wire::WireError),
+    /// The SecOC freshness file is unreadable or damaged.
+    #[error("{0}")]
+    Security(#[from] canodom_pipeline::security::GateError),
 }
 
 /// How often the live calibration's clock runs (status periods and ACK
@@ -260,6 +264,7 @@ pub async fn run<C: Connector>(
     let (calib_cmd_id, calib_ack_id) = (config.calibration.command_id, live.1);
     let encoder = PoseEncoder::with_dbc(&own)?;
     let cmd_id = OwnFrame::OdomCmd.id(config.output.base_id);
+    let security = SecurityGate::for_config(&config)?;
     let fixes = config.calibration.fixes.map(|f| {
         let id = config.db.messages()[f.message_index].id();
         (id, f)
@@ -268,6 +273,7 @@ pub async fn run<C: Connector>(
         .input_ids()
         .into_iter()
         .chain([cmd_id, calib_cmd_id, calib_ack_id])
+        .chain(security.receive_ids())
         .chain(fixes.map(|(id, _)| id))
         .map(IdFilter::exact)
         .collect();
@@ -308,6 +314,7 @@ pub async fn run<C: Connector>(
         fixes,
         odom_commands,
         odom_refusals: OdomRefusals::default(),
+        security,
         notifier,
         observers,
         clock: None,
@@ -707,6 +714,9 @@ struct PipelineTask<Tx> {
     fixes: Option<(FrameId, canodom_pipeline::config::FixSignals)>,
     odom_commands: OdomCommands,
     odom_refusals: OdomRefusals,
+    /// SecOC: verifies secured frames before anything acts on them, signs
+    /// `CALIB_PARAMS`, stamps the lockout on `CALIB_STATUS`.
+    security: SecurityGate,
     notifier: Option<Notifier>,
     observers: Observers,
     /// Last frame's bus timestamp and when it arrived: the pose flags are
@@ -765,9 +775,12 @@ impl<Tx: FrameSink + Clone> PipelineTask<Tx> {
                         stats = %s, lost = self.lost, poses = self.published,
                         outages = self.outages.load(Ordering::Relaxed),
                         odom_cmd_refused = self.odom_refusals.total,
+                        auth_refused = %self.security.counts(),
+                        auth_lockouts = self.security.lockouts(),
                         "statistics"
                     );
                     self.odom_refusals.new_period();
+                    self.security.new_period();
                     last_stats = s;
                     last_stats_at = Instant::now();
                 }
@@ -789,6 +802,7 @@ impl<Tx: FrameSink + Clone> PipelineTask<Tx> {
         info!(
             stats = %self.pipeline.stats(),
             odom_cmd_refused = self.odom_refusals.total,
+            auth_refused = %self.security.counts(),
             "pipeline stopped"
         );
         Summary {
@@ -805,8 +819,24 @@ impl<Tx: FrameSink + Clone> PipelineTask<Tx> {
     async fn handle(&mut self, event: LinkEvent) {
         match event {
             LinkEvent::Lost(n) => self.lost += n,
-            LinkEvent::Frame(r) => {
+            LinkEvent::Frame(mut r) => {
                 self.clock = Some((r.timestamp, Instant::now()));
+                match self.security.admit(&r) {
+                    Admit::Pass => {}
+                    Admit::Authentic(frame) => r.frame = frame,
+                    Admit::Held => return,
+                    Admit::Refused {
+                        reason,
+                        log,
+                        last_accepted,
+                    } => {
+                        if log {
+                            warn!(%reason, id = %r.frame.id(), last_accepted, refused = %self.security.counts(),
+                                "secured frame refused (more of this reason are only counted until the next statistics line)");
+                        }
+                        return;
+                    }
+                }
                 if r.frame.id() == self.calib_cmd_id {
                     let out = self.live.on_command(r.timestamp, &r.frame);
                     self.carry_out(out).await;
@@ -924,11 +954,17 @@ impl<Tx: FrameSink + Clone> PipelineTask<Tx> {
     async fn send(&mut self, frame: &CanFrame) {
         let tx = self.sink.borrow().clone();
         let Some(tx) = tx else { return };
-        if let Err(e) = tx.send(frame).await {
-            if is_link_loss(&e) {
-                let _ = self.link_lost.try_send(e);
-            } else {
-                debug!(cause = %e, "calibration frame not sent");
+        let unix_s = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_secs());
+        for frame in self.security.outgoing(frame, unix_s) {
+            if let Err(e) = tx.send(&frame).await {
+                if is_link_loss(&e) {
+                    let _ = self.link_lost.try_send(e);
+                } else {
+                    debug!(cause = %e, "calibration frame not sent");
+                }
+                return;
             }
         }
     }

@@ -71,8 +71,11 @@ pub struct SecurityConfig {
     pub key_file: Option<PathBuf>,
     /// The daemon's freshness values (default beside the parameter file).
     pub freshness_file: PathBuf,
-    /// `canodom calib`'s own counter, when configured.
-    pub operator_freshness_file: Option<PathBuf>,
+    /// `canodom calib`'s own counter: as configured, else
+    /// `$XDG_STATE_HOME/canodom/operator-freshness`, else
+    /// `$HOME/.local/state/canodom/operator-freshness`, else beside the
+    /// configuration (its folder is created when the client first signs).
+    pub operator_freshness_file: PathBuf,
     /// Failed authentications within [`Self::lockout_window`] that lock out (≥ 1).
     pub lockout_failures: u32,
     /// The window the failures are counted in.
@@ -173,7 +176,20 @@ pub(crate) fn validate(
             .freshness_file
             .as_deref()
             .map_or_else(|| param_file.with_file_name(DEFAULT_FRESHNESS_FILE), beside),
-        operator_freshness_file: raw.operator_freshness_file.as_deref().map(beside),
+        operator_freshness_file: raw.operator_freshness_file.as_deref().map_or_else(
+            || {
+                std::env::var_os("XDG_STATE_HOME")
+                    .map(PathBuf::from)
+                    .or_else(|| {
+                        std::env::var_os("HOME").map(|h| PathBuf::from(h).join(".local/state"))
+                    })
+                    .map_or_else(
+                        || beside(Path::new("operator-freshness")),
+                        |state| state.join("canodom/operator-freshness"),
+                    )
+            },
+            beside,
+        ),
         lockout_failures: raw.lockout_failures,
         lockout_window: secs("security.lockout_window_s", raw.lockout_window_s)?,
         lockout: secs("security.lockout_s", raw.lockout_s)?,
@@ -254,6 +270,8 @@ struct Keyed {
     store: FreshnessFile,
     signer: Authenticator,
     wire: CalibWire,
+    /// The secured ids received and their authenticators (kernel filters).
+    links: [Link; 3],
     params_auth_id: FrameId,
     /// The last freshness value sent on `CALIB_PARAMS`.
     tx_last: Option<u32>,
@@ -267,7 +285,21 @@ struct Keyed {
 const TX_RESERVE: u32 = 64;
 
 impl SecurityGate {
-    /// The gate of a validated configuration; loads the freshness file.
+    /// The gate of a validated configuration (its `[security]`, base id
+    /// and `CALIB_CMD` id).
+    ///
+    /// # Errors
+    /// [`GateError`] when the freshness file is unreadable or damaged.
+    pub fn for_config(config: &crate::config::Config) -> Result<Self, GateError> {
+        Self::new(
+            &config.security,
+            config.output.base_id,
+            config.calibration.command_id,
+        )
+    }
+
+    /// The gate of `[security]` for frames at `base` and `CALIB_CMD` at
+    /// `calib_cmd_id`; loads the freshness file.
     ///
     /// # Errors
     /// [`GateError`] when the freshness file is unreadable or damaged.
@@ -302,6 +334,7 @@ impl SecurityGate {
                 store,
                 signer: Authenticator::new(key),
                 wire,
+                links: receive_links(base, calib_cmd_id),
                 params_auth_id: OwnFrame::CalibParamsAuth.id(base),
                 now_us: 0,
                 unsigned: 0,
@@ -315,11 +348,11 @@ impl SecurityGate {
         self.keyed.is_some()
     }
 
-    /// The authenticator ids to receive (for kernel filters).
-    pub fn receive_ids(base: BaseId, calib_cmd_id: FrameId) -> Vec<FrameId> {
-        receive_links(base, calib_cmd_id)
+    /// The authenticator ids to receive (for kernel filters); none without a key.
+    pub fn receive_ids(&self) -> Vec<FrameId> {
+        self.keyed
             .iter()
-            .map(|l| l.authenticator)
+            .flat_map(|k| k.links.iter().map(|l| l.authenticator))
             .collect()
     }
 
@@ -446,6 +479,68 @@ pub fn operator_next_freshness(
     })?;
     store.reserve_tx(id, fv)?;
     Ok(fv)
+}
+
+/// A sender's end for one authenticator id: signs each secured frame with
+/// the next freshness value, reserved in its store first (`canodom calib`,
+/// and test parameter stores).
+#[derive(Debug)]
+pub struct Signer {
+    auth: Authenticator,
+    store: FreshnessFile,
+    authenticator_id: FrameId,
+    /// The receiver's mark a resynchronising sender must continue above.
+    floor: Option<u32>,
+}
+
+impl Signer {
+    /// A signer with `key` whose counter lives in `freshness_file`, sending
+    /// authenticators on `authenticator_id`; `floor` resynchronises a
+    /// sender that fell behind (see [`canodom_protocol::secoc`]).
+    ///
+    /// # Errors
+    /// The freshness file is unreadable or damaged.
+    pub fn new(
+        key: &Key,
+        freshness_file: &Path,
+        authenticator_id: FrameId,
+        floor: Option<u32>,
+    ) -> Result<Self, canodom_params::freshness::FreshnessError> {
+        if let Some(dir) = freshness_file
+            .parent()
+            .filter(|d| !d.as_os_str().is_empty())
+        {
+            // A missing folder shows as the store's own write error below.
+            let _ = std::fs::create_dir_all(dir);
+        }
+        Ok(Self {
+            auth: Authenticator::new(key),
+            store: FreshnessFile::load(freshness_file)?,
+            authenticator_id,
+            floor,
+        })
+    }
+
+    /// The authenticator frame of `data` sent at `secured` (`unix_s`: the
+    /// wall clock), its freshness value stored before it is returned.
+    ///
+    /// # Errors
+    /// The freshness value could not be stored (then nothing may be sent).
+    pub fn sign(
+        &mut self,
+        secured: FrameId,
+        data: &[u8; 8],
+        unix_s: u64,
+    ) -> Result<CanFrame, canodom_params::freshness::FreshnessError> {
+        let fv = operator_next_freshness(&mut self.store, secured, unix_s, self.floor)?;
+        let auth = self.auth.sign(secured, data, fv);
+        CanFrame::new_data(self.authenticator_id, &auth).map_err(|e| {
+            canodom_params::freshness::FreshnessError::Read {
+                path: self.store.path().to_owned(),
+                source: std::io::Error::other(e.to_string()),
+            }
+        })
+    }
 }
 
 #[cfg(test)]
@@ -607,8 +702,7 @@ mod tests {
         let c = load(&dir, &cfg).unwrap();
         let mut gate =
             SecurityGate::new(&c.security, c.output.base_id, c.calibration.command_id).unwrap();
-        let mut op =
-            FreshnessFile::load(c.security.operator_freshness_file.as_ref().unwrap()).unwrap();
+        let mut op = FreshnessFile::load(&c.security.operator_freshness_file).unwrap();
         let [(id, data), (aid, auth)] = operator_frames(&c, &mut op, Command::Commit, 1);
         assert_eq!(gate.admit(&rx(0, id, &data)), Admit::Held);
         assert_eq!(
