@@ -29,8 +29,8 @@ use canodom_can::time::Timestamp;
 use canodom_dbc::{Checksum, Database, SignalHandle};
 use canodom_fusion::ekf::State;
 use canodom_pipeline::config::Config;
+use canodom_pipeline::gate::{Admit, SecurityGate};
 use canodom_pipeline::pipeline::{Outcome, Pipeline, Step};
-use canodom_pipeline::security::{Admit, SecurityGate};
 use canodom_pipeline::stats::{Reasons, Reject, Stats};
 use canodom_protocol::calib_wire::CalibWire;
 use canodom_protocol::own_dbc::{OwnDbc, OwnFrame};
@@ -131,7 +131,7 @@ pub enum RunError {
     Calibration(#[from] canodom_protocol::calib_wire::WireError),
     /// The SecOC freshness file is unreadable or damaged.
     #[error("{0}")]
-    Security(#[from] canodom_pipeline::security::GateError),
+    Security(#[from] canodom_pipeline::gate::GateError),
 }
 
 /// How often the live calibration's clock runs (status periods and ACK

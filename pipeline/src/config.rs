@@ -1067,7 +1067,17 @@ impl Validator<'_> {
             inputs,
             ekf,
             output,
-            security: crate::security::validate(self.file, &raw.security, &calibration.param_file)?,
+            security: crate::security::validate(self.file, &raw.security, &calibration.param_file)
+                .map_err(|e| match e {
+                    crate::security::SecurityError::Invalid(key, expected, got) => {
+                        self.err(&key, &expected, got)
+                    }
+                    crate::security::SecurityError::KeyFile(path, reason) => ConfigError::KeyFile {
+                        file: self.file.to_owned(),
+                        path,
+                        reason,
+                    },
+                })?,
             calibration,
         })
     }

@@ -11,7 +11,7 @@
 use anyhow::Context as _;
 use canodom_can::bus::{BusEvent, FrameSink, FrameSource, IdFilter, open_socketcan};
 use canodom_pipeline::config::Config;
-use canodom_pipeline::security::Signer;
+use canodom_pipeline::gate::Signer;
 use canodom_protocol::calib_wire::{
     CalibWire, Command, Counts, ParamsAssembler, Reason, StatusPage,
 };
