@@ -196,7 +196,11 @@ mod tests {
         let mut t_s = 0.0;
         drive(&mut arcs, &mut t_s, -0.2, 8.0);
         drive(&mut arcs, &mut t_s, 0.1, 8.0);
-        assert_eq!(arcs.arcs().len(), 1, "a new command closes the arc before it");
+        assert_eq!(
+            arcs.arcs().len(),
+            1,
+            "a new command closes the arc before it"
+        );
         assert_eq!(
             arcs.clone().compute(&geometry()).map(|_| ()),
             Err(ArcFitError::TooFewCommands),
@@ -208,7 +212,10 @@ mod tests {
         assert!((fit.gain - 0.9).abs() < 0.01, "{}", fit.gain);
         assert!((fit.offset_rad - 0.02).abs() < 0.005, "{}", fit.offset_rad);
         let (gain_std, offset_std) = fit.std_devs();
-        assert!(gain_std < 1e-3 && offset_std < 1e-3, "{gain_std} {offset_std}");
+        assert!(
+            gain_std < 1e-3 && offset_std < 1e-3,
+            "{gain_std} {offset_std}"
+        );
         // A fit awaits commit: more driving changes nothing.
         drive(&mut arcs, &mut t_s, 0.5, 8.0);
         assert_eq!(arcs.arcs().len(), 3);

@@ -21,7 +21,9 @@ use canodom_can::bus::{BusError, FrameSink};
 use canodom_can::frame::CanFrame;
 use canodom_can::time::Timestamp;
 use canodom_params::persist::{ParamFile, ParamValues};
+use canodom_pipeline::gate::SecurityGate;
 use std::path::PathBuf;
+use std::sync::{Arc, Mutex};
 use std::time::Duration;
 use tokio::sync::{mpsc, watch};
 use tokio::task::JoinHandle;
@@ -92,6 +94,8 @@ pub struct CalibTask<Tx> {
     pub clock: BusClock,
     /// The sending half of the transport (`None` while disconnected).
     pub sink: watch::Receiver<Option<Tx>>,
+    /// SecOC: signs `CALIB_PARAMS`, stamps the lockout on `CALIB_STATUS`.
+    pub security: Arc<Mutex<SecurityGate>>,
     /// Tells the link task of a link loss a send met.
     pub link_lost: mpsc::Sender<BusError>,
     /// The parameter file.
@@ -117,6 +121,7 @@ impl<Tx: FrameSink + Clone> CalibTask<Tx> {
     /// The task over `live`, and the odometry task's ends of its channels.
     pub fn new(
         live: LiveCalibration,
+        security: Arc<Mutex<SecurityGate>>,
         sink: watch::Receiver<Option<Tx>>,
         link_lost: mpsc::Sender<BusError>,
         param_file: PathBuf,
@@ -135,6 +140,7 @@ impl<Tx: FrameSink + Clone> CalibTask<Tx> {
             standstill,
             clock,
             sink,
+            security,
             link_lost,
             param_file,
             report_root,
@@ -295,11 +301,18 @@ impl<Tx: FrameSink + Clone> CalibTask<Tx> {
     async fn send(&mut self, frame: &CanFrame) {
         let tx = self.sink.borrow().clone();
         let Some(tx) = tx else { return };
-        if let Err(e) = tx.send(frame).await {
-            if e.is_link_loss() {
-                let _ = self.link_lost.try_send(e);
-            } else {
-                debug!(cause = %e, "calibration frame not sent");
+        let unix_s = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_secs());
+        let frames = lock(&self.security).outgoing(frame, unix_s);
+        for frame in frames {
+            if let Err(e) = tx.send(&frame).await {
+                if e.is_link_loss() {
+                    let _ = self.link_lost.try_send(e);
+                } else {
+                    debug!(cause = %e, "calibration frame not sent");
+                }
+                return;
             }
         }
     }
@@ -317,4 +330,12 @@ async fn finish(effect: &mut Option<JoinHandle<Effect>>) -> Result<Effect, tokio
 /// calibration's standstill judgement at bus time `t`.
 pub fn still_at(judge: &watch::Receiver<Standstill>, t: Timestamp) -> bool {
     judge.borrow().is_still(t.as_micros() as f64 * 1e-6)
+}
+
+/// The SecOC gate both tasks share: held for one frame's check or signing,
+/// never across an await. A task that panicked while holding it left the
+/// gate's counters as they were, which are still the best knowledge.
+pub fn lock(gate: &Mutex<SecurityGate>) -> std::sync::MutexGuard<'_, SecurityGate> {
+    gate.lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
 }

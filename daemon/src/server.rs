@@ -24,7 +24,7 @@
 //! queued and finishes a store in flight before it returns, so nothing
 //! received is lost.
 
-use crate::calib_task::{CalibInput, CalibTask, OdometryLinks, still_at};
+use crate::calib_task::{CalibInput, CalibTask, OdometryLinks, lock, still_at};
 use crate::live_calib::LiveCalibration;
 use crate::sd_notify::Notifier;
 use canodom_can::bus::{
@@ -35,14 +35,15 @@ use canodom_can::time::Timestamp;
 use canodom_dbc::{Checksum, Database, SignalHandle};
 use canodom_fusion::ekf::State;
 use canodom_pipeline::config::{Config, FixSignals};
+use canodom_pipeline::gate::{Admit, SecurityGate};
 use canodom_pipeline::pipeline::{Outcome, Pipeline, Step};
 use canodom_pipeline::stats::{Reasons, Reject, Stats};
 use canodom_protocol::calib_wire::CalibWire;
 use canodom_protocol::own_dbc::{OwnDbc, OwnFrame};
 use canodom_protocol::pose_frames::PoseEncoder;
 use std::future::Future;
-use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
 use std::time::Duration;
 use tokio::sync::{mpsc, watch};
 use tokio::time::{Instant, MissedTickBehavior};
@@ -134,6 +135,9 @@ pub enum RunError {
     /// The calibration frames cannot be built at the configured base id.
     #[error("calibration frames: {0}")]
     Calibration(#[from] canodom_protocol::calib_wire::WireError),
+    /// The SecOC freshness file is unreadable or damaged.
+    #[error("{0}")]
+    Security(#[from] canodom_pipeline::gate::GateError),
 }
 
 /// Optional observers (the demo's display, tests).
@@ -175,6 +179,24 @@ fn next_backoff(current: Duration, cause: Option<&BusError>) -> Duration {
         _ => BACKOFF_MAX,
     };
     (current * 2).min(cap)
+}
+
+/// What the kernel passes: only what the daemon reads (wheels, steering,
+/// its own commands and acknowledgements, authenticators, position fixes).
+fn kernel_filters(
+    config: &Config,
+    own_ids: &[FrameId],
+    gate: &SecurityGate,
+    fix_id: Option<FrameId>,
+) -> Vec<IdFilter> {
+    let ids = config
+        .input_ids()
+        .into_iter()
+        .chain(own_ids.iter().copied());
+    ids.chain(gate.receive_ids())
+        .chain(fix_id)
+        .map(IdFilter::exact)
+        .collect()
 }
 
 /// The daemon's run loop on an in-process bus, with no CAN hardware: how
@@ -252,15 +274,12 @@ pub async fn run<C: Connector>(
     let calib_cmd_id = config.calibration.command_id;
     let encoder = PoseEncoder::with_dbc(&own)?;
     let cmd_id = OwnFrame::OdomCmd.id(config.output.base_id);
+    let gate = SecurityGate::for_config(&config)?;
     let fix_id = |f: &FixSignals| config.db.messages()[f.message_index].id();
     let fixes = config.calibration.fixes.map(|f| (fix_id(&f), f));
-    // The kernel passes only what the daemon reads: wheels, steering and
-    // its own commands, acknowledgements and position fixes.
     let own_ids = [cmd_id, calib_cmd_id, calib_ack_id];
-    let filters = (config.input_ids().into_iter().chain(own_ids))
-        .chain(fixes.map(|(id, _)| id))
-        .map(IdFilter::exact)
-        .collect();
+    let filters = kernel_filters(&config, &own_ids, &gate, fixes.map(|(id, _)| id));
+    let security = Arc::new(Mutex::new(gate));
     let notifier = Notifier::from_env().unwrap_or_else(|e| {
         warn!(cause = %e, "sd_notify socket unusable; running without systemd notifications");
         None
@@ -283,6 +302,7 @@ pub async fn run<C: Connector>(
         .map_err(canodom_protocol::pose_frames::PoseEncodeError::from)?;
     let (calib, links) = CalibTask::new(
         live,
+        Arc::clone(&security),
         sink_rx.clone(),
         lost_tx.clone(),
         config.calibration.param_file.clone(),
@@ -302,6 +322,7 @@ pub async fn run<C: Connector>(
         fixes,
         odom_commands,
         odom_refusals: OdomRefusals::default(),
+        security: Arc::clone(&security),
         notifier,
         observers,
         published: 0,
@@ -699,6 +720,11 @@ struct OdometryTask<Tx> {
     fixes: Option<(FrameId, FixSignals)>,
     odom_commands: OdomCommands,
     odom_refusals: OdomRefusals,
+    /// SecOC: verifies secured frames before anything acts on them, signs
+    /// `CALIB_PARAMS`, stamps the lockout on `CALIB_STATUS`.
+    /// SecOC: verifies secured frames before anything acts on them; the
+    /// calibration task signs and stamps what it sends with the same gate.
+    security: Arc<Mutex<SecurityGate>>,
     notifier: Option<Notifier>,
     observers: Observers,
     published: u64,
@@ -750,9 +776,12 @@ impl<Tx: FrameSink + Clone> OdometryTask<Tx> {
                         stats = %s, lost = self.lost, poses = self.published,
                         outages = self.outages.load(Ordering::Relaxed),
                         odom_cmd_refused = self.odom_refusals.total,
+                        auth_refused = %lock(&self.security).counts(),
+                        auth_lockouts = lock(&self.security).lockouts(),
                         "statistics"
                     );
                     self.odom_refusals.new_period();
+                    lock(&self.security).new_period();
                     last_stats = s;
                     last_stats_at = Instant::now();
                 }
@@ -776,6 +805,7 @@ impl<Tx: FrameSink + Clone> OdometryTask<Tx> {
         info!(
             stats = %self.pipeline.stats(),
             odom_cmd_refused = self.odom_refusals.total,
+            auth_refused = %lock(&self.security).counts(),
             "pipeline stopped"
         );
         Summary {
@@ -797,11 +827,40 @@ impl<Tx: FrameSink + Clone> OdometryTask<Tx> {
         }
     }
 
+    /// Passes a received frame through the SecOC gate: `false` when nothing
+    /// may act on it (refused, counted and logged once a period, or held
+    /// until its authenticator arrives); an authenticated frame replaces it.
+    fn admit(&self, r: &mut Received) -> bool {
+        let mut gate = lock(&self.security);
+        match gate.admit(r) {
+            Admit::Pass => true,
+            Admit::Authentic(frame) => {
+                r.frame = frame;
+                true
+            }
+            Admit::Held => false,
+            Admit::Refused {
+                reason,
+                log,
+                last_accepted,
+            } => {
+                if log {
+                    warn!(%reason, id = %r.frame.id(), last_accepted, refused = %gate.counts(),
+                        "secured frame refused (more of this reason are only counted until the next statistics line)");
+                }
+                false
+            }
+        }
+    }
+
     async fn handle(&mut self, event: LinkEvent) {
         match event {
             LinkEvent::Lost(n) => self.lost += n,
-            LinkEvent::Frame(r) => {
+            LinkEvent::Frame(mut r) => {
                 (self.links.clock).send_replace(Some((r.timestamp, Instant::now())));
+                if !self.admit(&mut r) {
+                    return;
+                }
                 let id = r.frame.id();
                 if id == self.calib_cmd_id {
                     self.to_calibration(CalibInput::Command(r.timestamp, r.frame))

@@ -5,6 +5,7 @@
 #![allow(clippy::unwrap_used)]
 
 mod architecture;
+mod auth_daemon;
 mod bad_input;
 mod calib_client;
 mod calib_session;

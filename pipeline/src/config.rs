@@ -11,7 +11,8 @@
 //! `[ekf]` (noise and gate; defaults are `canodom_fusion`'s `EkfConfig::new`)
 //! and `[output]` (own frames' base id, pose rate), and `[calibration]` (the
 //! live session over CAN: command id, arming code, parameter file, bounds,
-//! uncertainty limits, write-back timing; see [`CalibrationConfig`]).
+//! uncertainty limits, write-back timing; see [`CalibrationConfig`]), and
+//! `[security]` (the SecOC key and lockout; see [`crate::security`]).
 
 use canodom_dbc::{Checksum, ChecksumAlgorithm, Database, SignalHandle};
 use canodom_fusion::ekf::EkfConfig;
@@ -70,6 +71,16 @@ pub enum ConfigError {
         /// The OS error of the failed probe.
         reason: std::io::Error,
     },
+    /// `[security] key_file` is unreadable, open to group or others, or not a key.
+    #[error("{file}: key `security.key_file`: {}: {reason}", path.display())]
+    KeyFile {
+        /// The configuration file.
+        file: PathBuf,
+        /// The key file.
+        path: PathBuf,
+        /// Why it is refused (never any of its content).
+        reason: String,
+    },
 }
 
 /// The variable systemd sets to the unit's state directory (`StateDirectory=`;
@@ -119,6 +130,8 @@ struct RawConfig {
     output: RawOutput,
     #[serde(default)]
     calibration: RawCalibration,
+    #[serde(default)]
+    security: crate::security::RawSecurity,
 }
 
 #[derive(Debug, Deserialize)]
@@ -458,6 +471,8 @@ pub struct Config {
     pub output: OutputConfig,
     /// The live calibration session.
     pub calibration: CalibrationConfig,
+    /// Authentication of commands and write-back (`[security]`).
+    pub security: crate::security::SecurityConfig,
 }
 
 impl Config {
@@ -985,7 +1000,7 @@ impl Validator<'_> {
         let base_id = BaseId::new(o.base_id, o.extended).map_err(|err| {
             self.err(
                 "output.base_id",
-                "a base id whose frames (base + 0x13) fit the id format",
+                "a base id whose frames (base + 0x16) fit the id format",
                 err,
             )
         })?;
@@ -1004,7 +1019,7 @@ impl Validator<'_> {
             if own {
                 return Err(self.err(
                     "output.base_id",
-                    "own frame ids (base .. base + 0x13) clear of the input messages",
+                    "own frame ids (base .. base + 0x16) clear of the input messages",
                     format!("{:#x}", o.base_id),
                 ));
             }
@@ -1052,6 +1067,17 @@ impl Validator<'_> {
             inputs,
             ekf,
             output,
+            security: crate::security::validate(self.file, &raw.security, &calibration.param_file)
+                .map_err(|e| match e {
+                    crate::security::SecurityError::Invalid(key, expected, got) => {
+                        self.err(&key, &expected, got)
+                    }
+                    crate::security::SecurityError::KeyFile(path, reason) => ConfigError::KeyFile {
+                        file: self.file.to_owned(),
+                        path,
+                        reason,
+                    },
+                })?,
             calibration,
         })
     }
@@ -1201,7 +1227,7 @@ fn checksum_byte(m: &canodom_dbc::Message, h: SignalHandle) -> Option<usize> {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
     pub(crate) const RC_CAR: &str = r#"

@@ -685,6 +685,8 @@ pub struct CalibWire {
     params: [SignalHandle; 9],
     ack: [SignalHandle; 2],
     counters: [SignalHandle; 4],
+    /// `CALIB_STATUS.AUTH_LOCKOUT` (page 0), stamped by the SecOC gate.
+    auth_lockout: SignalHandle,
 }
 
 const CMD: &str = "CALIB_CMD";
@@ -803,6 +805,7 @@ impl CalibWire {
                 p(PARAM_SIGNALS[6])?,
             ],
             ack: [s(ACK, "ACK_VERSION")?, s(ACK, "ACK_STATUS")?],
+            auth_lockout: st("AUTH_LOCKOUT")?,
             counters: [
                 s(CMD, "COUNTER")?,
                 s(STATUS, "COUNTER")?,
@@ -1241,6 +1244,29 @@ impl CalibWire {
         ))
     }
 
+    /// Sets `AUTH_LOCKOUT` in a page-0 `CALIB_STATUS` payload and recomputes
+    /// its CRC; other pages and payloads with a bad CRC are left alone
+    /// (returns whether it stamped). The session machine does not know of
+    /// authentication: the SecOC gate stamps its lockout on the way out.
+    pub fn stamp_auth_lockout(&self, data: &mut [u8; 8], locked: bool) -> bool {
+        if !self.checksum_ok(data) || self.status.page.raw(data) != Some(0) {
+            return false;
+        }
+        self.auth_lockout.encode_raw(u64::from(locked), data);
+        // 8 bytes always cover the checksum's range.
+        let _ = self.crc.apply(data);
+        true
+    }
+
+    /// `AUTH_LOCKOUT` of a page-0 `CALIB_STATUS` payload; `None` for another
+    /// page or a bad CRC.
+    pub fn auth_lockout(&self, data: &[u8]) -> Option<bool> {
+        if !self.checksum_ok(data) || self.status.page.raw(data) != Some(0) {
+            return None;
+        }
+        self.auth_lockout.raw(data).map(|r| r == 1)
+    }
+
     /// A frame at `id` with `data` (helper for senders).
     ///
     /// # Errors
@@ -1336,6 +1362,41 @@ fn put_all(handles: &[SignalHandle; 3], values: [f64; 3], buf: &mut [u8]) {
 mod tests {
     use super::*;
     use std::collections::HashSet;
+
+    #[test]
+    fn auth_lockout_is_stamped_on_page_0_only_with_a_fresh_crc() {
+        let w = wire();
+        let p0 = StatusPage::Progress(Progress {
+            state: State::Idle,
+            instruction: InstructionCode::None,
+            run_index: 0,
+            runs_total: 0,
+            direction: WireDirection::None,
+            start_point: StartPoint::None,
+            run_distance_m: 0.0,
+            writeback: Writeback::Idle,
+            standstill: true,
+            writeback_attempts: 0,
+        });
+        let mut data = w.encode_status(&p0, 3);
+        assert_eq!(w.auth_lockout(&data), Some(false));
+        assert!(w.stamp_auth_lockout(&mut data, true));
+        assert_eq!(w.auth_lockout(&data), Some(true));
+        // Still the same page 0, counter and a valid CRC.
+        assert_eq!(w.decode_status(&data).unwrap(), (p0, 3));
+        assert!(w.stamp_auth_lockout(&mut data, false));
+        assert_eq!(data, w.encode_status(&p0, 3));
+        let mut p5 = w.encode_status(
+            &StatusPage::ResultExtra {
+                steer_offset_std_rad: 0.0,
+                version: 1,
+            },
+            0,
+        );
+        let before = p5;
+        assert!(!w.stamp_auth_lockout(&mut p5, true));
+        assert_eq!((p5, w.auth_lockout(&p5)), (before, None));
+    }
 
     fn wire() -> CalibWire {
         CalibWire::new(BaseId::DEFAULT).unwrap()

@@ -7,8 +7,10 @@
 //! - [`pose_frames`]: the published pose ([`pose_frames::PoseOutput`]) encoded into pose frames.
 //! - [`guide`]: the calibration's status in words, as an operator's client shows it.
 //! - [`calib_wire`]: the calibration commands, status and parameter frames as typed values.
+//! - [`secoc`]: authenticated commands and write-back (SecOC profile, CMAC, freshness, lockout).
 
 pub mod calib_wire;
 pub mod guide;
 pub mod own_dbc;
 pub mod pose_frames;
+pub mod secoc;

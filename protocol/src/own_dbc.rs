@@ -10,13 +10,18 @@
 //! | +0x01 | `ODOM_MOTION` | canodom | pose rate |
 //! | +0x02 | `ODOM_QUALITY` | canodom | pose rate |
 //! | +0x03 | `ODOM_CMD` | operator | event |
+//! | +0x04 | `ODOM_CMD_AUTH` | operator | after `ODOM_CMD`, with a key |
 //! | +0x10 | `CALIB_CMD` | operator | event |
 //! | +0x11 | `CALIB_STATUS` | canodom | 100 ms / 1 s |
 //! | +0x12 | `CALIB_PARAMS` | canodom | event |
 //! | +0x13 | `CALIB_ACK` | parameter store ECU | event |
+//! | +0x14 | `CALIB_CMD_AUTH` | operator | after `CALIB_CMD`, with a key |
+//! | +0x15 | `CALIB_PARAMS_AUTH` | canodom | after each `CALIB_PARAMS`, with a key |
+//! | +0x16 | `CALIB_ACK_AUTH` | parameter store ECU | after `CALIB_ACK`, with a key |
 //!
 //! Every frame is 8 bytes with `COUNTER` at bits 52..55 and a CRC-8 SAE
-//! J1850 `CHECKSUM` over bytes 0..=6 in byte 7, as in `rc_car.dbc`.
+//! J1850 `CHECKSUM` over bytes 0..=6 in byte 7, as in `rc_car.dbc`, except
+//! the `*_AUTH` authenticators of [`crate::secoc`] (freshness value and MAC).
 
 use canodom_can::frame::{FrameId, MAX_EXTENDED_ID, MAX_STANDARD_ID};
 use canodom_dbc::Database;
@@ -30,7 +35,7 @@ pub const OWN_DBC: &str = include_str!("../dbc/canodom.dbc");
 pub const DEFAULT_BASE_ID: u32 = 0x600;
 
 /// Largest offset in the map; `base_id + MAX_OFFSET` must be a valid id.
-pub const MAX_OFFSET: u32 = 0x13;
+pub const MAX_OFFSET: u32 = 0x16;
 
 /// One of canodom's own frames.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -51,19 +56,31 @@ pub enum OwnFrame {
     CalibParams,
     /// Parameter store acknowledgement.
     CalibAck,
+    /// Authenticator of `ODOM_CMD` (SecOC, [`crate::secoc`]).
+    OdomCmdAuth,
+    /// Authenticator of `CALIB_CMD`.
+    CalibCmdAuth,
+    /// Authenticator of `CALIB_PARAMS`.
+    CalibParamsAuth,
+    /// Authenticator of `CALIB_ACK`.
+    CalibAckAuth,
 }
 
 impl OwnFrame {
     /// Every frame, in id order.
-    pub const ALL: [Self; 8] = [
+    pub const ALL: [Self; 12] = [
         Self::OdomPosition,
         Self::OdomMotion,
         Self::OdomQuality,
         Self::OdomCmd,
+        Self::OdomCmdAuth,
         Self::CalibCmd,
         Self::CalibStatus,
         Self::CalibParams,
         Self::CalibAck,
+        Self::CalibCmdAuth,
+        Self::CalibParamsAuth,
+        Self::CalibAckAuth,
     ];
 
     /// Offset from the base id.
@@ -77,6 +94,10 @@ impl OwnFrame {
             Self::CalibStatus => 0x11,
             Self::CalibParams => 0x12,
             Self::CalibAck => 0x13,
+            Self::OdomCmdAuth => 0x04,
+            Self::CalibCmdAuth => 0x14,
+            Self::CalibParamsAuth => 0x15,
+            Self::CalibAckAuth => 0x16,
         }
     }
 
@@ -91,6 +112,10 @@ impl OwnFrame {
             Self::CalibStatus => "CALIB_STATUS",
             Self::CalibParams => "CALIB_PARAMS",
             Self::CalibAck => "CALIB_ACK",
+            Self::OdomCmdAuth => "ODOM_CMD_AUTH",
+            Self::CalibCmdAuth => "CALIB_CMD_AUTH",
+            Self::CalibParamsAuth => "CALIB_PARAMS_AUTH",
+            Self::CalibAckAuth => "CALIB_ACK_AUTH",
         }
     }
 
@@ -332,6 +357,13 @@ mod tests {
                     .find(|s| s.name == name)
                     .unwrap_or_else(|| panic!("{} lacks {name}", m.name))
             };
+            if m.name.ends_with("_AUTH") {
+                // A SecOC authenticator: freshness and MAC, no counter or CRC.
+                assert_eq!(m.signals.len(), 2, "{}", m.name);
+                assert_eq!((sig("FRESHNESS").start_bit, sig("FRESHNESS").size), (0, 32));
+                assert_eq!((sig("MAC").start_bit, sig("MAC").size), (32, 32));
+                continue;
+            }
             let counter = sig("COUNTER");
             assert_eq!((counter.start_bit, counter.size), (52, 4), "{}", m.name);
             let crc = sig("CHECKSUM");
@@ -446,7 +478,7 @@ mod tests {
         let dbc = parse(OWN_DBC);
         let crc8 = crc::Crc::<u8>::new(&crc::CRC_8_SAE_J1850);
         let frames = vectors["frames"].as_array().unwrap();
-        assert_eq!(frames.len(), 17, "one vector per message and mux value");
+        assert_eq!(frames.len(), 21, "one vector per message and mux value");
         for v in frames {
             let id = v["id"].as_u64().unwrap();
             let msg = dbc
@@ -458,7 +490,9 @@ mod tests {
             let bytes: Vec<u8> = (0..8)
                 .map(|i| u8::from_str_radix(&hex[2 * i..2 * i + 2], 16).unwrap())
                 .collect();
-            assert_eq!(bytes[7], crc8.checksum(&bytes[..7]), "{}", msg.name);
+            if !msg.name.ends_with("_AUTH") {
+                assert_eq!(bytes[7], crc8.checksum(&bytes[..7]), "{}", msg.name);
+            }
             let data = u64::from_le_bytes(bytes.try_into().unwrap());
             let mux = msg
                 .signals
@@ -498,11 +532,11 @@ mod tests {
     #[test]
     fn base_ids_are_validated() {
         assert_eq!(BaseId::new(0x600, false), Ok(BaseId::DEFAULT));
-        assert!(BaseId::new(0x7EC, false).is_ok());
-        let err = BaseId::new(0x7ED, false).unwrap_err();
+        assert!(BaseId::new(0x7E9, false).is_ok());
+        let err = BaseId::new(0x7EA, false).unwrap_err();
         assert_eq!(err.max, MAX_STANDARD_ID);
-        assert!(BaseId::new(0x1FFF_FFEC, true).is_ok());
-        assert!(BaseId::new(0x1FFF_FFED, true).is_err());
+        assert!(BaseId::new(0x1FFF_FFE9, true).is_ok());
+        assert!(BaseId::new(0x1FFF_FFEA, true).is_err());
         assert!(BaseId::new(u32::MAX, true).is_err());
         let ext = BaseId::new(0x18FF_0000, true).unwrap();
         assert_eq!(OwnFrame::CalibAck.id(ext), FrameId::Extended(0x18FF_0013));

@@ -11,12 +11,14 @@
 use anyhow::Context as _;
 use canodom_can::bus::{BusEvent, FrameSink, FrameSource, IdFilter, open_socketcan};
 use canodom_pipeline::config::Config;
+use canodom_pipeline::gate::Signer;
 use canodom_protocol::calib_wire::{
     CalibWire, Command, Counts, ParamsAssembler, Reason, StatusPage,
 };
 use canodom_protocol::guide::{
     Answer, GuideState, judge, reason_text, render_guide, render_line, track_length_m,
 };
+use canodom_protocol::own_dbc::OwnFrame;
 use std::io::{IsTerminal as _, Write as _};
 use std::path::PathBuf;
 use std::time::Duration;
@@ -66,6 +68,10 @@ pub struct CalibArgs {
     #[arg(long, global = true, requires = "print_frame",
           value_parser = clap::value_parser!(u8).range(0..=15))]
     pub counter: Option<u8>,
+    /// SecOC resynchronisation: continue the freshness counter above this
+    /// value (the daemon's `last_accepted` from its refusal log line).
+    #[arg(long, global = true)]
+    pub freshness_floor: Option<u32>,
     /// What to do.
     #[command(subcommand)]
     pub action: Action,
@@ -219,6 +225,7 @@ pub fn cansend_line(
     config: &Config,
     action: &Action,
     counter: Option<u8>,
+    signer: Option<&mut Signer>,
 ) -> anyhow::Result<String> {
     let Some(cmd) = command_for(action) else {
         anyhow::bail!(
@@ -237,7 +244,36 @@ pub fn cansend_line(
     let frame = CalibWire::frame(config.calibration.command_id, &data)?;
     let mut line = format!("cansend {} ", config.interface).into_bytes();
     canodom_can::candump::format_frame(&mut line, &frame);
+    if let Some(signer) = signer {
+        // The authenticator follows at once (SecOC): a second cansend line.
+        let auth = signer.sign(frame.id(), &data, unix_s())?;
+        line.extend_from_slice(format!(" && cansend {} ", config.interface).as_bytes());
+        canodom_can::candump::format_frame(&mut line, &auth);
+    }
     Ok(String::from_utf8_lossy(&line).into_owned())
+}
+
+/// The signer of `CALIB_CMD` when `[security] key_file` is set.
+fn operator_signer(config: &Config, floor: Option<u32>) -> anyhow::Result<Option<Signer>> {
+    let Some(key) = &config.security.key else {
+        return Ok(None);
+    };
+    let (file, auth_id) = (
+        &config.security.operator_freshness_file,
+        OwnFrame::CalibCmdAuth,
+    );
+    Ok(Some(Signer::new(
+        key,
+        file,
+        auth_id.id(config.output.base_id),
+        floor,
+    )?))
+}
+
+fn unix_s() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_secs())
 }
 
 /// Exit code when the daemon does not answer.
@@ -268,6 +304,8 @@ struct Link<R, T> {
     /// answer: a daemon may send the result ahead of the answer, and
     /// [`Link::params`] must still see them.
     early_params: Vec<canodom_protocol::calib_wire::ParamsPage>,
+    /// Signs each command with the key (SecOC), when one is configured.
+    signer: Option<Signer>,
 }
 
 enum Incoming {
@@ -296,6 +334,7 @@ impl Link<canodom_can::bus::SocketCanRx, canodom_can::bus::SocketCanTx> {
             iface,
             timeout,
             early_params: Vec::new(),
+            signer: None,
         })
     }
 }
@@ -370,6 +409,13 @@ impl<R: FrameSource, T: FrameSink> Link<R, T> {
                 .send(&frame)
                 .await
                 .with_context(|| format!("sending CALIB_CMD on {}", self.iface))?;
+            if let Some(signer) = &mut self.signer {
+                let auth = signer.sign(cmd_id, &data, unix_s())?;
+                self.tx
+                    .send(&auth)
+                    .await
+                    .with_context(|| format!("sending CALIB_CMD_AUTH on {}", self.iface))?;
+            }
             let deadline = Instant::now() + PAGE_CYCLE.max(self.timeout);
             let answer = loop {
                 match self.next(deadline).await? {
@@ -533,7 +579,11 @@ fn run(args: &CalibArgs) -> anyhow::Result<()> {
     };
     let config = Config::load(config_path)?;
     if args.print_frame {
-        println!("{}", cansend_line(&config, &args.action, args.counter)?);
+        let mut signer = operator_signer(&config, args.freshness_floor)?;
+        println!(
+            "{}",
+            cansend_line(&config, &args.action, args.counter, signer.as_mut())?
+        );
         return Ok(());
     }
     let timeout = Duration::from_secs_f64(args.timeout_s);
@@ -542,6 +592,7 @@ fn run(args: &CalibArgs) -> anyhow::Result<()> {
         .build()?;
     rt.block_on(async {
         let mut link = Link::open(&config, timeout)?;
+        link.signer = operator_signer(&config, args.freshness_floor)?;
         match &args.action {
             Action::Status => {
                 let g = link.status().await?;
@@ -842,6 +893,7 @@ mod tests {
             iface: "vcan0".into(),
             timeout: Duration::from_secs(2),
             early_params: Vec::new(),
+            signer: None,
         }
     }
 

@@ -74,6 +74,11 @@ pub fn execute(args: &RunArgs) -> anyhow::Result<()> {
     // would otherwise only show at the first commit, after a whole
     // calibration drive.
     config.check_param_file()?;
+    if config.security.key.is_none() {
+        warn!(
+            "no [security] key_file: commands and CALIB_ACK are not authenticated (README: Security)"
+        );
+    }
     let connector = SocketCan {
         iface: config.interface.clone(),
     };

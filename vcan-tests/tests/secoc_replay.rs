@@ -1,0 +1,468 @@
+//! Issue #22 on vcan: a sniffed session must not start, commit or roll back
+//! a calibration. The real `canodom run` with a key on `vcan0`; a whole
+//! guided session (the operator's signed `canodom calib` start, compute and
+//! commit, `canodom simulate --follow-calibration` driving the runs, an ECU
+//! emulator that checks `CALIB_PARAMS_AUTH` and signs its `CALIB_ACK`) is
+//! recorded with `candump -L`. The daemon restarts, and an attacker replays
+//! the whole recording with `canplayer`, then a copy of its commands and
+//! acknowledgements with the counters rolled and the CRCs recomputed (their
+//! authenticators kept: the attacker has no key). Judged: no new session,
+//! the parameter file byte for byte and the live parameters (ODOM_QUALITY,
+//! CALIB_STATUS) unchanged, and every replayed secured frame counted by
+//! reason in the daemon's statistics (`replayed` for the first replay,
+//! `bad_mac` for the edited one).
+#![cfg(feature = "vcan")]
+// Test code: the scenario reads top to bottom as the story it checks.
+#![allow(clippy::unwrap_used, clippy::too_many_lines)]
+
+use canodom_can::bus::{BusEvent, FrameSink, FrameSource, IdFilter, open_socketcan};
+use canodom_can::frame::{CanFrame, FrameId};
+use canodom_dbc::{Checksum, Database};
+use canodom_pipeline::gate::Signer;
+use canodom_protocol::calib_wire::{
+    Ack, AckStatus, CalibWire, Counts, ParamsAssembler, Progress, State, StatusPage, Writeback,
+};
+use canodom_protocol::own_dbc::{BaseId, OwnFrame};
+use canodom_protocol::secoc::{Authenticator, Key};
+use canodom_vcan_tests::{
+    Spawned, calibration_config, canodom_bin, metric, read_candump, repo_file, run, scratch_dir,
+    wait_until,
+};
+use std::fmt::Write as _;
+use std::os::unix::fs::PermissionsExt as _;
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+const BASE: u32 = 0x600;
+const ARMING: u8 = 0x5A;
+const KEY_HEX: &str = "5e1f0c2a9b7d4e3f60718293a4b5c6d7";
+
+fn read(p: &Path) -> String {
+    std::fs::read_to_string(p).unwrap_or_default()
+}
+
+fn base() -> BaseId {
+    BaseId::new(BASE, false).unwrap()
+}
+
+/// The calibration scenario's configuration (input cycle times declared
+/// 40 ms, see calib_over_can.rs) with a 0600 key and `[security]`; the
+/// lockout is set out of reach so every refusal keeps its own reason.
+fn write_config(dir: &Path) -> PathBuf {
+    let mut dbc = read(&repo_file("data/dbc/rc_car.dbc"));
+    for id in [256, 257, 272] {
+        dbc = dbc.replace(
+            &format!("BA_ \"GenMsgCycleTime\" BO_ {id} 10;"),
+            &format!("BA_ \"GenMsgCycleTime\" BO_ {id} 40;"),
+        );
+    }
+    let dbc_path = dir.join("rc_car_40ms.dbc");
+    std::fs::write(&dbc_path, dbc).unwrap();
+    let config = calibration_config(dir, &dbc_path, ARMING).unwrap();
+    let key = dir.join("canodom.key");
+    std::fs::write(&key, format!("{KEY_HEX}\n")).unwrap();
+    std::fs::set_permissions(&key, std::fs::Permissions::from_mode(0o600)).unwrap();
+    let mut text = read(&config);
+    let _ = write!(
+        text,
+        "\n[security]\nkey_file = {:?}\nfreshness_file = {:?}\noperator_freshness_file = {:?}\n\
+         lockout_failures = 100000\n",
+        key.display().to_string(),
+        dir.join("daemon-freshness").display().to_string(),
+        dir.join("operator-freshness").display().to_string(),
+    );
+    std::fs::write(&config, text).unwrap();
+    config
+}
+
+#[derive(Default)]
+struct Heard {
+    progress: Option<Progress>,
+    counts: Option<Counts>,
+    /// (PARAM_VERSION, NOMINAL_PARAMS) of the latest ODOM_QUALITY.
+    quality: Option<(u64, u64)>,
+    /// CALIB_PARAMS pages whose authenticator the ECU verified / refused.
+    params_verified: u64,
+    params_refused: u64,
+}
+
+/// Listens to status and pose quality, and plays the parameter store ECU:
+/// each `CALIB_PARAMS` page counts only with a valid `CALIB_PARAMS_AUTH`,
+/// and a complete set is acknowledged with a signed `CALIB_ACK`.
+fn listen_and_ack(dir: &Path, heard: Arc<Mutex<Heard>>) -> tokio::task::JoinHandle<()> {
+    let wire = CalibWire::new(base()).unwrap();
+    let quality_id = FrameId::Standard((BASE + 2) as u16);
+    let params_auth = OwnFrame::CalibParamsAuth.id(base());
+    let db = Database::parse(&read(&repo_file("protocol/dbc/canodom.dbc")), "canodom.dbc").unwrap();
+    let version = db.signal("ODOM_QUALITY.PARAM_VERSION").unwrap();
+    let nominal = db.signal("ODOM_QUALITY.NOMINAL_PARAMS").unwrap();
+    let key = Key::parse(KEY_HEX).unwrap();
+    let verifier = Authenticator::new(&key);
+    let mut signer = Signer::new(
+        &key,
+        &dir.join("ecu-freshness"),
+        OwnFrame::CalibAckAuth.id(base()),
+        None,
+    )
+    .unwrap();
+    let (mut rx, tx) = open_socketcan(
+        "vcan0",
+        &[
+            IdFilter::exact(wire.status_id()),
+            IdFilter::exact(wire.params_id()),
+            IdFilter::exact(params_auth),
+            IdFilter::exact(quality_id),
+        ],
+    )
+    .expect("open vcan0");
+    tokio::spawn(async move {
+        let mut assembler = ParamsAssembler::default();
+        let mut page: Option<[u8; 8]> = None;
+        let mut ack_counter = 0u8;
+        while let Ok(ev) = rx.recv().await {
+            let BusEvent::Frame(r) = ev else { continue };
+            let (id, data) = (r.frame.id(), r.frame.data());
+            if id == wire.status_id() {
+                match wire.decode_status(data) {
+                    Ok((StatusPage::Progress(p), _)) => heard.lock().unwrap().progress = Some(p),
+                    Ok((StatusPage::Counts(c), _)) => heard.lock().unwrap().counts = Some(c),
+                    _ => {}
+                }
+            } else if id == quality_id {
+                heard.lock().unwrap().quality = version.raw(data).zip(nominal.raw(data));
+            } else if id == wire.params_id() {
+                page = data.try_into().ok();
+            } else if id == params_auth
+                && let Some(p) = page.take()
+            {
+                let auth: [u8; 8] = data.try_into().unwrap();
+                if !verifier.verify(wire.params_id(), &p, &auth) {
+                    heard.lock().unwrap().params_refused += 1;
+                    continue;
+                }
+                heard.lock().unwrap().params_verified += 1;
+                if let Ok((pg, _)) = wire.decode_params(&p)
+                    && let Some(Ok(set)) = assembler.push(&wire, pg)
+                {
+                    assembler = ParamsAssembler::default();
+                    let ack = wire.encode_ack(
+                        Ack {
+                            version: set.version,
+                            status: AckStatus::Stored,
+                        },
+                        ack_counter,
+                    );
+                    ack_counter = ack_counter.wrapping_add(1);
+                    let unix_s = std::time::SystemTime::now()
+                        .duration_since(std::time::UNIX_EPOCH)
+                        .map_or(0, |d| d.as_secs());
+                    let auth = signer.sign(wire.ack_id(), &ack, unix_s).unwrap();
+                    let _ = tx
+                        .send(&CanFrame::new_data(wire.ack_id(), &ack).unwrap())
+                        .await;
+                    let _ = tx.send(&auth).await;
+                }
+            }
+        }
+    })
+}
+
+async fn until(heard: &Mutex<Heard>, what: &str, limit: Duration, ok: impl Fn(&Heard) -> bool) {
+    let start = Instant::now();
+    while !ok(&heard.lock().unwrap()) {
+        let h = heard.lock().unwrap();
+        assert!(
+            start.elapsed() < limit,
+            "{what}: not within {limit:?}; last {:?} {:?}",
+            h.progress,
+            h.counts
+        );
+        drop(h);
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+}
+
+fn calib(config: &Path, args: &[&str]) -> String {
+    let mut all = vec![
+        "calib",
+        "--config",
+        config.to_str().unwrap(),
+        "--timeout-s",
+        "5",
+    ];
+    all.extend_from_slice(args);
+    let out = std::process::Command::new(canodom_bin())
+        .args(&all)
+        .output()
+        .unwrap();
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    println!("$ canodom {}\n{}", all.join(" "), text.trim_end());
+    assert!(out.status.success() && text.contains("done"), "{text}");
+    text
+}
+
+fn start_daemon(config: &Path, log: &Path) -> Spawned {
+    let mut daemon = Spawned::start(
+        &canodom_bin(),
+        &["run", "--config", &config.to_string_lossy()],
+        None,
+        Some(log),
+    )
+    .unwrap();
+    wait_until("the daemon opens vcan0", Duration::from_secs(15), || {
+        assert!(daemon.is_running(), "daemon exited: {}", read(log));
+        read(log).contains("CAN interface open")
+    })
+    .unwrap();
+    daemon
+}
+
+/// The count of `reason=N` in the daemon's last line naming `auth_refused`.
+fn refused(log: &str, reason: &str) -> u64 {
+    let Some(line) = log.lines().rev().find(|l| l.contains("auth_refused")) else {
+        return 0;
+    };
+    let needle = format!("{reason}=");
+    line.find(&needle)
+        .map(|at| &line[at + needle.len()..])
+        .and_then(|rest| rest.split(|c: char| !c.is_ascii_digit()).next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or(0)
+}
+
+/// The `candump -L` line `line` with its CAN frame replaced.
+fn relog(line: &str, id: u32, data: &[u8]) -> String {
+    let head: Vec<&str> = line.split_whitespace().take(2).collect();
+    let hex = data.iter().fold(String::new(), |mut s, b| {
+        let _ = write!(s, "{b:02X}");
+        s
+    });
+    format!("{} {} {id:03X}#{hex}", head[0], head[1])
+}
+
+#[tokio::test]
+async fn secoc_replayed_and_edited_session_changes_nothing_and_is_counted_by_reason() {
+    let dir = scratch_dir("secoc-replay").unwrap();
+    let config = write_config(&dir);
+    let params = dir.join("params.toml");
+    let truth = dir.join("truth.toml");
+    std::fs::write(
+        &truth,
+        format!(
+            "rear_tread_m = {}\nrear_right_diameter_m = {}\n",
+            0.30 * 31.0 / 30.0,
+            0.09 * 1.015
+        ),
+    )
+    .unwrap();
+    let heard = Arc::new(Mutex::new(Heard::default()));
+    let listener = listen_and_ack(&dir, Arc::clone(&heard));
+
+    // 1. A real session, recorded.
+    let session_log = dir.join("session.log");
+    let mut candump = Spawned::start(
+        Path::new("candump"),
+        &["-L", "vcan0"],
+        Some(&session_log),
+        Some(&dir.join("candump.err")),
+    )
+    .unwrap();
+    let daemon_log = dir.join("daemon.log");
+    let mut daemon = start_daemon(&config, &daemon_log);
+    let vehicle_out = dir.join("vehicle.out");
+    let mut vehicle = Spawned::start(
+        &canodom_bin(),
+        &[
+            "simulate",
+            "--config",
+            &config.to_string_lossy(),
+            "--iface",
+            "vcan0",
+            "--follow-calibration",
+            "--true-params",
+            &truth.to_string_lossy(),
+            "--speed-mps",
+            "1.5",
+            "--time-limit-s",
+            "80",
+        ],
+        Some(&vehicle_out),
+        Some(&vehicle_out.with_extension("err")),
+    )
+    .unwrap();
+    wait_until("the vehicle listens", Duration::from_secs(15), || {
+        read(&vehicle_out).contains("standing still until")
+    })
+    .unwrap();
+    until(
+        &heard,
+        "a first CALIB_STATUS",
+        Duration::from_secs(10),
+        |h| h.progress.is_some(),
+    )
+    .await;
+    let started = Instant::now();
+    calib(&config, &["start", "--track-radius", "0.78", "--runs", "2"]);
+    until(&heard, "READY", Duration::from_secs(70), |h| {
+        h.progress.is_some_and(|p| p.state == State::Ready)
+    })
+    .await;
+    calib(&config, &["compute"]);
+    until(&heard, "COMPUTED", Duration::from_secs(10), |h| {
+        h.progress.is_some_and(|p| p.state == State::Computed)
+    })
+    .await;
+    calib(&config, &["commit"]);
+    until(&heard, "WRITEBACK ACKED", Duration::from_secs(10), |h| {
+        h.progress.is_some_and(|p| p.writeback == Writeback::Acked)
+    })
+    .await;
+    metric(
+        "secoc_session_s",
+        format!("{:.1}", started.elapsed().as_secs_f64()),
+    );
+    assert!(
+        vehicle
+            .wait_timeout(Duration::from_secs(15))
+            .unwrap()
+            .success()
+    );
+    let status = daemon.stop("TERM", Duration::from_secs(10)).unwrap();
+    assert!(status.success(), "{}", read(&daemon_log));
+    candump.stop("INT", Duration::from_secs(5)).unwrap();
+    let phase1 = read(&daemon_log);
+    assert_eq!(
+        refused(&phase1, "bad_mac") + refused(&phase1, "replayed"),
+        0,
+        "{phase1}"
+    );
+    let (verified, refused_pages) = {
+        let h = heard.lock().unwrap();
+        (h.params_verified, h.params_refused)
+    };
+    assert!(
+        verified >= 4 && refused_pages == 0,
+        "the ECU checked CALIB_PARAMS"
+    );
+    let file_before = std::fs::read(&params).unwrap();
+    let stored = canodom_params::persist::from_toml(&params, &read(&params)).unwrap();
+    assert_eq!(stored.current.as_ref().map(|c| c.version), Some(1));
+
+    // The secured frames in the recording, and the attacker's edit of them.
+    let (frames, _) = read_candump(&session_log).unwrap();
+    let id_of = |f: OwnFrame| f.id(base());
+    let count = |id: FrameId| frames.iter().filter(|l| l.frame.id() == id).count() as u64;
+    let (cmds, cmd_auths) = (
+        count(id_of(OwnFrame::CalibCmd)),
+        count(id_of(OwnFrame::CalibCmdAuth)),
+    );
+    let (acks, ack_auths) = (
+        count(id_of(OwnFrame::CalibAck)),
+        count(id_of(OwnFrame::CalibAckAuth)),
+    );
+    println!(
+        "recorded: {} frames, CALIB_CMD {cmds} (+{cmd_auths} auth), CALIB_ACK {acks} (+{ack_auths} auth)",
+        frames.len()
+    );
+    assert!(cmds >= 3 && cmds == cmd_auths && acks >= 1 && acks == ack_auths);
+    let crc = Checksum::rc_car();
+    let mut edited = String::new();
+    for line in read(&session_log).lines() {
+        let Some(spec) = line.split_whitespace().nth(2) else {
+            continue;
+        };
+        let Some((id, hex)) = spec.split_once('#') else {
+            continue;
+        };
+        let id = u32::from_str_radix(id, 16).unwrap_or(0);
+        let secured = [BASE + 0x10, BASE + 0x13];
+        if secured.contains(&id) {
+            let mut d: Vec<u8> = (0..hex.len() / 2)
+                .map(|i| u8::from_str_radix(&hex[2 * i..2 * i + 2], 16).unwrap())
+                .collect();
+            // COUNTER (bits 52..55) + 1, CRC-8 recomputed.
+            d[6] = (d[6] & 0x0F) | (((d[6] >> 4) + 1) & 0x0F) << 4;
+            let _ = crc.apply(&mut d);
+            edited.push_str(&relog(line, id, &d));
+            edited.push('\n');
+        } else if [BASE + 0x14, BASE + 0x16].contains(&id) {
+            edited.push_str(line);
+            edited.push('\n');
+        }
+    }
+    let edited_log = dir.join("edited.log");
+    std::fs::write(&edited_log, &edited).unwrap();
+
+    // 2. The daemon restarts; the attacker replays.
+    let attack_log = dir.join("daemon-attacked.log");
+    let mut daemon = start_daemon(&config, &attack_log);
+    tokio::time::sleep(Duration::from_secs(2)).await;
+    // The whole recording at its own pace (a flood would only measure the
+    // kernel's queues), then the edited commands with gaps over 1 s cut.
+    let replay_started = Instant::now();
+    run("canplayer", &["-I", session_log.to_str().unwrap()]).unwrap();
+    run(
+        "canplayer",
+        &["-I", edited_log.to_str().unwrap(), "-s", "1"],
+    )
+    .unwrap();
+    metric(
+        "secoc_replay_s",
+        format!("{:.1}", replay_started.elapsed().as_secs_f64()),
+    );
+    // The replayed status frames still queued for the listener are stale:
+    // judge only what the daemon sends from now on.
+    tokio::time::sleep(Duration::from_secs(2)).await;
+    *heard.lock().unwrap() = Heard::default();
+    until(
+        &heard,
+        "fresh status and poses",
+        Duration::from_secs(10),
+        |h| h.progress.is_some() && h.counts.is_some() && h.quality.is_some(),
+    )
+    .await;
+    let (progress, counts, quality) = {
+        let h = heard.lock().unwrap();
+        (h.progress.unwrap(), h.counts.unwrap(), h.quality)
+    };
+    let status = daemon.stop("TERM", Duration::from_secs(10)).unwrap();
+    assert!(status.success(), "{}", read(&attack_log));
+    listener.abort();
+    let log = read(&attack_log);
+    let line = log
+        .lines()
+        .rev()
+        .find(|l| l.contains("auth_refused"))
+        .unwrap_or("");
+    println!("daemon after the attack: {line}");
+    assert_eq!(
+        progress.state,
+        State::Idle,
+        "no session was started: {progress:?}"
+    );
+    assert_eq!(counts.active_version, 1, "{counts:?}");
+    assert_eq!(quality, Some((1, 0)), "the live parameters are set 1");
+    assert_eq!(
+        std::fs::read(&params).unwrap(),
+        file_before,
+        "the parameter file is unchanged"
+    );
+    // Each replayed pair is refused once: as a replay, then (edited) for its MAC.
+    assert_eq!(refused(&log, "replayed"), cmds + acks, "{line}");
+    assert_eq!(refused(&log, "bad_mac"), cmds + acks, "{line}");
+    for other in [
+        "missing_authenticator",
+        "unpaired_authenticator",
+        "locked_out",
+        "bad_length",
+    ] {
+        assert_eq!(refused(&log, other), 0, "{other}: {line}");
+    }
+    metric("secoc_refused_replayed", refused(&log, "replayed"));
+    metric("secoc_refused_bad_mac", refused(&log, "bad_mac"));
+}
