@@ -670,6 +670,49 @@ mod tests {
     }
 
     #[test]
+    fn auth_a_sender_that_fell_behind_resynchronises_above_the_floor() {
+        let (dir, cfg) = setup("resync", 0o600, KEY_HEX, "");
+        let c = load(&dir, &cfg).unwrap();
+        let id = c.calibration.command_id;
+        let mut store = FreshnessFile::load(&dir.join("sender")).unwrap();
+        // A clock far behind the receiver's mark: refused as a replay ...
+        let mut gate = SecurityGate::for_config(&c).unwrap();
+        let key = c.security.key.clone().unwrap();
+        let wire = CalibWire::new(c.output.base_id).unwrap();
+        let data = wire.encode_command(Command::Abort, 0, 1);
+        let aid = OwnFrame::CalibCmdAuth.id(c.output.base_id);
+        let signed = |fv: u32| Authenticator::new(&key).sign(id, &data, fv);
+        let _ = gate.admit(&rx(0, id, &data));
+        assert!(matches!(
+            gate.admit(&rx(10, aid, &signed(1_800_000_000))),
+            Admit::Authentic(_)
+        ));
+        let behind = operator_next_freshness(&mut store, id, 1_700_000_000, None).unwrap();
+        let _ = gate.admit(&rx(1_000, id, &data));
+        let Admit::Refused {
+            reason: AuthFailure::Replayed,
+            last_accepted: Some(mark),
+            ..
+        } = gate.admit(&rx(1_010, aid, &signed(behind)))
+        else {
+            panic!("a value behind the mark must be refused as a replay");
+        };
+        // ... and with the mark from the refusal as the floor, accepted.
+        let next = operator_next_freshness(&mut store, id, 1_700_000_000, Some(mark)).unwrap();
+        assert_eq!(next, mark + 1);
+        let _ = gate.admit(&rx(2_000, id, &data));
+        assert!(matches!(
+            gate.admit(&rx(2_010, aid, &signed(next))),
+            Admit::Authentic(_)
+        ));
+        // The store keeps the new value: the next one continues above it.
+        assert_eq!(
+            operator_next_freshness(&mut store, id, 0, None).unwrap(),
+            mark + 2
+        );
+    }
+
+    #[test]
     fn auth_without_a_key_everything_passes_and_nothing_is_signed() {
         let (dir, cfg) = setup("nokey", 0o600, KEY_HEX, "");
         let c = load(&dir, &cfg.replace("key_file = \"canodom.key\"\n", "")).unwrap();
