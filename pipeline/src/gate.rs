@@ -713,6 +713,39 @@ mod tests {
     }
 
     #[test]
+    fn auth_odom_cmd_is_secured_like_calib_cmd() {
+        let (dir, cfg) = setup("odom", 0o600, KEY_HEX, "");
+        let c = load(&dir, &cfg).unwrap();
+        let base = c.output.base_id;
+        let mut gate = SecurityGate::for_config(&c).unwrap();
+        let (id, aid) = (OwnFrame::OdomCmd.id(base), OwnFrame::OdomCmdAuth.id(base));
+        // RESET_POSE (request 2), counter 1, CRC-8 in byte 7.
+        let mut reset = [2, 0, 0, 0, 0, 0, 0x10, 0];
+        let _ = canodom_dbc::Checksum::rc_car().apply(&mut reset);
+        // Plain: held, then refused for its missing authenticator.
+        assert_eq!(gate.admit(&rx(0, id, &reset)), Admit::Held);
+        let _ = gate.admit(&rx(200_000, FrameId::Standard(0x100), &[0; 8]));
+        assert_eq!(gate.counts().of(AuthFailure::MissingAuthenticator), 1);
+        // An authenticator made for CALIB_CMD does not pass for ODOM_CMD.
+        let key = c.security.key.clone().unwrap();
+        let for_calib = Authenticator::new(&key).sign(c.calibration.command_id, &reset, 9);
+        assert_eq!(gate.admit(&rx(300_000, id, &reset)), Admit::Held);
+        assert!(matches!(
+            gate.admit(&rx(300_010, aid, &for_calib)),
+            Admit::Refused {
+                reason: AuthFailure::BadMac,
+                ..
+            }
+        ));
+        let signed = Authenticator::new(&key).sign(id, &reset, 9);
+        assert_eq!(gate.admit(&rx(400_000, id, &reset)), Admit::Held);
+        assert_eq!(
+            gate.admit(&rx(400_010, aid, &signed)),
+            Admit::Authentic(CanFrame::new_data(id, &reset).unwrap())
+        );
+    }
+
+    #[test]
     fn auth_without_a_key_everything_passes_and_nothing_is_signed() {
         let (dir, cfg) = setup("nokey", 0o600, KEY_HEX, "");
         let c = load(&dir, &cfg.replace("key_file = \"canodom.key\"\n", "")).unwrap();
