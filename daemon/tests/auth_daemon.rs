@@ -21,6 +21,11 @@ const KEY_HEX: &str = "9f2c4e1a7b3d5f60718293a4b5c6d7e8";
 
 /// rc_car.toml with absolute paths, a 0600 key and `[security]` in `dir`.
 fn keyed_config(dir: &Path) -> PathBuf {
+    keyed_config_with(dir, "")
+}
+
+/// As [`keyed_config`] with more `[security]` lines.
+fn keyed_config_with(dir: &Path, security: &str) -> PathBuf {
     let key = dir.join("canodom.key");
     std::fs::write(&key, format!("{KEY_HEX}\n")).unwrap();
     std::fs::set_permissions(&key, std::fs::Permissions::from_mode(0o600)).unwrap();
@@ -30,7 +35,7 @@ fn keyed_config(dir: &Path) -> PathBuf {
         "dbc = \"../../data/dbc/rc_car.dbc\"",
         &format!("dbc = {:?}", dbc.display().to_string()),
     ) + &format!(
-        "\n[security]\nkey_file = {:?}\noperator_freshness_file = \"operator-freshness\"\n",
+        "\n[security]\nkey_file = {:?}\noperator_freshness_file = \"operator-freshness\"\n{security}",
         key.display().to_string()
     );
     let text = text.replace(
@@ -108,8 +113,10 @@ async fn run_daemon(config: &Arc<Config>, steps: &[Vec<CanFrame>]) -> Vec<Option
             }
         })
     };
-    // A frame starts the daemon's bus clock; then the answer of each step:
-    // the last CMD_SEQ seen 12 s (two page cycles) after it.
+    // The daemon opens its end of the bus once it runs: let it. A frame
+    // starts its bus clock; then the answer of each step: the last CMD_SEQ
+    // seen 12 s (two page cycles) after it.
+    tokio::time::sleep(Duration::from_millis(500)).await;
     tx.send(&CanFrame::new_data(FrameId::Standard(0x100), &[0; 8]).unwrap())
         .await
         .unwrap();
@@ -183,9 +190,18 @@ async fn auth_commands_signed_by_canodom_calib_are_accepted_and_replays_and_forg
     )
     .await;
     // CMD_SEQ counts the commands answered: 0 at start.
-    let [_, first, replay, rolled_answer, plain_answer, next_answer] = answers[..] else {
+    let [
+        idle,
+        first,
+        replay,
+        rolled_answer,
+        plain_answer,
+        next_answer,
+    ] = answers[..]
+    else {
         panic!("{answers:?}");
     };
+    assert_eq!(idle, Some(0), "{answers:?}");
     assert_eq!(
         first,
         Some(1),
@@ -208,8 +224,108 @@ async fn auth_commands_signed_by_canodom_calib_are_accepted_and_replays_and_forg
     // A restart: the recording of the first command is refused after it.
     let answers = run_daemon(&config, &[signed, rolled]).await;
     assert_eq!(
-        answers[1..],
-        [Some(0), Some(0)],
+        answers[..],
+        [Some(0), Some(0), Some(0)],
         "replayed after a restart: {answers:?}"
     );
+}
+
+#[tokio::test(start_paused = true)]
+async fn auth_guessed_macs_lock_out_secured_frames_and_calib_status_says_so() {
+    let dir = tmp_dir("auth-lockout");
+    let _ = std::fs::remove_file(dir.join("canodom-freshness"));
+    let _ = std::fs::remove_file(dir.join("operator-freshness"));
+    let path = keyed_config_with(
+        &dir,
+        "lockout_failures = 3\nlockout_window_s = 5\nlockout_s = 30\n",
+    );
+    let config = Arc::new(Config::load(&path).unwrap());
+    let base = config.output.base_id;
+    let wire = CalibWire::new(base).unwrap();
+    let signed = printed_frames(&path, "params");
+    let daemon = InProcessDaemon::spawn(Arc::clone(&config), 4096, Observers::default());
+    let (mut rx, tx) = daemon.bus.open().unwrap();
+    let lockout = Arc::new(Mutex::new(Vec::<bool>::new()));
+    let seq = Arc::new(Mutex::new(Vec::<u8>::new()));
+    let listener = {
+        let (lockout, seq) = (Arc::clone(&lockout), Arc::clone(&seq));
+        let wire = CalibWire::new(base).unwrap();
+        tokio::spawn(async move {
+            while let Ok(ev) = rx.recv().await {
+                let BusEvent::Frame(r) = ev else { continue };
+                if r.frame.id() != wire.status_id() {
+                    continue;
+                }
+                if let Some(l) = wire.auth_lockout(r.frame.data()) {
+                    lockout.lock().unwrap().push(l);
+                }
+                if let Ok((StatusPage::Counts(c), _)) = wire.decode_status(r.frame.data()) {
+                    seq.lock().unwrap().push(c.cmd_seq);
+                }
+            }
+        })
+    };
+    // The daemon opens its end of the bus once it runs: let it, then a
+    // frame starts its bus clock (status is sent on that clock).
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    tx.send(&CanFrame::new_data(FrameId::Standard(0x100), &[0; 8]).unwrap())
+        .await
+        .unwrap();
+    tokio::time::sleep(Duration::from_secs(2)).await;
+    assert_eq!(
+        lockout.lock().unwrap().last(),
+        Some(&false),
+        "no lockout yet"
+    );
+    // Three guessed authenticators within the window.
+    let cmd = wire.encode_command(Command::Commit, 0, 3);
+    for k in 0..3u8 {
+        tx.send(&CanFrame::new_data(config.calibration.command_id, &cmd).unwrap())
+            .await
+            .unwrap();
+        let guess = [0xF0, 0xFF, 0xFF, 0x7F, k, 0x5A, 0xA5, k];
+        tx.send(&CanFrame::new_data(OwnFrame::CalibCmdAuth.id(base), &guess).unwrap())
+            .await
+            .unwrap();
+        tokio::time::sleep(Duration::from_millis(200)).await;
+    }
+    tokio::time::sleep(Duration::from_secs(3)).await;
+    assert_eq!(
+        lockout.lock().unwrap().last(),
+        Some(&true),
+        "AUTH_LOCKOUT = 1"
+    );
+    // A correctly signed command during the lockout is refused unseen ...
+    for f in &signed {
+        tx.send(f).await.unwrap();
+    }
+    tokio::time::sleep(Duration::from_secs(12)).await;
+    assert!(
+        seq.lock().unwrap().iter().all(|&s| s == 0),
+        "nothing answered during the lockout: {:?}",
+        seq.lock().unwrap()
+    );
+    // ... and after it the flag clears and a fresh one is carried out.
+    tokio::time::sleep(Duration::from_secs(20)).await;
+    // The daemon's bus clock moves with frames: one frame after the lockout.
+    tx.send(&CanFrame::new_data(FrameId::Standard(0x100), &[0; 8]).unwrap())
+        .await
+        .unwrap();
+    tokio::time::sleep(Duration::from_secs(2)).await;
+    assert_eq!(
+        lockout.lock().unwrap().last(),
+        Some(&false),
+        "AUTH_LOCKOUT back to 0"
+    );
+    for f in printed_frames(&path, "params") {
+        tx.send(&f).await.unwrap();
+    }
+    tokio::time::sleep(Duration::from_secs(12)).await;
+    assert_eq!(
+        seq.lock().unwrap().last(),
+        Some(&1),
+        "answered after the lockout"
+    );
+    daemon.stop().await.unwrap();
+    listener.abort();
 }

@@ -670,6 +670,82 @@ mod tests {
     }
 
     #[test]
+    fn auth_a_sender_that_fell_behind_resynchronises_above_the_floor() {
+        let (dir, cfg) = setup("resync", 0o600, KEY_HEX, "");
+        let c = load(&dir, &cfg).unwrap();
+        let id = c.calibration.command_id;
+        let mut store = FreshnessFile::load(&dir.join("sender")).unwrap();
+        // A clock far behind the receiver's mark: refused as a replay ...
+        let mut gate = SecurityGate::for_config(&c).unwrap();
+        let key = c.security.key.clone().unwrap();
+        let wire = CalibWire::new(c.output.base_id).unwrap();
+        let data = wire.encode_command(Command::Abort, 0, 1);
+        let aid = OwnFrame::CalibCmdAuth.id(c.output.base_id);
+        let signed = |fv: u32| Authenticator::new(&key).sign(id, &data, fv);
+        let _ = gate.admit(&rx(0, id, &data));
+        assert!(matches!(
+            gate.admit(&rx(10, aid, &signed(1_800_000_000))),
+            Admit::Authentic(_)
+        ));
+        let behind = operator_next_freshness(&mut store, id, 1_700_000_000, None).unwrap();
+        let _ = gate.admit(&rx(1_000, id, &data));
+        let Admit::Refused {
+            reason: AuthFailure::Replayed,
+            last_accepted: Some(mark),
+            ..
+        } = gate.admit(&rx(1_010, aid, &signed(behind)))
+        else {
+            panic!("a value behind the mark must be refused as a replay");
+        };
+        // ... and with the mark from the refusal as the floor, accepted.
+        let next = operator_next_freshness(&mut store, id, 1_700_000_000, Some(mark)).unwrap();
+        assert_eq!(next, mark + 1);
+        let _ = gate.admit(&rx(2_000, id, &data));
+        assert!(matches!(
+            gate.admit(&rx(2_010, aid, &signed(next))),
+            Admit::Authentic(_)
+        ));
+        // The store keeps the new value: the next one continues above it.
+        assert_eq!(
+            operator_next_freshness(&mut store, id, 0, None).unwrap(),
+            mark + 2
+        );
+    }
+
+    #[test]
+    fn auth_odom_cmd_is_secured_like_calib_cmd() {
+        let (dir, cfg) = setup("odom", 0o600, KEY_HEX, "");
+        let c = load(&dir, &cfg).unwrap();
+        let base = c.output.base_id;
+        let mut gate = SecurityGate::for_config(&c).unwrap();
+        let (id, aid) = (OwnFrame::OdomCmd.id(base), OwnFrame::OdomCmdAuth.id(base));
+        // RESET_POSE (request 2), counter 1, CRC-8 in byte 7.
+        let mut reset = [2, 0, 0, 0, 0, 0, 0x10, 0];
+        let _ = canodom_dbc::Checksum::rc_car().apply(&mut reset);
+        // Plain: held, then refused for its missing authenticator.
+        assert_eq!(gate.admit(&rx(0, id, &reset)), Admit::Held);
+        let _ = gate.admit(&rx(200_000, FrameId::Standard(0x100), &[0; 8]));
+        assert_eq!(gate.counts().of(AuthFailure::MissingAuthenticator), 1);
+        // An authenticator made for CALIB_CMD does not pass for ODOM_CMD.
+        let key = c.security.key.clone().unwrap();
+        let for_calib = Authenticator::new(&key).sign(c.calibration.command_id, &reset, 9);
+        assert_eq!(gate.admit(&rx(300_000, id, &reset)), Admit::Held);
+        assert!(matches!(
+            gate.admit(&rx(300_010, aid, &for_calib)),
+            Admit::Refused {
+                reason: AuthFailure::BadMac,
+                ..
+            }
+        ));
+        let signed = Authenticator::new(&key).sign(id, &reset, 9);
+        assert_eq!(gate.admit(&rx(400_000, id, &reset)), Admit::Held);
+        assert_eq!(
+            gate.admit(&rx(400_010, aid, &signed)),
+            Admit::Authentic(CanFrame::new_data(id, &reset).unwrap())
+        );
+    }
+
+    #[test]
     fn auth_without_a_key_everything_passes_and_nothing_is_signed() {
         let (dir, cfg) = setup("nokey", 0o600, KEY_HEX, "");
         let c = load(&dir, &cfg.replace("key_file = \"canodom.key\"\n", "")).unwrap();

@@ -47,8 +47,9 @@ canodom calib --config car.toml status         # review the result and its uncer
 canodom calib --config car.toml commit         # or abort; rollback undoes a commit\n\n\
 Each command prints `done` (exit 0) or `refused: REASON (why)` (exit 1); exit 2 when the \
 daemon does not answer. Commands go out as CALIB_CMD on [calibration] command_id with the \
-configured arming code, rolling counter and CRC-8; answers are read from CALIB_STATUS at \
-[output] base_id + 0x11."
+configured arming code, rolling counter and CRC-8, each followed by its CALIB_CMD_AUTH \
+(SecOC: freshness and CMAC) when [security] key_file is set; answers are read from \
+CALIB_STATUS at [output] base_id + 0x11."
 )]
 pub struct CalibArgs {
     /// The daemon's configuration file (interface, base id, arming code);
