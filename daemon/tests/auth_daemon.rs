@@ -329,3 +329,110 @@ async fn auth_guessed_macs_lock_out_secured_frames_and_calib_status_says_so() {
     daemon.stop().await.unwrap();
     listener.abort();
 }
+
+/// The write-back states CALIB_STATUS page 0 showed, in order.
+fn writeback_states(
+    wire: &CalibWire,
+    seen: &Mutex<Vec<canodom_protocol::calib_wire::Writeback>>,
+    r: &canodom_can::bus::Received,
+) {
+    if r.frame.id() == wire.status_id()
+        && let Ok((StatusPage::Progress(p), _)) = wire.decode_status(r.frame.data())
+    {
+        seen.lock().unwrap().push(p.writeback);
+    }
+}
+
+#[tokio::test(start_paused = true)]
+async fn auth_a_forged_calib_ack_leaves_the_write_back_pending_and_a_signed_one_ends_it() {
+    use canodom_params::persist::{ParamFile, ParamValues, store};
+    use canodom_protocol::calib_wire::{Ack, AckStatus, Writeback};
+    let dir = tmp_dir("auth-ack");
+    for f in ["canodom-freshness", "operator-freshness", "params.toml"] {
+        let _ = std::fs::remove_file(dir.join(f));
+    }
+    let path = keyed_config(&dir);
+    // Two committed sets: ROLLBACK writes set 1 back and waits for its ACK.
+    let values = |tread_m| ParamValues {
+        steering_gain: 1f64.to_radians(),
+        ..ParamValues::plain(tread_m, 0.09)
+    };
+    let mut file = ParamFile::default();
+    file.commit(values(0.30), "exact", 1, 10);
+    file.commit(values(0.31), "exact", 2, 10);
+    store(&dir.join("params.toml"), &file).unwrap();
+    let config = Arc::new(Config::load(&path).unwrap());
+    let rollback = printed_frames(&path, "rollback");
+    let wire = CalibWire::new(config.output.base_id).unwrap();
+    let daemon = InProcessDaemon::spawn(Arc::clone(&config), 4096, Observers::default());
+    let (mut rx, tx) = daemon.bus.clone().open().unwrap();
+    let states = Arc::new(Mutex::new(Vec::new()));
+    let listener = {
+        let (states, wire) = (
+            Arc::clone(&states),
+            CalibWire::new(config.output.base_id).unwrap(),
+        );
+        tokio::spawn(async move {
+            while let Ok(ev) = rx.recv().await {
+                if let BusEvent::Frame(r) = ev {
+                    writeback_states(&wire, &states, &r);
+                }
+            }
+        })
+    };
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    tx.send(&CanFrame::new_data(FrameId::Standard(0x100), &[0; 8]).unwrap())
+        .await
+        .unwrap();
+    tokio::time::sleep(Duration::from_secs(2)).await;
+    for f in &rollback {
+        tx.send(f).await.unwrap();
+        tokio::time::sleep(Duration::from_millis(1)).await;
+    }
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    assert_eq!(
+        states.lock().unwrap().last(),
+        Some(&Writeback::Pending),
+        "the signed rollback started the write-back"
+    );
+    let ack = wire.encode_ack(
+        Ack {
+            version: 1,
+            status: AckStatus::Stored,
+        },
+        0,
+    );
+    let ack_frame = CanFrame::new_data(wire.ack_id(), &ack).unwrap();
+    let ack_auth_id = OwnFrame::CalibAckAuth.id(config.output.base_id);
+    // Forged: signed with another key; and an ACK with no authenticator.
+    let forger = Authenticator::new(&Key::parse("00112233445566778899aabbccddeeff").unwrap());
+    let forged = forger.sign(wire.ack_id(), &ack, 1_000);
+    for frames in [
+        vec![ack_frame, CanFrame::new_data(ack_auth_id, &forged).unwrap()],
+        vec![ack_frame],
+    ] {
+        for f in &frames {
+            tx.send(f).await.unwrap();
+            tokio::time::sleep(Duration::from_millis(1)).await;
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    let before_signed = states.lock().unwrap().clone();
+    assert!(
+        !before_signed.contains(&Writeback::Acked),
+        "a forged or unsigned CALIB_ACK counted as acknowledgement: {before_signed:?}"
+    );
+    assert_eq!(before_signed.last(), Some(&Writeback::Pending));
+    // The parameter store's own signed ACK ends the write-back.
+    let real = Authenticator::new(&Key::parse(KEY_HEX).unwrap());
+    let signed = real.sign(wire.ack_id(), &ack, 1_001);
+    tx.send(&ack_frame).await.unwrap();
+    tokio::time::sleep(Duration::from_millis(1)).await;
+    tx.send(&CanFrame::new_data(ack_auth_id, &signed).unwrap())
+        .await
+        .unwrap();
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    assert_eq!(states.lock().unwrap().last(), Some(&Writeback::Acked));
+    daemon.stop().await.unwrap();
+    listener.abort();
+}
