@@ -769,6 +769,14 @@ impl<Tx: FrameSink + Clone> OdometryTask<Tx> {
                 },
                 _ = pose_tick.tick() => self.publish().await,
                 _ = stats_tick.tick() => {
+                    // One lock for the line: a second lock() in the same
+                    // statement would wait on the first's guard forever.
+                    let (auth_refused, auth_lockouts) = {
+                        let mut gate = lock(&self.security);
+                        let figures = (gate.counts(), gate.lockouts());
+                        gate.new_period();
+                        figures
+                    };
                     let s = *self.pipeline.stats();
                     let secs = last_stats_at.elapsed().as_secs_f64().max(1e-9);
                     info!(
@@ -776,12 +784,11 @@ impl<Tx: FrameSink + Clone> OdometryTask<Tx> {
                         stats = %s, lost = self.lost, poses = self.published,
                         outages = self.outages.load(Ordering::Relaxed),
                         odom_cmd_refused = self.odom_refusals.total,
-                        auth_refused = %lock(&self.security).counts(),
-                        auth_lockouts = lock(&self.security).lockouts(),
+                        auth_refused = %auth_refused,
+                        auth_lockouts,
                         "statistics"
                     );
                     self.odom_refusals.new_period();
-                    lock(&self.security).new_period();
                     last_stats = s;
                     last_stats_at = Instant::now();
                 }

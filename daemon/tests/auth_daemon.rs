@@ -352,6 +352,18 @@ async fn auth_a_forged_calib_ack_leaves_the_write_back_pending_and_a_signed_one_
         let _ = std::fs::remove_file(dir.join(f));
     }
     let path = keyed_config(&dir);
+    // A statistics line every half second: each takes the gate's figures
+    // while the gate is in use (a second lock in the line once hung the daemon).
+    let text = std::fs::read_to_string(&path).unwrap();
+    let text = text.replace("stats_interval_s = 10.0", "stats_interval_s = 0.5");
+    std::fs::write(&path, text).unwrap();
+    // Logged as a service logs: tracing evaluates a line's fields only when
+    // a subscriber takes it.
+    let _log = tracing::subscriber::set_default(
+        tracing_subscriber::fmt()
+            .with_writer(std::io::sink)
+            .finish(),
+    );
     // Two committed sets: ROLLBACK writes set 1 back and waits for its ACK.
     let values = |tread_m| ParamValues {
         steering_gain: 1f64.to_radians(),
