@@ -28,6 +28,47 @@ const VECTOR3: &str = "MSG: geometry_msgs/Vector3\nfloat64 x\nfloat64 y\nfloat64
 const QUATERNION: &str =
     "MSG: geometry_msgs/Quaternion\nfloat64 x\nfloat64 y\nfloat64 z\nfloat64 w\n";
 
+/// The `ros2msg` schema of canodom's quality message.
+pub fn quality_schema() -> String {
+    "# ODOM_QUALITY of the pose sample at a filter step, and the pipeline's counts so far.\n\
+     bool pose_valid\nbool rear_stale\nbool front_stale\nbool steer_stale\n\
+     bool counter_fault\nbool checksum_fault\nbool gate_reject\nbool nominal_params\n\
+     uint8 quality # the flags as ODOM_QUALITY's bits, POSE_VALID in bit 0\n\
+     float64 speed_mps\nfloat64 yaw_rate_radps\nfloat64 pos_std_m\nfloat64 heading_std_rad\n\
+     uint64 frames\nuint64 used\nuint64 steps\nuint64 steps_without_front\n\
+     uint64 gate_kept_rear\nuint64 gate_used_front\n"
+        .to_owned()
+}
+
+/// The `ros2msg` schema of canodom's gate message.
+pub fn gate_schema() -> String {
+    "# What the filter's correction window did at a step: open (inside a window), rear_only,\n\
+     # no_front (front or steering stale), accepted (front and rear agree), kept_rear or\n\
+     # used_front (the gate rejected the window and blamed a front or a rear wheel).\n\
+     string correction\nbool rejected\n"
+        .to_owned()
+}
+
+/// The `ros2msg` schema of canodom's calibration message.
+pub fn calibration_schema() -> String {
+    "# The vehicle parameters in use; param_version 0: the configuration's nominal ones.\n\
+     uint16 param_version\nbool nominal\nfloat64 wheelbase_m\nfloat64 rear_tread_m\n\
+     float64 front_tread_m\n\
+     float64[4] wheel_diameter_m # rear left, rear right, front left, front right\n"
+        .to_owned()
+}
+
+/// The `ros2msg` schema of canodom's raw-frame message.
+pub fn can_schema() -> String {
+    [
+        "# The CAN frames received since the previous filter step, the step's own last.\n\
+         canodom_msgs/CanFrame[] frames\n",
+        "MSG: canodom_msgs/CanFrame\nbuiltin_interfaces/Time stamp\nuint32 id\nbool extended\nuint8[] data\n",
+        TIME,
+    ]
+    .join(SEP)
+}
+
 /// The `ros2msg` schema of `nav_msgs/msg/Odometry` with every type it uses.
 pub fn odometry_schema() -> String {
     [
@@ -106,14 +147,14 @@ pub struct Odometry<'a> {
 }
 
 /// A CDR writer appending to a buffer.
-struct Cdr<'a> {
+pub(crate) struct Cdr<'a> {
     buf: &'a mut Vec<u8>,
     /// Where the payload starts (after the encapsulation header): alignment counts from here.
     origin: usize,
 }
 
 impl<'a> Cdr<'a> {
-    fn new(buf: &'a mut Vec<u8>) -> Self {
+    pub(crate) fn new(buf: &'a mut Vec<u8>) -> Self {
         buf.extend_from_slice(&[0x00, 0x01, 0x00, 0x00]);
         let origin = buf.len();
         Self { buf, origin }
@@ -124,24 +165,46 @@ impl<'a> Cdr<'a> {
         self.buf.resize(self.buf.len() + pad, 0);
     }
 
-    fn u32(&mut self, v: u32) {
+    pub(crate) fn u8(&mut self, v: u8) {
+        self.buf.push(v);
+    }
+
+    pub(crate) fn u16(&mut self, v: u16) {
+        self.align(2);
+        self.buf.extend_from_slice(&v.to_le_bytes());
+    }
+
+    pub(crate) fn u32(&mut self, v: u32) {
         self.align(4);
         self.buf.extend_from_slice(&v.to_le_bytes());
     }
 
-    fn time(&mut self, t: RosTime) {
+    pub(crate) fn u64s(&mut self, values: &[u64]) {
+        self.align(8);
+        for v in values {
+            self.buf.extend_from_slice(&v.to_le_bytes());
+        }
+    }
+
+    /// A `uint8[]`: length, then the bytes.
+    pub(crate) fn bytes(&mut self, b: &[u8]) {
+        self.u32(b.len() as u32);
+        self.buf.extend_from_slice(b);
+    }
+
+    pub(crate) fn time(&mut self, t: RosTime) {
         self.align(4);
         self.buf.extend_from_slice(&t.sec.to_le_bytes());
         self.buf.extend_from_slice(&t.nanosec.to_le_bytes());
     }
 
-    fn string(&mut self, s: &str) {
+    pub(crate) fn string(&mut self, s: &str) {
         self.u32(s.len() as u32 + 1);
         self.buf.extend_from_slice(s.as_bytes());
         self.buf.push(0);
     }
 
-    fn f64s(&mut self, values: &[f64]) {
+    pub(crate) fn f64s(&mut self, values: &[f64]) {
         self.align(8);
         for v in values {
             self.buf.extend_from_slice(&v.to_le_bytes());

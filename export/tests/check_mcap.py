@@ -8,8 +8,9 @@ against the CSV of the same replay (issue #25's must-shows).
   exactly STEPS messages; the raw-frame messages hold FRAMES frames in all;
 - `mcap-ros2-support` decodes the ROS 2 messages with the file's own
   schemas, `mcap-protobuf-support` the Foxglove ones;
-- `rosbags` deserialises every ROS 2 message with its own built-in type
-  definitions (ROS 2 Humble), independent of the file's schemas;
+- `rosbags` deserialises every CDR message: `Odometry` and `TFMessage` with
+  its own built-in definitions (ROS 2 Humble), independent of the file's
+  schemas; canodom's own messages with the types the file's schemas define;
 - the last Odometry equals the CSV's last row (time, x, y, heading, speed);
 - every covariance is symmetric and positive definite.
 
@@ -17,7 +18,6 @@ Exits non-zero with the reason on the first failure; prints a summary line.
 """
 
 import csv
-import json
 import math
 import sys
 
@@ -25,7 +25,7 @@ import numpy as np
 from mcap.reader import NonSeekingReader, make_reader
 from mcap_protobuf.decoder import DecoderFactory as ProtobufDecoders
 from mcap_ros2.decoder import DecoderFactory as Ros2Decoders
-from rosbags.typesys import Stores, get_typestore
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 TOPICS = [
     "/canodom/pose",
@@ -57,6 +57,20 @@ def covariance_ok(values, what):
     check(eig.min() > 0.0, f"{what}: covariance not positive definite (eigenvalue {eig.min()})")
 
 
+def register(typestore, name, text):
+    """Registers the types a ros2msg schema defines that the store lacks."""
+    sep = "=" * 80
+    parts = [p.strip("\n") for p in text.split(sep)]
+    defs = {name: parts[0]}
+    for part in parts[1:]:
+        head, _, body = part.partition("\n")
+        pkg, _, ty = head.removeprefix("MSG: ").partition("/")
+        defs[f"{pkg}/msg/{ty.split('/')[-1]}"] = body
+    for ty, body in defs.items():
+        if ty not in typestore.fielddefs:
+            typestore.register(get_types_from_msg(body, ty))
+
+
 def yaw_of(q):
     return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
 
@@ -72,6 +86,7 @@ def main():
     can_frames = 0
     last_odom = None
     last_pose = None
+    last_quality = None
     with open(path, "rb") as f:
         reader = make_reader(f)
         factories = [Ros2Decoders(), ProtobufDecoders()]
@@ -89,8 +104,13 @@ def main():
             decoded = decode(message.data) if decode else None
             counts[topic] += 1
             if channel.message_encoding == "cdr":
-                # rosbags, with its own ROS 2 Humble definitions.
+                # rosbags: ROS 2 Humble's own definitions, the file's for canodom_msgs.
+                if schema.name.startswith("canodom_msgs/"):
+                    register(typestore, schema.name, schema.data.decode())
                 ros = typestore.deserialize_cdr(message.data, schema.name)
+                if topic == "/canodom/can":
+                    check(len(ros.frames) == len(decoded.frames), "CanFrames: the readers disagree")
+                    can_frames += len(ros.frames)
                 if topic == "/odom":
                     covariance_ok(ros.pose.covariance, "Odometry pose (rosbags)")
                     covariance_ok(ros.twist.covariance, "Odometry twist (rosbags)")
@@ -99,13 +119,13 @@ def main():
                     check(list(decoded.pose.covariance) == list(ros.pose.covariance),
                           "mcap-ros2-support and rosbags disagree")
                     last_odom = (message.log_time, decoded, ros)
-                else:
+                elif topic == "/tf":
                     check(len(ros.transforms) == 1 and ros.transforms[0].child_frame_id == "base_link",
                           "TFMessage is not one odom -> base_link transform")
-            elif channel.message_encoding == "json":
-                body = json.loads(message.data)
-                if topic == "/canodom/can":
-                    can_frames += len(body["frames"])
+                elif topic == "/canodom/quality":
+                    check(ros.quality == decoded.quality and (ros.quality & 1) == ros.pose_valid,
+                          "Quality: the readers disagree, or POSE_VALID is not bit 0")
+                    last_quality = ros
             elif topic == "/canodom/pose":
                 last_pose = decoded
     for topic, n in counts.items():
@@ -138,11 +158,12 @@ def main():
     ]:
         check(abs(got - want) <= 1e-9 * max(1.0, abs(want)) + 1e-6 * (name == "pos_std"),
               f"last Odometry {name} {got}, CSV {want}")
+    check(last_quality.quality == int(last["quality"]), "last Quality differs from the CSV")
     check(last_pose is not None and abs(last_pose.pose.position.x - float(last["x_m"])) < 1e-9,
           "last foxglove.PoseInFrame differs from the CSV")
     print(f"check_mcap: ok: {len(TOPICS)} channels x {steps} messages, {can_frames} CAN frames, "
           f"last Odometry = CSV last row, covariances symmetric positive definite, "
-          f"rosbags deserialised {2 * steps} ROS 2 messages")
+          f"rosbags deserialised {6 * steps} CDR messages")
 
 
 if __name__ == "__main__":
