@@ -26,15 +26,15 @@ pub enum Error {
         /// Why.
         source: std::io::Error,
     },
-    /// The MCAP writer failed (an I/O error underneath, mostly).
-    #[error("MCAP: {0}")]
-    Mcap(Box<mcap::McapError>),
+    /// The recording's output refused a write.
+    #[error("writing the recording: {0}")]
+    Write(std::io::Error),
 }
 
 impl Error {
-    /// Boxes an MCAP error (it is large).
-    pub(crate) fn mcap(e: mcap::McapError) -> Self {
-        Self::Mcap(Box::new(e))
+    /// A failed write to the output.
+    pub(crate) fn write(e: std::io::Error) -> Self {
+        Self::Write(e)
     }
 }
 
