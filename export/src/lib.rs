@@ -7,12 +7,14 @@
 //! - [`encode`]: the channels ([`encode::Topic`]) and a step's message on each.
 //! - [`cdr`]: ROS 2 `Odometry` and `TFMessage` in CDR, with their schemas.
 //! - [`mcap_file`]: an MCAP file of steps.
+//! - [`recorder`]: MCAP files rotated by size or time, flushed as they go.
 
 #![deny(missing_docs)]
 
 pub mod cdr;
 pub mod encode;
 pub mod mcap_file;
+pub mod recorder;
 pub mod sample;
 
 /// What can go wrong writing a recording.

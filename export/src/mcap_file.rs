@@ -25,6 +25,8 @@ use crate::sample::{FrameSource, StepSample};
 use crate::{Error, Result};
 use canodom_fusion::VehicleParams;
 use std::io::Write;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::mpsc;
 
 /// MCAP's magic, at both ends of a file.
@@ -164,6 +166,8 @@ struct Output<W> {
     out: W,
     /// Bytes written to `out` so far (offsets in the summary count from the file's start).
     position: u64,
+    /// `position`, for the caller (size rotation).
+    written: Arc<AtomicU64>,
     compression: Compression,
     chunks: Vec<ChunkIndex>,
     /// A compressed chunk.
@@ -197,6 +201,8 @@ pub struct StepWriter<W: Write + Send + 'static> {
     definitions: Vec<u8>,
     encoder: StepEncoder,
     sequence: u32,
+    /// Bytes the writing thread has written.
+    written: Arc<AtomicU64>,
 }
 
 impl<W: Write + Send + 'static> std::fmt::Debug for StepWriter<W> {
@@ -242,9 +248,11 @@ impl<W: Write + Send + 'static> StepWriter<W> {
         head.string(concat!("canodom ", env!("CARGO_PKG_VERSION")).as_bytes());
         head.close(at);
         head.extend_from_slice(&definitions);
+        let written = Arc::new(AtomicU64::new(0));
         let mut output = Output {
             out,
             position: 0,
+            written: Arc::clone(&written),
             compression: options.compression,
             chunks: Vec::new(),
             scratch: Vec::new(),
@@ -271,6 +279,7 @@ impl<W: Write + Send + 'static> StepWriter<W> {
             definitions,
             encoder: StepEncoder::new(k_rear_m),
             sequence: 0,
+            written,
         })
     }
 
@@ -332,6 +341,11 @@ impl<W: Write + Send + 'static> StepWriter<W> {
     /// Steps written.
     pub fn steps(&self) -> u64 {
         self.counts[0]
+    }
+
+    /// Bytes in the file so far (chunks still being compressed not yet).
+    pub fn bytes_written(&self) -> u64 {
+        self.written.load(Ordering::Relaxed)
     }
 
     /// Hands the current chunk to the writing thread.
@@ -481,6 +495,7 @@ impl<W: Write> Output<W> {
     fn emit(&mut self, bytes: &[u8]) -> Result<()> {
         self.out.write_all(bytes).map_err(Error::write)?;
         self.position += bytes.len() as u64;
+        self.written.store(self.position, Ordering::Relaxed);
         Ok(())
     }
 
@@ -608,7 +623,7 @@ fn lz4_frame(data: &[u8], out: &mut Vec<u8>) -> std::io::Result<()> {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::sample::{Counts, FrameBuffer, FrameRef};
     use canodom_can::time::Timestamp;
@@ -616,7 +631,8 @@ mod tests {
     use canodom_fusion::ekf::WindowOutcome;
     use canodom_pipeline::pipeline::{PoseFlags, PoseOutput};
 
-    fn sample(k: i64) -> StepSample {
+    /// A step `k` × 10 ms into a drive.
+    pub(crate) fn sample(k: i64) -> StepSample {
         let pose = Pose {
             x_m: k as f64,
             y_m: 0.5,
