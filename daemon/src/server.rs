@@ -145,6 +145,8 @@ pub struct Observers {
     /// before the first frame. Not an observer: it rides here until the
     /// daemon's start-up options get a struct of their own.
     pub restore_learnt: Option<canodom_fusion::ekf::Learnt>,
+    /// Gets every frame and published pose for `run --record` / `--foxglove` (never blocks).
+    pub tap: Option<canodom_export::live::Tap>,
 }
 
 enum LinkEvent {
@@ -807,6 +809,9 @@ impl<Tx: FrameSink + Clone> PipelineTask<Tx> {
             LinkEvent::Lost(n) => self.lost += n,
             LinkEvent::Frame(r) => {
                 self.clock = Some((r.timestamp, Instant::now()));
+                if let Some(tap) = &mut self.observers.tap {
+                    tap.frame(r.timestamp, &r.frame);
+                }
                 if r.frame.id() == self.calib_cmd_id {
                     let out = self.live.on_command(r.timestamp, &r.frame);
                     self.carry_out(out).await;
@@ -936,6 +941,9 @@ impl<Tx: FrameSink + Clone> PipelineTask<Tx> {
     async fn publish(&mut self) {
         let Some(now) = self.now() else { return };
         let pose = self.pipeline.pose_output(now);
+        if let Some(tap) = &mut self.observers.tap {
+            tap.pose(&self.pipeline, pose);
+        }
         let Ok(frames) = self.encoder.encode(&pose) else {
             return;
         };

@@ -8,11 +8,14 @@
 //! - [`cdr`]: ROS 2 `Odometry` and `TFMessage` in CDR, with their schemas.
 //! - [`mcap_file`]: an MCAP file of steps.
 //! - [`recorder`]: MCAP files rotated by size or time, flushed as they go.
+//! - [`live`]: a running daemon's poses to a recording and a Foxglove
+//!   WebSocket view, through a queue that never holds up the pipeline.
 
 #![deny(missing_docs)]
 
 pub mod cdr;
 pub mod encode;
+pub mod live;
 pub mod mcap_file;
 pub mod recorder;
 pub mod sample;
@@ -28,6 +31,9 @@ pub enum Error {
         /// Why.
         source: std::io::Error,
     },
+    /// The live view could not start.
+    #[error("live view: {0}")]
+    Live(String),
     /// The recording's output refused a write.
     #[error("writing the recording: {0}")]
     Write(std::io::Error),
