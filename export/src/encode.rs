@@ -280,25 +280,8 @@ impl StepEncoder {
             .map_or(0.0, |p| (sample.t_unix_us - p) as f64 / 1e6);
         self.prev_t_us = Some(sample.t_unix_us);
         self.buf.clear();
-        cdr::encode_odometry(
-            &Odometry {
-                stamp: rt,
-                frame_id: ODOM_FRAME,
-                child_frame_id: BASE_FRAME,
-                position: pos,
-                orientation: q,
-                pose_covariance: pose_covariance(&sample.covariance),
-                linear: [sample.output.speed_mps, 0.0, 0.0],
-                angular: [0.0, 0.0, sample.output.yaw_rate_radps],
-                twist_covariance: twist_covariance(
-                    self.k_rear_m,
-                    sample.rear_m,
-                    params.rear_tread_m(),
-                    dt_s,
-                ),
-            },
-            &mut self.buf,
-        );
+        let twist = twist_covariance(self.k_rear_m, sample.rear_m, params.rear_tread_m(), dt_s);
+        cdr::encode_odometry(&odometry(sample, rt, q, &twist), &mut self.buf);
         emit(Topic::RosOdometry, t_ns, &self.buf)?;
 
         self.buf.clear();
@@ -313,6 +296,27 @@ impl StepEncoder {
             &mut self.buf,
         );
         emit(Topic::RosTf, t_ns, &self.buf)
+    }
+}
+
+/// The fused pose of `sample` as an `Odometry` (REP-103: the pose in `odom`,
+/// the twist in `base_link`).
+fn odometry(
+    sample: &StepSample,
+    stamp: RosTime,
+    q: [f64; 4],
+    twist_covariance: &[f64; 36],
+) -> Odometry<'static> {
+    Odometry {
+        stamp,
+        frame_id: ODOM_FRAME,
+        child_frame_id: BASE_FRAME,
+        position: [sample.fused.x_m, sample.fused.y_m, 0.0],
+        orientation: q,
+        pose_covariance: pose_covariance(&sample.covariance),
+        linear: [sample.output.speed_mps, 0.0, 0.0],
+        angular: [0.0, 0.0, sample.output.yaw_rate_radps],
+        twist_covariance: *twist_covariance,
     }
 }
 

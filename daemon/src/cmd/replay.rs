@@ -160,27 +160,7 @@ pub fn execute(args: &ReplayArgs) -> anyhow::Result<()> {
     };
     let mut input = super::open_input(&args.log, "replay")?;
     let started = std::time::Instant::now();
-    let is_mcap = args.format.as_deref().map_or_else(
-        || args.out.as_ref().and_then(|p| p.extension()) == Some("mcap".as_ref()),
-        |f| f == "mcap",
-    );
-    let create = |path: &PathBuf| {
-        std::fs::File::create(path).with_context(|| format!("cannot create {}", path.display()))
-    };
-    let (sink, mcap): (Box<dyn Write>, _) = match (&args.out, is_mcap) {
-        (None, true) => anyhow::bail!("--format mcap needs --out FILE"),
-        (None, false) => (Box::new(std::io::stdout().lock()), None),
-        (Some(path), false) => (Box::new(create(path)?), None),
-        (Some(path), true) => {
-            let file = std::io::BufWriter::with_capacity(1 << 20, create(path)?);
-            let options = canodom_export::mcap_file::McapOptions {
-                compression: args.compression,
-                ..Default::default()
-            };
-            let writer = McapOut::new(file, options, config.ekf.k_rear_m)?;
-            (Box::new(std::io::sink()), Some(writer))
-        }
-    };
+    let (sink, mcap) = open_output(args, &config)?;
     let mut w = std::io::BufWriter::with_capacity(WRITE_BYTES, sink);
     let summary = replay_log(
         &config,
@@ -247,6 +227,34 @@ pub fn execute(args: &ReplayArgs) -> anyhow::Result<()> {
         compare_with_truth(args, &truth, &summary.track, summary.first_frame)?;
     }
     Ok(())
+}
+
+/// The CSV output (standard output without `--out`), or the MCAP file.
+fn open_output(
+    args: &ReplayArgs,
+    config: &Config,
+) -> anyhow::Result<(Box<dyn Write>, Option<McapOut>)> {
+    let is_mcap = args.format.as_deref().map_or_else(
+        || args.out.as_ref().and_then(|p| p.extension()) == Some("mcap".as_ref()),
+        |f| f == "mcap",
+    );
+    let create = |path: &PathBuf| {
+        std::fs::File::create(path).with_context(|| format!("cannot create {}", path.display()))
+    };
+    Ok(match (&args.out, is_mcap) {
+        (None, true) => anyhow::bail!("--format mcap needs --out FILE"),
+        (None, false) => (Box::new(std::io::stdout().lock()), None),
+        (Some(path), false) => (Box::new(create(path)?), None),
+        (Some(path), true) => {
+            let file = std::io::BufWriter::with_capacity(1 << 20, create(path)?);
+            let options = canodom_export::mcap_file::McapOptions {
+                compression: args.compression,
+                ..Default::default()
+            };
+            let writer = McapOut::new(file, options, config.ekf.k_rear_m)?;
+            (Box::new(std::io::sink()), Some(writer))
+        }
+    })
 }
 
 /// `--truth`: the replay placed on the reference, the errors printed, the
