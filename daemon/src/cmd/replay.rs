@@ -467,17 +467,27 @@ pub fn replay_log(
     if !samples {
         writeln!(out, "{CSV_HEADER}")?;
     }
-    let params = *pipeline.params();
     let (to_filter, filter_in) = mpsc::channel::<Batch>();
     let (to_writer, from_filter) = mpsc::channel::<Batch>();
     std::thread::scope(|scope| {
+        // The filter thread also encodes the MCAP messages (the reading
+        // thread has parsing enough; chunks compress on the writer's thread).
         let filter = scope.spawn(move || {
+            let mut failed = None;
             let mut waiting = filter_in.recv().ok();
             while let Some(mut batch) = waiting.take() {
                 batch.rows.clear();
                 batch.text.clear();
                 batch.samples.clear();
                 filter_batch(&mut pipeline, &mut batch, samples);
+                if let Some(m) = mcap.as_mut().filter(|_| failed.is_none()) {
+                    let (params, mut from) = (*pipeline.params(), 0);
+                    for (to, sample) in &batch.samples {
+                        let frames = (&batch, std::mem::replace(&mut from, *to), *to);
+                        failed = m.write_step(sample, &params, frames).err();
+                    }
+                    m.carry(&batch, from);
+                }
                 waiting = filter_in.try_recv().ok();
                 if waiting.is_none() && !samples {
                     // Ahead of the reading thread (or past its end): write
@@ -491,7 +501,7 @@ pub fn replay_log(
                     waiting = filter_in.recv().ok();
                 }
             }
-            pipeline
+            (pipeline, mcap, failed)
         });
         let fed = feed(
             &mut reader,
@@ -500,14 +510,16 @@ pub fn replay_log(
             out,
             diag,
             kept.as_mut(),
-            mcap.as_mut().map(|m| (m, &params)),
         );
         // Ends the filter thread's loop, whether feeding ended or failed.
         drop(to_filter);
-        let pipeline = filter
+        let (pipeline, mcap, failed) = filter
             .join()
             .unwrap_or_else(|panic| std::panic::resume_unwind(panic));
         let (malformed, by_reason) = fed?;
+        if let Some(e) = failed {
+            return Err(e.into());
+        }
         if let Some(m) = mcap {
             m.finish()?.flush()?;
         }
@@ -599,7 +611,6 @@ fn feed(
     out: &mut impl Write,
     diag: &mut impl Write,
     mut kept: Option<&mut Vec<(i64, [f64; 6])>>,
-    mut mcap: Option<(&mut McapOut, &canodom_fusion::VehicleParams)>,
 ) -> anyhow::Result<(u64, MalformedCounts)> {
     let mut malformed = 0u64;
     let mut by_reason = MalformedCounts::default();
@@ -620,15 +631,8 @@ fn feed(
         if let Some(kept) = kept.as_deref_mut() {
             kept.extend(batch.rows.iter().map(|r| (r.t_us, r.values)));
         }
-        if let Some((m, params)) = mcap.as_mut() {
-            let mut from = 0;
-            for (to, sample) in &batch.samples {
-                m.write_step(sample, params, (batch, from, *to))
-                    .map_err(std::io::Error::other)?;
-                from = *to;
-            }
-            m.carry(batch, from);
-            return Ok(());
+        if !batch.samples.is_empty() {
+            return Ok(()); // MCAP: the filter thread wrote the steps.
         }
         if batch.text.is_empty() {
             push_rows(&mut text, &batch.rows);
