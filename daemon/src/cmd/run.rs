@@ -125,24 +125,26 @@ pub fn execute(args: &RunArgs) -> anyhow::Result<()> {
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()?;
+    let (tap, outputs) = live.unzip();
     let summary = rt.block_on(crate::server::run(
         Arc::clone(&config),
         connector,
         shutdown_signal(),
         Observers {
             restore_learnt,
-            tap: live.as_ref().map(|(tap, _)| tap.clone()),
+            tap,
             ..Observers::default()
         },
-    ))?;
+    ));
+    // The recording is finished (indexed) whether the daemon stopped or failed.
+    if let Some(outputs) = outputs {
+        let r = outputs.join()?;
+        info!(poses = r.poses, dropped = r.dropped, files = ?r.files, "recording and live view stopped");
+    }
+    let summary = summary?;
     if let Some(path) = &args.state_file {
         crate::state_file::save(path, &crate::state_file::SavedState::new(&config, &summary))?;
         info!(path = %path.display(), "state saved");
-    }
-    if let Some((tap, outputs)) = live {
-        drop(tap);
-        let r = outputs.join()?;
-        info!(poses = r.poses, dropped = r.dropped, files = ?r.files, "recording and live view stopped");
     }
     info!(stats = %summary.stats, poses = summary.poses_published, "canodom stopped");
     Ok(())
