@@ -57,10 +57,14 @@ fn subscribe(port: u16) -> (Client, Vec<(u64, String)>) {
     (ws, channels)
 }
 
-/// Drives the simulator's circle against an in-process daemon with `tap`;
-/// returns the wall time the drive took (virtual time runs as fast as the
-/// machine goes) and the poses published.
-async fn drive_with(config: &Arc<Config>, tap: canodom_export::live::Tap) -> (Duration, u64) {
+/// Drives the simulator's circle against an in-process daemon with `tap`
+/// until `stop`; returns the wall time the drive took (in paused time, as
+/// fast as the machine goes), the poses published and the frames lost.
+async fn drive_with(
+    config: &Arc<Config>,
+    tap: canodom_export::live::Tap,
+    stop: CancellationToken,
+) -> (Duration, u64, u64) {
     let observers = Observers {
         tap: Some(tap),
         ..Observers::default()
@@ -70,13 +74,11 @@ async fn drive_with(config: &Arc<Config>, tap: canodom_export::live::Tap) -> (Du
     let (_vrx, vtx) = daemon.bus.open().unwrap();
     let sim = simulator(config, PathKind::Circle, None, 5, false).unwrap();
     let started = Instant::now();
-    drive(config, sim, &vtx, 100.0, CancellationToken::new(), |_| {})
-        .await
-        .unwrap();
+    drive(config, sim, &vtx, 100.0, stop, |_| {}).await.unwrap();
     let took = started.elapsed();
     tokio::time::sleep(Duration::from_millis(200)).await;
     let summary = daemon.stop().await.unwrap();
-    (took, summary.poses_published)
+    (took, summary.poses_published, summary.frames_lost)
 }
 
 fn config() -> Arc<Config> {
@@ -93,7 +95,7 @@ fn temp(name: &str) -> PathBuf {
     d
 }
 
-#[tokio::test(start_paused = true)]
+#[tokio::test]
 async fn the_recording_and_a_viewer_get_every_published_pose() {
     let config = config();
     let dir = temp("record");
@@ -127,14 +129,22 @@ async fn the_recording_and_a_viewer_get_every_published_pose() {
         }
         poses
     });
-    let (_, published) = drive_with(&config, tap).await;
+    // Let the subscription settle, then drive 3 s in real time.
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let stop = CancellationToken::new();
+    let timer = stop.clone();
+    tokio::spawn(async move {
+        tokio::time::sleep(Duration::from_secs(3)).await;
+        timer.cancel();
+    });
+    let (_, published, _) = drive_with(&config, tap, stop).await;
     let report: LiveReport = outputs.join().unwrap();
     let live_poses = reader.join().unwrap();
     println!(
         "published {published}, recorded {}, dropped {}, live {live_poses}",
         report.poses, report.dropped
     );
-    assert!(published > 1000, "{published} poses");
+    assert!(published > 300, "{published} poses");
     assert_eq!(report.dropped, 0);
     // Every published pose reached the outputs (one more may come from the
     // last tick after the stop was asked for).
@@ -143,11 +153,10 @@ async fn the_recording_and_a_viewer_get_every_published_pose() {
         "{} vs {published}",
         report.poses
     );
-    // Paused time runs the drive ~1000 times faster than real time (10⁵
-    // messages a second): the server drops what a client cannot take at that
-    // rate; at the real 50 poses a second it keeps up. Most arrive here.
+    // In real time the client keeps up; the server's stop at the end may
+    // cut the last few still queued for it.
     assert!(
-        live_poses * 2 >= report.poses,
+        live_poses * 10 >= report.poses * 9,
         "{live_poses} of {}",
         report.poses
     );
@@ -177,17 +186,21 @@ async fn a_stalled_viewer_does_not_slow_the_pipeline() {
     // channel and then never reads; the best of each (the host is shared).
     let (mut free, mut stalled) = (Duration::MAX, Duration::MAX);
     let mut stalled_report = LiveReport::default();
-    for _ in 0..3 {
+    for _ in 0..5 {
         let (tap, outputs) = LiveOutputs::start(options.clone()).unwrap();
-        let (took, _) = drive_with(&config, tap).await;
+        let (took, free_poses, lost) = drive_with(&config, tap, CancellationToken::new()).await;
         free = free.min(took);
         outputs.join().unwrap();
+        assert_eq!(lost, 0);
 
         let (tap, outputs) = LiveOutputs::start(options.clone()).unwrap();
         let (ws, _) = subscribe(outputs.port().unwrap());
-        let (took, published) = drive_with(&config, tap).await;
+        let (took, published, lost) = drive_with(&config, tap, CancellationToken::new()).await;
         stalled = stalled.min(took);
         stalled_report = outputs.join().unwrap();
+        // The pipeline lost no frame and published every pose it publishes
+        // without the client: nothing waited for the viewer.
+        assert_eq!((lost, published), (0, free_poses));
         assert!(stalled_report.poses + stalled_report.dropped + 1 >= published);
         drop(ws);
     }
@@ -197,8 +210,10 @@ async fn a_stalled_viewer_does_not_slow_the_pipeline() {
         stalled_report.poses, stalled_report.dropped
     );
     let ratio = stalled.as_secs_f64() / free.as_secs_f64();
+    // Best of five each; the bound is the noise of a shared 2-core host
+    // running the other tests beside this one.
     assert!(
-        ratio < 1.25,
+        ratio < 1.5,
         "the stalled client slowed the pipeline {ratio:.2}x"
     );
 }

@@ -25,7 +25,7 @@ t_unix_s,speed_mps,pos_std_m,heading_std_rad,pose_valid,quality";
 #[derive(Debug, clap::Args)]
 #[command(
     after_help = "Example:\n  canodom simulate --config rc_car.toml --log drive.log --truth truth.csv\n  \
-canodom replay --config rc_car.toml drive.log --out pose.csv\n  \
+canodom replay --config rc_car.toml drive.log --out pose.csv\n  canodom replay --config rc_car.toml drive.log --out drive.mcap   # Foxglove, ROS 2\n  \
 canodom replay --config car.toml --params params.toml drive.log --out pose.csv\n\n\
 The CSV has one row per filter step (one per rear-wheel frame): seconds since the first input \
 frame, the fused pose, then rear-wheel-only odometry; both start at (0, 0, 0) at the first \

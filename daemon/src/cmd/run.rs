@@ -13,7 +13,7 @@ use tracing::{info, warn};
 #[derive(Debug, clap::Args)]
 #[command(
     after_help = "Example:\n  canodom run --config /etc/canodom/rc_car.toml\n  \
-canodom run --config car.toml --interface vcan0 --log-format json\n\n\
+canodom run --config car.toml --interface vcan0 --log-format json\n  canodom run --config car.toml --record drive.mcap --record-max-s 600 --foxglove\n\n\
 Reads the configured wheel and steering messages (kernel filters, kernel timestamps), checks \
 DLC, rolling counters, checksums and timeouts, runs the EKF, and publishes ODOM_POSITION, \
 ODOM_MOTION and ODOM_QUALITY (protocol/dbc/canodom.dbc at output.base_id; `canodom dbc own` writes it for yours) at output.pose_rate_hz. \
