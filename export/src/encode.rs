@@ -146,8 +146,6 @@ pub struct StepEncoder {
     calibration: Option<((u16, bool, VehicleParams), Vec<u8>)>,
     /// The frames of the current batch's tail, for the next step.
     pending: Vec<OwnedFrame>,
-    /// The previous step's time (the twist covariance's interval).
-    prev_t_us: Option<i64>,
 }
 
 impl StepEncoder {
@@ -175,7 +173,6 @@ impl StepEncoder {
             buf: Vec::with_capacity(4096),
             calibration: None,
             pending: Vec::new(),
-            prev_t_us: None,
         }
     }
 
@@ -275,12 +272,13 @@ impl StepEncoder {
         emit(Topic::Can, t_ns, &self.buf)?;
 
         let rt = RosTime::from_nanos(t_ns);
-        let dt_s = self
-            .prev_t_us
-            .map_or(0.0, |p| (sample.t_unix_us - p) as f64 / 1e6);
-        self.prev_t_us = Some(sample.t_unix_us);
         self.buf.clear();
-        let twist = twist_covariance(self.k_rear_m, sample.rear_m, params.rear_tread_m(), dt_s);
+        let twist = twist_covariance(
+            self.k_rear_m,
+            sample.rear_m,
+            params.rear_tread_m(),
+            sample.dt_s,
+        );
         cdr::encode_odometry(&odometry(sample, rt, q, &twist), &mut self.buf);
         emit(Topic::RosOdometry, t_ns, &self.buf)?;
 

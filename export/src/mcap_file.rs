@@ -5,7 +5,8 @@
 //!
 //! Written here rather than with the `mcap` crate's `Writer`, for time:
 //! on the 1 M-frame bench log (333 k steps, 3 M messages) that writer took
-//! 1.4 s of CPU with LZ4 (7 times the CSV replay's), this one 0.7 s. A third of it was the LZ4 frame's content checksum (XXH32,
+//! 1.4 s of CPU with LZ4 (7 times the CSV replay's), this one 0.7 s (both
+//! under the same load; bench/README.md has the figures). A third of it was the LZ4 frame's content checksum (XXH32,
 //! not switchable there), a sixth the LZ4 frame API called once per field
 //! written (each message's header is written field by field), the rest its
 //! per-message bookkeeping (map lookups, counting writers). Here a message is
@@ -656,6 +657,7 @@ pub(crate) mod tests {
             },
             covariance: [1e-4, 0.0, 0.0, 0.0, 1e-4, 0.0, 0.0, 0.0, 1e-6],
             rear_m: [0.01, 0.01],
+            dt_s: 0.01,
             correction: WindowOutcome::Open,
             counts: Counts::default(),
         }

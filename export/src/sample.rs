@@ -26,6 +26,8 @@ pub struct StepSample {
     /// The rear (left, right) wheel distances of the step, metres: the
     /// twist's covariance follows from them (the filter's own input noise).
     pub rear_m: [f64; 2],
+    /// The step's interval, seconds (0 when unknown: the first step, or no motion).
+    pub dt_s: f64,
     /// What the filter's correction window did at this step.
     pub correction: WindowOutcome,
     /// The pipeline's counts after this step.
@@ -72,16 +74,27 @@ impl StepSample {
         let p = pipeline.state().covariance();
         let params = pipeline.params();
         let metres = |rev: f64, w| rev * std::f64::consts::PI * params.wheel_diameter_m(w);
+        let rear_m = [
+            metres(step.rear_rev.0, canodom_fusion::Wheel::RearLeft),
+            metres(step.rear_rev.1, canodom_fusion::Wheel::RearRight),
+        ];
+        // The pipeline's speed is the step's mean rear distance over its
+        // interval: the interval, back from them (a pose published between
+        // steps must not take its own interval for the step's).
+        let mean_m = 0.5 * (rear_m[0] + rear_m[1]);
+        let dt_s = if output.speed_mps.abs() > 0.0 && mean_m.abs() > 0.0 {
+            (mean_m / output.speed_mps).abs()
+        } else {
+            0.0
+        };
         Self {
             t_unix_us: t0_us + step.t_us,
             fused: step.fused,
             rear_only: step.odometry,
             output,
             covariance: std::array::from_fn(|k| p[(k / 3, k % 3)]),
-            rear_m: [
-                metres(step.rear_rev.0, canodom_fusion::Wheel::RearLeft),
-                metres(step.rear_rev.1, canodom_fusion::Wheel::RearRight),
-            ],
+            rear_m,
+            dt_s,
             correction: step.correction,
             counts: Counts::from(pipeline.stats()),
         }
