@@ -313,12 +313,15 @@ impl<W: Write + Send + 'static> StepWriter<W> {
                     let k = topic as usize;
                     index[k].push((t_ns, chunk.len() as u64));
                     counts[k] += 1;
-                    chunk.push(op::MESSAGE);
-                    chunk.u64(2 + 4 + 8 + 8 + data.len() as u64);
-                    chunk.u16(channel_id(topic));
-                    chunk.u32(sequence);
-                    chunk.u64(t_ns);
-                    chunk.u64(t_ns);
+                    // The record's 31 header bytes with one copy.
+                    let mut header = [0u8; 31];
+                    header[0] = op::MESSAGE;
+                    header[1..9].copy_from_slice(&(22 + data.len() as u64).to_le_bytes());
+                    header[9..11].copy_from_slice(&channel_id(topic).to_le_bytes());
+                    header[11..15].copy_from_slice(&sequence.to_le_bytes());
+                    header[15..23].copy_from_slice(&t_ns.to_le_bytes());
+                    header[23..31].copy_from_slice(&t_ns.to_le_bytes());
+                    chunk.extend_from_slice(&header);
                     chunk.extend_from_slice(data);
                     Ok(())
                 },
@@ -529,40 +532,45 @@ impl<W: Write> Output<W> {
     /// leaves `chunk` empty for reuse.
     fn write_chunk(&mut self, chunk: &mut Sealed) -> Result<()> {
         let (start_ns, end_ns) = chunk.time;
+        let mut scratch = std::mem::take(&mut self.scratch);
+        let mut head = std::mem::take(&mut self.record);
         let (compression, records): (&[u8], &[u8]) = match self.compression {
             Compression::None => (b"", &chunk.records),
             Compression::Lz4 => {
-                self.scratch.clear();
-                lz4_frame(&chunk.records, &mut self.scratch).map_err(Error::write)?;
-                (b"lz4", &self.scratch)
+                scratch.clear();
+                lz4_frame(&chunk.records, &mut scratch).map_err(Error::write)?;
+                (b"lz4", &scratch)
             }
         };
-        let rec = &mut self.record;
-        rec.clear();
-        let at = rec.open(op::CHUNK);
-        rec.u64(start_ns);
-        rec.u64(end_ns);
-        rec.u64(chunk.records.len() as u64);
-        rec.u32(0);
-        rec.string(compression);
-        rec.u64(records.len() as u64);
-        rec.extend_from_slice(records);
-        rec.close(at);
-        let length = rec.len() as u64;
+        // The chunk record's fields, then its records as they are (not
+        // copied behind the fields: that was a tenth of an uncompressed
+        // file's time), then the message indexes.
+        head.clear();
+        head.push(op::CHUNK);
+        head.u64((8 + 8 + 8 + 4 + 4 + compression.len() + 8 + records.len()) as u64);
+        head.u64(start_ns);
+        head.u64(end_ns);
+        head.u64(chunk.records.len() as u64);
+        head.u32(0);
+        head.string(compression);
+        head.u64(records.len() as u64);
+        let length = (head.len() + records.len()) as u64;
+        let fields = head.len();
         let mut message_indexes = Vec::new();
         for (topic, entries) in Topic::ALL.iter().zip(&mut chunk.index) {
             if entries.is_empty() {
                 continue;
             }
-            message_indexes.push((channel_id(*topic), self.position + rec.len() as u64));
-            let at = rec.open(op::MESSAGE_INDEX);
-            rec.u16(channel_id(*topic));
-            rec.u32((entries.len() * 16) as u32);
+            let at = self.position + length + (head.len() - fields) as u64;
+            message_indexes.push((channel_id(*topic), at));
+            let start = head.open(op::MESSAGE_INDEX);
+            head.u16(channel_id(*topic));
+            head.u32((entries.len() * 16) as u32);
             for (t, offset) in entries.drain(..) {
-                rec.u64(t);
-                rec.u64(offset);
+                head.u64(t);
+                head.u64(offset);
             }
-            rec.close(at);
+            head.close(start);
         }
         self.chunks.push(ChunkIndex {
             start_ns,
@@ -570,14 +578,17 @@ impl<W: Write> Output<W> {
             offset: self.position,
             length,
             message_indexes,
-            message_index_length: rec.len() as u64 - length,
+            message_index_length: (head.len() - fields) as u64,
             compressed: records.len() as u64,
             uncompressed: chunk.records.len() as u64,
         });
+        let written = self
+            .emit(&head[..fields])
+            .and_then(|()| self.emit(records))
+            .and_then(|()| self.emit(&head[fields..]));
         chunk.records.clear();
-        let record = std::mem::take(&mut self.record);
-        let written = self.emit(&record);
-        self.record = record;
+        self.scratch = scratch;
+        self.record = head;
         written?;
         self.out.flush().map_err(Error::write)
     }
