@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # One command for issue 8's offline benchmarks: builds release, makes (once) a
-# 1,000,000-frame rc_car log with `canodom simulate`, times `canodom replay`,
+# 1,000,000-frame rc_car log with `canodom simulate`, times `canodom replay`
+# (to CSV and, #25, to MCAP),
 # `canodom decode`, `wc -l` and cantools on that same file in the same run,
 # then runs the codec and filter criterion benches with short measurement
 # times, and writes everything to one markdown report.
@@ -75,12 +76,21 @@ best_of noop true; overhead=$wall
 # `wc -l` and replay alternate, so both meet the same load (on a shared
 # host it changes within seconds and moved `wc -l` alone 0.010-0.020 s):
 # the ratio of the best times, and the median of the run-by-run ratios.
-ratios=(); wc_walls=(); rp_walls=()
+# MCAP replay (#25) alternates with them too: its goal is a ratio to the CSV replay.
+ratios=(); wc_walls=(); rp_walls=(); mc_walls=(); mc_ratios=()
 for _ in $(seq "$runs"); do
     time_once wc wc -l "$log"; w_wc=$last_wall; wc_walls+=("$last_wall")
     time_once replay "$bin" replay --config "$config" "$log" --out /dev/null; rp_walls+=("$last_wall")
+    w_rp=$last_wall
     ratios+=("$(awk -v a="$last_wall" -v b="$w_wc" 'BEGIN{printf "%.2f", a / b}')")
+    time_once mcap "$bin" replay --config "$config" "$log" --out /dev/null --format mcap; mc_walls+=("$last_wall")
+    mc_ratios+=("$(awk -v a="$last_wall" -v b="$w_rp" 'BEGIN{printf "%.2f", a / b}')")
 done
+mc_wall=${best_wall[mcap]}; mc_cpu=${best_cpu[mcap]}; mc_rss=${best_rss[mcap]}
+mc_median=$(printf '%s\n' "${mc_ratios[@]}" | sort -n | awk '{a[NR] = $1} END {print a[int((NR + 1) / 2)]}')
+# The file itself once, for its size (to disk, not timed).
+"$bin" replay --config "$config" "$log" --out "$bench_dir/bench.mcap" 2>/dev/null
+mc_mb=$(du -m "$bench_dir/bench.mcap" | cut -f1)
 # min / median / max of a list of numbers: which of the two moved between runs.
 spread() { printf '%s\n' "$@" | sort -n | awk '{a[NR] = $1} END {printf "%s / %s / %s", a[1], a[int((NR + 1) / 2)], a[NR]}'; }
 wc_wall=${best_wall[wc]}; wc_cpu=${best_cpu[wc]}; wc_rss=${best_rss[wc]}
@@ -125,6 +135,7 @@ micro=$(
     echo "|---|---:|---:|---:|---:|---:|"
     echo "| \`wc -l\` (floor: reading the bytes) | $wc_wall | $wc_fps | $wc_cpu | | $wc_rss |"
     echo "| \`canodom replay\` (EKF, CSV out) | $rp_wall | $rp_fps | $rp_cpu | $rp_cfps | $rp_rss / $rp10_rss |"
+    echo "| \`canodom replay --format mcap\` (EKF, MCAP out: 9 channels, LZ4; $mc_mb MB) | $mc_wall | $(rate $frames "$mc_wall") | $mc_cpu | $(rate $frames "$mc_cpu") | $mc_rss |"
     echo "| \`canodom decode\` (JSON out) | $dc_wall | $dc_fps | $dc_cpu | $dc_cfps | $dc_rss / $dc10_rss |"
     echo "| cantools loop (logreader + decode_message) | | $ct_fps | | | |"
     echo "| \`cantools decode\` command ($slice-frame slice) | | $cc_fps | | | |"
@@ -135,6 +146,8 @@ micro=$(
     echo "| replay time / \`wc -l\` time (best / best) | $(ratio "$rp_wall" "$wc_wall")x | ≤ 10x |"
     echo "| the same, median of the $runs run-by-run ratios (alternating runs) | ${pair_median}x | ≤ 10x |"
     echo "| (wall s over the $runs runs, min / median / max: \`wc -l\` $(spread "${wc_walls[@]}"), replay $(spread "${rp_walls[@]}")) | | |"
+    echo "| MCAP replay time / CSV replay time (best / best) | $(ratio "$mc_wall" "$rp_wall")x | ≤ 1.5x |"
+    echo "| the same, median of the $runs run-by-run ratios; CPU time ratio | ${mc_median}x; $(ratio "$mc_cpu" "$rp_cpu")x | ≤ 1.5x |"
     echo "| decode / cantools loop (frame rate) | $(ratio "$dc_fps" "$ct_fps")x | ≥ 10x |"
     echo "| decode / \`cantools decode\` command | $(ratio "$dc_fps" "$cc_fps")x | |"
     echo

@@ -151,6 +151,8 @@ pub struct Observers {
     /// before the first frame. Not an observer: it rides here until the
     /// daemon's start-up options get a struct of their own.
     pub restore_learnt: Option<canodom_fusion::ekf::Learnt>,
+    /// Gets every frame and published pose for `run --record` / `--foxglove` (never blocks).
+    pub tap: Option<canodom_export::live::Tap>,
 }
 
 enum LinkEvent {
@@ -865,6 +867,9 @@ impl<Tx: FrameSink + Clone> OdometryTask<Tx> {
             LinkEvent::Lost(n) => self.lost += n,
             LinkEvent::Frame(mut r) => {
                 (self.links.clock).send_replace(Some((r.timestamp, Instant::now())));
+                if let Some(tap) = &mut self.observers.tap {
+                    tap.frame(r.timestamp, &r.frame);
+                }
                 if !self.admit(&mut r) {
                     return;
                 }
@@ -975,6 +980,9 @@ impl<Tx: FrameSink + Clone> OdometryTask<Tx> {
     async fn publish(&mut self) {
         let Some(now) = self.now() else { return };
         let pose = self.pipeline.pose_output(now);
+        if let Some(tap) = &mut self.observers.tap {
+            tap.pose(&self.pipeline, pose);
+        }
         let Ok(frames) = self.encoder.encode(&pose) else {
             return;
         };

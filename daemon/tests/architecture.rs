@@ -72,6 +72,21 @@ fn the_pure_crates_stay_pure() {
     }
 }
 
+#[test]
+fn the_recordings_crate_leaves_the_runtime_to_the_daemon() {
+    // export runs on threads of its own, never inside the daemon's runtime;
+    // the Foxglove SDK's WebSocket server brings a runtime of its own.
+    let text = std::fs::read_to_string(root().join("export/Cargo.toml")).unwrap();
+    let manifest: toml::Table = text.parse().unwrap();
+    let deps = manifest["dependencies"].as_table().unwrap();
+    for forbidden in ["tokio", "tokio-util", "socketcan"] {
+        assert!(
+            !deps.contains_key(forbidden),
+            "export depends on {forbidden}"
+        );
+    }
+}
+
 /// The modules of one crate's `src/`, by path (`cmd::calibrate`), with their
 /// non-test, non-comment text.
 fn modules(member: &str) -> BTreeMap<String, String> {

@@ -17,6 +17,7 @@ mod dbc_tools;
 mod drive_session;
 mod follow_session;
 mod install;
+mod live_outputs;
 mod log_refusal;
 mod messages;
 mod rav4;

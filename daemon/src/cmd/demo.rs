@@ -134,7 +134,7 @@ async fn demo_async(
         Observers {
             steps: Some(steps_tx),
             stats: Some(stats_tx),
-            restore_learnt: None,
+            ..Observers::default()
         },
     );
     // Let the daemon open its endpoint before the vehicle starts.

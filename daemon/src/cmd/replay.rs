@@ -5,6 +5,8 @@ use anyhow::Context as _;
 use canodom_can::candump::{ClassicData, MalformedCounts, ReadError};
 use canodom_can::frame::CanFrame;
 use canodom_can::time::Timestamp;
+use canodom_export::mcap_file::StepWriter;
+use canodom_export::sample::{FrameRef, FrameSource, StepSample};
 use canodom_fusion::ekf::WindowOutcome;
 use canodom_pipeline::config::Config;
 use canodom_pipeline::pipeline::{Pipeline, Step};
@@ -23,7 +25,7 @@ t_unix_s,speed_mps,pos_std_m,heading_std_rad,pose_valid,quality";
 #[derive(Debug, clap::Args)]
 #[command(
     after_help = "Example:\n  canodom simulate --config rc_car.toml --log drive.log --truth truth.csv\n  \
-canodom replay --config rc_car.toml drive.log --out pose.csv\n  \
+canodom replay --config rc_car.toml drive.log --out pose.csv\n  canodom replay --config rc_car.toml drive.log --out drive.mcap   # Foxglove, ROS 2\n  \
 canodom replay --config car.toml --params params.toml drive.log --out pose.csv\n\n\
 The CSV has one row per filter step (one per rear-wheel frame): seconds since the first input \
 frame, the fused pose, then rear-wheel-only odometry; both start at (0, 0, 0) at the first \
@@ -39,9 +41,16 @@ pub struct ReplayArgs {
     pub config: PathBuf,
     /// The candump -L log; `-` reads standard input.
     pub log: PathBuf,
-    /// Where to write the CSV (standard output when absent).
+    /// Where to write the CSV (standard output when absent), or the MCAP
+    /// file (`.mcap`): Foxglove and ROS 2 messages of every step.
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// `csv` or `mcap` (default: told by --out's extension).
+    #[arg(long, value_parser = ["csv", "mcap"])]
+    pub format: Option<String>,
+    /// MCAP chunk compression: `lz4` or `none`.
+    #[arg(long, default_value = "lz4")]
+    pub compression: canodom_export::mcap_file::Compression,
     /// A calibrated parameter file (written by `calibrate --out`, or the
     /// daemon's `param_file`): its current set is used from the first frame,
     /// as `run` uses it. Checksums and the configuration's bounds are checked.
@@ -151,13 +160,7 @@ pub fn execute(args: &ReplayArgs) -> anyhow::Result<()> {
     };
     let mut input = super::open_input(&args.log, "replay")?;
     let started = std::time::Instant::now();
-    let sink: Box<dyn Write> = match &args.out {
-        Some(path) => Box::new(
-            std::fs::File::create(path)
-                .with_context(|| format!("cannot create {}", path.display()))?,
-        ),
-        None => Box::new(std::io::stdout().lock()),
-    };
+    let (sink, mcap) = open_output(args, &config)?;
     let mut w = std::io::BufWriter::with_capacity(WRITE_BYTES, sink);
     let summary = replay_log(
         &config,
@@ -169,6 +172,7 @@ pub fn execute(args: &ReplayArgs) -> anyhow::Result<()> {
         &mut input,
         &mut w,
         &mut std::io::stderr(),
+        mcap,
     )
     .with_context(|| args.log.display().to_string())?;
     w.flush()?;
@@ -223,6 +227,34 @@ pub fn execute(args: &ReplayArgs) -> anyhow::Result<()> {
         compare_with_truth(args, &truth, &summary.track, summary.first_frame)?;
     }
     Ok(())
+}
+
+/// The CSV output (standard output without `--out`), or the MCAP file.
+fn open_output(
+    args: &ReplayArgs,
+    config: &Config,
+) -> anyhow::Result<(Box<dyn Write>, Option<McapOut>)> {
+    let is_mcap = args.format.as_deref().map_or_else(
+        || args.out.as_ref().and_then(|p| p.extension()) == Some("mcap".as_ref()),
+        |f| f == "mcap",
+    );
+    let create = |path: &PathBuf| {
+        std::fs::File::create(path).with_context(|| format!("cannot create {}", path.display()))
+    };
+    Ok(match (&args.out, is_mcap) {
+        (None, true) => anyhow::bail!("--format mcap needs --out FILE"),
+        (None, false) => (Box::new(std::io::stdout().lock()), None),
+        (Some(path), false) => (Box::new(create(path)?), None),
+        (Some(path), true) => {
+            let file = std::io::BufWriter::with_capacity(1 << 20, create(path)?);
+            let options = canodom_export::mcap_file::McapOptions {
+                compression: args.compression,
+                ..Default::default()
+            };
+            let writer = McapOut::new(file, options, config.ekf.k_rear_m)?;
+            (Box::new(std::io::sink()), Some(writer))
+        }
+    })
 }
 
 /// `--truth`: the replay placed on the reference, the errors printed, the
@@ -290,6 +322,29 @@ struct Batch {
     rows: Vec<Row>,
     /// `rows` as CSV lines, or empty: then the reading thread writes them.
     text: Vec<u8>,
+    /// For an MCAP file: each step's sample and the index of the record after its frame.
+    samples: Vec<(usize, StepSample)>,
+}
+
+/// An MCAP output of a replay.
+pub type McapOut = StepWriter<std::io::BufWriter<std::fs::File>>;
+
+impl FrameSource for Batch {
+    fn frame_count(&self) -> usize {
+        self.records.len()
+    }
+
+    fn frame(&self, index: usize) -> Option<FrameRef<'_>> {
+        let (timestamp, id, data) = match self.records.get(index)? {
+            Entry::Classic(c) => (c.timestamp, c.id, c.payload()),
+            Entry::Other(i) => self.others.get(*i).map(|(t, f)| (*t, f.id(), f.data()))?,
+        };
+        Some(FrameRef {
+            timestamp,
+            id,
+            data,
+        })
+    }
 }
 
 /// One record of a [`Batch`]: a classical data frame in place (a third of
@@ -374,7 +429,15 @@ pub fn replay_with(
     out: &mut impl Write,
     diag: &mut impl Write,
 ) -> anyhow::Result<ReplaySummary> {
-    replay_log(config, params, ReplayOptions::default(), input, out, diag)
+    replay_log(
+        config,
+        params,
+        ReplayOptions::default(),
+        input,
+        out,
+        diag,
+        None,
+    )
 }
 
 /// [`replay_with`] as `options` say: one interface's frames only, the track kept.
@@ -388,6 +451,7 @@ pub fn replay_log(
     input: impl Read,
     out: &mut impl Write,
     diag: &mut impl Write,
+    mut mcap: Option<McapOut>,
 ) -> anyhow::Result<ReplaySummary> {
     let mut pipeline = Pipeline::new(config)?;
     if let Some(set) = params {
@@ -399,18 +463,33 @@ pub fn replay_log(
     // reads larger than its buffer straight through); other formats use it.
     let mut reader = super::log_reader(std::io::BufReader::new(input), options.interface, true)?;
     let mut kept = options.keep_track.then(Vec::new);
-    writeln!(out, "{CSV_HEADER}")?;
+    let samples = mcap.is_some();
+    if !samples {
+        writeln!(out, "{CSV_HEADER}")?;
+    }
     let (to_filter, filter_in) = mpsc::channel::<Batch>();
     let (to_writer, from_filter) = mpsc::channel::<Batch>();
     std::thread::scope(|scope| {
+        // The filter thread also encodes the MCAP messages (the reading
+        // thread has parsing enough; chunks compress on the writer's thread).
         let filter = scope.spawn(move || {
+            let mut failed = None;
             let mut waiting = filter_in.recv().ok();
             while let Some(mut batch) = waiting.take() {
                 batch.rows.clear();
                 batch.text.clear();
-                filter_batch(&mut pipeline, &mut batch);
+                batch.samples.clear();
+                filter_batch(&mut pipeline, &mut batch, samples);
+                if let Some(m) = mcap.as_mut().filter(|_| failed.is_none()) {
+                    let (params, mut from) = (*pipeline.params(), 0);
+                    for (to, sample) in &batch.samples {
+                        let frames = (&batch, std::mem::replace(&mut from, *to), *to);
+                        failed = m.write_step(sample, &params, frames).err();
+                    }
+                    m.carry(&batch, from);
+                }
                 waiting = filter_in.try_recv().ok();
-                if waiting.is_none() {
+                if waiting.is_none() && !samples {
                     // Ahead of the reading thread (or past its end): write
                     // the text here.
                     push_rows(&mut batch.text, &batch.rows);
@@ -422,7 +501,7 @@ pub fn replay_log(
                     waiting = filter_in.recv().ok();
                 }
             }
-            pipeline
+            (pipeline, mcap, failed)
         });
         let fed = feed(
             &mut reader,
@@ -434,10 +513,16 @@ pub fn replay_log(
         );
         // Ends the filter thread's loop, whether feeding ended or failed.
         drop(to_filter);
-        let pipeline = filter
+        let (pipeline, mcap, failed) = filter
             .join()
             .unwrap_or_else(|panic| std::panic::resume_unwind(panic));
         let (malformed, by_reason) = fed?;
+        if let Some(e) = failed {
+            return Err(e.into());
+        }
+        if let Some(m) = mcap {
+            m.finish()?.flush()?;
+        }
         let seen = super::LogSeen::of(&reader, pipeline.stats().frames, malformed);
         let t0_us = pipeline
             .first_frame_time()
@@ -474,8 +559,8 @@ pub fn replay_log(
 
 /// Runs one batch's records through the pipeline, a row per filter step
 /// with the pose sample `run` would publish at that frame.
-fn filter_batch(pipeline: &mut Pipeline, batch: &mut Batch) {
-    for entry in &batch.records {
+fn filter_batch(pipeline: &mut Pipeline, batch: &mut Batch, samples: bool) {
+    for (k, entry) in batch.records.iter().enumerate() {
         let (at, step) = match entry {
             Entry::Classic(c) => (
                 c.timestamp,
@@ -491,6 +576,9 @@ fn filter_batch(pipeline: &mut Pipeline, batch: &mut Batch) {
         };
         if let Some(s) = step {
             let p = pipeline.pose_output(at);
+            if samples {
+                batch.samples.push((k + 1, StepSample::of(pipeline, &s, p)));
+            }
             let t0_us = pipeline
                 .first_frame_time()
                 .map_or(0, |t| t.as_micros() as i64);
@@ -532,6 +620,7 @@ fn feed(
             others: Vec::new(),
             rows: Vec::with_capacity(BATCH_RECORDS),
             text: Vec::new(),
+            samples: Vec::new(),
         })
         .collect();
     let mut in_flight = 0usize;
@@ -541,6 +630,9 @@ fn feed(
     let mut write_rows = |batch: &Batch, out: &mut dyn Write| -> std::io::Result<()> {
         if let Some(kept) = kept.as_deref_mut() {
             kept.extend(batch.rows.iter().map(|r| (r.t_us, r.values)));
+        }
+        if !batch.samples.is_empty() {
+            return Ok(()); // MCAP: the filter thread wrote the steps.
         }
         if batch.text.is_empty() {
             push_rows(&mut text, &batch.rows);

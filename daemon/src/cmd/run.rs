@@ -2,6 +2,8 @@
 //! SocketCAN until SIGINT or SIGTERM.
 
 use crate::server::{Observers, SocketCan};
+use canodom_export::live::{LiveOptions, LiveOutputs};
+use canodom_export::recorder::RecorderOptions;
 use canodom_pipeline::config::Config;
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -11,7 +13,7 @@ use tracing::{info, warn};
 #[derive(Debug, clap::Args)]
 #[command(
     after_help = "Example:\n  canodom run --config /etc/canodom/rc_car.toml\n  \
-canodom run --config car.toml --interface vcan0 --log-format json\n\n\
+canodom run --config car.toml --interface vcan0 --log-format json\n  canodom run --config car.toml --record drive.mcap --record-max-s 600 --foxglove\n\n\
 Reads the configured wheel and steering messages (kernel filters, kernel timestamps), checks \
 DLC, rolling counters, checksums and timeouts, runs the EKF, and publishes ODOM_POSITION, \
 ODOM_MOTION and ODOM_QUALITY (protocol/dbc/canodom.dbc at output.base_id; `canodom dbc own` writes it for yours) at output.pose_rate_hz. \
@@ -48,6 +50,19 @@ pub struct RunArgs {
     /// results on stdout in their own formats (CSV, JSON lines, TOML).
     #[arg(long, value_enum, default_value = "text")]
     pub log_format: LogFormat,
+    /// Record every published pose, its step and raw frames to this MCAP file
+    /// (Foxglove and ROS 2 messages, as `replay --out x.mcap`), flushed every second.
+    #[arg(long, value_name = "FILE.mcap")]
+    pub record: Option<PathBuf>,
+    /// With --record: a new file (`<stem>-0001.mcap`, …) every this many MB …
+    #[arg(long, requires = "record", value_name = "MB")]
+    pub record_max_mb: Option<u64>,
+    /// … or every this many seconds.
+    #[arg(long, requires = "record", value_name = "SECONDS")]
+    pub record_max_s: Option<f64>,
+    /// Serve the same channels live over the Foxglove WebSocket protocol (default 127.0.0.1:8765).
+    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = "127.0.0.1:8765")]
+    pub foxglove: Option<std::net::SocketAddr>,
 }
 
 /// How `run` writes its log events.
@@ -96,18 +111,42 @@ pub fn execute(args: &RunArgs) -> anyhow::Result<()> {
             }
         }
     });
+    let live = (args.record.is_some() || args.foxglove.is_some())
+        .then(|| {
+            let record = args.record.clone().map(|path| RecorderOptions {
+                max_bytes: args.record_max_mb.map(|mb| mb << 20),
+                max_seconds: args.record_max_s,
+                ..RecorderOptions::new(path)
+            });
+            let k_rear_m = config.ekf.k_rear_m;
+            LiveOutputs::start(LiveOptions {
+                record,
+                foxglove: args.foxglove,
+                k_rear_m,
+                queue: 256,
+            })
+        })
+        .transpose()?;
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()?;
+    let (tap, outputs) = live.unzip();
     let summary = rt.block_on(crate::server::run(
         Arc::clone(&config),
         connector,
         shutdown_signal(),
         Observers {
             restore_learnt,
+            tap,
             ..Observers::default()
         },
-    ))?;
+    ));
+    // The recording is finished (indexed) whether the daemon stopped or failed.
+    if let Some(outputs) = outputs {
+        let r = outputs.join()?;
+        info!(poses = r.poses, dropped = r.dropped, files = ?r.files, "recording and live view stopped");
+    }
+    let summary = summary?;
     if let Some(path) = &args.state_file {
         crate::state_file::save(path, &crate::state_file::SavedState::new(&config, &summary))?;
         info!(path = %path.display(), "state saved");

@@ -1,0 +1,488 @@
+//! The channels a recording has and the encoding of one step into a message
+//! on each: Foxglove `PoseInFrame` and `FrameTransform` (protobuf, the
+//! `foxglove` crate's types and schemas), ROS 2 `Odometry` and `TFMessage`,
+//! and canodom's own quality, gate, calibration and raw-frame messages, all
+//! four in CDR with `ros2msg` schemas ([`crate::cdr`]). (The own messages
+//! were JSON first: a third of the file's bytes and a tenth of its time went
+//! to their text; in CDR they are a third of the size, and Foxglove and the
+//! ROS 2 readers decode them from the schema in the file all the same.)
+//!
+//! Every buffer and message value is kept and reused: a step's nine messages
+//! are written without allocating.
+
+use crate::cdr::{self, Cdr, Odometry, RosTime, Transform};
+use crate::sample::{FrameRef, FrameSource, OwnedFrame, StepSample};
+use canodom_fusion::VehicleParams;
+use canodom_fusion::Wheel;
+use foxglove::Encode as _;
+use foxglove::messages::{
+    FrameTransform, Pose as FoxPose, PoseInFrame, Quaternion, Timestamp as FoxTime, Vector3,
+};
+
+/// The fixed frame the pose is in (REP-105).
+pub const ODOM_FRAME: &str = "odom";
+/// The vehicle's frame (REP-105).
+pub const BASE_FRAME: &str = "base_link";
+
+/// Variance given to what the planar filter does not estimate (z, roll,
+/// pitch; lateral, vertical and roll/pitch rates): "unknown", the value ROS's
+/// `diff_drive_controller` uses for the same components.
+pub const UNKNOWN_VARIANCE: f64 = 1e6;
+
+/// Added to the estimated variances so every covariance is positive
+/// definite (readers such as `robot_localization` invert them); at a
+/// standstill the filter's own can be exactly zero.
+pub const VARIANCE_FLOOR: f64 = 1e-12;
+
+/// One channel of a recording.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Topic {
+    /// The fused pose, `foxglove.PoseInFrame` in `odom`.
+    Pose,
+    /// Rear-wheel-only odometry, `foxglove.PoseInFrame` in `odom`.
+    RearOdometry,
+    /// `odom` → `base_link`, `foxglove.FrameTransform`.
+    Transform,
+    /// The pose sample's quality flags, standard deviations and the
+    /// pipeline's counts (CDR, `canodom_msgs/msg/…`).
+    Quality,
+    /// The correction window's gate decision (CDR, `canodom_msgs/msg/…`).
+    Gate,
+    /// The parameter set in use (CDR, `canodom_msgs/msg/…`).
+    Calibration,
+    /// The raw CAN frames since the previous step, the step's own last (CDR, `canodom_msgs/msg/…`).
+    Can,
+    /// The fused pose and twist with covariances, `nav_msgs/msg/Odometry` (CDR).
+    RosOdometry,
+    /// `odom` → `base_link`, `tf2_msgs/msg/TFMessage` (CDR).
+    RosTf,
+}
+
+impl Topic {
+    /// Every channel, in channel-id order.
+    pub const ALL: [Topic; 9] = [
+        Topic::Pose,
+        Topic::RearOdometry,
+        Topic::Transform,
+        Topic::Quality,
+        Topic::Gate,
+        Topic::Calibration,
+        Topic::Can,
+        Topic::RosOdometry,
+        Topic::RosTf,
+    ];
+
+    /// The channel's topic name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Topic::Pose => "/canodom/pose",
+            Topic::RearOdometry => "/canodom/rear_odometry",
+            Topic::Transform => "/canodom/transform",
+            Topic::Quality => "/canodom/quality",
+            Topic::Gate => "/canodom/gate",
+            Topic::Calibration => "/canodom/calibration",
+            Topic::Can => "/canodom/can",
+            Topic::RosOdometry => "/odom",
+            Topic::RosTf => "/tf",
+        }
+    }
+
+    /// The messages' encoding (an MCAP well-known message encoding).
+    pub fn message_encoding(self) -> &'static str {
+        match self {
+            Topic::Pose | Topic::RearOdometry | Topic::Transform => "protobuf",
+            _ => "cdr",
+        }
+    }
+
+    /// The schema: name, encoding and data.
+    pub fn schema(self) -> Schema {
+        let fox = |s: Option<foxglove::Schema>| {
+            s.map_or_else(Schema::default, |s| Schema {
+                name: s.name,
+                encoding: s.encoding,
+                data: s.data.into_owned(),
+            })
+        };
+        let ros = |name: &str, data: String| Schema {
+            name: name.to_owned(),
+            encoding: "ros2msg".to_owned(),
+            data: data.into_bytes(),
+        };
+        match self {
+            Topic::Pose | Topic::RearOdometry => fox(PoseInFrame::get_schema()),
+            Topic::Transform => fox(FrameTransform::get_schema()),
+            Topic::Quality => ros("canodom_msgs/msg/Quality", cdr::quality_schema()),
+            Topic::Gate => ros("canodom_msgs/msg/Gate", cdr::gate_schema()),
+            Topic::Calibration => ros("canodom_msgs/msg/Calibration", cdr::calibration_schema()),
+            Topic::Can => ros("canodom_msgs/msg/CanFrames", cdr::can_schema()),
+            Topic::RosOdometry => ros(cdr::ODOMETRY_SCHEMA_NAME, cdr::odometry_schema()),
+            Topic::RosTf => ros(cdr::TF_SCHEMA_NAME, cdr::tf_schema()),
+        }
+    }
+}
+
+/// A channel's schema.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct Schema {
+    /// The schema's name (`foxglove.PoseInFrame`, `nav_msgs/msg/Odometry`).
+    pub name: String,
+    /// `protobuf`, `jsonschema` or `ros2msg`.
+    pub encoding: String,
+    /// The schema itself.
+    pub data: Vec<u8>,
+}
+
+/// Encodes steps into one message per [`Topic`], reusing its buffers.
+#[derive(Debug)]
+pub struct StepEncoder {
+    /// Rear wheel distance noise (`[ekf] k_rear_m`): variance `k·|d|` per wheel.
+    k_rear_m: f64,
+    pose: PoseInFrame,
+    rear: PoseInFrame,
+    transform: FrameTransform,
+    buf: Vec<u8>,
+    /// The calibration message of the parameters last seen, kept while they stay.
+    calibration: Option<((u16, bool, VehicleParams), Vec<u8>)>,
+    /// The frames of the current batch's tail, for the next step.
+    pending: Vec<OwnedFrame>,
+}
+
+impl StepEncoder {
+    /// An encoder whose twist covariance uses the filter's rear noise `k_rear_m`.
+    pub fn new(k_rear_m: f64) -> Self {
+        let in_odom = || PoseInFrame {
+            timestamp: None,
+            frame_id: ODOM_FRAME.to_owned(),
+            pose: Some(FoxPose {
+                position: Some(Vector3::default()),
+                orientation: Some(Quaternion::default()),
+            }),
+        };
+        Self {
+            k_rear_m,
+            pose: in_odom(),
+            rear: in_odom(),
+            transform: FrameTransform {
+                timestamp: None,
+                parent_frame_id: ODOM_FRAME.to_owned(),
+                child_frame_id: BASE_FRAME.to_owned(),
+                translation: Some(Vector3::default()),
+                rotation: Some(Quaternion::default()),
+            },
+            buf: Vec::with_capacity(4096),
+            calibration: None,
+            pending: Vec::new(),
+        }
+    }
+
+    /// Keeps frames `from..` of `frames` for the next step (the tail of a
+    /// batch after its last step).
+    pub fn carry(&mut self, frames: &impl FrameSource, from: usize) {
+        for i in from..frames.frame_count() {
+            if let Some(f) = frames.frame(i) {
+                self.pending.push(OwnedFrame::of(f));
+            }
+        }
+    }
+
+    /// Encodes `sample` into one message per topic, handing each to `emit`
+    /// with the step's time in ns. The raw-frame message holds the frames
+    /// carried over, then `frames[from..to]`. `params` is the parameter set
+    /// in use.
+    ///
+    /// # Errors
+    /// What `emit` returns (the first error ends the step).
+    pub fn encode<E>(
+        &mut self,
+        sample: &StepSample,
+        params: &VehicleParams,
+        frames: (&impl FrameSource, usize, usize),
+        mut emit: impl FnMut(Topic, u64, &[u8]) -> Result<(), E>,
+    ) -> Result<(), E> {
+        let t_ns = (sample.t_unix_us.max(0) as u64) * 1000;
+        let stamp = FoxTime::new(
+            u32::try_from(t_ns / 1_000_000_000).unwrap_or(u32::MAX),
+            (t_ns % 1_000_000_000) as u32,
+        );
+        let h = sample.fused.heading_rad;
+        let q = [0.0, 0.0, (0.5 * h).sin(), (0.5 * h).cos()];
+        let pos = [sample.fused.x_m, sample.fused.y_m, 0.0];
+
+        set_pose(&mut self.pose, stamp, pos, q);
+        self.buf.clear();
+        self.pose.encode(&mut self.buf).ok();
+        emit(Topic::Pose, t_ns, &self.buf)?;
+
+        let hr = sample.rear_only.heading_rad;
+        set_pose(
+            &mut self.rear,
+            stamp,
+            [sample.rear_only.x_m, sample.rear_only.y_m, 0.0],
+            [0.0, 0.0, (0.5 * hr).sin(), (0.5 * hr).cos()],
+        );
+        self.buf.clear();
+        self.rear.encode(&mut self.buf).ok();
+        emit(Topic::RearOdometry, t_ns, &self.buf)?;
+
+        self.transform.timestamp = Some(stamp);
+        self.transform.translation = Some(Vector3 {
+            x: pos[0],
+            y: pos[1],
+            z: 0.0,
+        });
+        self.transform.rotation = Some(quaternion(q));
+        self.buf.clear();
+        self.transform.encode(&mut self.buf).ok();
+        emit(Topic::Transform, t_ns, &self.buf)?;
+
+        self.buf.clear();
+        quality_cdr(sample, &mut self.buf);
+        emit(Topic::Quality, t_ns, &self.buf)?;
+
+        self.buf.clear();
+        gate_cdr(sample, &mut self.buf);
+        emit(Topic::Gate, t_ns, &self.buf)?;
+
+        let key = (
+            sample.output.param_version,
+            sample.output.flags.nominal_params,
+            *params,
+        );
+        if self.calibration.as_ref().is_none_or(|(k, _)| *k != key) {
+            let mut text = Vec::new();
+            calibration_cdr(key.0, key.1, params, &mut text);
+            self.calibration = Some((key, text));
+        }
+        if let Some((_, text)) = &self.calibration {
+            emit(Topic::Calibration, t_ns, text)?;
+        }
+
+        self.buf.clear();
+        let (source, from, to) = frames;
+        can_cdr(
+            self.pending
+                .iter()
+                .map(OwnedFrame::as_ref)
+                .chain((from..to).filter_map(|i| source.frame(i))),
+            self.pending.len() + to.saturating_sub(from),
+            &mut self.buf,
+        );
+        self.pending.clear();
+        emit(Topic::Can, t_ns, &self.buf)?;
+
+        let rt = RosTime::from_nanos(t_ns);
+        self.buf.clear();
+        let twist = twist_covariance(
+            self.k_rear_m,
+            sample.rear_m,
+            params.rear_tread_m(),
+            sample.dt_s,
+        );
+        cdr::encode_odometry(&odometry(sample, rt, q, &twist), &mut self.buf);
+        emit(Topic::RosOdometry, t_ns, &self.buf)?;
+
+        self.buf.clear();
+        cdr::encode_tf(
+            &[Transform {
+                stamp: rt,
+                frame_id: ODOM_FRAME,
+                child_frame_id: BASE_FRAME,
+                translation: pos,
+                rotation: q,
+            }],
+            &mut self.buf,
+        );
+        emit(Topic::RosTf, t_ns, &self.buf)
+    }
+}
+
+/// The fused pose of `sample` as an `Odometry` (REP-103: the pose in `odom`,
+/// the twist in `base_link`).
+fn odometry(
+    sample: &StepSample,
+    stamp: RosTime,
+    q: [f64; 4],
+    twist_covariance: &[f64; 36],
+) -> Odometry<'static> {
+    Odometry {
+        stamp,
+        frame_id: ODOM_FRAME,
+        child_frame_id: BASE_FRAME,
+        position: [sample.fused.x_m, sample.fused.y_m, 0.0],
+        orientation: q,
+        pose_covariance: pose_covariance(&sample.covariance),
+        linear: [sample.output.speed_mps, 0.0, 0.0],
+        angular: [0.0, 0.0, sample.output.yaw_rate_radps],
+        twist_covariance: *twist_covariance,
+    }
+}
+
+fn quaternion(q: [f64; 4]) -> Quaternion {
+    Quaternion {
+        x: q[0],
+        y: q[1],
+        z: q[2],
+        w: q[3],
+    }
+}
+
+fn set_pose(msg: &mut PoseInFrame, stamp: FoxTime, p: [f64; 3], q: [f64; 4]) {
+    msg.timestamp = Some(stamp);
+    msg.pose = Some(FoxPose {
+        position: Some(Vector3 {
+            x: p[0],
+            y: p[1],
+            z: p[2],
+        }),
+        orientation: Some(quaternion(q)),
+    });
+}
+
+/// The 6×6 pose covariance over (x, y, z, roll, pitch, yaw) of the filter's
+/// (x, y, θ) covariance `p` (row-major): its nine entries in place, the
+/// unestimated axes [`UNKNOWN_VARIANCE`].
+pub fn pose_covariance(p: &[f64; 9]) -> [f64; 36] {
+    let mut c = [0.0; 36];
+    let axis = [0usize, 1, 5];
+    for (i, &a) in axis.iter().enumerate() {
+        for (j, &b) in axis.iter().enumerate() {
+            // Symmetrised: the filter's P is symmetric up to rounding.
+            c[a * 6 + b] = 0.5 * (p[i * 3 + j] + p[j * 3 + i]);
+        }
+        c[a * 6 + a] += VARIANCE_FLOOR;
+    }
+    for k in [2, 3, 4] {
+        c[k * 6 + k] = UNKNOWN_VARIANCE;
+    }
+    c
+}
+
+/// The 6×6 twist covariance over (vx, vy, vz, wx, wy, wz) of a step of rear
+/// wheel distances `rear_m` (left, right) over `dt_s`, from the filter's
+/// input noise (§11): each wheel's distance has variance `k·|d|`, speed is
+/// their mean and yaw rate their difference over the tread, both over `dt`.
+/// With no interval yet (the first step) only the floor remains.
+pub fn twist_covariance(k_rear_m: f64, rear_m: [f64; 2], tread_m: f64, dt_s: f64) -> [f64; 36] {
+    let (vl, vr) = (k_rear_m * rear_m[0].abs(), k_rear_m * rear_m[1].abs());
+    let inv_dt2 = if dt_s > 0.0 { 1.0 / (dt_s * dt_s) } else { 0.0 };
+    let var_v = 0.25 * (vl + vr) * inv_dt2;
+    let var_w = (vl + vr) / (tread_m * tread_m) * inv_dt2;
+    let cov = 0.5 * (vr - vl) / tread_m * inv_dt2;
+    let mut c = [0.0; 36];
+    c[0] = var_v + VARIANCE_FLOOR;
+    c[35] = var_w + VARIANCE_FLOOR;
+    c[5] = cov;
+    c[30] = cov;
+    for k in [1, 2, 3, 4] {
+        c[k * 6 + k] = UNKNOWN_VARIANCE;
+    }
+    c
+}
+
+fn quality_cdr(s: &StepSample, out: &mut Vec<u8>) {
+    let f = s.output.flags;
+    let mut w = Cdr::new(out);
+    for on in [
+        f.pose_valid,
+        f.rear_stale,
+        f.front_stale,
+        f.steer_stale,
+        f.counter_fault,
+        f.checksum_fault,
+        f.gate_reject,
+        f.nominal_params,
+    ] {
+        w.u8(u8::from(on));
+    }
+    w.u8(f.bits());
+    w.f64s(&[
+        s.output.speed_mps,
+        s.output.yaw_rate_radps,
+        s.output.pos_std_m,
+        s.output.heading_std_rad,
+    ]);
+    let c = s.counts;
+    w.u64s(&[
+        c.frames,
+        c.used,
+        c.steps,
+        c.steps_without_front,
+        c.gate_kept_rear,
+        c.gate_used_front,
+    ]);
+}
+
+fn gate_cdr(s: &StepSample, out: &mut Vec<u8>) {
+    use canodom_fusion::ekf::WindowOutcome;
+    let mut w = Cdr::new(out);
+    w.string(match s.correction {
+        WindowOutcome::Open => "open",
+        other => other.as_str(),
+    });
+    w.u8(u8::from(matches!(
+        s.correction,
+        WindowOutcome::RejectedKeptRear | WindowOutcome::RejectedUsedFront
+    )));
+}
+
+fn calibration_cdr(version: u16, nominal: bool, p: &VehicleParams, out: &mut Vec<u8>) {
+    let mut w = Cdr::new(out);
+    w.u16(version);
+    w.u8(u8::from(nominal));
+    w.f64s(&[p.wheelbase_m(), p.rear_tread_m(), p.front_tread_m()]);
+    w.f64s(&Wheel::ALL.map(|wh| p.wheel_diameter_m(wh)));
+}
+
+fn can_cdr<'a>(frames: impl Iterator<Item = FrameRef<'a>>, count: usize, out: &mut Vec<u8>) {
+    let mut w = Cdr::new(out);
+    w.u32(count as u32);
+    for f in frames {
+        w.time(RosTime::from_nanos(f.timestamp.as_micros() * 1000));
+        w.u32(f.id.raw());
+        w.u8(u8::from(f.id.is_extended()));
+        w.bytes(f.data);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn covariances_are_symmetric_with_a_positive_diagonal() {
+        let p = [1e-4, 2e-5, 1e-6, 2.1e-5, 3e-4, 2e-6, 1e-6, 2e-6, 1e-5];
+        let c = pose_covariance(&p);
+        let t = twist_covariance(1e-5, [0.01, 0.012], 0.2, 0.01);
+        for m in [c, t] {
+            for i in 0..6 {
+                assert!(m[i * 6 + i] > 0.0);
+                for j in 0..6 {
+                    assert_eq!(m[i * 6 + j], m[j * 6 + i]);
+                }
+            }
+        }
+        assert_eq!(c[1], 0.5 * (2e-5 + 2.1e-5));
+        assert_eq!(c[35], 1e-5 + VARIANCE_FLOOR);
+        // vr > vl: turning left adds to the yaw rate's and speed's covariance.
+        assert!(t[5] > 0.0);
+        assert!((t[0] - (0.25 * 1e-5 * 0.022 / 1e-4 + VARIANCE_FLOOR)).abs() < 1e-15);
+    }
+
+    #[test]
+    fn can_frames_are_a_sequence_with_time_id_and_payload() {
+        let mut out = Vec::new();
+        let frames = [FrameRef {
+            timestamp: canodom_can::time::Timestamp::from_micros(1_700_000_000_000_001),
+            id: canodom_can::frame::FrameId::standard(0x123).unwrap(),
+            data: &[0x0a, 0xff],
+        }];
+        can_cdr(frames.into_iter(), 1, &mut out);
+        let mut want = vec![0, 1, 0, 0, 1, 0, 0, 0];
+        want.extend_from_slice(&1_700_000_000i32.to_le_bytes());
+        want.extend_from_slice(&1000u32.to_le_bytes());
+        want.extend_from_slice(&0x123u32.to_le_bytes());
+        want.extend_from_slice(&[0, 0, 0, 0, 2, 0, 0, 0, 0x0a, 0xff]);
+        assert_eq!(out, want);
+    }
+}

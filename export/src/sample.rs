@@ -1,0 +1,183 @@
+//! What one filter step contributes to a recording: the step, the pose
+//! sample published at it, the filter's covariance and the counts so far;
+//! and the raw CAN frames the step came from.
+
+use canodom_can::frame::FrameId;
+use canodom_can::time::Timestamp;
+use canodom_fusion::Pose;
+use canodom_fusion::ekf::WindowOutcome;
+use canodom_pipeline::pipeline::{Pipeline, PoseOutput, Step};
+use canodom_pipeline::stats::Stats;
+
+/// One filter step as the recordings carry it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct StepSample {
+    /// The step's time on the log's (bus) clock, µs since the Unix epoch.
+    pub t_unix_us: i64,
+    /// The fused pose (heading unwrapped).
+    pub fused: Pose,
+    /// Rear-wheel-only odometry (heading unwrapped).
+    pub rear_only: Pose,
+    /// The pose sample published at this step (speed, yaw rate, flags,
+    /// standard deviations, parameter version).
+    pub output: PoseOutput,
+    /// The filter's covariance of (x, y, θ), row-major.
+    pub covariance: [f64; 9],
+    /// The rear (left, right) wheel distances of the step, metres: the
+    /// twist's covariance follows from them (the filter's own input noise).
+    pub rear_m: [f64; 2],
+    /// The step's interval, seconds (0 when unknown: the first step, or no motion).
+    pub dt_s: f64,
+    /// What the filter's correction window did at this step.
+    pub correction: WindowOutcome,
+    /// The pipeline's counts after this step.
+    pub counts: Counts,
+}
+
+/// The pipeline's counts carried by the quality channel.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Counts {
+    /// Frames offered.
+    pub frames: u64,
+    /// Frames used.
+    pub used: u64,
+    /// Filter steps.
+    pub steps: u64,
+    /// Steps without a valid front window.
+    pub steps_without_front: u64,
+    /// Gate rejections that kept the rear increment.
+    pub gate_kept_rear: u64,
+    /// Gate rejections that took the front increment.
+    pub gate_used_front: u64,
+}
+
+impl From<&Stats> for Counts {
+    fn from(s: &Stats) -> Self {
+        Self {
+            frames: s.frames,
+            used: s.used,
+            steps: s.steps,
+            steps_without_front: s.steps_without_front,
+            gate_kept_rear: s.gate.kept_rear,
+            gate_used_front: s.gate.used_front,
+        }
+    }
+}
+
+impl StepSample {
+    /// The sample of `step`, which `pipeline` has just taken, with `output`
+    /// the pose sample taken right after it.
+    pub fn of(pipeline: &Pipeline, step: &Step, output: PoseOutput) -> Self {
+        let t0_us = pipeline
+            .first_frame_time()
+            .map_or(0, |t| t.as_micros() as i64);
+        let p = pipeline.state().covariance();
+        let params = pipeline.params();
+        let metres = |rev: f64, w| rev * std::f64::consts::PI * params.wheel_diameter_m(w);
+        let rear_m = [
+            metres(step.rear_rev.0, canodom_fusion::Wheel::RearLeft),
+            metres(step.rear_rev.1, canodom_fusion::Wheel::RearRight),
+        ];
+        // The pipeline's speed is the step's mean rear distance over its
+        // interval: the interval, back from them (a pose published between
+        // steps must not take its own interval for the step's).
+        let mean_m = 0.5 * (rear_m[0] + rear_m[1]);
+        let dt_s = if output.speed_mps.abs() > 0.0 && mean_m.abs() > 0.0 {
+            (mean_m / output.speed_mps).abs()
+        } else {
+            0.0
+        };
+        Self {
+            t_unix_us: t0_us + step.t_us,
+            fused: step.fused,
+            rear_only: step.odometry,
+            output,
+            covariance: std::array::from_fn(|k| p[(k / 3, k % 3)]),
+            rear_m,
+            dt_s,
+            correction: step.correction,
+            counts: Counts::from(pipeline.stats()),
+        }
+    }
+}
+
+/// A raw CAN frame as the recordings carry it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct FrameRef<'a> {
+    /// Receive time.
+    pub timestamp: Timestamp,
+    /// The identifier.
+    pub id: FrameId,
+    /// The payload.
+    pub data: &'a [u8],
+}
+
+/// Frames in order, indexed: a batch of a replay, or the frames a live
+/// daemon received since its last pose.
+pub trait FrameSource {
+    /// How many frames there are.
+    fn frame_count(&self) -> usize;
+    /// The frame at `index` (`None` past the end).
+    fn frame(&self, index: usize) -> Option<FrameRef<'_>>;
+}
+
+/// A frame kept past the batch it came in (up to 64 payload bytes: CAN FD).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct OwnedFrame {
+    timestamp: Timestamp,
+    id: FrameId,
+    len: u8,
+    data: [u8; 64],
+}
+
+impl OwnedFrame {
+    /// A copy of `f` (a payload over 64 bytes is cut: CAN has none).
+    pub(crate) fn of(f: FrameRef<'_>) -> Self {
+        let len = f.data.len().min(64);
+        let mut data = [0; 64];
+        data[..len].copy_from_slice(&f.data[..len]);
+        Self {
+            timestamp: f.timestamp,
+            id: f.id,
+            len: len as u8,
+            data,
+        }
+    }
+
+    /// The frame as a [`FrameRef`].
+    pub(crate) fn as_ref(&self) -> FrameRef<'_> {
+        FrameRef {
+            timestamp: self.timestamp,
+            id: self.id,
+            data: &self.data[..usize::from(self.len)],
+        }
+    }
+}
+
+/// Frames held in memory: what a live daemon gathers between poses.
+#[derive(Clone, Debug, Default)]
+pub struct FrameBuffer {
+    frames: Vec<OwnedFrame>,
+}
+
+impl FrameBuffer {
+    /// Keeps a copy of `frame`.
+    pub fn push(&mut self, frame: FrameRef<'_>) {
+        self.frames.push(OwnedFrame::of(frame));
+    }
+
+    /// Forgets every frame (the allocation stays).
+    pub fn clear(&mut self) {
+        self.frames.clear();
+    }
+}
+
+impl FrameSource for FrameBuffer {
+    fn frame_count(&self) -> usize {
+        self.frames.len()
+    }
+
+    fn frame(&self, index: usize) -> Option<FrameRef<'_>> {
+        self.frames.get(index).map(OwnedFrame::as_ref)
+    }
+}
