@@ -383,16 +383,7 @@ pub fn twist_covariance(k_rear_m: f64, rear_m: [f64; 2], tread_m: f64, dt_s: f64
 fn quality_cdr(s: &StepSample, out: &mut Vec<u8>) {
     let f = s.output.flags;
     let mut w = Cdr::new(out);
-    for on in [
-        f.pose_valid,
-        f.rear_stale,
-        f.front_stale,
-        f.steer_stale,
-        f.counter_fault,
-        f.checksum_fault,
-        f.gate_reject,
-        f.nominal_params,
-    ] {
+    for on in f.in_order() {
         w.u8(u8::from(on));
     }
     w.u8(f.bits());

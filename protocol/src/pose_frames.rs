@@ -114,17 +114,7 @@ impl PoseEncoder {
         self.pos_std.encode_saturating(pose.pos_std_m, &mut bufs[2]);
         self.heading_std
             .encode_saturating(pose.heading_std_rad, &mut bufs[2]);
-        let f = pose.flags;
-        for (h, on) in self.flags.iter().zip([
-            f.pose_valid,
-            f.rear_stale,
-            f.front_stale,
-            f.steer_stale,
-            f.counter_fault,
-            f.checksum_fault,
-            f.gate_reject,
-            f.nominal_params,
-        ]) {
+        for (h, on) in self.flags.iter().zip(pose.flags.in_order()) {
             h.encode_raw(u64::from(on), &mut bufs[2]);
         }
         self.version
@@ -178,6 +168,15 @@ impl PoseFlags {
     /// The flags as ODOM_QUALITY orders them, POSE_VALID in bit 0 up to
     /// NOMINAL_PARAMS in bit 7: one number for CSV columns and logs.
     pub fn bits(self) -> u8 {
+        self.in_order()
+            .iter()
+            .enumerate()
+            .fold(0, |bits, (k, &on)| bits | (u8::from(on) << k))
+    }
+
+    /// The flags in ODOM_QUALITY's order, POSE_VALID first: how every
+    /// encoding (frames, CSV, recordings) lists them.
+    pub fn in_order(self) -> [bool; 8] {
         [
             self.pose_valid,
             self.rear_stale,
@@ -188,9 +187,6 @@ impl PoseFlags {
             self.gate_reject,
             self.nominal_params,
         ]
-        .iter()
-        .enumerate()
-        .fold(0, |bits, (k, &on)| bits | (u8::from(on) << k))
     }
 }
 
