@@ -1,7 +1,9 @@
-//! From a vehicle's CAN frames to the fused pose, without I/O: the
-//! configuration (TOML, validated once into typed values against the DBC),
-//! the pipeline that decodes the configured signals and drives the EKF, and
-//! the counts of frames it rejected and why.
+//! From a vehicle's CAN frames to the fused pose: the configuration (TOML,
+//! validated once into typed values against the DBC), the pipeline that
+//! decodes the configured signals and drives the EKF, the counts of frames
+//! it rejected and why, and the SecOC gate. No transport, no async, no
+//! clock; the only files touched after loading are the gate's freshness
+//! values, stored before a secured frame is acted on.
 //!
 //! Layout:
 //! - [`config`]: the TOML configuration, validated once into typed values.
