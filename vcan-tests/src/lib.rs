@@ -267,6 +267,36 @@ pub fn wait_until(
     }
 }
 
+/// A file's text, empty while it does not exist yet (a log a program has
+/// not written to).
+pub fn read(path: &Path) -> String {
+    std::fs::read_to_string(path).unwrap_or_default()
+}
+
+/// `canodom run --config CONFIG`, its stderr in `log`, once its socket on
+/// vcan0 is open.
+///
+/// # Errors
+/// It could not be started, it exited (the error holds its log), or its
+/// socket did not open within 15 s.
+pub fn start_daemon(config: &Path, log: &Path) -> Result<Spawned, String> {
+    let mut daemon = Spawned::start(
+        &canodom_bin(),
+        &["run", "--config", &config.to_string_lossy()],
+        None,
+        Some(log),
+    )?;
+    let mut exited = false;
+    wait_until("the daemon opens vcan0", Duration::from_secs(15), || {
+        exited = !daemon.is_running();
+        exited || read(log).contains("CAN interface open")
+    })?;
+    if exited {
+        return Err(format!("daemon exited: {}", read(log)));
+    }
+    Ok(daemon)
+}
+
 /// One frame of a candump log.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Logged {

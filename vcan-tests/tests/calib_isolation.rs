@@ -13,7 +13,7 @@ use canodom_can::frame::FrameId;
 use canodom_protocol::calib_wire::{CalibWire, Command, Counts, Reason, State, StatusPage};
 use canodom_protocol::own_dbc::BaseId;
 use canodom_vcan_tests::{
-    Spawned, calibration_config, canodom_bin, metric, read_candump, repo_file, scratch_dir,
+    Spawned, calibration_config, canodom_bin, metric, read, read_candump, repo_file, scratch_dir,
     wait_until,
 };
 use std::path::Path;
@@ -28,10 +28,6 @@ const CMD_ID: u32 = BASE + 0x10;
 const WRONG_ID: u32 = BASE + 0x20;
 /// The arming code the daemon is configured with.
 const ARMING: u8 = 0x5A;
-
-fn read(p: &Path) -> String {
-    std::fs::read_to_string(p).unwrap_or_default()
-}
 
 fn cansend(id: u32, data: &[u8]) {
     canodom_vcan_tests::cansend("vcan0", id, data).unwrap();

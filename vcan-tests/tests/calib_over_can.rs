@@ -22,8 +22,8 @@ use canodom_protocol::calib_wire::{
 };
 use canodom_protocol::own_dbc::BaseId;
 use canodom_vcan_tests::{
-    Spawned, calibration_config, canodom_bin, cansend, metric, read_candump, repo_file,
-    scratch_dir, wait_until,
+    Spawned, calibration_config, canodom_bin, cansend, metric, read, read_candump, repo_file,
+    scratch_dir, start_daemon, wait_until,
 };
 use std::path::Path;
 use std::sync::{Arc, Mutex};
@@ -38,10 +38,6 @@ const TREAD_NOM_M: f64 = 0.30;
 const DIAMETER_NOM_M: f64 = 0.09;
 /// Cruise speed of the simulated vehicle: ten laps in well under two minutes.
 const SPEED_MPS: &str = "1.5";
-
-fn read(p: &Path) -> String {
-    std::fs::read_to_string(p).unwrap_or_default()
-}
 
 /// What the test's own socket heard: the latest status pages and the last
 /// `CALIB_CMD` counter (a raw command must not repeat the client's).
@@ -203,22 +199,6 @@ fn calib(config: &Path, args: &[&str]) -> (i32, String) {
     (out.status.code().unwrap_or(-1), text)
 }
 
-fn start_daemon(config: &Path, log: &Path) -> Spawned {
-    let mut daemon = Spawned::start(
-        &canodom_bin(),
-        &["run", "--config", &config.to_string_lossy()],
-        None,
-        Some(log),
-    )
-    .unwrap();
-    wait_until("the daemon opens vcan0", Duration::from_secs(15), || {
-        assert!(daemon.is_running(), "daemon exited: {}", read(log));
-        read(log).contains("CAN interface open")
-    })
-    .unwrap();
-    daemon
-}
-
 fn start_vehicle(config: &Path, truth: &Path, limit_s: &str, out: &Path) -> Spawned {
     let vehicle = Spawned::start(
         &canodom_bin(),
@@ -283,7 +263,7 @@ async fn a_guided_session_over_vcan_commits_writes_back_and_survives_a_restart()
     )
     .unwrap();
     let daemon_log = dir.join("daemon.log");
-    let mut daemon = start_daemon(&config, &daemon_log);
+    let mut daemon = start_daemon(&config, &daemon_log).unwrap();
     let vehicle_out = dir.join("vehicle.out");
     let mut vehicle = start_vehicle(&config, &truth, "110", &vehicle_out);
     let _show = ShowOnPanic(vec![daemon_log.clone(), vehicle_out.clone()]);
@@ -419,7 +399,7 @@ async fn a_guided_session_over_vcan_commits_writes_back_and_survives_a_restart()
     // Restarted with the same configuration, the daemon uses that set.
     *heard.lock().unwrap() = Heard::default();
     let restart_log = dir.join("daemon-restart.log");
-    let mut daemon = start_daemon(&config, &restart_log);
+    let mut daemon = start_daemon(&config, &restart_log).unwrap();
     let mut idle = start_vehicle(&config, &truth, "8", &dir.join("idle.out"));
     until(
         &heard,

@@ -18,7 +18,7 @@ use canodom_can::candump::parse_line;
 use canodom_can::frame::{CanFrame, FrameId};
 use canodom_vcan_tests::{
     Logged, PoseDecoder, PoseSample, Spawned, angle_diff, canodom_bin, canodom_replay, ip, metric,
-    read_candump, read_csv, repo_file, run, scratch_dir, wait_until,
+    read, read_candump, read_csv, repo_file, run, scratch_dir, start_daemon, wait_until,
 };
 use std::path::{Path, PathBuf};
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
@@ -61,24 +61,6 @@ fn is_standard(frame: &CanFrame, id: u16) -> bool {
     frame.id() == FrameId::Standard(id)
 }
 
-/// The daemon on `config`, its stderr kept, once its socket is open.
-fn start_daemon(config: &Path, dir: &Path) -> Spawned {
-    let log = dir.join("daemon.log");
-    let mut daemon = Spawned::start(
-        &canodom_bin(),
-        &["run", "--config", &s(config)],
-        None,
-        Some(&log),
-    )
-    .unwrap();
-    wait_until("the daemon opens vcan0", Duration::from_secs(15), || {
-        assert!(daemon.is_running(), "daemon exited: {}", read(&log));
-        read(&log).contains("CAN interface open")
-    })
-    .unwrap();
-    daemon
-}
-
 /// `candump -L` of everything on vcan0; `-D` keeps it alive across a link down.
 fn start_candump(dir: &Path) -> Spawned {
     let c = Spawned::start(
@@ -91,10 +73,6 @@ fn start_candump(dir: &Path) -> Spawned {
     // candump has no readiness signal; its socket is bound well within this.
     std::thread::sleep(Duration::from_millis(500));
     c
-}
-
-fn read(p: &Path) -> String {
-    std::fs::read_to_string(p).unwrap_or_default()
 }
 
 /// SIGTERM: the daemon must exit by itself with status 0 and say so.
@@ -185,7 +163,7 @@ fn live_figure_eight_poses_follow_the_truth_and_equal_replay_of_the_recording() 
     let dir = scratch_dir("live").unwrap();
     let config = toyota_config();
     let candump = start_candump(&dir);
-    let daemon = start_daemon(&config, &dir);
+    let daemon = start_daemon(&config, &dir.join("daemon.log")).unwrap();
     let truth_path = dir.join("truth.csv");
     let started = std::time::Instant::now();
     let mut sim = start_simulator(
@@ -378,7 +356,7 @@ fn canplayer_replay_of_a_log_gives_the_poses_of_canodom_replay() {
     assert!(offline.len() > 1500, "{} steps offline", offline.len());
 
     let candump = start_candump(&dir);
-    let daemon = start_daemon(&config, &dir);
+    let daemon = start_daemon(&config, &dir.join("daemon.log")).unwrap();
     let started = std::time::Instant::now();
     play(&drive, &dir, Duration::from_secs(60));
     metric(
@@ -491,7 +469,7 @@ fn link_down_for_two_seconds_then_poses_resume_within_a_second() {
     let dir = scratch_dir("linkdown").unwrap();
     let config = rc_car_config();
     let candump = start_candump(&dir);
-    let daemon = start_daemon(&config, &dir);
+    let daemon = start_daemon(&config, &dir.join("daemon.log")).unwrap();
     let mut sim = start_simulator(&config, &["--path", "track-ccw"], &dir.join("simulate.log"));
     let decoder = PoseDecoder::load(RC_CAR_BASE).unwrap();
     let bus = dir.join("bus.log");
@@ -645,7 +623,7 @@ fn stale_front_wheels_flag_the_pose_and_stale_rear_wheels_invalidate_it() {
     write_lines(&drive, &edited);
 
     let candump = start_candump(&dir);
-    let daemon = start_daemon(&config, &dir);
+    let daemon = start_daemon(&config, &dir.join("daemon.log")).unwrap();
     play(&drive, &dir, Duration::from_secs(40));
     std::thread::sleep(Duration::from_millis(500));
     stop_daemon(daemon, &dir);
@@ -774,7 +752,7 @@ fn start_simulator(config: &Path, args: &[&str], log: &Path) -> Spawned {
 async fn interface_deleted_and_recreated_the_daemon_reconnects_by_itself() {
     let dir = scratch_dir("recreate").unwrap();
     let config = rc_car_config();
-    let daemon = start_daemon(&config, &dir);
+    let daemon = start_daemon(&config, &dir.join("daemon.log")).unwrap();
     let sim = start_simulator(
         &config,
         &["--path", "track-ccw"],

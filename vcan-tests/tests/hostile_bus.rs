@@ -27,8 +27,8 @@ use canodom_can::candump::parse_line;
 use canodom_can::frame::{CanFrame, FrameId};
 use canodom_dbc::{Checksum, CounterCheck, CounterStatus};
 use canodom_vcan_tests::{
-    PoseDecoder, Spawned, angle_diff, canodom_bin, canodom_replay, metric, read_candump, read_csv,
-    repo_file, run, scratch_dir, wait_until,
+    PoseDecoder, Spawned, angle_diff, canodom_bin, canodom_replay, metric, read, read_candump,
+    read_csv, repo_file, run, scratch_dir, wait_until,
 };
 use nix::errno::Errno;
 use nix::sys::socket::{MsgFlags, MultiHeaders, sendmmsg};
@@ -58,10 +58,6 @@ const MIN_FPS: f64 = 8_000.0;
 
 fn s(p: &Path) -> String {
     p.to_string_lossy().into_owned()
-}
-
-fn read(p: &Path) -> String {
-    std::fs::read_to_string(p).unwrap_or_default()
 }
 
 /// A small deterministic generator (the scenario must know what it sent).

@@ -25,8 +25,8 @@ use canodom_protocol::calib_wire::{
 use canodom_protocol::own_dbc::{BaseId, OwnFrame};
 use canodom_protocol::secoc::{Authenticator, Key};
 use canodom_vcan_tests::{
-    Spawned, calibration_config, canodom_bin, metric, read_candump, repo_file, run, scratch_dir,
-    wait_until,
+    Spawned, calibration_config, canodom_bin, metric, read, read_candump, repo_file, run,
+    scratch_dir, start_daemon, wait_until,
 };
 use std::fmt::Write as _;
 use std::os::unix::fs::PermissionsExt as _;
@@ -37,10 +37,6 @@ use std::time::{Duration, Instant};
 const BASE: u32 = 0x600;
 const ARMING: u8 = 0x5A;
 const KEY_HEX: &str = "5e1f0c2a9b7d4e3f60718293a4b5c6d7";
-
-fn read(p: &Path) -> String {
-    std::fs::read_to_string(p).unwrap_or_default()
-}
 
 fn base() -> BaseId {
     BaseId::new(BASE, false).unwrap()
@@ -206,22 +202,6 @@ fn calib(config: &Path, args: &[&str]) -> String {
     text
 }
 
-fn start_daemon(config: &Path, log: &Path) -> Spawned {
-    let mut daemon = Spawned::start(
-        &canodom_bin(),
-        &["run", "--config", &config.to_string_lossy()],
-        None,
-        Some(log),
-    )
-    .unwrap();
-    wait_until("the daemon opens vcan0", Duration::from_secs(15), || {
-        assert!(daemon.is_running(), "daemon exited: {}", read(log));
-        read(log).contains("CAN interface open")
-    })
-    .unwrap();
-    daemon
-}
-
 /// The count of `reason=N` in the daemon's last line naming `auth_refused`.
 fn refused(log: &str, reason: &str) -> u64 {
     let Some(line) = log.lines().rev().find(|l| l.contains("auth_refused")) else {
@@ -273,7 +253,7 @@ async fn secoc_replayed_and_edited_session_changes_nothing_and_is_counted_by_rea
     )
     .unwrap();
     let daemon_log = dir.join("daemon.log");
-    let mut daemon = start_daemon(&config, &daemon_log);
+    let mut daemon = start_daemon(&config, &daemon_log).unwrap();
     let vehicle_out = dir.join("vehicle.out");
     let mut vehicle = Spawned::start(
         &canodom_bin(),
@@ -400,7 +380,7 @@ async fn secoc_replayed_and_edited_session_changes_nothing_and_is_counted_by_rea
 
     // 2. The daemon restarts; the attacker replays.
     let attack_log = dir.join("daemon-attacked.log");
-    let mut daemon = start_daemon(&config, &attack_log);
+    let mut daemon = start_daemon(&config, &attack_log).unwrap();
     tokio::time::sleep(Duration::from_secs(2)).await;
     // The whole recording at its own pace (a flood would only measure the
     // kernel's queues), then the edited commands with gaps over 1 s cut.
