@@ -761,7 +761,8 @@ impl Calibrator {
         vec![Output::Answer(answer)]
     }
 
-    /// Checks a set to commit against the bounds and prepares storing it.
+    /// Commits `values` to a copy of the file (the next version) and asks
+    /// for it to be stored; the answer waits for the store.
     fn store(
         &mut self,
         values: ParamValues,
@@ -776,6 +777,18 @@ impl Calibrator {
         let version = file
             .commit(values, method, created, self.config.max_history)
             .version;
+        self.ask_to_store(file, version, then, out)
+    }
+
+    /// Asks for `file` to be stored; `then` finishes the command once it
+    /// is (set `version` in use), and the answer waits until then.
+    fn ask_to_store(
+        &mut self,
+        file: ParamFile,
+        version: u16,
+        then: AfterStore,
+        out: &mut Vec<Output>,
+    ) -> Option<std::result::Result<(), Refused>> {
         out.push(Output::Persist(file.clone()));
         self.pending = Some(Pending::Store {
             file,
@@ -832,13 +845,8 @@ impl Calibrator {
         let Some(set) = file.rollback().cloned() else {
             return Some(Err(Refused::Session(Refusal::NothingToRollback)));
         };
-        out.push(Output::Persist(file.clone()));
-        self.pending = Some(Pending::Store {
-            file,
-            version: set.version,
-            then: Box::new(AfterStore::Rollback { values: set.values }),
-        });
-        None
+        let then = AfterStore::Rollback { values: set.values };
+        self.ask_to_store(file, set.version, then, out)
     }
 
     /// Whether the file of the last [`Output::Persist`] was stored at `t_s`
