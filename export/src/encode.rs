@@ -7,17 +7,16 @@
 //! to their text; in CDR they are a third of the size, and Foxglove and the
 //! ROS 2 readers decode them from the schema in the file all the same.)
 //!
-//! Every buffer and message value is kept and reused: a step's nine messages
-//! are written without allocating.
+//! A step's nine messages are written straight into the sink's buffer
+//! ([`MessageSink`]), without allocating.
 
 use crate::cdr::{self, Cdr, Odometry, RosTime, Transform};
+use crate::proto;
 use crate::sample::{FrameRef, FrameSource, OwnedFrame, StepSample};
 use canodom_fusion::VehicleParams;
 use canodom_fusion::Wheel;
 use foxglove::Encode as _;
-use foxglove::messages::{
-    FrameTransform, Pose as FoxPose, PoseInFrame, Quaternion, Timestamp as FoxTime, Vector3,
-};
+use foxglove::messages::{FrameTransform, PoseInFrame};
 
 /// The fixed frame the pose is in (REP-105).
 pub const ODOM_FRAME: &str = "odom";
@@ -133,15 +132,65 @@ pub struct Schema {
     pub data: Vec<u8>,
 }
 
-/// Encodes steps into one message per [`Topic`], reusing its buffers.
+/// Where a step's messages go. Each message is written straight into the
+/// sink's own buffer (an MCAP chunk, a scratch buffer), not built in a
+/// buffer of the encoder's and copied: that copy was a tenth of the MCAP
+/// replay's filter thread.
+pub trait MessageSink {
+    /// Why the sink could not take a message.
+    type Error;
+
+    /// Takes one message on `topic` at `t_ns` (ns since the Unix epoch),
+    /// whose bytes `payload` appends to the buffer it is given.
+    ///
+    /// # Errors
+    /// The sink's own.
+    fn message(
+        &mut self,
+        topic: Topic,
+        t_ns: u64,
+        payload: impl FnOnce(&mut Vec<u8>),
+    ) -> Result<(), Self::Error>;
+}
+
+/// A [`MessageSink`] handing each message's bytes to a closure, for sinks
+/// that take a finished slice (the Foxglove live view).
+pub struct SliceSink<F> {
+    buf: Vec<u8>,
+    take: F,
+}
+
+impl<F: FnMut(Topic, u64, &[u8])> SliceSink<F> {
+    /// A sink calling `take(topic, t_ns, bytes)` for each message.
+    pub fn new(take: F) -> Self {
+        Self {
+            buf: Vec::with_capacity(4096),
+            take,
+        }
+    }
+}
+
+impl<F: FnMut(Topic, u64, &[u8])> MessageSink for SliceSink<F> {
+    type Error = std::convert::Infallible;
+
+    fn message(
+        &mut self,
+        topic: Topic,
+        t_ns: u64,
+        payload: impl FnOnce(&mut Vec<u8>),
+    ) -> Result<(), Self::Error> {
+        self.buf.clear();
+        payload(&mut self.buf);
+        (self.take)(topic, t_ns, &self.buf);
+        Ok(())
+    }
+}
+
+/// Encodes steps into one message per [`Topic`].
 #[derive(Debug)]
 pub struct StepEncoder {
     /// Rear wheel distance noise (`[ekf] k_rear_m`): variance `k·|d|` per wheel.
     k_rear_m: f64,
-    pose: PoseInFrame,
-    rear: PoseInFrame,
-    transform: FrameTransform,
-    buf: Vec<u8>,
     /// The calibration message of the parameters last seen, kept while they stay.
     calibration: Option<((u16, bool, VehicleParams), Vec<u8>)>,
     /// The frames of the current batch's tail, for the next step.
@@ -151,26 +200,8 @@ pub struct StepEncoder {
 impl StepEncoder {
     /// An encoder whose twist covariance uses the filter's rear noise `k_rear_m`.
     pub fn new(k_rear_m: f64) -> Self {
-        let in_odom = || PoseInFrame {
-            timestamp: None,
-            frame_id: ODOM_FRAME.to_owned(),
-            pose: Some(FoxPose {
-                position: Some(Vector3::default()),
-                orientation: Some(Quaternion::default()),
-            }),
-        };
         Self {
             k_rear_m,
-            pose: in_odom(),
-            rear: in_odom(),
-            transform: FrameTransform {
-                timestamp: None,
-                parent_frame_id: ODOM_FRAME.to_owned(),
-                child_frame_id: BASE_FRAME.to_owned(),
-                translation: Some(Vector3::default()),
-                rotation: Some(Quaternion::default()),
-            },
-            buf: Vec::with_capacity(4096),
             calibration: None,
             pending: Vec::new(),
         }
@@ -186,114 +217,103 @@ impl StepEncoder {
         }
     }
 
-    /// Encodes `sample` into one message per topic, handing each to `emit`
-    /// with the step's time in ns. The raw-frame message holds the frames
-    /// carried over, then `frames[from..to]`. `params` is the parameter set
-    /// in use.
+    /// Forgets the frames kept by [`Self::carry`] (a caller that hands each
+    /// batch its carried frames itself starts every batch from none).
+    pub fn forget_carried(&mut self) {
+        self.pending.clear();
+    }
+
+    /// Encodes `sample` into one message per topic, in [`Topic::ALL`]'s
+    /// order, each stamped with the step's time. The raw-frame message
+    /// holds the frames carried over, then `frames[from..to]`. `params` is
+    /// the parameter set in use.
     ///
     /// # Errors
-    /// What `emit` returns (the first error ends the step).
-    pub fn encode<E>(
+    /// What `sink` returns (the first error ends the step).
+    pub fn encode<S: MessageSink>(
         &mut self,
         sample: &StepSample,
         params: &VehicleParams,
         frames: (&impl FrameSource, usize, usize),
-        mut emit: impl FnMut(Topic, u64, &[u8]) -> Result<(), E>,
-    ) -> Result<(), E> {
+        sink: &mut S,
+    ) -> Result<(), S::Error> {
         let t_ns = (sample.t_unix_us.max(0) as u64) * 1000;
-        let stamp = FoxTime::new(
+        let stamp = (
             u32::try_from(t_ns / 1_000_000_000).unwrap_or(u32::MAX),
             (t_ns % 1_000_000_000) as u32,
         );
-        let h = sample.fused.heading_rad;
-        let q = [0.0, 0.0, (0.5 * h).sin(), (0.5 * h).cos()];
+        let yaw = |heading_rad: f64| {
+            let (s, c) = (0.5 * heading_rad).sin_cos();
+            [0.0, 0.0, s, c]
+        };
+        let q = yaw(sample.fused.heading_rad);
         let pos = [sample.fused.x_m, sample.fused.y_m, 0.0];
 
-        set_pose(&mut self.pose, stamp, pos, q);
-        self.buf.clear();
-        self.pose.encode(&mut self.buf).ok();
-        emit(Topic::Pose, t_ns, &self.buf)?;
-
-        let hr = sample.rear_only.heading_rad;
-        set_pose(
-            &mut self.rear,
-            stamp,
-            [sample.rear_only.x_m, sample.rear_only.y_m, 0.0],
-            [0.0, 0.0, (0.5 * hr).sin(), (0.5 * hr).cos()],
-        );
-        self.buf.clear();
-        self.rear.encode(&mut self.buf).ok();
-        emit(Topic::RearOdometry, t_ns, &self.buf)?;
-
-        self.transform.timestamp = Some(stamp);
-        self.transform.translation = Some(Vector3 {
-            x: pos[0],
-            y: pos[1],
-            z: 0.0,
-        });
-        self.transform.rotation = Some(quaternion(q));
-        self.buf.clear();
-        self.transform.encode(&mut self.buf).ok();
-        emit(Topic::Transform, t_ns, &self.buf)?;
-
-        self.buf.clear();
-        quality_cdr(sample, &mut self.buf);
-        emit(Topic::Quality, t_ns, &self.buf)?;
-
-        self.buf.clear();
-        gate_cdr(sample, &mut self.buf);
-        emit(Topic::Gate, t_ns, &self.buf)?;
+        sink.message(Topic::Pose, t_ns, |out| {
+            proto::pose_in_frame(out, stamp, ODOM_FRAME, &pos, &q);
+        })?;
+        sink.message(Topic::RearOdometry, t_ns, |out| {
+            let rear = &sample.rear_only;
+            let p = [rear.x_m, rear.y_m, 0.0];
+            proto::pose_in_frame(out, stamp, ODOM_FRAME, &p, &yaw(rear.heading_rad));
+        })?;
+        sink.message(Topic::Transform, t_ns, |out| {
+            proto::frame_transform(out, stamp, ODOM_FRAME, BASE_FRAME, &pos, &q);
+        })?;
+        sink.message(Topic::Quality, t_ns, |out| quality_cdr(sample, out))?;
+        sink.message(Topic::Gate, t_ns, |out| gate_cdr(sample, out))?;
 
         let key = (
             sample.output.param_version,
             sample.output.flags.nominal_params,
             *params,
         );
-        if self.calibration.as_ref().is_none_or(|(k, _)| *k != key) {
-            let mut text = Vec::new();
-            calibration_cdr(key.0, key.1, params, &mut text);
-            self.calibration = Some((key, text));
-        }
-        if let Some((_, text)) = &self.calibration {
-            emit(Topic::Calibration, t_ns, text)?;
-        }
+        let text = match &mut self.calibration {
+            Some((k, text)) if *k == key => text,
+            slot => {
+                let mut text = Vec::new();
+                calibration_cdr(key.0, key.1, params, &mut text);
+                &mut slot.insert((key, text)).1
+            }
+        };
+        sink.message(Topic::Calibration, t_ns, |out| out.extend_from_slice(text))?;
 
-        self.buf.clear();
         let (source, from, to) = frames;
-        can_cdr(
-            self.pending
-                .iter()
-                .map(OwnedFrame::as_ref)
-                .chain((from..to).filter_map(|i| source.frame(i))),
-            self.pending.len() + to.saturating_sub(from),
-            &mut self.buf,
-        );
-        self.pending.clear();
-        emit(Topic::Can, t_ns, &self.buf)?;
+        let pending = &mut self.pending;
+        sink.message(Topic::Can, t_ns, |out| {
+            can_cdr(
+                pending
+                    .iter()
+                    .map(OwnedFrame::as_ref)
+                    .chain((from..to).filter_map(|i| source.frame(i))),
+                pending.len() + to.saturating_sub(from),
+                out,
+            );
+        })?;
+        pending.clear();
 
         let rt = RosTime::from_nanos(t_ns);
-        self.buf.clear();
-        let twist = twist_covariance(
-            self.k_rear_m,
-            sample.rear_m,
-            params.rear_tread_m(),
-            sample.dt_s,
-        );
-        cdr::encode_odometry(&odometry(sample, rt, q, &twist), &mut self.buf);
-        emit(Topic::RosOdometry, t_ns, &self.buf)?;
-
-        self.buf.clear();
-        cdr::encode_tf(
-            &[Transform {
-                stamp: rt,
-                frame_id: ODOM_FRAME,
-                child_frame_id: BASE_FRAME,
-                translation: pos,
-                rotation: q,
-            }],
-            &mut self.buf,
-        );
-        emit(Topic::RosTf, t_ns, &self.buf)
+        sink.message(Topic::RosOdometry, t_ns, |out| {
+            let twist = twist_covariance(
+                self.k_rear_m,
+                sample.rear_m,
+                params.rear_tread_m(),
+                sample.dt_s,
+            );
+            cdr::encode_odometry(&odometry(sample, rt, q, &twist), out);
+        })?;
+        sink.message(Topic::RosTf, t_ns, |out| {
+            cdr::encode_tf(
+                &[Transform {
+                    stamp: rt,
+                    frame_id: ODOM_FRAME,
+                    child_frame_id: BASE_FRAME,
+                    translation: pos,
+                    rotation: q,
+                }],
+                out,
+            );
+        })
     }
 }
 
@@ -316,27 +336,6 @@ fn odometry(
         angular: [0.0, 0.0, sample.output.yaw_rate_radps],
         twist_covariance: *twist_covariance,
     }
-}
-
-fn quaternion(q: [f64; 4]) -> Quaternion {
-    Quaternion {
-        x: q[0],
-        y: q[1],
-        z: q[2],
-        w: q[3],
-    }
-}
-
-fn set_pose(msg: &mut PoseInFrame, stamp: FoxTime, p: [f64; 3], q: [f64; 4]) {
-    msg.timestamp = Some(stamp);
-    msg.pose = Some(FoxPose {
-        position: Some(Vector3 {
-            x: p[0],
-            y: p[1],
-            z: p[2],
-        }),
-        orientation: Some(quaternion(q)),
-    });
 }
 
 /// The 6×6 pose covariance over (x, y, z, roll, pitch, yaw) of the filter's

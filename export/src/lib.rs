@@ -6,6 +6,7 @@
 //! - [`sample`]: what one step contributes (pose, covariance, counts, raw frames).
 //! - [`encode`]: the channels ([`encode::Topic`]) and a step's message on each.
 //! - [`cdr`]: ROS 2 `Odometry` and `TFMessage` in CDR, with their schemas.
+//! - `proto`: Foxglove's `PoseInFrame` and `FrameTransform` in protobuf.
 //! - [`mcap_file`]: an MCAP file of steps.
 //! - [`recorder`]: MCAP files rotated by size or time, flushed as they go.
 //! - [`live`]: a running daemon's poses to a recording and a Foxglove
@@ -17,6 +18,7 @@ pub mod cdr;
 pub mod encode;
 pub mod live;
 pub mod mcap_file;
+mod proto;
 pub mod recorder;
 pub mod sample;
 

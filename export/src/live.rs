@@ -10,7 +10,7 @@
 //! [`Recorder`] and to the Foxglove SDK's WebSocket server, whose own
 //! per-client queues drop messages for a client that reads too slowly.
 
-use crate::encode::{StepEncoder, Topic};
+use crate::encode::{SliceSink, StepEncoder, Topic};
 use crate::recorder::{Recorder, RecorderOptions};
 use crate::sample::{FrameBuffer, FrameRef, FrameSource, StepSample};
 use crate::{Error, Result};
@@ -231,6 +231,16 @@ fn serve(
     let mut encoder = StepEncoder::new(options.k_rear_m);
     let mut report = LiveReport::default();
     let mut failed = None;
+    let mut view_sink = view.as_ref().map(|view| {
+        SliceSink::new(|topic: Topic, t_ns, data: &[u8]| {
+            view.channels[topic as usize].log_with_meta(
+                data,
+                foxglove::PartialMetadata {
+                    log_time: Some(t_ns),
+                },
+            );
+        })
+    });
     for packet in inbox {
         if let Some(rec) = recorder.as_mut()
             && let Err(e) = rec.write(&packet.sample, &packet.params, &packet.frames)
@@ -239,27 +249,14 @@ fn serve(
             failed = Some(e);
             recorder = None;
         }
-        if let Some(view) = &view {
+        if let Some(sink) = view_sink.as_mut() {
             let n = packet.frames.frame_count();
-            encoder
-                .encode(
-                    &packet.sample,
-                    &packet.params,
-                    (&packet.frames, 0, n),
-                    |topic, t_ns, data| -> std::result::Result<(), ()> {
-                        view.channels[topic as usize].log_with_meta(
-                            data,
-                            foxglove::PartialMetadata {
-                                log_time: Some(t_ns),
-                            },
-                        );
-                        Ok(())
-                    },
-                )
-                .ok();
+            let Ok(()) =
+                encoder.encode(&packet.sample, &packet.params, (&packet.frames, 0, n), sink);
         }
         report.poses += 1;
     }
+    drop(view_sink);
     if let Some(view) = view {
         drop(view.server.stop());
     }

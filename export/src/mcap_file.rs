@@ -21,7 +21,7 @@
 //! killed holds every chunk finished before, readable by a streaming reader
 //! (it lacks only the summary, which indexed readers want).
 
-use crate::encode::{StepEncoder, Topic};
+use crate::encode::{MessageSink, StepEncoder, Topic};
 use crate::sample::{FrameSource, StepSample};
 use crate::{Error, Result};
 use canodom_fusion::VehicleParams;
@@ -51,7 +51,7 @@ mod op {
 /// How chunks are compressed.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Compression {
-    /// LZ4 frames: a quarter of the size, at the cost of the compression.
+    /// LZ4 frames: a third of the size, at the cost of the compression.
     #[default]
     Lz4,
     /// Uncompressed chunks: the fastest, the largest.
@@ -142,22 +142,75 @@ struct ChunkIndex {
     message_index_length: u64,
     compressed: u64,
     uncompressed: u64,
+    /// `lz4` or empty (stored as it is).
+    compression: &'static [u8],
 }
 
-/// A chunk's records, uncompressed, with their message indexes.
+/// A chunk of whole steps, uncompressed, with its message indexes: what
+/// [`StepWriter::write_step`] fills, or what a caller fills on a thread of
+/// its own ([`Chunk::push_step`]) and hands to [`StepWriter::write_chunk`].
 #[derive(Debug, Default)]
-struct Sealed {
+pub struct Chunk {
     records: Vec<u8>,
     /// By channel: (log time, offset in `records`).
     index: [Vec<(u64, u64)>; Topic::ALL.len()],
-    /// First and last log time.
-    time: (u64, u64),
+    /// Messages by channel.
+    counts: [u64; Topic::ALL.len()],
+    /// First and last log time, once there is a message.
+    time: Option<(u64, u64)>,
+}
+
+impl Chunk {
+    /// Appends one step's messages, one per [`Topic`]: `sample`, the
+    /// parameters in use, and the raw frames `frames.1..frames.2` of
+    /// `frames.0` after those `encoder` carries ([`StepEncoder::carry`]).
+    /// The message sequence number is the step's count
+    /// ([`crate::sample::Counts::steps`]), so a chunk can be filled on any
+    /// thread, and a gap in the numbers is a gap in the steps.
+    pub fn push_step(
+        &mut self,
+        encoder: &mut StepEncoder,
+        sample: &StepSample,
+        params: &VehicleParams,
+        frames: (&impl FrameSource, usize, usize),
+    ) {
+        let mut sink = ChunkSink {
+            chunk: self,
+            sequence: sample.counts.steps as u32,
+            t_ns: None,
+        };
+        let Ok(()) = encoder.encode(sample, params, frames, &mut sink);
+        // Every message of a step has the step's time.
+        if let Some(t) = sink.t_ns {
+            self.time = Some(widen(self.time, (t, t)));
+        }
+    }
+
+    /// Uncompressed bytes so far.
+    pub fn len(&self) -> usize {
+        self.records.len()
+    }
+
+    /// Whether the chunk has no message.
+    pub fn is_empty(&self) -> bool {
+        self.records.is_empty()
+    }
+
+    /// Empties the chunk, keeping its allocations.
+    fn clear(&mut self) {
+        self.records.clear();
+        for entries in &mut self.index {
+            entries.clear();
+        }
+        self.counts = [0; Topic::ALL.len()];
+        self.time = None;
+    }
 }
 
 /// What the writing thread is asked to do.
 enum Job {
     /// Compress and write a chunk.
-    Chunk(Box<Sealed>),
+    Chunk(Box<Chunk>),
     /// Say when every chunk sent before is written and flushed.
     Flush(mpsc::SyncSender<()>),
 }
@@ -180,7 +233,7 @@ struct Output<W> {
 /// The writing thread's handle: chunks go one way, emptied buffers come back.
 struct Worker<W> {
     jobs: mpsc::SyncSender<Job>,
-    spare: mpsc::Receiver<Box<Sealed>>,
+    spare: mpsc::Receiver<Box<Chunk>>,
     thread: std::thread::JoinHandle<(Output<W>, Result<()>)>,
 }
 
@@ -192,16 +245,16 @@ struct Worker<W> {
 pub struct StepWriter<W: Write + Send + 'static> {
     worker: Worker<W>,
     options: McapOptions,
-    /// The current chunk; its time span once it has a message.
-    chunk: Box<Sealed>,
-    chunk_time: Option<(u64, u64)>,
+    /// The chunk [`Self::write_step`] fills.
+    chunk: Box<Chunk>,
     /// Messages by channel, and the file's first and last log time.
     counts: [u64; Topic::ALL.len()],
     time: Option<(u64, u64)>,
     /// The schema and channel records (written at the start and in the summary).
     definitions: Vec<u8>,
     encoder: StepEncoder,
-    sequence: u32,
+    /// The rear noise the encoders' twist covariance takes.
+    k_rear_m: f64,
     /// Bytes the writing thread has written.
     written: Arc<AtomicU64>,
 }
@@ -212,6 +265,51 @@ impl<W: Write + Send + 'static> std::fmt::Debug for StepWriter<W> {
             .field("counts", &self.counts)
             .finish_non_exhaustive()
     }
+}
+
+/// Appends a step's messages to the current chunk as message records.
+struct ChunkSink<'a> {
+    chunk: &'a mut Chunk,
+    sequence: u32,
+    /// The messages' log time.
+    t_ns: Option<u64>,
+}
+
+impl MessageSink for ChunkSink<'_> {
+    type Error = std::convert::Infallible;
+
+    fn message(
+        &mut self,
+        topic: Topic,
+        t_ns: u64,
+        payload: impl FnOnce(&mut Vec<u8>),
+    ) -> std::result::Result<(), Self::Error> {
+        let chunk = &mut *self.chunk;
+        let records = &mut chunk.records;
+        let at = records.len();
+        let k = topic as usize;
+        chunk.index[k].push((t_ns, at as u64));
+        chunk.counts[k] += 1;
+        self.t_ns = Some(t_ns);
+        // The record's 31 header bytes with one copy, its length patched
+        // once the payload is written behind it.
+        let mut header = [0u8; 31];
+        header[0] = op::MESSAGE;
+        header[9..11].copy_from_slice(&channel_id(topic).to_le_bytes());
+        header[11..15].copy_from_slice(&self.sequence.to_le_bytes());
+        header[15..23].copy_from_slice(&t_ns.to_le_bytes());
+        header[23..31].copy_from_slice(&t_ns.to_le_bytes());
+        records.extend_from_slice(&header);
+        payload(records);
+        let length = (records.len() - at - 9) as u64;
+        records[at + 1..at + 9].copy_from_slice(&length.to_le_bytes());
+        Ok(())
+    }
+}
+
+/// The span of times `a` widened to take in `b`.
+fn widen(a: Option<(u64, u64)>, b: (u64, u64)) -> (u64, u64) {
+    a.map_or(b, |(first, last)| (first.min(b.0), last.max(b.1)))
 }
 
 /// The channel id of a topic: its place in [`Topic::ALL`], from 1.
@@ -274,12 +372,11 @@ impl<W: Write + Send + 'static> StepWriter<W> {
             },
             options,
             chunk: Box::default(),
-            chunk_time: None,
             counts: [0; Topic::ALL.len()],
             time: None,
             definitions,
             encoder: StepEncoder::new(k_rear_m),
-            sequence: 0,
+            k_rear_m,
             written,
         })
     }
@@ -296,41 +393,8 @@ impl<W: Write + Send + 'static> StepWriter<W> {
         params: &VehicleParams,
         frames: (&impl FrameSource, usize, usize),
     ) -> Result<()> {
-        let sequence = self.sequence;
-        let (chunk, index, counts) = (
-            &mut self.chunk.records,
-            &mut self.chunk.index,
-            &mut self.counts,
-        );
-        let mut t = 0;
-        self.encoder
-            .encode(
-                sample,
-                params,
-                frames,
-                |topic, t_ns, data| -> std::result::Result<(), ()> {
-                    t = t_ns;
-                    let k = topic as usize;
-                    index[k].push((t_ns, chunk.len() as u64));
-                    counts[k] += 1;
-                    // The record's 31 header bytes with one copy.
-                    let mut header = [0u8; 31];
-                    header[0] = op::MESSAGE;
-                    header[1..9].copy_from_slice(&(22 + data.len() as u64).to_le_bytes());
-                    header[9..11].copy_from_slice(&channel_id(topic).to_le_bytes());
-                    header[11..15].copy_from_slice(&sequence.to_le_bytes());
-                    header[15..23].copy_from_slice(&t_ns.to_le_bytes());
-                    header[23..31].copy_from_slice(&t_ns.to_le_bytes());
-                    chunk.extend_from_slice(&header);
-                    chunk.extend_from_slice(data);
-                    Ok(())
-                },
-            )
-            .ok();
-        self.sequence = self.sequence.wrapping_add(1);
-        let widen = |span: Option<(u64, u64)>| span.map_or((t, t), |(a, b)| (a.min(t), b.max(t)));
-        self.chunk_time = Some(widen(self.chunk_time));
-        self.time = Some(widen(self.time));
+        self.chunk
+            .push_step(&mut self.encoder, sample, params, frames);
         if self.chunk.records.len() >= self.options.chunk_bytes {
             self.finish_chunk()?;
         }
@@ -342,9 +406,31 @@ impl<W: Write + Send + 'static> StepWriter<W> {
         self.encoder.carry(frames, from);
     }
 
-    /// Steps written.
+    /// Steps written (those in the chunk [`Self::write_step`] fills included).
     pub fn steps(&self) -> u64 {
-        self.counts[0]
+        self.counts[0] + self.chunk.counts[0]
+    }
+
+    /// A new encoder for [`Chunk::push_step`], with this file's twist noise.
+    pub fn encoder(&self) -> StepEncoder {
+        StepEncoder::new(self.k_rear_m)
+    }
+
+    /// Writes `chunk` after everything written so far (the chunk
+    /// [`Self::write_step`] was filling goes first), and returns an empty
+    /// chunk to fill next, one the writing thread has finished with when it
+    /// has one.
+    ///
+    /// # Errors
+    /// Writing.
+    pub fn write_chunk(&mut self, chunk: Chunk) -> Result<Chunk> {
+        self.finish_chunk()?;
+        let mut next = Box::new(chunk);
+        std::mem::swap(&mut next, &mut self.chunk);
+        self.finish_chunk()?;
+        let mut spare = std::mem::replace(&mut self.chunk, next);
+        spare.clear();
+        Ok(*spare)
     }
 
     /// Bytes in the file so far (chunks still being compressed not yet).
@@ -354,12 +440,15 @@ impl<W: Write + Send + 'static> StepWriter<W> {
 
     /// Hands the current chunk to the writing thread.
     fn finish_chunk(&mut self) -> Result<()> {
-        let Some(time) = self.chunk_time.take() else {
+        let Some(time) = self.chunk.time else {
             return Ok(());
         };
+        self.time = Some(widen(self.time, time));
+        for (total, n) in self.counts.iter_mut().zip(self.chunk.counts) {
+            *total += n;
+        }
         let mut next = self.worker.spare.try_recv().unwrap_or_default();
         std::mem::swap(&mut next, &mut self.chunk);
-        next.time = time;
         self.send(Job::Chunk(next))
     }
 
@@ -463,10 +552,7 @@ impl<W: Write + Send + 'static> StepWriter<W> {
                 summary.u64(*offset);
             }
             summary.u64(c.message_index_length);
-            summary.string(match output.compression {
-                Compression::None => b"",
-                Compression::Lz4 => b"lz4",
-            });
+            summary.string(c.compression);
             summary.u64(c.compressed);
             summary.u64(c.uncompressed);
             summary.close(at);
@@ -507,7 +593,7 @@ impl<W: Write> Output<W> {
     fn serve(
         mut self,
         jobs: &mpsc::Receiver<Job>,
-        give_back: &mpsc::SyncSender<Box<Sealed>>,
+        give_back: &mpsc::SyncSender<Box<Chunk>>,
     ) -> (Self, Result<()>) {
         for job in jobs {
             let done = match job {
@@ -530,11 +616,11 @@ impl<W: Write> Output<W> {
 
     /// Writes `chunk` and its message indexes with one write and flushes;
     /// leaves `chunk` empty for reuse.
-    fn write_chunk(&mut self, chunk: &mut Sealed) -> Result<()> {
-        let (start_ns, end_ns) = chunk.time;
+    fn write_chunk(&mut self, chunk: &mut Chunk) -> Result<()> {
+        let (start_ns, end_ns) = chunk.time.unwrap_or_default();
         let mut scratch = std::mem::take(&mut self.scratch);
         let mut head = std::mem::take(&mut self.record);
-        let (compression, records): (&[u8], &[u8]) = match self.compression {
+        let (compression, records): (&'static [u8], &[u8]) = match self.compression {
             Compression::None => (b"", &chunk.records),
             Compression::Lz4 => {
                 scratch.clear();
@@ -581,12 +667,13 @@ impl<W: Write> Output<W> {
             message_index_length: (head.len() - fields) as u64,
             compressed: records.len() as u64,
             uncompressed: chunk.records.len() as u64,
+            compression,
         });
         let written = self
             .emit(&head[..fields])
             .and_then(|()| self.emit(records))
             .and_then(|()| self.emit(&head[fields..]));
-        chunk.records.clear();
+        chunk.clear();
         self.scratch = scratch;
         self.record = head;
         written?;
