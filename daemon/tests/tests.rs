@@ -21,6 +21,7 @@ mod live_outputs;
 mod log_refusal;
 mod messages;
 mod rav4;
+mod replay_mcap;
 mod run_loop;
 mod trajectory;
 mod util;

@@ -5,8 +5,10 @@ use anyhow::Context as _;
 use canodom_can::candump::{ClassicData, MalformedCounts, ReadError};
 use canodom_can::frame::CanFrame;
 use canodom_can::time::Timestamp;
-use canodom_export::mcap_file::StepWriter;
-use canodom_export::sample::{FrameRef, FrameSource, StepSample};
+use canodom_export::encode::StepEncoder;
+use canodom_export::mcap_file::{Chunk, StepWriter};
+use canodom_export::sample::{FrameBuffer, FrameRef, FrameSource, StepSample};
+use canodom_fusion::VehicleParams;
 use canodom_fusion::ekf::WindowOutcome;
 use canodom_pipeline::config::Config;
 use canodom_pipeline::pipeline::{Pipeline, Step};
@@ -48,7 +50,8 @@ pub struct ReplayArgs {
     /// `csv` or `mcap` (default: told by --out's extension).
     #[arg(long, value_parser = ["csv", "mcap"])]
     pub format: Option<String>,
-    /// MCAP chunk compression: `lz4` or `none`.
+    /// MCAP chunk compression: `lz4` (a third of the size) or `none`
+    /// (faster to make where the file's bytes cost nothing to write).
     #[arg(long, default_value = "lz4")]
     pub compression: canodom_export::mcap_file::Compression,
     /// A calibrated parameter file (written by `calibrate --out`, or the
@@ -324,6 +327,56 @@ struct Batch {
     text: Vec<u8>,
     /// For an MCAP file: each step's sample and the index of the record after its frame.
     samples: Vec<(usize, StepSample)>,
+    /// The parameters the filter used for the batch (the MCAP calibration
+    /// channel's), once it has been through the filter.
+    params: Option<VehicleParams>,
+    /// For an MCAP file: the frames of earlier batches after their last
+    /// step, which belong to this batch's first step.
+    carried: FrameBuffer,
+    /// For an MCAP file: the batch's steps as a chunk, once encoded.
+    chunk: Chunk,
+    /// Whether `chunk` holds the batch's steps.
+    encoded: bool,
+}
+
+/// Moves the frames `carry` holds into `batch` (they belong to its first
+/// step) and keeps in `carry` those of `batch` after its last step.
+fn carry_tail(batch: &mut Batch, carry: &mut FrameBuffer) {
+    std::mem::swap(&mut batch.carried, carry);
+    carry.clear();
+    let tail_from = if let Some((to, _)) = batch.samples.last() {
+        *to
+    } else {
+        // No step: everything waits for the next batch's first.
+        for i in 0..batch.carried.frame_count() {
+            if let Some(f) = batch.carried.frame(i) {
+                carry.push(f);
+            }
+        }
+        0
+    };
+    for i in tail_from..batch.frame_count() {
+        if let Some(f) = batch.frame(i) {
+            carry.push(f);
+        }
+    }
+}
+
+/// Encodes the steps of `batch` into its chunk.
+fn encode_batch(encoder: &mut StepEncoder, batch: &mut Batch) {
+    let Some(params) = batch.params else {
+        return;
+    };
+    let mut chunk = std::mem::take(&mut batch.chunk);
+    encoder.forget_carried();
+    encoder.carry(&batch.carried, 0);
+    let mut from = 0;
+    for (to, sample) in &batch.samples {
+        chunk.push_step(encoder, sample, &params, (&*batch, from, *to));
+        from = *to;
+    }
+    batch.chunk = chunk;
+    batch.encoded = true;
 }
 
 /// An MCAP output of a replay.
@@ -470,56 +523,60 @@ pub fn replay_log(
     let (to_filter, filter_in) = mpsc::channel::<Batch>();
     let (to_writer, from_filter) = mpsc::channel::<Batch>();
     std::thread::scope(|scope| {
-        // The filter thread also encodes the MCAP messages (the reading
-        // thread has parsing enough; chunks compress on the writer's thread).
-        let filter = scope.spawn(move || {
-            let mut failed = None;
-            let mut waiting = filter_in.recv().ok();
-            while let Some(mut batch) = waiting.take() {
-                batch.rows.clear();
-                batch.text.clear();
-                batch.samples.clear();
-                filter_batch(&mut pipeline, &mut batch, samples);
-                if let Some(m) = mcap.as_mut().filter(|_| failed.is_none()) {
-                    let (params, mut from) = (*pipeline.params(), 0);
-                    for (to, sample) in &batch.samples {
-                        let frames = (&batch, std::mem::replace(&mut from, *to), *to);
-                        failed = m.write_step(sample, &params, frames).err();
+        // The MCAP messages are encoded by whichever thread has time, as the
+        // CSV text is: a batch's steps are a chunk of their own, so either
+        // can encode any batch.
+        let mut encoder = mcap.as_ref().map(McapOut::encoder);
+        // Named, so profiles and `top -H` tell the threads apart.
+        let filter = std::thread::Builder::new()
+            .name("filter".into())
+            .spawn_scoped(scope, move || {
+                let mut carry = FrameBuffer::default();
+                let mut waiting = filter_in.recv().ok();
+                while let Some(mut batch) = waiting.take() {
+                    batch.rows.clear();
+                    batch.text.clear();
+                    batch.samples.clear();
+                    batch.encoded = false;
+                    filter_batch(&mut pipeline, &mut batch, samples);
+                    batch.params = Some(*pipeline.params());
+                    if samples {
+                        carry_tail(&mut batch, &mut carry);
                     }
-                    m.carry(&batch, from);
+                    waiting = filter_in.try_recv().ok();
+                    if waiting.is_none() {
+                        // Ahead of the reading thread (or past its end):
+                        // encode or write the text here.
+                        if let Some(encoder) = encoder.as_mut() {
+                            encode_batch(encoder, &mut batch);
+                        } else {
+                            push_rows(&mut batch.text, &batch.rows);
+                        }
+                    }
+                    if to_writer.send(batch).is_err() {
+                        break;
+                    }
+                    if waiting.is_none() {
+                        waiting = filter_in.recv().ok();
+                    }
                 }
-                waiting = filter_in.try_recv().ok();
-                if waiting.is_none() && !samples {
-                    // Ahead of the reading thread (or past its end): write
-                    // the text here.
-                    push_rows(&mut batch.text, &batch.rows);
-                }
-                if to_writer.send(batch).is_err() {
-                    break;
-                }
-                if waiting.is_none() {
-                    waiting = filter_in.recv().ok();
-                }
-            }
-            (pipeline, mcap, failed)
-        });
+                pipeline
+            })
+            .context("starting the filter thread")?;
         let fed = feed(
             &mut reader,
             &to_filter,
             &from_filter,
-            out,
+            (out, mcap.as_mut()),
             diag,
             kept.as_mut(),
         );
         // Ends the filter thread's loop, whether feeding ended or failed.
         drop(to_filter);
-        let (pipeline, mcap, failed) = filter
+        let pipeline = filter
             .join()
             .unwrap_or_else(|panic| std::panic::resume_unwind(panic));
         let (malformed, by_reason) = fed?;
-        if let Some(e) = failed {
-            return Err(e.into());
-        }
         if let Some(m) = mcap {
             m.finish()?.flush()?;
         }
@@ -608,7 +665,7 @@ fn feed(
     reader: &mut super::AnyLogReader<'_>,
     to_filter: &mpsc::Sender<Batch>,
     from_filter: &mpsc::Receiver<Batch>,
-    out: &mut impl Write,
+    (out, mut mcap): (&mut impl Write, Option<&mut McapOut>),
     diag: &mut impl Write,
     mut kept: Option<&mut Vec<(i64, [f64; 6])>>,
 ) -> anyhow::Result<(u64, MalformedCounts)> {
@@ -621,18 +678,27 @@ fn feed(
             rows: Vec::with_capacity(BATCH_RECORDS),
             text: Vec::new(),
             samples: Vec::new(),
+            params: None,
+            carried: FrameBuffer::default(),
+            chunk: Chunk::default(),
+            encoded: false,
         })
         .collect();
     let mut in_flight = 0usize;
     let mut text = Vec::with_capacity(2 * WRITE_BYTES);
     // Rows are gathered until at least `WRITE_BYTES` (a `BufWriter` of that
     // capacity then hands them on without copying them into its buffer).
-    let mut write_rows = |batch: &Batch, out: &mut dyn Write| -> std::io::Result<()> {
+    let mut encoder = mcap.as_deref().map(McapOut::encoder);
+    let mut write_rows = |batch: &mut Batch, out: &mut dyn Write| -> anyhow::Result<()> {
         if let Some(kept) = kept.as_deref_mut() {
             kept.extend(batch.rows.iter().map(|r| (r.t_us, r.values)));
         }
-        if !batch.samples.is_empty() {
-            return Ok(()); // MCAP: the filter thread wrote the steps.
+        if let (Some(m), Some(encoder)) = (mcap.as_deref_mut(), encoder.as_mut()) {
+            if !batch.encoded {
+                encode_batch(encoder, batch);
+            }
+            batch.chunk = m.write_chunk(std::mem::take(&mut batch.chunk))?;
+            return Ok(());
         }
         if batch.text.is_empty() {
             push_rows(&mut text, &batch.rows);
@@ -643,7 +709,7 @@ fn feed(
                 out.write_all(&text)?;
                 text.clear();
             }
-            return out.write_all(&batch.text);
+            return Ok(out.write_all(&batch.text)?);
         }
         if text.len() >= WRITE_BYTES {
             out.write_all(&text)?;
@@ -658,9 +724,9 @@ fn feed(
             b
         } else {
             // All batches are with the filter: write the oldest, reuse it.
-            let b = from_filter.recv().map_err(|_| filter_gone())?;
+            let mut b = from_filter.recv().map_err(|_| filter_gone())?;
             in_flight -= 1;
-            write_rows(&b, out)?;
+            write_rows(&mut b, out)?;
             b
         };
         batch.records.clear();
@@ -693,16 +759,16 @@ fn feed(
         to_filter.send(batch).map_err(|_| filter_gone())?;
         in_flight += 1;
         // Write what the filter finished meanwhile, without waiting.
-        while let Ok(b) = from_filter.try_recv() {
+        while let Ok(mut b) = from_filter.try_recv() {
             in_flight -= 1;
-            write_rows(&b, out)?;
+            write_rows(&mut b, out)?;
             spare.push(b);
         }
     }
     while in_flight > 0 {
-        let b = from_filter.recv().map_err(|_| filter_gone())?;
+        let mut b = from_filter.recv().map_err(|_| filter_gone())?;
         in_flight -= 1;
-        write_rows(&b, out)?;
+        write_rows(&mut b, out)?;
     }
     out.write_all(&text)?;
     Ok((malformed, by_reason))
