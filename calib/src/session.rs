@@ -303,6 +303,21 @@ pub enum Phase {
     Computed,
 }
 
+impl Phase {
+    /// The phase's name in recordings and logs (`idle`, `awaiting_end_pose`, …).
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Phase::Idle => "idle",
+            Phase::Positioning => "positioning",
+            Phase::Recording => "recording",
+            Phase::AwaitingEndPose => "awaiting_end_pose",
+            Phase::Ready => "ready",
+            Phase::Computing => "computing",
+            Phase::Computed => "computed",
+        }
+    }
+}
+
 /// The calibration the daemon runs for [`Action::Compute`]: pure, owned.
 #[derive(Debug, Clone, PartialEq)]
 pub struct CalibrationJob {

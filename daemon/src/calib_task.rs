@@ -16,6 +16,7 @@
 
 use crate::live_calib::{LiveCalibration, Output};
 use canodom_calib::calibrator::{Job, JobOutcome};
+use canodom_calib::session::Phase;
 use canodom_calib::standstill::Standstill;
 use canodom_can::bus::{BusError, FrameSink};
 use canodom_can::frame::CanFrame;
@@ -90,6 +91,8 @@ pub struct CalibTask<Tx> {
     pub apply: mpsc::Sender<ApplyParams>,
     /// The standstill judgement, to the odometry task.
     pub standstill: watch::Sender<Standstill>,
+    /// The guided session's phase, to the odometry task (its recordings).
+    pub phase: watch::Sender<Phase>,
     /// The bus clock.
     pub clock: BusClock,
     /// The sending half of the transport (`None` while disconnected).
@@ -115,6 +118,8 @@ pub struct OdometryLinks {
     pub clock: watch::Sender<Option<(Timestamp, Instant)>>,
     /// The calibration's standstill judgement.
     pub standstill: watch::Receiver<Standstill>,
+    /// The guided session's phase.
+    pub phase: watch::Receiver<Phase>,
 }
 
 impl<Tx: FrameSink + Clone> CalibTask<Tx> {
@@ -133,11 +138,13 @@ impl<Tx: FrameSink + Clone> CalibTask<Tx> {
         let (apply, apply_rx) = mpsc::channel(4);
         let (clock_tx, clock) = watch::channel(None);
         let (standstill, standstill_rx) = watch::channel(live.standstill());
+        let (phase, phase_rx) = watch::channel(live.phase());
         let task = Self {
             live,
             inputs,
             apply,
             standstill,
+            phase,
             clock,
             sink,
             security,
@@ -150,6 +157,7 @@ impl<Tx: FrameSink + Clone> CalibTask<Tx> {
             apply: apply_rx,
             clock: clock_tx,
             standstill: standstill_rx,
+            phase: phase_rx,
         };
         (task, links)
     }
@@ -256,6 +264,11 @@ impl<Tx: FrameSink + Clone> CalibTask<Tx> {
     /// Does what the live calibration asks: frames, applies, reports; a
     /// store or a job goes to the blocking pool and its handle comes back.
     async fn carry_out(&mut self, outputs: Vec<Output>) -> Option<JoinHandle<Effect>> {
+        // Every event passes here: whatever moved the session, the
+        // odometry task's recordings see its phase from now on.
+        let phase = self.live.phase();
+        self.phase
+            .send_if_modified(|p| std::mem::replace(p, phase) != phase);
         let mut effect = None;
         for o in outputs {
             match o {

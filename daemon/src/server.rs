@@ -981,7 +981,7 @@ impl<Tx: FrameSink + Clone> OdometryTask<Tx> {
         let Some(now) = self.now() else { return };
         let pose = self.pipeline.pose_output(now);
         if let Some(tap) = &mut self.observers.tap {
-            tap.pose(&self.pipeline, pose);
+            tap.pose(&self.pipeline, pose, self.links.phase.borrow().as_str());
         }
         let Ok(frames) = self.encoder.encode(&pose) else {
             return;

@@ -13,6 +13,8 @@ use canodom::server::{InProcessDaemon, Observers};
 use canodom_can::bus::{BusEvent, FrameSink, FrameSource, InProcessTx};
 use canodom_can::frame::FrameId;
 use canodom_dbc::Database;
+use canodom_export::live::{LiveOptions, LiveOutputs};
+use canodom_export::recorder::RecorderOptions;
 use canodom_fusion::sim::{Direction, Plan, simulate};
 use canodom_fusion::{VehicleParams, Wheel};
 use canodom_params::persist::{ParamFile, ParamValues, store};
@@ -179,7 +181,21 @@ async fn a_driven_session_commits_the_true_parameters_and_writes_them_back() {
     let b_eff = k_mean * b_true;
     let ratio_true = dr_true / dl_true;
 
-    let daemon = InProcessDaemon::spawn(Arc::clone(&config), 65536, Observers::default());
+    // The session is recorded (`run --record`): its calibration channel
+    // carries the session's phase.
+    let recording = tmp_dir("session-record").join("session.mcap");
+    let (tap, outputs) = LiveOutputs::start(LiveOptions {
+        record: Some(RecorderOptions::new(recording.clone())),
+        foxglove: None,
+        k_rear_m: config.ekf.k_rear_m,
+        queue: 1 << 16,
+    })
+    .unwrap();
+    let observers = Observers {
+        tap: Some(tap),
+        ..Observers::default()
+    };
+    let daemon = InProcessDaemon::spawn(Arc::clone(&config), 65536, observers);
     let bus = daemon.bus.clone();
     let wire = CalibWire::new(config.output.base_id).unwrap();
     let (status_id, params_id, ack_id) = (wire.status_id(), wire.params_id(), wire.ack_id());
@@ -422,4 +438,34 @@ async fn a_driven_session_commits_the_true_parameters_and_writes_them_back() {
     let summary = daemon.stop().await.unwrap();
     assert!(summary.stats.steps > 0);
     listener.abort();
+
+    outputs.join().unwrap();
+    let bytes = std::fs::read(&recording).unwrap();
+    let mut phases: Vec<String> = Vec::new();
+    for m in mcap::MessageStream::new(&bytes).unwrap() {
+        let m = m.unwrap();
+        if m.channel.topic == "/canodom/calibration" {
+            // The last field, a CDR string: length, text, NUL.
+            let text = &m.data[..m.data.len() - 1];
+            let start = text
+                .iter()
+                .rposition(|b| !(b.is_ascii_lowercase() || *b == b'_'))
+                .unwrap()
+                + 1;
+            let phase = String::from_utf8(text[start..].to_vec()).unwrap();
+            if phases.last() != Some(&phase) {
+                phases.push(phase);
+            }
+        }
+    }
+    // The phases in the order the session went through them.
+    let at = |p: &str| {
+        phases
+            .iter()
+            .position(|q| q == p)
+            .unwrap_or_else(|| panic!("{p} not in {phases:?}"))
+    };
+    assert_eq!(phases[0], "idle", "{phases:?}");
+    assert!(at("positioning") < at("recording"), "{phases:?}");
+    assert!(at("recording") < at("computed"), "{phases:?}");
 }

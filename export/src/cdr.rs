@@ -54,7 +54,10 @@ pub fn calibration_schema() -> String {
     "# The vehicle parameters in use; param_version 0: the configuration's nominal ones.\n\
      uint16 param_version\nbool nominal\nfloat64 wheelbase_m\nfloat64 rear_tread_m\n\
      float64 front_tread_m\n\
-     float64[4] wheel_diameter_m # rear left, rear right, front left, front right\n"
+     float64[4] wheel_diameter_m # rear left, rear right, front left, front right\n\
+     # The guided calibration's phase: idle, positioning, recording, awaiting_end_pose,\n\
+     # ready, computing or computed (a replay has no session: idle).\n\
+     string session\n"
         .to_owned()
 }
 

@@ -186,13 +186,17 @@ impl<F: FnMut(Topic, u64, &[u8])> MessageSink for SliceSink<F> {
     }
 }
 
+/// What the calibration message says: parameter version, whether nominal,
+/// the parameters, the session's phase.
+type CalibrationKey = (u16, bool, VehicleParams, &'static str);
+
 /// Encodes steps into one message per [`Topic`].
 #[derive(Debug)]
 pub struct StepEncoder {
     /// Rear wheel distance noise (`[ekf] k_rear_m`): variance `k·|d|` per wheel.
     k_rear_m: f64,
-    /// The calibration message of the parameters last seen, kept while they stay.
-    calibration: Option<((u16, bool, VehicleParams), Vec<u8>)>,
+    /// The calibration message of the parameters and phase last seen, kept while they stay.
+    calibration: Option<(CalibrationKey, Vec<u8>)>,
     /// The frames of the current batch's tail, for the next step.
     pending: Vec<OwnedFrame>,
 }
@@ -267,12 +271,13 @@ impl StepEncoder {
             sample.output.param_version,
             sample.output.flags.nominal_params,
             *params,
+            sample.calibration_phase,
         );
         let text = match &mut self.calibration {
             Some((k, text)) if *k == key => text,
             slot => {
                 let mut text = Vec::new();
-                calibration_cdr(key.0, key.1, params, &mut text);
+                calibration_cdr(key.0, key.1, params, key.3, &mut text);
                 &mut slot.insert((key, text)).1
             }
         };
@@ -416,12 +421,13 @@ fn gate_cdr(s: &StepSample, out: &mut Vec<u8>) {
     )));
 }
 
-fn calibration_cdr(version: u16, nominal: bool, p: &VehicleParams, out: &mut Vec<u8>) {
+fn calibration_cdr(version: u16, nominal: bool, p: &VehicleParams, phase: &str, out: &mut Vec<u8>) {
     let mut w = Cdr::new(out);
     w.u16(version);
     w.u8(u8::from(nominal));
     w.f64s(&[p.wheelbase_m(), p.rear_tread_m(), p.front_tread_m()]);
     w.f64s(&Wheel::ALL.map(|wh| p.wheel_diameter_m(wh)));
+    w.string(phase);
 }
 
 fn can_cdr<'a>(frames: impl Iterator<Item = FrameRef<'a>>, count: usize, out: &mut Vec<u8>) {

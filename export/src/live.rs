@@ -58,13 +58,22 @@ impl Tap {
     }
 
     /// Queues the pose `output` just published by `pipeline` with the
-    /// frames since the previous one; never waits (a full queue drops it).
-    pub fn pose(&mut self, pipeline: &Pipeline, output: PoseOutput) {
+    /// frames since the previous one and the guided calibration's
+    /// `calibration_phase`; never waits (a full queue drops it).
+    pub fn pose(
+        &mut self,
+        pipeline: &Pipeline,
+        output: PoseOutput,
+        calibration_phase: &'static str,
+    ) {
         let Some(step) = pipeline.last_step() else {
             return;
         };
         let packet = Packet {
-            sample: StepSample::of(pipeline, &step, output),
+            sample: StepSample {
+                calibration_phase,
+                ..StepSample::of(pipeline, &step, output)
+            },
             params: *pipeline.params(),
             frames: std::mem::take(&mut self.frames),
         };

@@ -757,7 +757,12 @@ pub(crate) mod tests {
             rear_m: [0.01, 0.01],
             dt_s: 0.01,
             correction: WindowOutcome::Open,
-            counts: Counts::default(),
+            counts: Counts {
+                steps: k as u64 + 1,
+                ..Counts::default()
+            },
+            // A session that starts recording half-way.
+            calibration_phase: if k < 250 { "idle" } else { "recording" },
         }
     }
 
@@ -795,12 +800,24 @@ pub(crate) mod tests {
             assert_eq!(summary.chunk_indexes.len(), stats.chunk_count as usize);
             assert!(stats.channel_message_counts.values().all(|&n| n == 500));
             let mut per_topic = std::collections::BTreeMap::<String, u64>::new();
+            let mut phases = Vec::new();
             for m in mcap::MessageStream::new(&bytes).unwrap() {
                 let m = m.unwrap();
-                *per_topic.entry(m.channel.topic.clone()).or_default() += 1;
+                let n = per_topic.entry(m.channel.topic.clone()).or_default();
+                *n += 1;
+                // The sequence is the step's count.
+                assert_eq!(u64::from(m.sequence), *n, "{}", m.channel.topic);
+                if m.channel.topic == Topic::Calibration.name() {
+                    // The phase is the message's last field: a CDR string.
+                    let text = m.data.rsplit(|&b| b == 0).nth(1).unwrap();
+                    let phase = text.rsplit(|b| !b.is_ascii_lowercase()).next().unwrap();
+                    phases.push(String::from_utf8(phase.to_vec()).unwrap());
+                }
             }
             assert_eq!(per_topic.len(), 9);
             assert!(per_topic.values().all(|&n| n == 500));
+            assert_eq!(phases[249], "idle");
+            assert_eq!(phases[250], "recording");
             // The indexed read: every message of a chunk through its index.
             let first = &summary.chunk_indexes[0];
             let indexes = summary.read_message_indexes(&bytes, first).unwrap();

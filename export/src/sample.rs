@@ -32,6 +32,9 @@ pub struct StepSample {
     pub correction: WindowOutcome,
     /// The pipeline's counts after this step.
     pub counts: Counts,
+    /// The guided calibration's phase at this step (`idle`, `recording`, …:
+    /// `canodom_calib::session::Phase::as_str`); a replay has no session.
+    pub calibration_phase: &'static str,
 }
 
 /// The pipeline's counts carried by the quality channel.
@@ -97,6 +100,7 @@ impl StepSample {
             dt_s,
             correction: step.correction,
             counts: Counts::from(pipeline.stats()),
+            calibration_phase: "idle",
         }
     }
 }
