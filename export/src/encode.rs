@@ -305,7 +305,8 @@ impl StepEncoder {
                 params.rear_tread_m(),
                 sample.dt_s,
             );
-            cdr::encode_odometry(&odometry(sample, rt, q, &twist), out);
+            let pose = pose_covariance(&sample.covariance);
+            cdr::encode_odometry(&odometry(sample, rt, q, &pose, &twist), out);
         })?;
         sink.message(Topic::RosTf, t_ns, |out| {
             cdr::encode_tf(
@@ -324,22 +325,23 @@ impl StepEncoder {
 
 /// The fused pose of `sample` as an `Odometry` (REP-103: the pose in `odom`,
 /// the twist in `base_link`).
-fn odometry(
+fn odometry<'a>(
     sample: &StepSample,
     stamp: RosTime,
     q: [f64; 4],
-    twist_covariance: &[f64; 36],
-) -> Odometry<'static> {
+    pose_covariance: &'a [f64; 36],
+    twist_covariance: &'a [f64; 36],
+) -> Odometry<'a> {
     Odometry {
         stamp,
         frame_id: ODOM_FRAME,
         child_frame_id: BASE_FRAME,
         position: [sample.fused.x_m, sample.fused.y_m, 0.0],
         orientation: q,
-        pose_covariance: pose_covariance(&sample.covariance),
+        pose_covariance,
         linear: [sample.output.speed_mps, 0.0, 0.0],
         angular: [0.0, 0.0, sample.output.yaw_rate_radps],
-        twist_covariance: *twist_covariance,
+        twist_covariance,
     }
 }
 
