@@ -833,6 +833,45 @@ pub(crate) mod tests {
     }
 
     #[test]
+    fn chunks_filled_elsewhere_go_in_order_between_the_writers_own_steps() {
+        let params = canodom_fusion::VehicleParams::nominal(0.25, 0.30, 0.09, 1000).unwrap();
+        let mut w = StepWriter::new(Vec::new(), McapOptions::default(), 1e-5).unwrap();
+        let frames = FrameBuffer::default();
+        for k in 0..3 {
+            w.write_step(&sample(k), &params, (&frames, 0, 0)).unwrap();
+        }
+        // Filled as another thread would, with an encoder of its own.
+        let mut encoder = w.encoder();
+        let mut chunk = Chunk::default();
+        for k in 3..6 {
+            chunk.push_step(&mut encoder, &sample(k), &params, (&frames, 0, 0));
+        }
+        assert!(!chunk.is_empty());
+        let spare = w.write_chunk(chunk).unwrap();
+        assert!(spare.is_empty());
+        for k in 6..9 {
+            w.write_step(&sample(k), &params, (&frames, 0, 0)).unwrap();
+        }
+        assert_eq!(w.steps(), 9);
+        let bytes = w.finish().unwrap();
+        let summary = mcap::Summary::read(&bytes).unwrap().unwrap();
+        assert_eq!(summary.chunk_indexes.len(), 3);
+        let stats = summary.stats.unwrap();
+        assert_eq!(stats.message_count, 9 * 9);
+        let poses: Vec<(u32, u64)> = mcap::MessageStream::new(&bytes)
+            .unwrap()
+            .map(|m| m.unwrap())
+            .filter(|m| m.channel.topic == Topic::Pose.name())
+            .map(|m| (m.sequence, m.log_time))
+            .collect();
+        assert_eq!(
+            poses.iter().map(|p| p.0).collect::<Vec<_>>(),
+            (1..=9).collect::<Vec<_>>()
+        );
+        assert!(poses.windows(2).all(|p| p[0].1 < p[1].1));
+    }
+
+    #[test]
     fn a_file_cut_after_a_flush_is_readable_up_to_it() {
         let params = canodom_fusion::VehicleParams::nominal(0.25, 0.30, 0.09, 1000).unwrap();
         let mut w = StepWriter::new(Vec::new(), McapOptions::default(), 1e-5).unwrap();
