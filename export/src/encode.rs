@@ -137,20 +137,11 @@ pub struct Schema {
 /// buffer of the encoder's and copied: that copy was a tenth of the MCAP
 /// replay's filter thread.
 pub trait MessageSink {
-    /// Why the sink could not take a message.
-    type Error;
-
     /// Takes one message on `topic` at `t_ns` (ns since the Unix epoch),
-    /// whose bytes `payload` appends to the buffer it is given.
-    ///
-    /// # Errors
-    /// The sink's own.
-    fn message(
-        &mut self,
-        topic: Topic,
-        t_ns: u64,
-        payload: impl FnOnce(&mut Vec<u8>),
-    ) -> Result<(), Self::Error>;
+    /// whose bytes `payload` appends to the buffer it is given. A sink
+    /// cannot fail here: one that writes to a file or a socket does so
+    /// later, and reports there.
+    fn message(&mut self, topic: Topic, t_ns: u64, payload: impl FnOnce(&mut Vec<u8>));
 }
 
 /// A [`MessageSink`] handing each message's bytes to a closure, for sinks
@@ -171,18 +162,10 @@ impl<F: FnMut(Topic, u64, &[u8])> SliceSink<F> {
 }
 
 impl<F: FnMut(Topic, u64, &[u8])> MessageSink for SliceSink<F> {
-    type Error = std::convert::Infallible;
-
-    fn message(
-        &mut self,
-        topic: Topic,
-        t_ns: u64,
-        payload: impl FnOnce(&mut Vec<u8>),
-    ) -> Result<(), Self::Error> {
+    fn message(&mut self, topic: Topic, t_ns: u64, payload: impl FnOnce(&mut Vec<u8>)) {
         self.buf.clear();
         payload(&mut self.buf);
         (self.take)(topic, t_ns, &self.buf);
-        Ok(())
     }
 }
 
@@ -231,16 +214,13 @@ impl StepEncoder {
     /// order, each stamped with the step's time. The raw-frame message
     /// holds the frames carried over, then `frames[from..to]`. `params` is
     /// the parameter set in use.
-    ///
-    /// # Errors
-    /// What `sink` returns (the first error ends the step).
-    pub fn encode<S: MessageSink>(
+    pub fn encode(
         &mut self,
         sample: &StepSample,
         params: &VehicleParams,
         frames: (&impl FrameSource, usize, usize),
-        sink: &mut S,
-    ) -> Result<(), S::Error> {
+        sink: &mut impl MessageSink,
+    ) {
         let t_ns = (sample.t_unix_us.max(0) as u64) * 1000;
         let stamp = (
             u32::try_from(t_ns / 1_000_000_000).unwrap_or(u32::MAX),
@@ -255,17 +235,17 @@ impl StepEncoder {
 
         sink.message(Topic::Pose, t_ns, |out| {
             proto::pose_in_frame(out, stamp, ODOM_FRAME, &pos, &q);
-        })?;
+        });
         sink.message(Topic::RearOdometry, t_ns, |out| {
             let rear = &sample.rear_only;
             let p = [rear.x_m, rear.y_m, 0.0];
             proto::pose_in_frame(out, stamp, ODOM_FRAME, &p, &yaw(rear.heading_rad));
-        })?;
+        });
         sink.message(Topic::Transform, t_ns, |out| {
             proto::frame_transform(out, stamp, ODOM_FRAME, BASE_FRAME, &pos, &q);
-        })?;
-        sink.message(Topic::Quality, t_ns, |out| quality_cdr(sample, out))?;
-        sink.message(Topic::Gate, t_ns, |out| gate_cdr(sample, out))?;
+        });
+        sink.message(Topic::Quality, t_ns, |out| quality_cdr(sample, out));
+        sink.message(Topic::Gate, t_ns, |out| gate_cdr(sample, out));
 
         let key = (
             sample.output.param_version,
@@ -281,7 +261,7 @@ impl StepEncoder {
                 &mut slot.insert((key, text)).1
             }
         };
-        sink.message(Topic::Calibration, t_ns, |out| out.extend_from_slice(text))?;
+        sink.message(Topic::Calibration, t_ns, |out| out.extend_from_slice(text));
 
         let (source, from, to) = frames;
         let pending = &mut self.pending;
@@ -294,7 +274,7 @@ impl StepEncoder {
                 pending.len() + to.saturating_sub(from),
                 out,
             );
-        })?;
+        });
         pending.clear();
 
         let rt = RosTime::from_nanos(t_ns);
@@ -307,7 +287,7 @@ impl StepEncoder {
             );
             let pose = pose_covariance(&sample.covariance);
             cdr::encode_odometry(&odometry(sample, rt, q, &pose, &twist), out);
-        })?;
+        });
         sink.message(Topic::RosTf, t_ns, |out| {
             cdr::encode_tf(
                 &[Transform {
@@ -319,7 +299,7 @@ impl StepEncoder {
                 }],
                 out,
             );
-        })
+        });
     }
 }
 

@@ -260,8 +260,7 @@ fn serve(
         }
         if let Some(sink) = view_sink.as_mut() {
             let n = packet.frames.frame_count();
-            let Ok(()) =
-                encoder.encode(&packet.sample, &packet.params, (&packet.frames, 0, n), sink);
+            encoder.encode(&packet.sample, &packet.params, (&packet.frames, 0, n), sink);
         }
         report.poses += 1;
     }

@@ -179,7 +179,7 @@ impl Chunk {
             sequence: sample.counts.steps as u32,
             t_ns: None,
         };
-        let Ok(()) = encoder.encode(sample, params, frames, &mut sink);
+        encoder.encode(sample, params, frames, &mut sink);
         // Every message of a step has the step's time.
         if let Some(t) = sink.t_ns {
             self.time = Some(widen(self.time, (t, t)));
@@ -276,14 +276,7 @@ struct ChunkSink<'a> {
 }
 
 impl MessageSink for ChunkSink<'_> {
-    type Error = std::convert::Infallible;
-
-    fn message(
-        &mut self,
-        topic: Topic,
-        t_ns: u64,
-        payload: impl FnOnce(&mut Vec<u8>),
-    ) -> std::result::Result<(), Self::Error> {
+    fn message(&mut self, topic: Topic, t_ns: u64, payload: impl FnOnce(&mut Vec<u8>)) {
         let chunk = &mut *self.chunk;
         let records = &mut chunk.records;
         let at = records.len();
@@ -303,7 +296,6 @@ impl MessageSink for ChunkSink<'_> {
         payload(records);
         let length = (records.len() - at - 9) as u64;
         records[at + 1..at + 9].copy_from_slice(&length.to_le_bytes());
-        Ok(())
     }
 }
 
