@@ -8,7 +8,10 @@
 //! `vcan-result:` line per scenario and the summary `vcan: N passed, M failed`.
 //!
 //! This library holds what the scenarios share: running the guest's tools
-//! with a time limit and finding the fixtures inside the guest.
+//! with a time limit, finding the fixtures inside the guest, and reading
+//! the daemon's MCAP recordings back ([`recording`]).
+
+pub mod recording;
 
 use canodom_can::candump::{LogReader, ReadError};
 use canodom_can::frame::{CanFrame, FrameId};
