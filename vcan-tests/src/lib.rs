@@ -8,7 +8,10 @@
 //! `vcan-result:` line per scenario and the summary `vcan: N passed, M failed`.
 //!
 //! This library holds what the scenarios share: running the guest's tools
-//! with a time limit and finding the fixtures inside the guest.
+//! with a time limit, finding the fixtures inside the guest, and reading
+//! the daemon's MCAP recordings back ([`recording`]).
+
+pub mod recording;
 
 use canodom_can::candump::{LogReader, ReadError};
 use canodom_can::frame::{CanFrame, FrameId};
@@ -280,12 +283,19 @@ pub fn read(path: &Path) -> String {
 /// It could not be started, it exited (the error holds its log), or its
 /// socket did not open within 15 s.
 pub fn start_daemon(config: &Path, log: &Path) -> Result<Spawned, String> {
-    let mut daemon = Spawned::start(
-        &canodom_bin(),
-        &["run", "--config", &config.to_string_lossy()],
-        None,
-        Some(log),
-    )?;
+    start_daemon_with(config, &[], log)
+}
+
+/// As [`start_daemon`], with more arguments after the configuration
+/// (`--record FILE.mcap`, ...).
+///
+/// # Errors
+/// As [`start_daemon`].
+pub fn start_daemon_with(config: &Path, args: &[&str], log: &Path) -> Result<Spawned, String> {
+    let config = config.to_string_lossy();
+    let mut all = vec!["run", "--config", &config];
+    all.extend_from_slice(args);
+    let mut daemon = Spawned::start(&canodom_bin(), &all, None, Some(log))?;
     let mut exited = false;
     wait_until("the daemon opens vcan0", Duration::from_secs(15), || {
         exited = !daemon.is_running();
