@@ -350,6 +350,9 @@ impl<W: Write + Send + 'static> StepWriter<W> {
             record: Vec::new(),
         };
         output.emit(&head)?;
+        // Out at once: a file killed before its first chunk is still an
+        // MCAP file (header, schemas, channels, no message), not 0 bytes.
+        output.out.flush().map_err(Error::write)?;
         let (jobs, inbox) = mpsc::sync_channel(2);
         let (give_back, spare) = mpsc::sync_channel(4);
         let thread = std::thread::Builder::new()
@@ -595,8 +598,9 @@ impl<W: Write> Output<W> {
                     written
                 }
                 Job::Flush(done) => {
+                    let flushed = self.out.flush().map_err(Error::write);
                     let _ = done.send(());
-                    Ok(())
+                    flushed
                 }
             };
             if let Err(e) = done {
@@ -861,6 +865,26 @@ pub(crate) mod tests {
             (1..=9).collect::<Vec<_>>()
         );
         assert!(poses.windows(2).all(|p| p[0].1 < p[1].1));
+    }
+
+    #[test]
+    fn a_file_killed_before_its_first_chunk_holds_its_header_and_channels() {
+        let path = std::env::temp_dir().join(format!("canodom-head-{}.mcap", std::process::id()));
+        let out = std::io::BufWriter::new(std::fs::File::create(&path).unwrap());
+        let w = StepWriter::new(out, McapOptions::default(), 1e-5).unwrap();
+        // What a kill now leaves: the bytes on disk, whole records only.
+        let bytes = std::fs::read(&path).unwrap();
+        assert!(bytes.starts_with(MAGIC));
+        let (mut at, mut channels) = (MAGIC.len(), 0);
+        while at < bytes.len() {
+            let len = u64::from_le_bytes(bytes[at + 1..at + 9].try_into().unwrap()) as usize;
+            channels += usize::from(bytes[at] == op::CHANNEL);
+            at += 9 + len;
+        }
+        assert_eq!(at, bytes.len());
+        assert_eq!(channels, Topic::ALL.len());
+        w.finish().unwrap();
+        let _ = std::fs::remove_file(&path);
     }
 
     #[test]
