@@ -77,7 +77,7 @@ best_of noop true; overhead=$wall
 # host it changes within seconds and moved `wc -l` alone 0.010-0.020 s):
 # the ratio of the best times, and the median of the run-by-run ratios.
 # MCAP replay (#25) alternates with them too: its goal is a ratio to the CSV replay.
-ratios=(); wc_walls=(); rp_walls=(); mc_walls=(); mc_ratios=()
+ratios=(); wc_walls=(); rp_walls=(); mc_walls=(); mc_ratios=(); mn_ratios=()
 for _ in $(seq "$runs"); do
     time_once wc wc -l "$log"; w_wc=$last_wall; wc_walls+=("$last_wall")
     time_once replay "$bin" replay --config "$config" "$log" --out /dev/null; rp_walls+=("$last_wall")
@@ -85,12 +85,22 @@ for _ in $(seq "$runs"); do
     ratios+=("$(awk -v a="$last_wall" -v b="$w_wc" 'BEGIN{printf "%.2f", a / b}')")
     time_once mcap "$bin" replay --config "$config" "$log" --out /dev/null --format mcap; mc_walls+=("$last_wall")
     mc_ratios+=("$(awk -v a="$last_wall" -v b="$w_rp" 'BEGIN{printf "%.2f", a / b}')")
+    time_once mcapnone "$bin" replay --config "$config" "$log" --out /dev/null --format mcap --compression none
+    mn_ratios+=("$(awk -v a="$last_wall" -v b="$w_rp" 'BEGIN{printf "%.2f", a / b}')")
 done
 mc_wall=${best_wall[mcap]}; mc_cpu=${best_cpu[mcap]}; mc_rss=${best_rss[mcap]}
-mc_median=$(printf '%s\n' "${mc_ratios[@]}" | sort -n | awk '{a[NR] = $1} END {print a[int((NR + 1) / 2)]}')
-# The file itself once, for its size (to disk, not timed).
-"$bin" replay --config "$config" "$log" --out "$bench_dir/bench.mcap" 2>/dev/null
-mc_mb=$(du -m "$bench_dir/bench.mcap" | cut -f1)
+mn_wall=${best_wall[mcapnone]}; mn_cpu=${best_cpu[mcapnone]}; mn_rss=${best_rss[mcapnone]}
+median() { printf '%s\n' "$@" | sort -n | awk '{a[NR] = $1} END {print a[int((NR + 1) / 2)]}'; }
+mc_median=$(median "${mc_ratios[@]}"); mn_median=$(median "${mn_ratios[@]}")
+# The files themselves, once each, to disk: their sizes, and what writing
+# the bytes costs besides making them (the timings above write to /dev/null).
+time_once csvfile "$bin" replay --config "$config" "$log" --out "$bench_dir/bench.csv"
+csv_file_wall=$last_wall; csv_mb=$(du -m "$bench_dir/bench.csv" | cut -f1)
+time_once mcapfile "$bin" replay --config "$config" "$log" --out "$bench_dir/bench.mcap"
+mc_file_wall=$last_wall; mc_mb=$(du -m "$bench_dir/bench.mcap" | cut -f1)
+time_once mcapnonefile "$bin" replay --config "$config" "$log" --out "$bench_dir/bench-none.mcap" --compression none
+mn_file_wall=$last_wall; mn_mb=$(du -m "$bench_dir/bench-none.mcap" | cut -f1)
+rm -f "$bench_dir/bench.csv" "$bench_dir/bench-none.mcap"
 # min / median / max of a list of numbers: which of the two moved between runs.
 spread() { printf '%s\n' "$@" | sort -n | awk '{a[NR] = $1} END {printf "%s / %s / %s", a[1], a[int((NR + 1) / 2)], a[NR]}'; }
 wc_wall=${best_wall[wc]}; wc_cpu=${best_cpu[wc]}; wc_rss=${best_rss[wc]}
@@ -115,7 +125,7 @@ cc_fps=$(rate $slice "$wall")
 
 rp_fps=$(rate $frames "$rp_wall"); dc_fps=$(rate $frames "$dc_wall"); wc_fps=$(rate $frames "$wc_wall")
 rp_cfps=$(rate $frames "$rp_cpu"); dc_cfps=$(rate $frames "$dc_cpu")
-ratio() { awk -v a="$1" -v b="$2" 'BEGIN{printf "%.1f", a / b}'; }
+ratio() { awk -v a="$1" -v b="$2" 'BEGIN{printf "%.2f", a / b}'; }
 
 echo "== criterion microbenchmarks (short)" >&2
 crit_args=(--warm-up-time 0.3 --measurement-time 1 --output-format bencher)
@@ -136,6 +146,7 @@ micro=$(
     echo "| \`wc -l\` (floor: reading the bytes) | $wc_wall | $wc_fps | $wc_cpu | | $wc_rss |"
     echo "| \`canodom replay\` (EKF, CSV out) | $rp_wall | $rp_fps | $rp_cpu | $rp_cfps | $rp_rss / $rp10_rss |"
     echo "| \`canodom replay --format mcap\` (EKF, MCAP out: 9 channels, LZ4; $mc_mb MB) | $mc_wall | $(rate $frames "$mc_wall") | $mc_cpu | $(rate $frames "$mc_cpu") | $mc_rss |"
+    echo "| \`canodom replay --format mcap --compression none\` ($mn_mb MB) | $mn_wall | $(rate $frames "$mn_wall") | $mn_cpu | $(rate $frames "$mn_cpu") | $mn_rss |"
     echo "| \`canodom decode\` (JSON out) | $dc_wall | $dc_fps | $dc_cpu | $dc_cfps | $dc_rss / $dc10_rss |"
     echo "| cantools loop (logreader + decode_message) | | $ct_fps | | | |"
     echo "| \`cantools decode\` command ($slice-frame slice) | | $cc_fps | | | |"
@@ -148,6 +159,8 @@ micro=$(
     echo "| (wall s over the $runs runs, min / median / max: \`wc -l\` $(spread "${wc_walls[@]}"), replay $(spread "${rp_walls[@]}")) | | |"
     echo "| MCAP replay time / CSV replay time (best / best) | $(ratio "$mc_wall" "$rp_wall")x | ≤ 1.5x |"
     echo "| the same, median of the $runs run-by-run ratios; CPU time ratio | ${mc_median}x; $(ratio "$mc_cpu" "$rp_cpu")x | ≤ 1.5x |"
+    echo "| MCAP uncompressed replay time / CSV replay time (best / best; median; CPU) | $(ratio "$mn_wall" "$rp_wall")x; ${mn_median}x; $(ratio "$mn_cpu" "$rp_cpu")x | ≤ 1.5x |"
+    echo "| to files on disk, one run each: CSV ($csv_mb MB), MCAP LZ4 ($mc_mb MB), MCAP uncompressed ($mn_mb MB), wall s | $csv_file_wall; $mc_file_wall; $mn_file_wall | |"
     echo "| decode / cantools loop (frame rate) | $(ratio "$dc_fps" "$ct_fps")x | ≥ 10x |"
     echo "| decode / \`cantools decode\` command | $(ratio "$dc_fps" "$cc_fps")x | |"
     echo
