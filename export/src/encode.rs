@@ -1,6 +1,7 @@
 //! The channels a recording has and the encoding of one step into a message
-//! on each: Foxglove `PoseInFrame` and `FrameTransform` (protobuf, the
-//! `foxglove` crate's types and schemas), ROS 2 `Odometry` and `TFMessage`,
+//! on each: Foxglove `PoseInFrame` and `FrameTransform` (protobuf with the
+//! `foxglove` crate's schemas, written by `crate::proto`), ROS 2 `Odometry`
+//! and `TFMessage`,
 //! and canodom's own quality, gate, calibration and raw-frame messages, all
 //! four in CDR with `ros2msg` schemas ([`crate::cdr`]). (The own messages
 //! were JSON first: a third of the file's bytes and a tenth of its time went

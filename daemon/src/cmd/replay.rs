@@ -458,7 +458,9 @@ fn push_rows(text: &mut Vec<u8>, rows: &[Row]) {
 /// formatting, a fifth of the work) goes to whichever thread has time: the
 /// filter thread does it for a batch when no next batch is waiting for it,
 /// so neither thread idles while the other is the bottleneck (a fixed split
-/// left the reading thread a sixth busier than the filter thread).
+/// left the reading thread a sixth busier than the filter thread). An MCAP
+/// output's messages are shared the same way, a batch's steps making a
+/// chunk of their own ([`replay_log`]).
 ///
 /// # Errors
 /// Pipeline construction, I/O.
