@@ -227,7 +227,9 @@ impl LogSeen {
             _ if self.malformed > 0 => format!(
                 "no frame could be read: all {} lines are malformed; canodom reads \
                  candump -L records such as `(1700000000.000100) can0 123#11223344` \
-                 (record with `candump -L can0 > drive.log`)",
+                 (record with `candump -L can0 > drive.log`), plain candump output \
+                 (`  can0  123   [4]  11 22 33 44`), Vector ASC and BLF, each also \
+                 gzip or zstd compressed",
                 self.malformed
             ),
             _ => "holds no frame (record with `candump -L can0 > drive.log`)".to_owned(),

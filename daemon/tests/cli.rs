@@ -175,6 +175,36 @@ fn decode_reports_malformed_lines_and_strict_fails() {
 }
 
 #[test]
+fn replay_names_the_log_and_line_of_a_malformed_line_and_every_format_in_a_refusal() {
+    let dir = tmp_dir("replay-malformed");
+    let cfg = rc_car_toml();
+    let c = cfg.to_str().unwrap();
+    let log = dir.join("drive.log");
+    std::fs::write(
+        &log,
+        "(1700000000.000100) vcan0 100#0102030405060708\n\
+         garbage here\n\
+         (1700000000.000200) vcan0 100#0102030405060708\n",
+    )
+    .unwrap();
+    let l = log.to_str().unwrap();
+    let (_, se) = ok(&["replay", "--config", c, l, "--out", "/dev/null"]);
+    assert!(
+        se.contains(&format!("replay: {l}: line 2: malformed")),
+        "{se}"
+    );
+    // Nothing readable at all: refused, and the refusal lists what is read.
+    let junk = dir.join("junk.log");
+    std::fs::write(&junk, "not a log\nnor this\n").unwrap();
+    let out = canodom(&["replay", "--config", c, junk.to_str().unwrap()]);
+    assert!(!out.status.success());
+    let se = String::from_utf8(out.stderr).unwrap();
+    for format in ["candump -L", "plain candump", "ASC", "BLF", "zstd"] {
+        assert!(se.contains(format), "{format} missing: {se}");
+    }
+}
+
+#[test]
 fn decode_reads_stdin() {
     let mut child = Command::new(env!("CARGO_BIN_EXE_canodom"))
         .args(["decode", "--dbc", "../data/dbc/rc_car.dbc", "-"])

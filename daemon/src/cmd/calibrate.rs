@@ -55,17 +55,17 @@ pub struct CalibrateArgs {
     /// Radius R of the track's semicircles, in metres.
     #[arg(long, required_unless_present = "fixes", conflicts_with = "fixes")]
     pub track_radius: Option<f64>,
-    /// Candump -L logs of clockwise runs.
+    /// Logs of clockwise runs (any format `replay` reads).
     #[arg(long, num_args = 1.., required_unless_present = "fixes", conflicts_with = "fixes")]
     pub cw: Vec<PathBuf>,
-    /// Candump -L logs of counter-clockwise runs.
+    /// Logs of counter-clockwise runs.
     #[arg(long, num_args = 1.., required_unless_present = "fixes", conflicts_with = "fixes")]
     pub ccw: Vec<PathBuf>,
     /// Position fixes of an ordinary drive (CSV, see below): calibrate from
     /// LOG instead of track runs; the result is committed to --out.
     #[arg(long, requires_all = ["out", "log"])]
     pub fixes: Option<PathBuf>,
-    /// With --fixes: the candump -L log of the drive.
+    /// With --fixes: the log of the drive (candump, ASC, BLF, compressed).
     #[arg(requires = "fixes")]
     pub log: Option<PathBuf>,
     /// Measured real end poses per log (TOML, see below).

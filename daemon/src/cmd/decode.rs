@@ -35,7 +35,9 @@ pub struct DecodeArgs {
     /// The DBC file.
     #[arg(long)]
     pub dbc: PathBuf,
-    /// The candump -L log; `-` or nothing reads standard input.
+    /// The CAN log: candump (`-L` or plain), Vector ASC or BLF, each also
+    /// `.gz` or `.zst` compressed, told apart by content; `-` or nothing
+    /// reads standard input.
     #[arg(default_value = "-")]
     pub log: PathBuf,
     /// Also print frames of ids the DBC does not know, with "name": null.

@@ -41,7 +41,9 @@ pub struct ReplayArgs {
     /// The configuration file (the same one `run` uses).
     #[arg(long)]
     pub config: PathBuf,
-    /// The candump -L log; `-` reads standard input.
+    /// The CAN log: candump (`-L` or plain), Vector ASC or BLF, each also
+    /// `.gz` or `.zst` compressed, told apart by content; `-` reads standard
+    /// input.
     pub log: PathBuf,
     /// Where to write the CSV (standard output when absent), or the MCAP
     /// file (`.mcap`): Foxglove and ROS 2 messages of every step.
@@ -109,6 +111,18 @@ pub struct ReplayOptions<'a> {
     pub interface: Option<&'a str>,
     /// Keep every step with its absolute time (for `--truth`).
     pub keep_track: bool,
+    /// The log's name, in the warnings about its malformed lines.
+    pub log_name: Option<&'a str>,
+}
+
+impl ReplayOptions<'_> {
+    /// What the warnings about the log's lines start with.
+    fn warning_prefix(&self) -> String {
+        match self.log_name {
+            Some(name) => format!("replay: {name}"),
+            None => "replay".to_owned(),
+        }
+    }
 }
 
 /// `--params`: the current set of a parameter file, if one is given.
@@ -171,6 +185,7 @@ pub fn execute(args: &ReplayArgs) -> anyhow::Result<()> {
         ReplayOptions {
             interface: args.interface.as_deref(),
             keep_track: truth.is_some(),
+            log_name: Some(&args.log.display().to_string()),
         },
         &mut input,
         &mut w,
@@ -570,7 +585,7 @@ pub fn replay_log(
             &to_filter,
             &from_filter,
             (out, mcap.as_mut()),
-            diag,
+            (diag, &options.warning_prefix()),
             kept.as_mut(),
         );
         // Ends the filter thread's loop, whether feeding ended or failed.
@@ -668,7 +683,7 @@ fn feed(
     to_filter: &mpsc::Sender<Batch>,
     from_filter: &mpsc::Receiver<Batch>,
     (out, mut mcap): (&mut impl Write, Option<&mut McapOut>),
-    diag: &mut impl Write,
+    (diag, warn_prefix): (&mut impl Write, &str),
     mut kept: Option<&mut Vec<(i64, [f64; 6])>>,
 ) -> anyhow::Result<(u64, MalformedCounts)> {
     let mut malformed = 0u64;
@@ -752,7 +767,7 @@ fn feed(
                     malformed += 1;
                     by_reason.add(m.reason);
                     if malformed <= 20 {
-                        writeln!(diag, "replay: {m}; skipped")?;
+                        writeln!(diag, "{warn_prefix}: {m}; skipped")?;
                     }
                 }
                 Err(e @ (ReadError::Io(_) | ReadError::Corrupt(_))) => return Err(e.into()),
