@@ -31,8 +31,25 @@ pub const UNKNOWN_VARIANCE: f64 = 1e6;
 
 /// Added to the estimated variances so every covariance is positive
 /// definite (readers such as `robot_localization` invert them); at a
-/// standstill the filter's own can be exactly zero.
-pub const VARIANCE_FLOOR: f64 = 1e-12;
+/// standstill the filter's own can be exactly zero, and its covariance is
+/// singular at times (rank 2 at the real RAV4 drive's second step).
+///
+/// 1e-8 (0.1 mm, 0.1 mrad standard deviation) because a reader computes
+/// eigenvalues of the whole 6×6 matrix in double precision, whose rounding
+/// is about ε·1e6 ≈ 2e-10 with the [`UNKNOWN_VARIANCE`]s in it: with a floor
+/// of 1e-12, numpy read that RAV4 step's pose covariance as having the
+/// eigenvalue −1.9e-11. Larger covariances get [`RELATIVE_VARIANCE_FLOOR`].
+pub const VARIANCE_FLOOR: f64 = 1e-8;
+
+/// The floor relative to the largest estimated variance (about 450 ε), for
+/// covariances so large that their own rounding exceeds [`VARIANCE_FLOOR`].
+pub const RELATIVE_VARIANCE_FLOOR: f64 = 1e-13;
+
+/// What [`pose_covariance`] and [`twist_covariance`] add to the estimated
+/// variances, whose largest is `largest_variance`.
+fn variance_floor(largest_variance: f64) -> f64 {
+    VARIANCE_FLOOR.max(RELATIVE_VARIANCE_FLOOR * largest_variance)
+}
 
 /// One channel of a recording.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -332,12 +349,13 @@ fn odometry<'a>(
 pub fn pose_covariance(p: &[f64; 9]) -> [f64; 36] {
     let mut c = [0.0; 36];
     let axis = [0usize, 1, 5];
+    let floor = variance_floor(p[0].max(p[4]).max(p[8]));
     for (i, &a) in axis.iter().enumerate() {
         for (j, &b) in axis.iter().enumerate() {
             // Symmetrised: the filter's P is symmetric up to rounding.
             c[a * 6 + b] = 0.5 * (p[i * 3 + j] + p[j * 3 + i]);
         }
-        c[a * 6 + a] += VARIANCE_FLOOR;
+        c[a * 6 + a] += floor;
     }
     for k in [2, 3, 4] {
         c[k * 6 + k] = UNKNOWN_VARIANCE;
@@ -356,9 +374,10 @@ pub fn twist_covariance(k_rear_m: f64, rear_m: [f64; 2], tread_m: f64, dt_s: f64
     let var_v = 0.25 * (vl + vr) * inv_dt2;
     let var_w = (vl + vr) / (tread_m * tread_m) * inv_dt2;
     let cov = 0.5 * (vr - vl) / tread_m * inv_dt2;
+    let floor = variance_floor(var_v.max(var_w));
     let mut c = [0.0; 36];
-    c[0] = var_v + VARIANCE_FLOOR;
-    c[35] = var_w + VARIANCE_FLOOR;
+    c[0] = var_v + floor;
+    c[35] = var_w + floor;
     c[5] = cov;
     c[30] = cov;
     for k in [1, 2, 3, 4] {
@@ -446,6 +465,65 @@ mod tests {
         // vr > vl: turning left adds to the yaw rate's and speed's covariance.
         assert!(t[5] > 0.0);
         assert!((t[0] - (0.25 * 1e-5 * 0.022 / 1e-4 + VARIANCE_FLOOR)).abs() < 1e-15);
+    }
+
+    /// The smallest eigenvalue of a 6×6 covariance as a reader computes it:
+    /// in double precision, over the whole matrix (the unknown axes' 1e6
+    /// included), as numpy's `eigvalsh` in `tests/check_mcap.py` does.
+    fn smallest_eigenvalue(c: &[f64; 36]) -> f64 {
+        nalgebra::Matrix6::from_row_slice(c)
+            .symmetric_eigenvalues()
+            .min()
+    }
+
+    #[test]
+    fn a_singular_filter_covariance_still_reads_as_positive_definite() {
+        // The filter's P at the second step of the real RAV4 drive
+        // (data/comma2k19-rav4): rank 2. With a floor of 1e-12, numpy read
+        // the Odometry's pose covariance's smallest eigenvalue as -1.9e-11.
+        let p = [
+            3.537_263_72e-7,
+            8.907_956_15e-11,
+            1.257_879_50e-9,
+            8.907_956_15e-11,
+            7.192_450_65e-10,
+            2.030_481_34e-8,
+            1.257_879_50e-9,
+            2.030_481_34e-8,
+            5.740_224_83e-7,
+        ];
+        let c = pose_covariance(&p);
+        assert!(
+            smallest_eigenvalue(&c) > 0.5 * VARIANCE_FLOOR,
+            "{}",
+            smallest_eigenvalue(&c)
+        );
+        assert!(nalgebra::Matrix6::from_row_slice(&c).cholesky().is_some());
+    }
+
+    proptest::proptest! {
+        /// Any positive semi-definite filter covariance, singular or not, from
+        /// a tenth of a millimetre to 300 km, gives Odometry covariances that a reader
+        /// finds positive definite.
+        #[test]
+        fn every_covariance_reads_as_positive_definite(
+            a in proptest::array::uniform9(-1.0f64..1.0),
+            scale_exp in -5i32..12,
+            rank in 0usize..=3,
+            rear_m in proptest::array::uniform2(0.0f64..0.5),
+        ) {
+            // P = A Aᵀ with A's last columns zeroed: PSD of the chosen rank.
+            let mut m = nalgebra::Matrix3::from_row_slice(&a) * 10f64.powi(scale_exp).sqrt();
+            for j in rank..3 {
+                m.set_column(j, &nalgebra::Vector3::zeros());
+            }
+            let p = m * m.transpose();
+            let p: [f64; 9] = std::array::from_fn(|k| p[(k / 3, k % 3)]);
+            let pose = pose_covariance(&p);
+            proptest::prop_assert!(smallest_eigenvalue(&pose) > 0.0, "pose {:?}", pose);
+            let twist = twist_covariance(1e-3, rear_m, 1.5, 0.01);
+            proptest::prop_assert!(smallest_eigenvalue(&twist) > 0.0, "twist {:?}", twist);
+        }
     }
 
     #[test]

@@ -3,8 +3,8 @@
 # installs mcap, mcap-ros2-support, mcap-protobuf-support and rosbags into a
 # venv under the target folder (once), replays a simulated lap to CSV and to
 # MCAP (LZ4 and uncompressed), checks each file against the CSV with
-# check_mcap.py, then kills a replay of a longer drive mid-file (SIGKILL) and
-# reads what it left with a streaming reader: every complete chunk.
+# check_mcap.py, does the same for the real RAV4 drive, then kills a replay
+# of a longer drive mid-file (SIGKILL) and reads what it left with a streaming reader: every complete chunk.
 #
 #   export/tests/check_mcap.sh            # needs python3 with venv and pip (PyPI)
 set -euo pipefail
@@ -33,6 +33,24 @@ for compression in lz4 none; do
     "$bin" replay --config "$config" "$work/lap.log" --out "$work/lap-$compression.mcap" \
         --compression "$compression" 2>/dev/null
     "$venv/bin/python" export/tests/check_mcap.py "$work/lap-$compression.mcap" "$work/lap.csv" "$steps" "$frames"
+done
+
+# A real car's drive (data/comma2k19-rav4: a RAV4 minute, real CAN): its
+# covariances, a real bus's other frames on /canodom/can (every frame up to
+# the last step's), with wheel speeds only and with the yaw-rate sensor.
+rav4=data/comma2k19-rav4
+for rav4_config in config config_yaw; do
+    "$bin" replay --config "$rav4/$rav4_config.toml" "$rav4/drive.log" --out "$work/rav4.csv" 2>/dev/null
+    "$bin" replay --config "$rav4/$rav4_config.toml" "$rav4/drive.log" --out "$work/rav4.mcap" 2>/dev/null
+    steps=$(($(wc -l < "$work/rav4.csv") - 1))
+    frames=$("$venv/bin/python" - "$work/rav4.csv" "$rav4/drive.log" <<'PY'
+import csv, sys
+last = list(csv.DictReader(open(sys.argv[1])))[-1]["t_unix_s"]
+print(sum(1 for line in open(sys.argv[2]) if float(line[1:line.index(")")]) <= float(last)))
+PY
+)
+    echo "rav4 $rav4_config: $steps steps, $frames frames up to the last step" >&2
+    "$venv/bin/python" export/tests/check_mcap.py "$work/rav4.mcap" "$work/rav4.csv" "$steps" "$frames"
 done
 
 # A replay killed mid-file: everything up to its last complete chunk reads back.
