@@ -70,6 +70,18 @@ pub fn ip(args: &[&str]) -> Result<(), String> {
     run("ip", args).map(|_| ())
 }
 
+/// A path as a command-line argument.
+pub fn path_arg(p: &Path) -> String {
+    p.to_string_lossy().into_owned()
+}
+
+/// Now, in microseconds since the Unix epoch (the clock candump stamps with).
+pub fn unix_now_us() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_micros() as u64)
+}
+
 /// Where the guest keeps the repository's fixtures (`CANODOM_REPO`), falling
 /// back to the source tree when the scenarios run on a machine with CAN.
 pub fn repo_dir() -> PathBuf {

@@ -18,10 +18,11 @@ use canodom_can::candump::parse_line;
 use canodom_can::frame::{CanFrame, FrameId};
 use canodom_vcan_tests::{
     Logged, PoseDecoder, PoseSample, Spawned, angle_diff, canodom_bin, canodom_replay, ip, metric,
-    read, read_candump, read_csv, repo_file, run, scratch_dir, start_daemon, wait_until,
+    path_arg, read, read_candump, read_csv, repo_file, run, scratch_dir, start_daemon, unix_now_us,
+    wait_until,
 };
 use std::path::{Path, PathBuf};
-use std::time::{Duration, SystemTime, UNIX_EPOCH};
+use std::time::Duration;
 
 /// Base id of the pose frames in `daemon/examples/rc_car.toml` (the default).
 const RC_CAR_BASE: u32 = 0x600;
@@ -44,17 +45,6 @@ fn rc_car_config() -> PathBuf {
 
 fn toyota_config() -> PathBuf {
     repo_file("vcan-tests/fixtures/toyota_vcan0.toml")
-}
-
-fn s(p: &Path) -> String {
-    p.to_string_lossy().into_owned()
-}
-
-fn now_us() -> u64 {
-    SystemTime::now()
-        .duration_since(UNIX_EPOCH)
-        .expect("clock after 1970")
-        .as_micros() as u64
 }
 
 fn is_standard(frame: &CanFrame, id: u16) -> bool {
@@ -168,7 +158,7 @@ fn live_figure_eight_poses_follow_the_truth_and_equal_replay_of_the_recording() 
     let started = std::time::Instant::now();
     let mut sim = start_simulator(
         &config,
-        &["--path", "figure-eight", "--truth", &s(&truth_path)],
+        &["--path", "figure-eight", "--truth", &path_arg(&truth_path)],
         &dir.join("simulate.log"),
     );
     let status = sim.wait_timeout(Duration::from_secs(100)).unwrap();
@@ -289,13 +279,13 @@ fn live_figure_eight_poses_follow_the_truth_and_equal_replay_of_the_recording() 
 fn simulated_log(config: &Path, dir: &Path, path: &str, seconds: f64) -> (PathBuf, Vec<String>) {
     let full = dir.join("full.log");
     run(
-        &s(&canodom_bin()),
+        &path_arg(&canodom_bin()),
         &[
             "simulate",
             "--config",
-            &s(config),
+            &path_arg(config),
             "--log",
-            &s(&full),
+            &path_arg(&full),
             "--path",
             path,
         ],
@@ -332,7 +322,7 @@ fn write_lines(path: &Path, lines: &[String]) {
 fn play(log: &Path, dir: &Path, limit: Duration) {
     let mut player = Spawned::start(
         Path::new("canplayer"),
-        &["-I", &s(log), "vcan0=vcan0"],
+        &["-I", &path_arg(log), "vcan0=vcan0"],
         None,
         Some(&dir.join("canplayer.err")),
     )
@@ -488,11 +478,11 @@ fn link_down_for_two_seconds_then_poses_resume_within_a_second() {
     .unwrap();
     std::thread::sleep(Duration::from_secs(2));
 
-    let down_us = now_us();
+    let down_us = unix_now_us();
     ip(&["link", "set", "vcan0", "down"]).unwrap();
     std::thread::sleep(Duration::from_secs(2));
     ip(&["link", "set", "vcan0", "up"]).unwrap();
-    let up_us = now_us();
+    let up_us = unix_now_us();
     wait_until(
         "a valid pose after the link came back",
         Duration::from_secs(10),
@@ -742,7 +732,7 @@ async fn watch_poses(
 /// `canodom simulate` sending on vcan0 in real time, with `args` (the path,
 /// a truth file), its stderr to `log`.
 fn start_simulator(config: &Path, args: &[&str], log: &Path) -> Spawned {
-    let config = s(config);
+    let config = path_arg(config);
     let mut all = vec!["simulate", "--config", &config, "--iface", "vcan0"];
     all.extend_from_slice(args);
     Spawned::start(&canodom_bin(), &all, None, Some(log)).unwrap()
@@ -769,7 +759,7 @@ async fn interface_deleted_and_recreated_the_daemon_reconnects_by_itself() {
     std::thread::sleep(Duration::from_secs(2));
     ip(&["link", "add", "dev", "vcan0", "type", "vcan"]).unwrap();
     ip(&["link", "set", "vcan0", "up"]).unwrap();
-    let up_us = now_us();
+    let up_us = unix_now_us();
     let _sim = start_simulator(
         &config,
         &["--path", "track-ccw"],

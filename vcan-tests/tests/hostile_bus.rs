@@ -27,8 +27,8 @@ use canodom_can::candump::parse_line;
 use canodom_can::frame::{CanFrame, FrameId};
 use canodom_dbc::{Checksum, CounterCheck, CounterStatus};
 use canodom_vcan_tests::{
-    PoseDecoder, Spawned, angle_diff, canodom_bin, canodom_replay, metric, read, read_candump,
-    read_csv, repo_file, run, scratch_dir, wait_until,
+    PoseDecoder, Spawned, angle_diff, canodom_bin, canodom_replay, metric, path_arg, read,
+    read_candump, read_csv, repo_file, run, scratch_dir, wait_until,
 };
 use nix::errno::Errno;
 use nix::sys::socket::{MsgFlags, MultiHeaders, sendmmsg};
@@ -55,10 +55,6 @@ const UNRELATED_FPS: u64 = 8_500;
 /// below would fail anyway. Checked before the counts, so such a run names
 /// the host, not the daemon.
 const MIN_FPS: f64 = 8_000.0;
-
-fn s(p: &Path) -> String {
-    p.to_string_lossy().into_owned()
-}
 
 /// A small deterministic generator (the scenario must know what it sent).
 struct Lcg(u64);
@@ -284,15 +280,15 @@ fn hostile_bus_at_8000_fps_rejects_counted_exactly_no_drops_then_sigterm_saves_t
     let full = dir.join("full.log");
     let truth_path = dir.join("truth.csv");
     run(
-        &s(&canodom_bin()),
+        &path_arg(&canodom_bin()),
         &[
             "simulate",
             "--config",
-            &s(&config),
+            &path_arg(&config),
             "--log",
-            &s(&full),
+            &path_arg(&full),
             "--truth",
-            &s(&truth_path),
+            &path_arg(&truth_path),
             "--path",
             "figure-eight",
         ],
@@ -311,7 +307,13 @@ fn hostile_bus_at_8000_fps_rejects_counted_exactly_no_drops_then_sigterm_saves_t
     let daemon_log = dir.join("daemon.log");
     let mut daemon = Spawned::start(
         &canodom_bin(),
-        &["run", "--config", &s(&config), "--state-file", &s(&state)],
+        &[
+            "run",
+            "--config",
+            &path_arg(&config),
+            "--state-file",
+            &path_arg(&state),
+        ],
         None,
         Some(&daemon_log),
     )

@@ -23,11 +23,11 @@ use canodom_vcan_tests::recording::{
     RECORDS_A_KILL_CUTS, cut_record, read_indexed, read_streaming,
 };
 use canodom_vcan_tests::{
-    Spawned, canodom_bin, metric, read, read_candump, repo_file, scratch_dir, start_daemon_with,
-    wait_until,
+    Spawned, canodom_bin, metric, path_arg, read, read_candump, repo_file, scratch_dir,
+    start_daemon_with, unix_now_us, wait_until,
 };
 use std::path::{Path, PathBuf};
-use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+use std::time::{Duration, Instant};
 
 /// Channels of a recording: each step writes one message on each
 /// (`canodom_export::encode::Topic::ALL`).
@@ -51,17 +51,6 @@ const ROTATE_S: f64 = 2.0;
 /// daemon's own frames (poses, CALIB_STATUS) run to base + 0x13.
 const RC_CAR_BASE: u32 = 0x600;
 
-fn s(p: &Path) -> String {
-    p.to_string_lossy().into_owned()
-}
-
-fn now_us() -> u64 {
-    SystemTime::now()
-        .duration_since(UNIX_EPOCH)
-        .expect("clock after 1970")
-        .as_micros() as u64
-}
-
 /// `candump -L` of everything on vcan0 into `dir/bus.log`.
 fn start_candump(dir: &Path) -> Spawned {
     let c = Spawned::start(
@@ -84,7 +73,7 @@ fn start_simulator(config: &Path, dir: &Path) -> Spawned {
         &[
             "simulate",
             "--config",
-            &s(config),
+            &path_arg(config),
             "--iface",
             "vcan0",
             "--path",
@@ -127,7 +116,8 @@ fn recording_survives_sigkill_mid_file_and_rotated_files_are_each_complete() {
     let file = dir.join("drive.mcap");
     let candump = start_candump(&dir);
     let daemon_log = dir.join("daemon.log");
-    let mut daemon = start_daemon_with(&config, &["--record", &s(&file)], &daemon_log).unwrap();
+    let mut daemon =
+        start_daemon_with(&config, &["--record", &path_arg(&file)], &daemon_log).unwrap();
     let mut sim = start_simulator(&config, &dir);
     // The file grows by a chunk at each flush (the first also carries the
     // header). Watched for a while, the longest it stays the same size is
@@ -146,7 +136,7 @@ fn recording_survives_sigkill_mid_file_and_rotated_files_are_each_complete() {
         }
     }
     longest_unflushed = longest_unflushed.max(grew_at.elapsed());
-    let kill_us = now_us();
+    let kill_us = unix_now_us();
     let status = daemon.stop("KILL", Duration::from_secs(5)).unwrap();
     assert!(!status.success(), "SIGKILL: {status}");
     std::thread::sleep(Duration::from_millis(300));
@@ -239,7 +229,7 @@ fn recording_survives_sigkill_mid_file_and_rotated_files_are_each_complete() {
         &config,
         &[
             "--record",
-            &s(&stem),
+            &path_arg(&stem),
             "--record-max-s",
             &ROTATE_S.to_string(),
         ],
