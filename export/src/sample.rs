@@ -1,6 +1,7 @@
 //! What one filter step contributes to a recording: the step, the pose
 //! sample published at it, the filter's covariance and the counts so far;
-//! and the raw CAN frames the step came from.
+//! and the raw CAN frames received since the previous step (the step's own
+//! last).
 
 use canodom_can::frame::FrameId;
 use canodom_can::time::Timestamp;
