@@ -1,6 +1,13 @@
-//! ROS 2 messages in CDR: `nav_msgs/msg/Odometry` and `tf2_msgs/msg/TFMessage`,
-//! with the `ros2msg` schema texts MCAP readers (`ros2 bag`, `rosbags`,
-//! `mcap-ros2-support`, Foxglove) decode them with.
+//! ROS 2 messages in CDR: `nav_msgs/msg/Odometry`, `tf2_msgs/msg/TFMessage`
+//! and Foxglove's `foxglove_msgs/msg/PoseInFrame` and `FrameTransform` (the
+//! Foxglove schemas in their ROS 2 form, which Foxglove displays as it does
+//! their protobuf form), with the `ros2msg` schema texts MCAP readers
+//! (`ros2 bag`, `rosbags`, `mcap-ros2-support`, Foxglove) decode them with.
+//!
+//! Every channel is CDR so that a file is a valid MCAP `ros2` profile file:
+//! `ros2 bag play` (Humble, Jazzy) refuses a file whose channels mix
+//! serialisation formats even when told to play only `/odom` and `/tf`, and
+//! `rosbags`' reader fails on a protobuf schema (binary, not `ros2msg` text).
 //!
 //! Hand-encoded, on purpose: both messages have a fixed layout of a few
 //! strings and doubles, and the one crate that writes CDR (`cdr`, through
@@ -17,6 +24,12 @@ pub const ODOMETRY_SCHEMA_NAME: &str = "nav_msgs/msg/Odometry";
 
 /// Schema name of the transform messages.
 pub const TF_SCHEMA_NAME: &str = "tf2_msgs/msg/TFMessage";
+
+/// Schema name of the Foxglove pose messages.
+pub const POSE_IN_FRAME_SCHEMA_NAME: &str = "foxglove_msgs/msg/PoseInFrame";
+
+/// Schema name of the Foxglove transform messages.
+pub const FRAME_TRANSFORM_SCHEMA_NAME: &str = "foxglove_msgs/msg/FrameTransform";
 
 /// The separator between a `ros2msg` schema's definitions.
 const SEP: &str =
@@ -100,6 +113,35 @@ pub fn tf_schema() -> String {
         TIME,
         "MSG: geometry_msgs/Transform\ngeometry_msgs/Vector3 translation\n\
          geometry_msgs/Quaternion rotation\n",
+        VECTOR3,
+        QUATERNION,
+    ]
+    .join(SEP)
+}
+
+/// The `ros2msg` schema of `foxglove_msgs/msg/PoseInFrame` (Foxglove's
+/// schema as its ROS 2 package `foxglove_msgs` defines it) with every type it
+/// uses.
+pub fn pose_in_frame_schema() -> String {
+    [
+        "# A timestamped pose for an object or reference frame in 3D space (Foxglove).\n\
+         builtin_interfaces/Time timestamp\nstring frame_id\ngeometry_msgs/Pose pose\n",
+        TIME,
+        "MSG: geometry_msgs/Pose\ngeometry_msgs/Point position\ngeometry_msgs/Quaternion orientation\n",
+        "MSG: geometry_msgs/Point\nfloat64 x\nfloat64 y\nfloat64 z\n",
+        QUATERNION,
+    ]
+    .join(SEP)
+}
+
+/// The `ros2msg` schema of `foxglove_msgs/msg/FrameTransform` with every
+/// type it uses.
+pub fn frame_transform_schema() -> String {
+    [
+        "# A transform between two reference frames in 3D space (Foxglove).\n\
+         builtin_interfaces/Time timestamp\nstring parent_frame_id\nstring child_frame_id\n\
+         geometry_msgs/Vector3 translation\ngeometry_msgs/Quaternion rotation\n",
+        TIME,
         VECTOR3,
         QUATERNION,
     ]
@@ -278,6 +320,34 @@ pub fn encode_tf(transforms: &[Transform<'_>], buf: &mut Vec<u8>) {
     }
 }
 
+/// Appends a CDR `foxglove_msgs/msg/PoseInFrame` to `buf`: `position`
+/// x, y, z and `orientation` x, y, z, w in `frame_id` at `stamp`.
+pub fn encode_pose_in_frame(
+    stamp: RosTime,
+    frame_id: &str,
+    position: &[f64; 3],
+    orientation: &[f64; 4],
+    buf: &mut Vec<u8>,
+) {
+    let mut w = Cdr::new(buf);
+    w.time(stamp);
+    w.string(frame_id);
+    w.f64s(position);
+    w.f64s(orientation);
+}
+
+/// Appends a CDR `foxglove_msgs/msg/FrameTransform` to `buf`: the child
+/// frame's origin at `t.translation` and its orientation `t.rotation` in
+/// the parent `t.frame_id`.
+pub fn encode_frame_transform(t: &Transform<'_>, buf: &mut Vec<u8>) {
+    let mut w = Cdr::new(buf);
+    w.time(t.stamp);
+    w.string(t.frame_id);
+    w.string(t.child_frame_id);
+    w.f64s(&t.translation);
+    w.f64s(&t.rotation);
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -358,8 +428,51 @@ mod tests {
     }
 
     #[test]
+    fn foxglove_pose_and_transform_sit_where_xcdr1_puts_them() {
+        let mut buf = Vec::new();
+        let stamp = RosTime::from_nanos(3_000_000_005);
+        encode_pose_in_frame(
+            stamp,
+            "odom",
+            &[1.0, 2.0, 0.0],
+            &[0.0, 0.0, 0.5, 0.75],
+            &mut buf,
+        );
+        assert_eq!(&buf[4..8], &3i32.to_le_bytes());
+        assert_eq!(&buf[8..12], &5u32.to_le_bytes());
+        assert_eq!(&buf[12..16], &5u32.to_le_bytes());
+        assert_eq!(&buf[16..21], b"odom\0");
+        // "odom\0" ends at payload 17; the doubles start at payload 24.
+        assert_eq!(f64_at(&buf, 4 + 24), 1.0);
+        assert_eq!(f64_at(&buf, 4 + 24 + 6 * 8), 0.75);
+        assert_eq!(buf.len(), 4 + 24 + 7 * 8);
+
+        let mut buf = Vec::new();
+        let t = Transform {
+            stamp,
+            frame_id: "odom",
+            child_frame_id: "base_link",
+            translation: [1.0, 2.0, 0.0],
+            rotation: [0.0, 0.0, 0.0, 1.0],
+        };
+        encode_frame_transform(&t, &mut buf);
+        // As one TFMessage transform without the sequence length: "base_link\0"
+        // ends at payload 34, doubles at 40.
+        assert_eq!(&buf[24..28], &10u32.to_le_bytes());
+        assert_eq!(&buf[28..38], b"base_link\0");
+        assert_eq!(f64_at(&buf, 4 + 40), 1.0);
+        assert_eq!(f64_at(&buf, 4 + 40 + 6 * 8), 1.0);
+        assert_eq!(buf.len(), 4 + 40 + 7 * 8);
+    }
+
+    #[test]
     fn schemas_define_every_type_they_use() {
-        for schema in [odometry_schema(), tf_schema()] {
+        for schema in [
+            odometry_schema(),
+            tf_schema(),
+            pose_in_frame_schema(),
+            frame_transform_schema(),
+        ] {
             let defined: Vec<&str> = schema
                 .lines()
                 .filter_map(|l| l.strip_prefix("MSG: "))

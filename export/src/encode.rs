@@ -1,9 +1,9 @@
 //! The channels a recording has and the encoding of one step into a message
-//! on each: Foxglove `PoseInFrame` and `FrameTransform` (protobuf with the
-//! `foxglove` crate's schemas, written by `crate::proto`), ROS 2 `Odometry`
-//! and `TFMessage`,
-//! and canodom's own quality, gate, calibration and raw-frame messages, all
-//! four in CDR with `ros2msg` schemas ([`crate::cdr`]). (The own messages
+//! on each: Foxglove `PoseInFrame` and `FrameTransform` (their ROS 2 form,
+//! `foxglove_msgs`), ROS 2 `Odometry` and `TFMessage`, and canodom's own
+//! quality, gate, calibration and raw-frame messages, all in CDR with
+//! `ros2msg` schemas ([`crate::cdr`], which says why every channel is CDR:
+//! the Foxglove messages were protobuf first). (The own messages
 //! were JSON first: a third of the file's bytes and a tenth of its time went
 //! to their text; in CDR they are a third of the size, and Foxglove and the
 //! ROS 2 readers decode them from the schema in the file all the same.)
@@ -12,12 +12,9 @@
 //! ([`MessageSink`]), without allocating.
 
 use crate::cdr::{self, Cdr, Odometry, RosTime, Transform};
-use crate::proto;
 use crate::sample::{FrameRef, FrameSource, OwnedFrame, StepSample};
 use canodom_fusion::VehicleParams;
 use canodom_fusion::Wheel;
-use foxglove::Encode as _;
-use foxglove::messages::{FrameTransform, PoseInFrame};
 
 /// The fixed frame the pose is in (REP-105).
 pub const ODOM_FRAME: &str = "odom";
@@ -54,11 +51,11 @@ fn variance_floor(largest_variance: f64) -> f64 {
 /// One channel of a recording.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum Topic {
-    /// The fused pose, `foxglove.PoseInFrame` in `odom`.
+    /// The fused pose, Foxglove's `PoseInFrame` (`foxglove_msgs`) in `odom`.
     Pose,
-    /// Rear-wheel-only odometry, `foxglove.PoseInFrame` in `odom`.
+    /// Rear-wheel-only odometry, Foxglove's `PoseInFrame` in `odom`.
     RearOdometry,
-    /// `odom` → `base_link`, `foxglove.FrameTransform`.
+    /// `odom` → `base_link`, Foxglove's `FrameTransform`.
     Transform,
     /// The pose sample's quality flags, standard deviations and the
     /// pipeline's counts (CDR, `canodom_msgs/msg/…`).
@@ -104,31 +101,27 @@ impl Topic {
         }
     }
 
-    /// The messages' encoding (an MCAP well-known message encoding).
+    /// The messages' encoding (an MCAP well-known message encoding): CDR
+    /// for every channel, as MCAP's `ros2` profile wants.
     pub fn message_encoding(self) -> &'static str {
-        match self {
-            Topic::Pose | Topic::RearOdometry | Topic::Transform => "protobuf",
-            _ => "cdr",
-        }
+        "cdr"
     }
 
     /// The schema: name, encoding and data.
     pub fn schema(self) -> Schema {
-        let fox = |s: Option<foxglove::Schema>| {
-            s.map_or_else(Schema::default, |s| Schema {
-                name: s.name,
-                encoding: s.encoding,
-                data: s.data.into_owned(),
-            })
-        };
         let ros = |name: &str, data: String| Schema {
             name: name.to_owned(),
             encoding: "ros2msg".to_owned(),
             data: data.into_bytes(),
         };
         match self {
-            Topic::Pose | Topic::RearOdometry => fox(PoseInFrame::get_schema()),
-            Topic::Transform => fox(FrameTransform::get_schema()),
+            Topic::Pose | Topic::RearOdometry => {
+                ros(cdr::POSE_IN_FRAME_SCHEMA_NAME, cdr::pose_in_frame_schema())
+            }
+            Topic::Transform => ros(
+                cdr::FRAME_TRANSFORM_SCHEMA_NAME,
+                cdr::frame_transform_schema(),
+            ),
             Topic::Quality => ros("canodom_msgs/msg/Quality", cdr::quality_schema()),
             Topic::Gate => ros("canodom_msgs/msg/Gate", cdr::gate_schema()),
             Topic::Calibration => ros("canodom_msgs/msg/Calibration", cdr::calibration_schema()),
@@ -142,9 +135,9 @@ impl Topic {
 /// A channel's schema.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct Schema {
-    /// The schema's name (`foxglove.PoseInFrame`, `nav_msgs/msg/Odometry`).
+    /// The schema's name (`foxglove_msgs/msg/PoseInFrame`, `nav_msgs/msg/Odometry`).
     pub name: String,
-    /// `protobuf`, `jsonschema` or `ros2msg`.
+    /// `ros2msg`.
     pub encoding: String,
     /// The schema itself.
     pub data: Vec<u8>,
@@ -240,10 +233,7 @@ impl StepEncoder {
         sink: &mut impl MessageSink,
     ) {
         let t_ns = (sample.t_unix_us.max(0) as u64) * 1000;
-        let stamp = (
-            u32::try_from(t_ns / 1_000_000_000).unwrap_or(u32::MAX),
-            (t_ns % 1_000_000_000) as u32,
-        );
+        let rt = RosTime::from_nanos(t_ns);
         let yaw = |heading_rad: f64| {
             let (s, c) = (0.5 * heading_rad).sin_cos();
             [0.0, 0.0, s, c]
@@ -251,16 +241,23 @@ impl StepEncoder {
         let q = yaw(sample.fused.heading_rad);
         let pos = [sample.fused.x_m, sample.fused.y_m, 0.0];
 
+        let transform = Transform {
+            stamp: rt,
+            frame_id: ODOM_FRAME,
+            child_frame_id: BASE_FRAME,
+            translation: pos,
+            rotation: q,
+        };
         sink.message(Topic::Pose, t_ns, |out| {
-            proto::pose_in_frame(out, stamp, ODOM_FRAME, &pos, &q);
+            cdr::encode_pose_in_frame(rt, ODOM_FRAME, &pos, &q, out);
         });
         sink.message(Topic::RearOdometry, t_ns, |out| {
             let rear = &sample.rear_only;
             let p = [rear.x_m, rear.y_m, 0.0];
-            proto::pose_in_frame(out, stamp, ODOM_FRAME, &p, &yaw(rear.heading_rad));
+            cdr::encode_pose_in_frame(rt, ODOM_FRAME, &p, &yaw(rear.heading_rad), out);
         });
         sink.message(Topic::Transform, t_ns, |out| {
-            proto::frame_transform(out, stamp, ODOM_FRAME, BASE_FRAME, &pos, &q);
+            cdr::encode_frame_transform(&transform, out);
         });
         sink.message(Topic::Quality, t_ns, |out| quality_cdr(sample, out));
         sink.message(Topic::Gate, t_ns, |out| gate_cdr(sample, out));
@@ -295,7 +292,6 @@ impl StepEncoder {
         });
         pending.clear();
 
-        let rt = RosTime::from_nanos(t_ns);
         sink.message(Topic::RosOdometry, t_ns, |out| {
             let twist = twist_covariance(
                 self.k_rear_m,
@@ -307,16 +303,7 @@ impl StepEncoder {
             cdr::encode_odometry(&odometry(sample, rt, q, &pose, &twist), out);
         });
         sink.message(Topic::RosTf, t_ns, |out| {
-            cdr::encode_tf(
-                &[Transform {
-                    stamp: rt,
-                    frame_id: ODOM_FRAME,
-                    child_frame_id: BASE_FRAME,
-                    translation: pos,
-                    rotation: q,
-                }],
-                out,
-            );
+            cdr::encode_tf(&[transform], out);
         });
     }
 }

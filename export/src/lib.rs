@@ -5,8 +5,8 @@
 //! # Layout
 //! - [`sample`]: what one step contributes (pose, covariance, counts, raw frames).
 //! - [`encode`]: the channels ([`encode::Topic`]) and a step's message on each.
-//! - [`cdr`]: ROS 2 `Odometry` and `TFMessage` in CDR, with their schemas.
-//! - `proto`: Foxglove's `PoseInFrame` and `FrameTransform` in protobuf.
+//! - [`cdr`]: ROS 2 `Odometry` and `TFMessage`, Foxglove `PoseInFrame` and
+//!   `FrameTransform` (`foxglove_msgs`) in CDR, with their schemas.
 //! - [`mcap_file`]: an MCAP file of steps.
 //! - [`recorder`]: MCAP files rotated by size or time, flushed as they go.
 //! - [`live`]: a running daemon's poses to a recording and a Foxglove
@@ -18,7 +18,6 @@ pub mod cdr;
 pub mod encode;
 pub mod live;
 pub mod mcap_file;
-mod proto;
 pub mod recorder;
 pub mod sample;
 

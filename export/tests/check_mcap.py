@@ -6,11 +6,13 @@ against the CSV of the same replay (issue #25's must-shows).
 - the MCAP library (`mcap`) reads every record, with the file's index and
   without it (a streaming read, as after a crash), and every channel holds
   exactly STEPS messages; the raw-frame messages hold FRAMES frames in all;
-- `mcap-ros2-support` decodes the ROS 2 messages with the file's own
-  schemas, `mcap-protobuf-support` the Foxglove ones;
-- `rosbags` deserialises every CDR message: `Odometry` and `TFMessage` with
+- `mcap-ros2-support` decodes every message with the file's own schemas
+  (every channel is CDR: the Foxglove ones as `foxglove_msgs/msg/...`);
+- `rosbags` deserialises every message: `Odometry` and `TFMessage` with
   its own built-in definitions (ROS 2 Humble), independent of the file's
-  schemas; canodom's own messages with the types the file's schemas define;
+  schemas; the others with the types the file's schemas define; and its own
+  reader (`rosbags.rosbag2.Reader`, as a ROS user opens a bag) reads the
+  whole file;
 - the last Odometry equals the CSV's last row (time, x, y, heading, speed);
 - every covariance is symmetric and positive definite.
 
@@ -20,11 +22,12 @@ Exits non-zero with the reason on the first failure; prints a summary line.
 import csv
 import math
 import sys
+from pathlib import Path
 
 import numpy as np
 from mcap.reader import NonSeekingReader, make_reader
-from mcap_protobuf.decoder import DecoderFactory as ProtobufDecoders
 from mcap_ros2.decoder import DecoderFactory as Ros2Decoders
+from rosbags.rosbag2 import Reader as RosbagsReader
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 TOPICS = [
@@ -89,49 +92,59 @@ def main():
     last_quality = None
     with open(path, "rb") as f:
         reader = make_reader(f)
-        factories = [Ros2Decoders(), ProtobufDecoders()]
+        ros2 = Ros2Decoders()
         decoders = {}
+        registered = set()
         summary = reader.get_summary()
         check(summary is not None, "no summary section: the file was not finished")
         indexed = {summary.channels[c].topic: n for c, n in summary.statistics.channel_message_counts.items()}
         check(set(indexed) == set(TOPICS), f"channels {sorted(indexed)}, expected {sorted(TOPICS)}")
         for schema, channel, message in reader.iter_messages():
             topic = channel.topic
+            check(channel.message_encoding == "cdr" and schema.encoding == "ros2msg",
+                  f"{topic}: {channel.message_encoding}/{schema.encoding}, not cdr/ros2msg "
+                  "(the ros2 profile; ros2 bag play refuses mixed encodings)")
             if channel.id not in decoders:
-                found = [d.decoder_for(channel.message_encoding, schema) for d in factories]
-                decoders[channel.id] = next((d for d in found if d is not None), None)
-            decode = decoders[channel.id]
-            decoded = decode(message.data) if decode else None
+                decoders[channel.id] = ros2.decoder_for(channel.message_encoding, schema)
+            decoded = decoders[channel.id](message.data)
             counts[topic] += 1
-            if channel.message_encoding == "cdr":
-                # rosbags: ROS 2 Humble's own definitions, the file's for canodom_msgs.
-                if schema.name.startswith("canodom_msgs/"):
-                    register(typestore, schema.name, schema.data.decode())
-                ros = typestore.deserialize_cdr(message.data, schema.name)
-                if topic == "/canodom/can":
-                    check(len(ros.frames) == len(decoded.frames), "CanFrames: the readers disagree")
-                    can_frames += len(ros.frames)
-                if topic == "/odom":
-                    covariance_ok(ros.pose.covariance, "Odometry pose (rosbags)")
-                    covariance_ok(ros.twist.covariance, "Odometry twist (rosbags)")
-                    check(decoded.child_frame_id == "base_link" and decoded.header.frame_id == "odom",
-                          "Odometry frames are not odom -> base_link")
-                    check(list(decoded.pose.covariance) == list(ros.pose.covariance),
-                          "mcap-ros2-support and rosbags disagree")
-                    last_odom = (message.log_time, decoded, ros)
-                elif topic == "/tf":
-                    check(len(ros.transforms) == 1 and ros.transforms[0].child_frame_id == "base_link",
-                          "TFMessage is not one odom -> base_link transform")
-                elif topic == "/canodom/quality":
-                    check(ros.quality == decoded.quality and (ros.quality & 1) == ros.pose_valid,
-                          "Quality: the readers disagree, or POSE_VALID is not bit 0")
-                    last_quality = ros
-            elif topic == "/canodom/pose":
+            # rosbags: ROS 2 Humble's own definitions, the file's for the rest.
+            if schema.id not in registered:
+                register(typestore, schema.name, schema.data.decode())
+                registered.add(schema.id)
+            ros = typestore.deserialize_cdr(message.data, schema.name)
+            if topic == "/canodom/can":
+                check(len(ros.frames) == len(decoded.frames), "CanFrames: the readers disagree")
+                can_frames += len(ros.frames)
+            if topic == "/odom":
+                covariance_ok(ros.pose.covariance, "Odometry pose (rosbags)")
+                covariance_ok(ros.twist.covariance, "Odometry twist (rosbags)")
+                check(decoded.child_frame_id == "base_link" and decoded.header.frame_id == "odom",
+                      "Odometry frames are not odom -> base_link")
+                check(list(decoded.pose.covariance) == list(ros.pose.covariance),
+                      "mcap-ros2-support and rosbags disagree")
+                last_odom = (message.log_time, decoded, ros)
+            elif topic == "/tf":
+                check(len(ros.transforms) == 1 and ros.transforms[0].child_frame_id == "base_link",
+                      "TFMessage is not one odom -> base_link transform")
+            elif topic == "/canodom/quality":
+                check(ros.quality == decoded.quality and (ros.quality & 1) == ros.pose_valid,
+                      "Quality: the readers disagree, or POSE_VALID is not bit 0")
+                last_quality = ros
+            if topic == "/canodom/pose":
                 last_pose = decoded
     for topic, n in counts.items():
         check(n == steps, f"{topic}: {n} messages, the replay took {steps} steps")
         check(indexed[topic] == n, f"{topic}: the index says {indexed[topic]}, the file holds {n}")
     check(can_frames == frames, f"/canodom/can holds {can_frames} frames, the replay read {frames}")
+
+    # rosbags' own reader, as a ROS user opens a bag: every message, each
+    # deserialised with the store the first pass filled.
+    with RosbagsReader(Path(path)) as bag:
+        by_topic = {c.topic: c.msgcount for c in bag.connections}
+        check(by_topic == dict.fromkeys(TOPICS, steps), f"rosbags Reader: {by_topic}")
+        bag_read = sum(1 for c, _, raw in bag.messages() if typestore.deserialize_cdr(raw, c.msgtype))
+    check(bag_read == steps * len(TOPICS), f"rosbags Reader read {bag_read} messages")
 
     # The same records without the index, read as a stream from the start.
     with open(path, "rb") as f:
@@ -164,7 +177,7 @@ def main():
           "last foxglove.PoseInFrame differs from the CSV")
     print(f"check_mcap: ok: {len(TOPICS)} channels x {steps} messages, {can_frames} CAN frames, "
           f"last Odometry = CSV last row, covariances symmetric positive definite, "
-          f"rosbags deserialised {6 * steps} CDR messages")
+          f"rosbags deserialised {len(TOPICS) * steps} messages, twice (its reader too)")
 
 
 if __name__ == "__main__":

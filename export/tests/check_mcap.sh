@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Reads canodom's MCAP files with independent readers from PyPI (#25):
-# installs mcap, mcap-ros2-support, mcap-protobuf-support and rosbags into a
+# installs mcap, mcap-ros2-support and rosbags into a
 # venv under the target folder (once), replays a simulated lap to CSV and to
 # MCAP (LZ4 and uncompressed), checks each file against the CSV with
 # check_mcap.py, does the same for the real RAV4 drive, then kills a replay
@@ -14,10 +14,10 @@ target=${CARGO_TARGET_DIR:-$root/target}
 work=$target/check-mcap
 venv=$target/mcap-venv
 mkdir -p "$work"
-if [ ! -x "$venv/bin/python" ] || ! "$venv/bin/python" -c 'import mcap, mcap_ros2, mcap_protobuf, rosbags' 2>/dev/null; then
+if [ ! -x "$venv/bin/python" ] || ! "$venv/bin/python" -c 'import mcap, mcap_ros2, rosbags' 2>/dev/null; then
     echo "== venv with the readers in $venv" >&2
     python3 -m venv "$venv"
-    "$venv/bin/pip" install --quiet mcap mcap-ros2-support mcap-protobuf-support rosbags >&2
+    "$venv/bin/pip" install --quiet mcap mcap-ros2-support rosbags >&2
 fi
 echo "== build" >&2
 # The dev build (CI's tests have built it already); the files are the same.
