@@ -51,7 +51,7 @@ mod op {
 /// How chunks are compressed.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Compression {
-    /// LZ4 frames: a third of the size, at the cost of the compression.
+    /// LZ4 frames: a quarter of the size, at the cost of the compression.
     #[default]
     Lz4,
     /// Uncompressed chunks: the fastest, the largest.

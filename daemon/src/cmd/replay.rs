@@ -52,7 +52,7 @@ pub struct ReplayArgs {
     /// `csv` or `mcap` (default: told by --out's extension).
     #[arg(long, value_parser = ["csv", "mcap"])]
     pub format: Option<String>,
-    /// MCAP chunk compression: `lz4` (a third of the size) or `none`
+    /// MCAP chunk compression: `lz4` (a quarter of the size) or `none`
     /// (faster to make where the file's bytes cost nothing to write).
     #[arg(long, default_value = "lz4")]
     pub compression: canodom_export::mcap_file::Compression,
