@@ -312,12 +312,19 @@ pub fn encode_tf(transforms: &[Transform<'_>], buf: &mut Vec<u8>) {
     let mut w = Cdr::new(buf);
     w.u32(transforms.len() as u32);
     for t in transforms {
-        w.time(t.stamp);
-        w.string(t.frame_id);
-        w.string(t.child_frame_id);
-        w.f64s(&t.translation);
-        w.f64s(&t.rotation);
+        transform_fields(&mut w, t);
     }
+}
+
+/// A transform's fields, laid out alike in a `geometry_msgs/TransformStamped`
+/// (header stamp and frame, child frame, translation, rotation) and a
+/// `foxglove_msgs/msg/FrameTransform`.
+fn transform_fields(w: &mut Cdr<'_>, t: &Transform<'_>) {
+    w.time(t.stamp);
+    w.string(t.frame_id);
+    w.string(t.child_frame_id);
+    w.f64s(&t.translation);
+    w.f64s(&t.rotation);
 }
 
 /// Appends a CDR `foxglove_msgs/msg/PoseInFrame` to `buf`: `position`
@@ -340,12 +347,7 @@ pub fn encode_pose_in_frame(
 /// frame's origin at `t.translation` and its orientation `t.rotation` in
 /// the parent `t.frame_id`.
 pub fn encode_frame_transform(t: &Transform<'_>, buf: &mut Vec<u8>) {
-    let mut w = Cdr::new(buf);
-    w.time(t.stamp);
-    w.string(t.frame_id);
-    w.string(t.child_frame_id);
-    w.f64s(&t.translation);
-    w.f64s(&t.rotation);
+    transform_fields(&mut Cdr::new(buf), t);
 }
 
 #[cfg(test)]
