@@ -40,6 +40,9 @@ const TIME: &str = "MSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec\n";
 const VECTOR3: &str = "MSG: geometry_msgs/Vector3\nfloat64 x\nfloat64 y\nfloat64 z\n";
 const QUATERNION: &str =
     "MSG: geometry_msgs/Quaternion\nfloat64 x\nfloat64 y\nfloat64 z\nfloat64 w\n";
+const POSE: &str =
+    "MSG: geometry_msgs/Pose\ngeometry_msgs/Point position\ngeometry_msgs/Quaternion orientation\n";
+const POINT: &str = "MSG: geometry_msgs/Point\nfloat64 x\nfloat64 y\nfloat64 z\n";
 
 /// The `ros2msg` schema of canodom's quality message.
 pub fn quality_schema() -> String {
@@ -93,8 +96,8 @@ pub fn odometry_schema() -> String {
         HEADER,
         TIME,
         "MSG: geometry_msgs/PoseWithCovariance\ngeometry_msgs/Pose pose\nfloat64[36] covariance\n",
-        "MSG: geometry_msgs/Pose\ngeometry_msgs/Point position\ngeometry_msgs/Quaternion orientation\n",
-        "MSG: geometry_msgs/Point\nfloat64 x\nfloat64 y\nfloat64 z\n",
+        POSE,
+        POINT,
         QUATERNION,
         "MSG: geometry_msgs/TwistWithCovariance\ngeometry_msgs/Twist twist\nfloat64[36] covariance\n",
         "MSG: geometry_msgs/Twist\ngeometry_msgs/Vector3 linear\ngeometry_msgs/Vector3 angular\n",
@@ -127,8 +130,8 @@ pub fn pose_in_frame_schema() -> String {
         "# A timestamped pose for an object or reference frame in 3D space (Foxglove).\n\
          builtin_interfaces/Time timestamp\nstring frame_id\ngeometry_msgs/Pose pose\n",
         TIME,
-        "MSG: geometry_msgs/Pose\ngeometry_msgs/Point position\ngeometry_msgs/Quaternion orientation\n",
-        "MSG: geometry_msgs/Point\nfloat64 x\nfloat64 y\nfloat64 z\n",
+        POSE,
+        POINT,
         QUATERNION,
     ]
     .join(SEP)
