@@ -191,6 +191,13 @@ pub struct SavedLearnt {
     /// Its standard deviation.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub rear_ratio_sigma: Option<f64>,
+    /// The effective rear tread's relative error (learnt against the
+    /// yaw-rate sensor in turns).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tread_err: Option<f64>,
+    /// Its standard deviation.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tread_sigma: Option<f64>,
 }
 
 /// The largest learnt values a restart takes back: beyond them a saved
@@ -205,6 +212,8 @@ pub mod learnt_bounds {
     pub const YAW_BIAS_RADPS: f64 = canodom_params::persist::YAW_BIAS_MAX_RADPS;
     /// Rear ratio error (1 %).
     pub const REAR_RATIO_ERR: f64 = 0.01;
+    /// Effective rear tread error (20 %).
+    pub const TREAD_ERR: f64 = 0.2;
 }
 
 /// A saved learnt value a restart refuses.
@@ -232,6 +241,8 @@ impl SavedLearnt {
             yaw_bias_sigma_radps: l.yaw_bias.map(|y| y.yaw_bias_sigma_radps),
             rear_ratio_err: l.yaw_bias.map(|y| y.rear_ratio_err),
             rear_ratio_sigma: l.yaw_bias.map(|y| y.rear_ratio_sigma),
+            tread_err: l.yaw_bias.map(|y| y.tread_err),
+            tread_sigma: l.yaw_bias.map(|y| y.tread_sigma),
         }
     }
 
@@ -272,6 +283,14 @@ impl SavedLearnt {
                     yaw_bias_sigma_radps: sigma("yaw_bias_sigma_radps", bias_sigma)?,
                     rear_ratio_err: within("rear_ratio_err", err, 0.0, b::REAR_RATIO_ERR)?,
                     rear_ratio_sigma: sigma("rear_ratio_sigma", err_sigma)?,
+                    // Files written before the tread was learnt: not learnt.
+                    tread_err: within(
+                        "tread_err",
+                        self.tread_err.unwrap_or(0.0),
+                        0.0,
+                        b::TREAD_ERR,
+                    )?,
+                    tread_sigma: sigma("tread_sigma", self.tread_sigma.unwrap_or(0.0))?,
                 })
             }
             _ => None,
@@ -582,6 +601,8 @@ mod tests {
             yaw_bias_sigma_radps: yaw_bias_dps.map(|_| 1e-4),
             rear_ratio_err: yaw_bias_dps.map(|_| -4e-4),
             rear_ratio_sigma: yaw_bias_dps.map(|_| 1e-4),
+            tread_err: yaw_bias_dps.map(|_| 0.01),
+            tread_sigma: yaw_bias_dps.map(|_| 1e-3),
         }
     }
 

@@ -41,7 +41,11 @@ fn gyro_bias_learnt_at_standstill_and_the_heading_holds_against_a_rear_tyre_bias
         drive.sim.standstill_s = 3.0;
         drive.sim.yaw_rate_sensor = GYRO;
         let run = simulate(&drive.sim, &drive.plan, seed).unwrap();
-        let ekf = Ekf::new(EkfConfig::new(drive.nominal)).unwrap();
+        let ekf = Ekf::new(EkfConfig {
+            yaw_quantum_radps: GYRO.quantum_radps,
+            ..EkfConfig::new(drive.nominal)
+        })
+        .unwrap();
         let rear = Ekf::new(EkfConfig::rear_only(drive.nominal)).unwrap();
         let with_gyro = replay_yaw(&run, &drive.nominal, Wheels::speeds(), &[ekf])[0];
         let without = replay(&run, &drive.nominal, Wheels::speeds(), &[ekf, rear]);
@@ -88,7 +92,11 @@ fn gyro_carries_the_heading_through_rear_wheel_slips() {
             ..SlipConfig::paper(SlipWheels::Rear)
         };
         let run = simulate(&drive.sim, &drive.plan, seed).unwrap();
-        let ekf = Ekf::new(EkfConfig::new(drive.nominal)).unwrap();
+        let ekf = Ekf::new(EkfConfig {
+            yaw_quantum_radps: GYRO.quantum_radps,
+            ..EkfConfig::new(drive.nominal)
+        })
+        .unwrap();
         let rear = Ekf::new(EkfConfig::rear_only(drive.nominal)).unwrap();
         let g = replay_yaw(&run, &drive.nominal, Wheels::speeds(), &[ekf])[0];
         let r = replay(&run, &drive.nominal, Wheels::speeds(), &[rear])[0];

@@ -962,6 +962,13 @@ impl Validator<'_> {
         // EKF.
         let e = &raw.ekf;
         let mut ekf = EkfConfig::new(params);
+        // The yaw-rate signal's step: a standing car's readings repeat one
+        // value, whose rounding no average removes.
+        if let Some(y) = &yaw_rate {
+            let m = &db.messages()[y.signal.message_index];
+            let factor = m.signals()[y.signal.handle.signal_index()].factor();
+            ekf.yaw_quantum_radps = (factor * y.radps_per_unit).abs();
+        }
         if let Some(k) = e.k_rear_m {
             ekf.k_rear_m = self.positive("ekf.k_rear_m", k)?;
         }

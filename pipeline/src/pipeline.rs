@@ -447,6 +447,8 @@ impl Pipeline {
                     yaw_bias_sigma_radps: CALIBRATED_YAW_BIAS_SIGMA_RADPS,
                     rear_ratio_err: 0.0,
                     rear_ratio_sigma: self.ekf.config().rear_ratio_sigma,
+                    tread_err: 0.0,
+                    tread_sigma: self.ekf.config().tread_sigma,
                 }),
                 ..state.learnt()
             };

@@ -108,6 +108,11 @@ pub struct TyreModel {
     /// Rear-axle sideslip per m/s² of lateral acceleration, radians: the
     /// rear axle's velocity points `−k·a_y` off the heading (outwards).
     pub rear_sideslip_rad_per_mps2: f64,
+    /// First-order lag of the body's curvature behind the steady state of
+    /// the steering angle, s: a real car's yaw builds up through its tyres'
+    /// lateral forces (0.1–0.4 s), so the steering leads the yaw in every
+    /// turn-in and exit. 0 = none.
+    pub yaw_lag_s: f64,
 }
 
 impl TyreModel {
@@ -115,6 +120,7 @@ impl TyreModel {
     pub const KINEMATIC: Self = Self {
         understeer_rad_per_mps2: 0.0,
         rear_sideslip_rad_per_mps2: 0.0,
+        yaw_lag_s: 0.0,
     };
 
     /// A mid-size passenger car: 1.4°/g understeer, 0.25° of rear sideslip
@@ -122,10 +128,13 @@ impl TyreModel {
     pub const PASSENGER_CAR: Self = Self {
         understeer_rad_per_mps2: 0.0025,
         rear_sideslip_rad_per_mps2: 0.0044,
+        yaw_lag_s: 0.0,
     };
 
     fn is_kinematic(&self) -> bool {
-        self.understeer_rad_per_mps2 == 0.0 && self.rear_sideslip_rad_per_mps2 == 0.0
+        self.understeer_rad_per_mps2 == 0.0
+            && self.rear_sideslip_rad_per_mps2 == 0.0
+            && self.yaw_lag_s == 0.0
     }
 }
 
@@ -368,6 +377,7 @@ impl SimConfig {
         non_negative("standstill_s", self.standstill_s)?;
         let pf = &self.path_following;
         non_negative("servo_lag_s", pf.servo_lag_s)?;
+        non_negative("yaw_lag_s", self.tyres.yaw_lag_s)?;
         if pf.steer_rate_limit_rad_per_s.is_nan() || pf.steer_rate_limit_rad_per_s <= 0.0 {
             return Err(Error::InvalidConfig {
                 name: "steer_rate_limit_rad_per_s",
@@ -398,6 +408,7 @@ impl SimConfig {
                 "rear_sideslip_rad_per_mps2",
                 self.tyres.rear_sideslip_rad_per_mps2,
             ),
+            ("yaw_lag_s", self.tyres.yaw_lag_s),
         ] {
             if !v.is_finite() {
                 return Err(Error::InvalidConfig {
@@ -570,6 +581,8 @@ pub struct Simulator {
     slip_left_s: WheelSet<f64>,
     slip_ratio: WheelSet<f64>,
     slip_events: u32,
+    /// The body's curvature lagging its steady state ([`TyreModel::yaw_lag_s`]).
+    lagged_kappa: f64,
     /// The true yaw rate over the last period.
     yaw_rate_radps: f64,
     /// +1 forwards, −1 reversing.
@@ -642,6 +655,7 @@ impl Simulator {
             slip_left_s: WheelSet::splat(0.0),
             slip_ratio: WheelSet::splat(0.0),
             slip_events: 0,
+            lagged_kappa: 0.0,
             yaw_rate_radps: 0.0,
             direction: 1.0,
             stops: Vec::new(),
@@ -806,7 +820,11 @@ impl Simulator {
         }
         let t = self.cfg.tyres;
         let tan_phi = phi_rad.tan();
-        let kappa = tan_phi / (l + t.understeer_rad_per_mps2 * v_mps * v_mps);
+        let kappa = if t.yaw_lag_s > 0.0 {
+            self.lagged_kappa
+        } else {
+            tan_phi / (l + t.understeer_rad_per_mps2 * v_mps * v_mps)
+        };
         let beta = -t.rear_sideslip_rad_per_mps2 * v_mps * v_mps * kappa;
         let (vy, vx) = beta.sin_cos();
         let (half_b, half_bf) = (0.5 * p.rear_tread_m(), 0.5 * p.front_tread_m());
@@ -828,6 +846,13 @@ impl Simulator {
 
     fn roll(&mut self, ds_m: f64, phi_rad: f64, v_mps: f64) {
         let (kappa, beta, g) = self.motion(phi_rad, v_mps);
+        let t = self.cfg.tyres;
+        if t.yaw_lag_s > 0.0 && v_mps > 0.0 {
+            let l = self.cfg.true_params.wheelbase_m();
+            let steady = phi_rad.tan() / (l + t.understeer_rad_per_mps2 * v_mps * v_mps);
+            let dt = ds_m.abs() / v_mps;
+            self.lagged_kappa += (steady - self.lagged_kappa) * (1.0 - (-dt / t.yaw_lag_s).exp());
+        }
         let dtheta = kappa * ds_m;
         let half = 0.5 * dtheta;
         let sinc = if half.abs() < 1e-4 {

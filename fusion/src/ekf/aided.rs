@@ -1,0 +1,614 @@
+//! The yaw-rate-aided estimator: the heading from the car's yaw-rate sensor,
+//! the distance from the wheels that did not slip, and every error of the
+//! sensors that the drive can tell as a state of one filter
+//! (`docs/calibration-math.md` §13).
+//!
+//! **Why the gyro carries the heading.** On a real tyre the rear wheels'
+//! differential heading is not the body's: load transfer and drive torque
+//! change each wheel's rolling radius, so the effective tread differs from
+//! the geometric one by a few per cent, and a 0.3 % diameter ratio turns a
+//! car by a degree a second at 10 m/s. A yaw-rate sensor has none of that;
+//! its only large error is a bias (0.4 °/s on production cars), which the
+//! wheels tell whenever the car stands or its speed and turn vary. So the
+//! gyro integrates the heading, and the wheels observe the gyro.
+//!
+//! **State** (9): the rear-axle pose `x, y, θ`; the gyro bias `b` (rad/s);
+//! the gyro scale error `k` (`ω = (g − b)(1 + k)`), a *considered* state:
+//! its uncertainty is carried into the heading's but nothing updates it,
+//! because against the wheels it is indistinguishable from the effective
+//! tread (a drive with position fixes calibrates it); the rear diameter
+//! ratio error `e` (the rear wheels' heading is short by `e·d/b_t`); the
+//! effective-tread error `τ` (the wheels' turn is `(1 + τ)` times the
+//! body's); the distance scale error `s` (true distance `= d (1 + s)`,
+//! unobservable without fixes: it keeps the position σ honest); and a clone
+//! `θ_c` of the heading at the start of the current comparison window.
+//!
+//! **Prediction** per sample: `θ += (g − b)(1 + k) Δt` (or, in a sample
+//! without a fresh gyro, the rear wheels' turn corrected by `e` and `τ`),
+//! `x, y += d (1 + s)` along the mid heading, `d` the rear axle centre's
+//! distance from the wheels that did not slip. `P = F P Fᵀ + Q` with `F`'s
+//! few non-zero entries applied as row and column operations.
+//!
+//! **Measurement** at the end of each window (`aided_window_s`): the rear
+//! wheels' turn `Θ_w = Σ (d_R − d_L)/b_t` against the state's
+//! `Θ_w = (θ − θ_c)(1 + τ) − e·D/b_t`. The clone makes it exact: the gyro's
+//! noise that moved `θ` is in `P`, not counted twice in `R`. A standing car
+//! (all wheels at 0 for `still_min_s`) is the same measurement with
+//! `Θ_w = 0, D = 0`: it tells the bias alone. `R` holds what the model
+//! lacks: a share of the turn (`tread_turn_sigma`: load transfer changes
+//! the effective tread within a curve) and of the distance. A window whose
+//! innovation is beyond `yaw_gate_sigma` standard deviations, or in which a
+//! wheel slipped, is not used.
+//!
+//! **Slips**: each wheel's distance is turned into the rear axle centre's
+//! with the gyro's turn (`d_RL + Δθ b_t/2`, `d_RR − Δθ b_t/2`; the front
+//! pair through its distance factors); a rear wheel more than
+//! `min_slip_ratio` off the others is left out, and a rear axle far from
+//! the front one while each agrees within itself hands the distance to the
+//! axle whose speed continues the last one.
+
+use super::{Derived, EkfConfig, LearntPair, OdometryInput, State, WindowOutcome};
+use crate::rotation::advance_heading;
+use crate::{Wheel, WheelSet};
+
+/// Number of states.
+pub(crate) const N: usize = 9;
+/// Indices into the state vector.
+const X: usize = 0;
+const Y: usize = 1;
+const TH: usize = 2;
+const BIAS: usize = 3;
+const GSCALE: usize = 4;
+const RATIO: usize = 5;
+const TREAD: usize = 6;
+const DSCALE: usize = 7;
+const CLONE: usize = 8;
+
+/// The least speed difference, m/s, that counts as a slip: below it the
+/// wheel-speed quantum and the front tyres' slip angles make the axles
+/// disagree with nothing slipping.
+const MIN_SLIP_MPS: f64 = 0.3;
+
+/// How far apart the front and the rear axle's centre speeds may be, as a
+/// share, before one axle is taken to slip as a whole: the front axle's
+/// slip angles and tyre sizes make a few per cent in ordinary driving.
+const AXLE_SLIP_RATIO: f64 = 0.1;
+
+/// The aided estimator's state: the filter's vector and covariance and the
+/// comparison window's sums. `Copy`, no allocation.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Aided {
+    /// The state vector (see the module docs for the order).
+    pub(crate) x: [f64; N],
+    /// Its covariance, kept symmetric.
+    pub(crate) p: [[f64; N]; N],
+    /// (cos θ, sin θ), advanced with the heading.
+    cs: (f64, f64),
+    /// The window's time, s.
+    win_t_s: f64,
+    /// The window's rear wheels' turn `Σ (d_R − d_L)/b_t`, rad.
+    win_wheel_turn_rad: f64,
+    /// The window's rear axle centre distance, m (absolute).
+    win_distance_m: f64,
+    /// A wheel slipped or the gyro was missing during the window.
+    win_unusable: bool,
+    /// Every sample of the window stood still.
+    win_all_still: bool,
+    /// How long every wheel has read 0, s.
+    still_s: f64,
+    /// The last sample's centre speed, m/s: the reference when both axles
+    /// disagree within themselves.
+    last_speed_mps: f64,
+}
+
+impl Aided {
+    /// The estimator at the origin with the configuration's priors for the
+    /// sensor errors; [`Aided::set_pose`] places it.
+    pub(crate) fn new(cfg: &EkfConfig) -> Self {
+        let mut p = [[0.0; N]; N];
+        p[BIAS][BIAS] = cfg.yaw_bias_sigma_radps.powi(2);
+        p[GSCALE][GSCALE] = cfg.yaw_scale_sigma.powi(2);
+        p[RATIO][RATIO] = cfg.rear_ratio_sigma.powi(2);
+        p[TREAD][TREAD] = cfg.tread_sigma.powi(2);
+        p[DSCALE][DSCALE] = cfg.distance_scale_sigma.powi(2);
+        Self {
+            x: [0.0; N],
+            p,
+            cs: (1.0, 0.0),
+            win_t_s: 0.0,
+            win_wheel_turn_rad: 0.0,
+            win_distance_m: 0.0,
+            win_unusable: false,
+            win_all_still: true,
+            still_s: 0.0,
+            last_speed_mps: 0.0,
+        }
+    }
+
+    /// An estimator with every entry 0, the placeholder of a state whose
+    /// filter has not seen a yaw rate yet.
+    pub(crate) fn zeroed() -> Self {
+        Self {
+            x: [0.0; N],
+            p: [[0.0; N]; N],
+            cs: (1.0, 0.0),
+            win_t_s: 0.0,
+            win_wheel_turn_rad: 0.0,
+            win_distance_m: 0.0,
+            win_unusable: false,
+            win_all_still: true,
+            still_s: 0.0,
+            last_speed_mps: 0.0,
+        }
+    }
+
+    /// True when every entry of the vector and the covariance is finite.
+    pub(crate) fn is_finite(&self) -> bool {
+        (self.x.iter().sum::<f64>() + self.p.iter().flatten().sum::<f64>()).is_finite()
+    }
+
+    /// Takes what an earlier run or a calibration learnt; a σ of 0 keeps
+    /// the prior's variance.
+    pub(crate) fn restore(&mut self, y: &LearntPair) {
+        for (which, value, sigma) in [
+            (Learnable::Bias, y.yaw_bias_radps, y.yaw_bias_sigma_radps),
+            (Learnable::Ratio, y.rear_ratio_err, y.rear_ratio_sigma),
+            (Learnable::Tread, y.tread_err, y.tread_sigma),
+        ] {
+            let sigma = if sigma > 0.0 {
+                sigma
+            } else {
+                self.p[which.index()][which.index()].sqrt()
+            };
+            self.set_learnt(which, value, sigma);
+        }
+    }
+
+    /// This estimator at `pose` (x, y, unwrapped θ) with the pose's 3×3
+    /// covariance; what it learnt about the sensors is kept, and the
+    /// comparison window starts anew.
+    pub(crate) fn set_pose(&mut self, pose: [f64; 3], p_pose: [[f64; 3]; 3]) {
+        for i in [X, Y, TH, CLONE] {
+            for k in 0..N {
+                self.p[i][k] = 0.0;
+                self.p[k][i] = 0.0;
+            }
+        }
+        for i in 0..3 {
+            self.x[i] = pose[i];
+            for j in 0..3 {
+                self.p[i][j] = p_pose[i][j];
+            }
+        }
+        self.cs = (pose[2].cos(), pose[2].sin());
+        self.reset_window();
+    }
+
+    /// The pose `(x, y, θ unwrapped)`.
+    pub(crate) fn pose(&self) -> [f64; 3] {
+        [self.x[X], self.x[Y], self.x[TH]]
+    }
+
+    /// The pose's 3×3 covariance.
+    pub(crate) fn pose_covariance(&self) -> [[f64; 3]; 3] {
+        let mut c = [[0.0; 3]; 3];
+        for (i, row) in c.iter_mut().enumerate() {
+            for (j, v) in row.iter_mut().enumerate() {
+                *v = self.p[i][j];
+            }
+        }
+        c
+    }
+
+    /// The learnt sensor errors with their standard deviations:
+    /// (bias, σ), (ratio error, σ), (tread error, σ).
+    pub(crate) fn learnt(&self) -> [(f64, f64); 3] {
+        let sd = |i: usize| self.p[i][i].max(0.0).sqrt();
+        [
+            (self.x[BIAS], sd(BIAS)),
+            (self.x[RATIO], sd(RATIO)),
+            (self.x[TREAD], sd(TREAD)),
+        ]
+    }
+
+    /// Sets a learnt sensor error and its σ (from a state file or a
+    /// calibration); its correlations with the rest are dropped.
+    pub(crate) fn set_learnt(&mut self, which: Learnable, value: f64, sigma: f64) {
+        let i = which.index();
+        self.x[i] = value;
+        for k in 0..N {
+            self.p[i][k] = 0.0;
+            self.p[k][i] = 0.0;
+        }
+        self.p[i][i] = sigma * sigma;
+    }
+
+    /// The pose moved to the origin with zero covariance; the sensor errors
+    /// and their covariance are kept (an operator's reset at standstill).
+    pub(crate) fn rebased_at_origin(&self) -> Self {
+        let mut a = *self;
+        a.set_pose([0.0; 3], [[0.0; 3]; 3]);
+        a
+    }
+
+    fn reset_window(&mut self) {
+        self.win_t_s = 0.0;
+        self.win_wheel_turn_rad = 0.0;
+        self.win_distance_m = 0.0;
+        self.win_unusable = false;
+        self.win_all_still = true;
+        self.x[CLONE] = self.x[TH];
+        for k in 0..N {
+            self.p[CLONE][k] = self.p[TH][k];
+            self.p[k][CLONE] = self.p[k][TH];
+        }
+        self.p[CLONE][CLONE] = self.p[TH][TH];
+    }
+
+    /// Adds `coef[j]·row_j` to row `i` and then the same to column `i`,
+    /// for each `(i, coefs)` in order: `P ← F P Fᵀ` for `F = I + E` whose
+    /// non-zero rows are given. Rows named later must not be read by
+    /// earlier ones (x and y read θ before θ changes).
+    fn transform(&mut self, ops: &[(usize, [(usize, f64); 2])]) {
+        let p = &mut self.p;
+        // Rows: (F P). Each row op reads rows that no earlier op changed.
+        let mut new_rows = [[0.0; N]; 3];
+        for (slot, (i, coefs)) in ops.iter().enumerate() {
+            let mut r = p[*i];
+            for (j, c) in coefs {
+                if *c != 0.0 {
+                    for k in 0..N {
+                        r[k] += c * p[*j][k];
+                    }
+                }
+            }
+            new_rows[slot] = r;
+        }
+        for (slot, (i, _)) in ops.iter().enumerate() {
+            p[*i] = new_rows[slot];
+        }
+        // Columns: (F P) Fᵀ.
+        let mut new_cols = [[0.0; N]; 3];
+        for (slot, (i, coefs)) in ops.iter().enumerate() {
+            let mut col = [0.0; N];
+            for (k, v) in col.iter_mut().enumerate() {
+                *v = p[k][*i];
+            }
+            for (j, c) in coefs {
+                if *c != 0.0 {
+                    for (k, v) in col.iter_mut().enumerate() {
+                        *v += c * p[k][*j];
+                    }
+                }
+            }
+            new_cols[slot] = col;
+        }
+        for (slot, (i, _)) in ops.iter().enumerate() {
+            for k in 0..N {
+                p[k][*i] = new_cols[slot][k];
+            }
+        }
+    }
+
+    /// One scalar measurement `z = h(x) + v` with innovation `nu`, sparse
+    /// Jacobian `h` (index, value) and variance `r`; considered states are
+    /// not updated. Returns the squared normalised innovation, or `None`
+    /// when it is beyond the gate (nothing changed then).
+    fn update(&mut self, nu: f64, h: &[(usize, f64)], r: f64, gate_sigma: f64) -> Option<f64> {
+        let mut ph = [0.0; N];
+        for (k, v) in ph.iter_mut().enumerate() {
+            *v = h.iter().map(|(j, hj)| self.p[k][*j] * hj).sum();
+        }
+        let s = h.iter().map(|(j, hj)| hj * ph[*j]).sum::<f64>() + r;
+        if !(s > 0.0 && s.is_finite()) {
+            return None;
+        }
+        let d2 = nu * nu / s;
+        if d2 > gate_sigma * gate_sigma {
+            return None;
+        }
+        let mut gain = [0.0; N];
+        for k in 0..N {
+            gain[k] = ph[k] / s;
+        }
+        gain[GSCALE] = 0.0;
+        for k in 0..N {
+            self.x[k] += gain[k] * nu;
+        }
+        // (I − K H) P (I − K H)ᵀ + K R Kᵀ = P − K phᵀ − ph Kᵀ + s K Kᵀ, valid
+        // for the Schmidt gain with the considered entries at zero.
+        for i in 0..N {
+            for j in i..N {
+                let v = self.p[i][j] - gain[i] * ph[j] - ph[i] * gain[j] + s * gain[i] * gain[j];
+                self.p[i][j] = v;
+                self.p[j][i] = v;
+            }
+        }
+        for i in 0..N {
+            self.p[i][i] = self.p[i][i].max(0.0);
+        }
+        let (s_th, c_th) = self.x[TH].sin_cos();
+        self.cs = (c_th, s_th);
+        Some(d2)
+    }
+}
+
+/// A sensor error the estimator learns and a state file or calibration sets.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Learnable {
+    /// The gyro bias, rad/s.
+    Bias,
+    /// The rear diameter ratio's relative error.
+    Ratio,
+    /// The effective rear tread's relative error.
+    Tread,
+}
+
+impl Learnable {
+    fn index(self) -> usize {
+        match self {
+            Self::Bias => BIAS,
+            Self::Ratio => RATIO,
+            Self::Tread => TREAD,
+        }
+    }
+}
+
+/// The rear axle centre's distance over one sample from the wheels that
+/// did not slip, and which wheels those were.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Centre {
+    distance_m: f64,
+    slipped: WheelSet<bool>,
+}
+
+/// The axle centre distance from the four wheels, given the sample's turn
+/// of the body `turn_rad` (from the gyro) and the front pair's sum of
+/// distance factors `g_front_sum` (`g_FL + g_FR`, from the steering).
+fn centre_distance(
+    w: &WheelSet<f64>,
+    front_valid: bool,
+    turn_rad: f64,
+    half_tread_m: f64,
+    g_front_sum: f64,
+    min_slip_ratio: f64,
+    reference_m: f64,
+    dt_s: f64,
+) -> Centre {
+    let half = turn_rad * half_tread_m;
+    let (c_rl, c_rr) = (w.rear_left + half, w.rear_right - half);
+    let c_front = (front_valid && g_front_sum > 0.0)
+        .then(|| (w.front_left + w.front_right) / g_front_sum);
+    let floor = MIN_SLIP_MPS * dt_s;
+    let scale = c_rl.abs().max(c_rr.abs()).max(c_front.map_or(0.0, f64::abs));
+    let tol = (min_slip_ratio * scale).max(floor);
+    let mut slipped = WheelSet::splat(false);
+    let c_rear = 0.5 * (c_rl + c_rr);
+    if (c_rl - c_rr).abs() <= tol {
+        // The rear pair agrees within itself; both may still spin or lock
+        // together (a driven axle), which only the front tells.
+        if let Some(cf) = c_front {
+            let axle_tol = (AXLE_SLIP_RATIO * cf.abs().max(c_rear.abs())).max(floor);
+            if (c_rear - cf).abs() > axle_tol
+                && (cf - reference_m).abs() < (c_rear - reference_m).abs()
+            {
+                slipped.rear_left = true;
+                slipped.rear_right = true;
+                return Centre {
+                    distance_m: cf,
+                    slipped,
+                };
+            }
+            if (c_rear - cf).abs() > axle_tol {
+                slipped.front_left = true;
+                slipped.front_right = true;
+            }
+        }
+        return Centre {
+            distance_m: c_rear,
+            slipped,
+        };
+    }
+    // One rear wheel is off: keep the one the front (or, without a front,
+    // the last speed) sides with.
+    let reference = c_front.unwrap_or(reference_m);
+    let (good, bad) = if (c_rl - reference).abs() <= (c_rr - reference).abs() {
+        (c_rl, Wheel::RearRight)
+    } else {
+        (c_rr, Wheel::RearLeft)
+    };
+    slipped[bad] = true;
+    let distance_m = match c_front {
+        Some(cf) if (good - cf).abs() > tol => {
+            // Neither rear wheel agrees with the front: the front pair.
+            slipped.rear_left = true;
+            slipped.rear_right = true;
+            cf
+        }
+        _ => good,
+    };
+    Centre {
+        distance_m,
+        slipped,
+    }
+}
+
+/// One sample of the aided estimator; `w` is floor-filled, `g_front_sum`
+/// the front distance factors' sum at the sample's steering angle, and
+/// `tan_phi` its tangent (for the turn when the gyro is missing).
+pub(crate) fn step(
+    cfg: &EkfConfig,
+    k: &Derived,
+    st: &mut State,
+    input: &OdometryInput,
+    w: &WheelSet<f64>,
+    g_front_sum: f64,
+    tan_phi: f64,
+) {
+    let a = &mut st.aided;
+    let dt = input.dt_s.max(0.0);
+    let b_t = cfg.params.rear_tread_m();
+    let ib = k.inv_rear_tread;
+    let gyro = input
+        .yaw_rate_radps
+        .filter(|g| g.is_finite() && dt > 0.0 && dt.is_finite());
+    let still = w.rear_left == 0.0
+        && w.rear_right == 0.0
+        && (!input.front_valid || (w.front_left == 0.0 && w.front_right == 0.0));
+    let wheel_turn = (w.rear_right - w.rear_left) * ib;
+    // The body's turn this sample, for the slip test and the prediction.
+    let turn_gyro = gyro.map(|g| (g - a.x[BIAS]) * (1.0 + a.x[GSCALE]) * dt);
+    let reference_m = a.last_speed_mps * dt;
+    let centre = if still {
+        Centre {
+            distance_m: 0.0,
+            slipped: WheelSet::splat(false),
+        }
+    } else {
+        // Without the gyro, the steering's turn decides the rear pair.
+        let turn_ref = turn_gyro.unwrap_or_else(|| {
+            0.5 * (w.rear_left + w.rear_right) * tan_phi * k.inv_wheelbase
+        });
+        centre_distance(
+            w,
+            input.front_valid,
+            turn_ref,
+            0.5 * b_t,
+            g_front_sum,
+            cfg.min_slip_ratio,
+            reference_m,
+            dt,
+        )
+    };
+    let d = centre.distance_m;
+    let rear_slipped = centre.slipped.rear_left || centre.slipped.rear_right;
+    if dt > 0.0 {
+        a.last_speed_mps = d / dt;
+    }
+    st.slip_flags = centre.slipped;
+    if rear_slipped {
+        st.stats.yaw_over_rear += 1;
+        for wheel in [Wheel::RearLeft, Wheel::RearRight] {
+            if centre.slipped[wheel] {
+                st.slip_counts[wheel] += 1;
+            }
+        }
+    }
+
+    // The heading increment and its Jacobian row.
+    let (dtheta, theta_ops, q_theta) = if let Some(turn) = turn_gyro {
+        let g = gyro.unwrap_or(0.0);
+        let var = cfg.yaw_sigma_radps * cfg.yaw_sigma_radps * dt * dt;
+        (
+            turn,
+            [
+                (BIAS, -(1.0 + a.x[GSCALE]) * dt),
+                (GSCALE, (g - a.x[BIAS]) * dt),
+            ],
+            var,
+        )
+    } else {
+        // No gyro this sample: the rear wheels, corrected by what was learnt
+        // (their slip is not repaired here: the steering decides nothing).
+        let corrected = wheel_turn + a.x[RATIO] * d * ib;
+        let var = 2.0 * cfg.k_rear_m * d.abs() * ib * ib;
+        (
+            corrected * (1.0 - a.x[TREAD]),
+            [
+                (RATIO, d * ib * (1.0 - a.x[TREAD])),
+                (TREAD, -corrected),
+            ],
+            var,
+        )
+    };
+    let distance = d * (1.0 + a.x[DSCALE]);
+    let ((s_m, c_m), cs) = advance_heading(a.cs, dtheta);
+    a.cs = cs;
+    a.x[X] += distance * c_m;
+    a.x[Y] += distance * s_m;
+    a.x[TH] += dtheta;
+    a.transform(&[
+        (X, [(TH, -distance * s_m), (DSCALE, d * c_m)]),
+        (Y, [(TH, distance * c_m), (DSCALE, d * s_m)]),
+        (TH, theta_ops),
+    ]);
+    // Process noise: the wheels' distance noise along the track (more when
+    // a wheel slipped), the heading's, the bias's random walk and the
+    // effective tread's drift with the load.
+    let var_along = cfg.k_rear_m * d.abs() * if rear_slipped { 100.0 } else { 0.5 };
+    let p = &mut a.p;
+    p[X][X] += var_along * c_m * c_m;
+    p[X][Y] += var_along * c_m * s_m;
+    p[Y][X] += var_along * c_m * s_m;
+    p[Y][Y] += var_along * s_m * s_m;
+    p[TH][TH] += q_theta;
+    p[BIAS][BIAS] += cfg.yaw_bias_walk_radps * cfg.yaw_bias_walk_radps * dt;
+
+    // The comparison window. A standstill is one window however long it
+    // lasts: its readings share one rounding error, so it is one
+    // measurement of the bias, closed when the car moves off.
+    if !still && a.win_all_still && a.win_t_s > 0.0 && a.still_s >= cfg.still_min_s {
+        close_window(cfg, ib, st);
+    }
+    let a = &mut st.aided;
+    a.still_s = if still { a.still_s + dt } else { 0.0 };
+    a.win_t_s += dt;
+    a.win_wheel_turn_rad += wheel_turn;
+    a.win_distance_m += d.abs();
+    a.win_unusable |= rear_slipped || gyro.is_none();
+    a.win_all_still &= still;
+    let standing = a.win_all_still && a.still_s >= cfg.still_min_s;
+    if a.win_t_s >= cfg.aided_window_s && !standing {
+        close_window(cfg, ib, st);
+    }
+}
+
+/// The window's measurement of the wheels' turn against the state's.
+fn close_window(cfg: &EkfConfig, ib: f64, st: &mut State) {
+    let a = &mut st.aided;
+    st.stats.corrections += 1;
+    let outcome = if a.win_all_still && a.still_s < cfg.still_min_s {
+        // Wheels at 0 too briefly to rule out a crawl below their floor.
+        WindowOutcome::NoFront
+    } else if a.win_unusable {
+        st.stats.rejected_used_front += 1;
+        WindowOutcome::RejectedUsedFront
+    } else {
+        let turn = a.x[TH] - a.x[CLONE];
+        let dist = a.win_distance_m;
+        let predicted = turn * (1.0 + a.x[TREAD]) - a.x[RATIO] * dist * ib;
+        let nu = a.win_wheel_turn_rad - predicted;
+        let unexplained_turn = cfg.tread_turn_sigma * turn;
+        let unexplained_distance = cfg.ratio_walk * dist * ib;
+        // A standing car's gyro repeats one rounded value: its error over
+        // the window does not average out.
+        let rounding = if a.win_all_still {
+            cfg.yaw_quantum_radps * a.win_t_s / 12f64.sqrt()
+        } else {
+            0.0
+        };
+        let r = cfg.wheel_turn_sigma_rad * cfg.wheel_turn_sigma_rad
+            + unexplained_turn * unexplained_turn
+            + unexplained_distance * unexplained_distance
+            + rounding * rounding;
+        let h = [
+            (TH, 1.0 + a.x[TREAD]),
+            (CLONE, -(1.0 + a.x[TREAD])),
+            (TREAD, turn),
+            (RATIO, -dist * ib),
+        ];
+        match a.update(nu, &h, r, cfg.yaw_gate_sigma) {
+            Some(d2) => {
+                st.last_mahalanobis_sq = d2;
+                st.stats.accepted += 1;
+                WindowOutcome::Accepted
+            }
+            None => {
+                st.stats.rejected_kept_rear += 1;
+                WindowOutcome::RejectedKeptRear
+            }
+        }
+    };
+    st.last_window = outcome;
+    a.reset_window();
+}
