@@ -229,6 +229,23 @@ pub struct EkfConfig {
     /// Length of the window over which the wheels' turn is compared with
     /// the gyro's, s.
     pub aided_window_s: f64,
+    /// Relative difference between the rear wheels' longitudinal slips per
+    /// m/s² of acceleration, per unit of `d/b_t`: drive and brake torque
+    /// make the less loaded inner wheel slip more in a curve, which the
+    /// wheels' turn then misses (2 % of the turn of an accelerating rear-
+    /// driven car in a bend on the multi-body model).
+    pub slip_accel_sigma: f64,
+    /// How far a straight road's yaw rate strays from 0 over one window
+    /// (lane keeping), rad/s: the weight of "the car drives straight" as a
+    /// measurement of the gyro's bias. 0 = never assumed.
+    pub straight_yaw_sigma_radps: f64,
+    /// The largest rate of the wheels' turn, rad/s, and steering angle,
+    /// rad, at which the car counts as driving straight.
+    pub straight_max_radps: f64,
+    /// See [`EkfConfig::straight_max_radps`].
+    pub straight_max_steer_rad: f64,
+    /// Seconds of straight driving before it counts.
+    pub straight_min_s: f64,
     /// The yaw-rate signal's step (its DBC factor), rad/s; 0 when unknown.
     /// A standing car's readings repeat one rounded value whose error no
     /// average removes unless noise dithers it: a standstill then tells the
@@ -316,14 +333,19 @@ impl EkfConfig {
             rear_ratio_sigma: 5e-3,
             yaw_scale_sigma: 0.005,
             tread_sigma: 0.05,
-            tread_turn_sigma: 0.02,
-            wheel_turn_sigma_rad: 2e-4,
+            tread_turn_sigma: 0.1,
+            wheel_turn_sigma_rad: 5e-4,
             ratio_walk: 2e-4,
             distance_scale_sigma: 0.005,
             still_min_s: 2.0,
             aided_window_s: 0.5,
             yaw_gate_sigma: 5.0,
             yaw_quantum_radps: 0.0,
+            slip_accel_sigma: 1e-3,
+            straight_yaw_sigma_radps: 0.025f64.to_radians(),
+            straight_max_radps: 0.3f64.to_radians(),
+            straight_max_steer_rad: 1f64.to_radians(),
+            straight_min_s: 2.0,
             min_slip_ratio: 0.05,
             blend_accepted: false,
             correct_every: 50,
@@ -385,6 +407,11 @@ impl EkfConfig {
         require_positive("aided_window_s", self.aided_window_s)?;
         require_positive("yaw_gate_sigma", self.yaw_gate_sigma)?;
         require_non_negative("yaw_quantum_radps", self.yaw_quantum_radps)?;
+        require_non_negative("slip_accel_sigma", self.slip_accel_sigma)?;
+        require_non_negative("straight_yaw_sigma_radps", self.straight_yaw_sigma_radps)?;
+        require_positive("straight_max_radps", self.straight_max_radps)?;
+        require_positive("straight_max_steer_rad", self.straight_max_steer_rad)?;
+        require_non_negative("straight_min_s", self.straight_min_s)?;
         require_non_negative("min_slip_ratio", self.min_slip_ratio)?;
         if self.correct_every == 0 {
             return Err(Error::InvalidConfig {
@@ -403,6 +430,10 @@ impl EkfConfig {
         Ok(())
     }
 }
+
+/// The fastest a wheel beside one reading 0 may go for that 0 to be the
+/// speed sensors' floor (about 2 km/h, 0.6 m/s) rather than a lock, m/s.
+const MAX_FLOOR_FILL_MPS: f64 = 1.5;
 
 /// χ²₃(0.99), the default gate.
 pub const CHI2_3_99: f64 = 11.34;
@@ -1262,7 +1293,7 @@ impl Ekf {
         }
         let filled;
         let w = if input.zero_is_floor {
-            filled = self.fill_floor(st, w, phi, input.front_valid);
+            filled = self.fill_floor(st, w, phi, input.front_valid, input.dt_s);
             &filled
         } else {
             w
@@ -1445,9 +1476,20 @@ impl Ekf {
         w: &WheelSet<f64>,
         phi: f64,
         front_valid: bool,
+        dt_s: f64,
     ) -> WheelSet<f64> {
         // A stale front's distances say nothing: only the rear pair then.
         let wheels = if front_valid { 4 } else { 2 };
+        // A wheel at 0 beside wheels faster than the sensors' floor is a
+        // locked wheel, not one below its floor: filled from the others it
+        // turned a braking car by 14° in three samples (multi-body model,
+        // BMW 320i, rear wheels locking at 1 m/s).
+        let fastest = [w.rear_left, w.rear_right, w.front_left, w.front_right][..wheels]
+            .iter()
+            .fold(0.0f64, |m, d| m.max(d.abs()));
+        if !(dt_s > 0.0) || fastest > MAX_FLOOR_FILL_MPS * dt_s {
+            return *w;
+        }
         let zeros = usize::from(w.rear_left == 0.0)
             + usize::from(w.rear_right == 0.0)
             + if front_valid {
@@ -1569,7 +1611,10 @@ impl Ekf {
         let blamed = (beyond_gate && self.cfg.gate_action == GateAction::Consensus).then(|| {
             let centre = self.window_centres(st);
             let wheel = consensus_outlier(centre);
-            (wheel, outlier_excess(centre, wheel) >= self.cfg.min_slip_ratio)
+            (
+                wheel,
+                outlier_excess(centre, wheel) >= self.cfg.min_slip_ratio,
+            )
         });
         let rejected = match blamed {
             Some((_, slipped)) => slipped,

@@ -94,6 +94,17 @@ pub(crate) struct Aided {
     win_unusable: bool,
     /// Every sample of the window stood still.
     win_all_still: bool,
+    /// The window's gyro readings while standing: count, sum and sum of
+    /// squares, for how far noise dithers the sensor's rounding.
+    win_still_n: f64,
+    win_still_sum: f64,
+    win_still_sq: f64,
+    /// The rear axle centre's speed at the window's start, m/s.
+    win_v0_mps: f64,
+    /// The window's largest |tan φ| (steering, less its learnt offset).
+    win_steer_max: f64,
+    /// How long the car has driven straight (wheels and steering), s.
+    straight_s: f64,
     /// How long every wheel has read 0, s.
     still_s: f64,
     /// The last sample's centre speed, m/s: the reference when both axles
@@ -120,6 +131,12 @@ impl Aided {
             win_distance_m: 0.0,
             win_unusable: false,
             win_all_still: true,
+            win_still_n: 0.0,
+            win_still_sum: 0.0,
+            win_still_sq: 0.0,
+            win_v0_mps: 0.0,
+            win_steer_max: 0.0,
+            straight_s: 0.0,
             still_s: 0.0,
             last_speed_mps: 0.0,
         }
@@ -137,6 +154,12 @@ impl Aided {
             win_distance_m: 0.0,
             win_unusable: false,
             win_all_still: true,
+            win_still_n: 0.0,
+            win_still_sum: 0.0,
+            win_still_sq: 0.0,
+            win_v0_mps: 0.0,
+            win_steer_max: 0.0,
+            straight_s: 0.0,
             still_s: 0.0,
             last_speed_mps: 0.0,
         }
@@ -232,11 +255,21 @@ impl Aided {
     }
 
     fn reset_window(&mut self) {
+        // The window's mean speed, against which the next one's
+        // acceleration is judged (a sample's own speed jitters with its
+        // timestamp).
+        if self.win_t_s > 0.0 {
+            self.win_v0_mps = self.win_distance_m / self.win_t_s;
+        }
         self.win_t_s = 0.0;
         self.win_wheel_turn_rad = 0.0;
         self.win_distance_m = 0.0;
         self.win_unusable = false;
         self.win_all_still = true;
+        self.win_still_n = 0.0;
+        self.win_still_sum = 0.0;
+        self.win_still_sq = 0.0;
+        self.win_steer_max = 0.0;
         self.x[CLONE] = self.x[TH];
         for k in 0..N {
             self.p[CLONE][k] = self.p[TH][k];
@@ -377,10 +410,13 @@ fn centre_distance(
 ) -> Centre {
     let half = turn_rad * half_tread_m;
     let (c_rl, c_rr) = (w.rear_left + half, w.rear_right - half);
-    let c_front = (front_valid && g_front_sum > 0.0)
-        .then(|| (w.front_left + w.front_right) / g_front_sum);
+    let c_front =
+        (front_valid && g_front_sum > 0.0).then(|| (w.front_left + w.front_right) / g_front_sum);
     let floor = MIN_SLIP_MPS * dt_s;
-    let scale = c_rl.abs().max(c_rr.abs()).max(c_front.map_or(0.0, f64::abs));
+    let scale = c_rl
+        .abs()
+        .max(c_rr.abs())
+        .max(c_front.map_or(0.0, f64::abs));
     let tol = (min_slip_ratio * scale).max(floor);
     let mut slipped = WheelSet::splat(false);
     let c_rear = 0.5 * (c_rl + c_rr);
@@ -466,9 +502,8 @@ pub(crate) fn step(
         }
     } else {
         // Without the gyro, the steering's turn decides the rear pair.
-        let turn_ref = turn_gyro.unwrap_or_else(|| {
-            0.5 * (w.rear_left + w.rear_right) * tan_phi * k.inv_wheelbase
-        });
+        let turn_ref = turn_gyro
+            .unwrap_or_else(|| 0.5 * (w.rear_left + w.rear_right) * tan_phi * k.inv_wheelbase);
         centre_distance(
             w,
             input.front_valid,
@@ -514,10 +549,7 @@ pub(crate) fn step(
         let var = 2.0 * cfg.k_rear_m * d.abs() * ib * ib;
         (
             corrected * (1.0 - a.x[TREAD]),
-            [
-                (RATIO, d * ib * (1.0 - a.x[TREAD])),
-                (TREAD, -corrected),
-            ],
+            [(RATIO, d * ib * (1.0 - a.x[TREAD])), (TREAD, -corrected)],
             var,
         )
     };
@@ -555,8 +587,17 @@ pub(crate) fn step(
     a.win_t_s += dt;
     a.win_wheel_turn_rad += wheel_turn;
     a.win_distance_m += d.abs();
-    a.win_unusable |= rear_slipped || gyro.is_none();
+    // A wheel at its sensor's floor was filled from the others: its turn
+    // is the geometry's, not a measurement.
+    let filled = w.rear_left != input.wheel_m.rear_left || w.rear_right != input.wheel_m.rear_right;
+    a.win_unusable |= rear_slipped || gyro.is_none() || filled;
     a.win_all_still &= still;
+    a.win_steer_max = a.win_steer_max.max(tan_phi.abs());
+    if let (true, Some(g)) = (still, gyro) {
+        a.win_still_n += 1.0;
+        a.win_still_sum += g;
+        a.win_still_sq += g * g;
+    }
     let standing = a.win_all_still && a.still_s >= cfg.still_min_s;
     if a.win_t_s >= cfg.aided_window_s && !standing {
         close_window(cfg, ib, st);
@@ -581,24 +622,49 @@ fn close_window(cfg: &EkfConfig, ib: f64, st: &mut State) {
         let unexplained_turn = cfg.tread_turn_sigma * turn;
         let unexplained_distance = cfg.ratio_walk * dist * ib;
         // A standing car's gyro repeats one rounded value: its error over
-        // the window does not average out.
-        let rounding = if a.win_all_still {
-            cfg.yaw_quantum_radps * a.win_t_s / 12f64.sqrt()
+        // the window does not average out unless noise dithers it. The
+        // mean of rounded readings of a value with Gaussian noise σ is off
+        // by at most (q/π)·exp(−2π²σ²/q²) (its first harmonic); the readings'
+        // own spread stands in for σ.
+        let rounding = if a.win_all_still && cfg.yaw_quantum_radps > 0.0 {
+            let q = cfg.yaw_quantum_radps;
+            let n = a.win_still_n.max(1.0);
+            let mean = a.win_still_sum / n;
+            let spread_sq = (a.win_still_sq / n - mean * mean).max(0.0);
+            // The readings' spread overstates the noise (rounding adds to
+            // it), so the factor is floored where the multi-body drives
+            // showed the mean 0.15·q/√12 off with readings half a step apart.
+            let dither = (-2.0 * std::f64::consts::PI.powi(2) * spread_sq / (q * q))
+                .exp()
+                .max(0.15);
+            q / 12f64.sqrt() * dither * a.win_t_s
         } else {
             0.0
         };
+        // Drive and brake torque make the rear wheels slip unequally (the
+        // inner one carries less load): a share of the distance per m/s²
+        // of the window's acceleration.
+        let accel = if a.win_t_s > 0.0 {
+            (dist / a.win_t_s - a.win_v0_mps) / a.win_t_s
+        } else {
+            0.0
+        };
+        let slip = cfg.slip_accel_sigma * accel.abs() * dist * ib;
         let r = cfg.wheel_turn_sigma_rad * cfg.wheel_turn_sigma_rad
             + unexplained_turn * unexplained_turn
             + unexplained_distance * unexplained_distance
-            + rounding * rounding;
+            + rounding * rounding
+            + slip * slip;
         let h = [
             (TH, 1.0 + a.x[TREAD]),
             (CLONE, -(1.0 + a.x[TREAD])),
             (TREAD, turn),
             (RATIO, -dist * ib),
         ];
-        match a.update(nu, &h, r, cfg.yaw_gate_sigma) {
+        let res = a.update(nu, &h, r, cfg.yaw_gate_sigma);
+        match res {
             Some(d2) => {
+                straight_prior(cfg, ib, a);
                 st.last_mahalanobis_sq = d2;
                 st.stats.accepted += 1;
                 WindowOutcome::Accepted
@@ -611,4 +677,31 @@ fn close_window(cfg: &EkfConfig, ib: f64, st: &mut State) {
     };
     st.last_window = outcome;
     a.reset_window();
+}
+
+/// Driving straight: when the wheels (less their learnt ratio error) and
+/// the steering have agreed the car goes straight for `straight_min_s`, the
+/// window's true turn is taken as 0 within `straight_yaw_sigma` — what a
+/// straight road is, and what a gyro's bias shows against most clearly
+/// (the wheels alone tell it only as their ratio error allows). A window
+/// that does not look straight restarts the count.
+fn straight_prior(cfg: &EkfConfig, ib: f64, a: &mut Aided) {
+    if cfg.straight_yaw_sigma_radps <= 0.0 || a.win_t_s <= 0.0 || a.win_all_still {
+        return;
+    }
+    let wheel_rate = (a.win_wheel_turn_rad + a.x[RATIO] * a.win_distance_m * ib) / a.win_t_s;
+    let straight = wheel_rate.abs() <= cfg.straight_max_radps
+        && a.win_steer_max <= cfg.straight_max_steer_rad.tan();
+    if !straight {
+        a.straight_s = 0.0;
+        return;
+    }
+    a.straight_s += a.win_t_s;
+    if a.straight_s < cfg.straight_min_s {
+        return;
+    }
+    let turn = a.x[TH] - a.x[CLONE];
+    let r = (cfg.straight_yaw_sigma_radps * a.win_t_s).powi(2);
+    // A gate at 3σ: a long bend slower than the thresholds is not a straight.
+    let _ = a.update(-turn, &[(TH, 1.0), (CLONE, -1.0)], r, 3.0);
 }
