@@ -310,11 +310,8 @@ pub async fn run<C: Connector>(
         None => (None, None),
         Some(options) => {
             let (tx, rx) = watch::channel(None);
-            let writer = crate::state_file::write_latest(
-                Arc::clone(&config),
-                options.path.clone(),
-                rx,
-            );
+            let writer =
+                crate::state_file::write_latest(Arc::clone(&config), options.path.clone(), rx);
             (Some((tx, options.every)), Some(tracker.spawn(writer)))
         }
     };
@@ -368,9 +365,7 @@ pub async fn run<C: Connector>(
         .await
         .map_err(|e| RunError::Task(e.to_string()))?;
     if let Some(handle) = state_handle {
-        summary.state_file = handle
-            .await
-            .map_err(|e| RunError::Task(e.to_string()))?;
+        summary.state_file = handle.await.map_err(|e| RunError::Task(e.to_string()))?;
     }
     summary.connections = connections;
     summary.outages = outages.load(Ordering::Relaxed);

@@ -229,7 +229,11 @@ fn the_examples_ekf_blocks_state_the_defaults() {
             "aided_window_s",
             "yaw_gate_sigma",
         ] {
-            assert!(keys.contains(&key), "{}: {key} undocumented", path.display());
+            assert!(
+                keys.contains(&key),
+                "{}: {key} undocumented",
+                path.display()
+            );
         }
         assert_eq!(keys.len(), 27, "{}: {keys:?}", path.display());
     }

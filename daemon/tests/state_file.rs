@@ -126,7 +126,12 @@ fn same_learnt(a: &Learnt, b: &Learnt) -> bool {
 
 /// Sends `seconds` of a standing car (the drive's first sample, repeated)
 /// 10 ms apart.
-async fn stand(tx: &InProcessTx, enc: &mut SampleEncoder, first: &canodom_fusion::sim::Sample, seconds: f64) {
+async fn stand(
+    tx: &InProcessTx,
+    enc: &mut SampleEncoder,
+    first: &canodom_fusion::sim::Sample,
+    seconds: f64,
+) {
     let mut frames = Vec::new();
     for _ in 0..(seconds * 100.0) as usize {
         frames.clear();
@@ -236,7 +241,10 @@ async fn learnt_values_come_back_only_onto_the_set_they_were_learnt_on() {
     .await;
     assert_eq!(first.state_file, Some(Ok(())));
     let saved = load(&path).unwrap();
-    assert!(same_learnt(&saved.learnt.unwrap().checked().unwrap(), &learnt()));
+    assert!(same_learnt(
+        &saved.learnt.unwrap().checked().unwrap(),
+        &learnt()
+    ));
     let nominal = saved.param_set.identity().unwrap();
     assert_eq!(nominal.version, None);
 
@@ -362,7 +370,9 @@ async fn an_applied_set_resets_what_was_learnt_on_the_parameters_it_sets() {
     .await;
     assert_eq!(on_two.param_identity.version, Some(2));
     let mut pipeline_on_one = Pipeline::new(&config).unwrap();
-    pipeline_on_one.apply_params(Some((1, &set(0.30, 0.09)))).unwrap();
+    pipeline_on_one
+        .apply_params(Some((1, &set(0.30, 0.09))))
+        .unwrap();
     let set_one = pipeline_on_one.param_identity();
 
     let daemon = InProcessDaemon::spawn(Arc::clone(&config), 1 << 16, options(&path, 0.5));
@@ -374,19 +384,25 @@ async fn an_applied_set_resets_what_was_learnt_on_the_parameters_it_sets() {
     stand(&tx, &mut enc, &first, 2.0).await;
     let before: SavedState = load(&path).unwrap();
     assert_eq!(before.param_set.identity().unwrap(), on_two.param_identity);
-    assert!(same_learnt(&before.learnt.unwrap().checked().unwrap(), &learnt()) || {
-        // The offset's σ grows by its walk at every window, standing or not.
-        let b = before.learnt.unwrap().checked().unwrap();
-        same_learnt(
-            &Learnt {
-                steer_offset_sigma_rad: learnt().steer_offset_sigma_rad,
-                ..b
-            },
-            &learnt(),
-        )
-    });
+    assert!(
+        same_learnt(&before.learnt.unwrap().checked().unwrap(), &learnt()) || {
+            // The offset's σ grows by its walk at every window, standing or not.
+            let b = before.learnt.unwrap().checked().unwrap();
+            same_learnt(
+                &Learnt {
+                    steer_offset_sigma_rad: learnt().steer_offset_sigma_rad,
+                    ..b
+                },
+                &learnt(),
+            )
+        }
+    );
     let wire = CalibWire::new(config.output.base_id).unwrap();
-    let data = wire.encode_command(Command::Rollback, config.calibration.arming_code.unwrap_or(0), 1);
+    let data = wire.encode_command(
+        Command::Rollback,
+        config.calibration.arming_code.unwrap_or(0),
+        1,
+    );
     tx.send(&CalibWire::frame(wire.cmd_id(), &data).unwrap())
         .await
         .unwrap();
@@ -401,7 +417,10 @@ async fn an_applied_set_resets_what_was_learnt_on_the_parameters_it_sets() {
     let (y, was_y) = (l.yaw_bias.unwrap(), was.yaw_bias.unwrap());
     // Reset: learnt on the rear diameters and the tread.
     assert_eq!((l.front_scale, l.front_scale_sigma), (1.0, 0.0));
-    assert_eq!((y.rear_ratio_err, y.rear_ratio_sigma), (0.0, priors.rear_ratio_sigma));
+    assert_eq!(
+        (y.rear_ratio_err, y.rear_ratio_sigma),
+        (0.0, priors.rear_ratio_sigma)
+    );
     assert_eq!((y.tread_err, y.tread_sigma), (0.0, priors.tread_sigma));
     // Kept: the steering map and the yaw-rate calibration did not change
     // (standing still moves neither value; the offset's σ grows by its walk).
@@ -427,7 +446,10 @@ async fn an_applied_set_resets_what_was_learnt_on_the_parameters_it_sets() {
     // The parameter file's set in use is 1 now: a restart takes the values back.
     let restarted = start_and_stop(&config, options(&path, 0.5)).await;
     assert_eq!(restarted.param_identity, set_one);
-    assert!(same_learnt(&restarted.state.learnt(), &summary.state.learnt()));
+    assert!(same_learnt(
+        &restarted.state.learnt(),
+        &summary.state.learnt()
+    ));
 }
 
 /// The writer's end: a state file that cannot be written is reported by
@@ -449,14 +471,14 @@ async fn a_state_file_that_cannot_be_written_is_reported() {
 mod format {
     use canodom::server::{InProcessDaemon, Observers, Summary};
     use canodom::state_file::*;
+    use canodom_can::frame::{CanFrame, FrameId};
     use canodom_pipeline::config::Config;
     use canodom_pipeline::param_set::ParamIdentity;
     use canodom_pipeline::stats::{Reject, Stats};
-    use std::fs;
-    use std::path::{Path, PathBuf};
-    use canodom_can::frame::{CanFrame, FrameId};
     use canodom_sim::drive::simulator;
     use canodom_sim::vehicle::{PathKind, SampleEncoder};
+    use std::fs;
+    use std::path::{Path, PathBuf};
     use std::sync::Arc;
     use std::time::Duration;
 
@@ -718,7 +740,11 @@ mod format {
         // Learnt on another set (another version, or the same version with
         // other values): dropped, both named.
         state.learnt = Some(learnt(0.5, Some(-0.42)));
-        for (version, crc) in [(Some(3), "1234abcd"), (None, "1234abcd"), (Some(4), "1234abce")] {
+        for (version, crc) in [
+            (Some(3), "1234abcd"),
+            (None, "1234abcd"),
+            (Some(4), "1234abce"),
+        ] {
             state.param_set = SavedParamSet {
                 version,
                 values_crc32: crc.into(),
@@ -738,9 +764,10 @@ mod format {
         };
         assert!(why.contains("values_crc32"), "{why}");
         // A file of format 1 (no identity): refused as written by an older canodom.
-        let text = serde_json::to_string(&state)
-            .unwrap()
-            .replace(&format!("\"format_version\":{FORMAT_VERSION}"), "\"format_version\":1");
+        let text = serde_json::to_string(&state).unwrap().replace(
+            &format!("\"format_version\":{FORMAT_VERSION}"),
+            "\"format_version\":1",
+        );
         fs::write(&path, text).unwrap();
         let Restored::Refused(why) = restore(&path) else {
             panic!("a format 1 file was restored")
