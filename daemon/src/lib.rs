@@ -9,7 +9,8 @@
 //! - [`server`]: the async daemon (link, odometry and calibration tasks), generic over the transport.
 //! - [`live_calib`]: the live calibration on the wire: CAN commands in, the calibrator's outputs as frames.
 //! - [`calib_task`]: the calibration task: the live calibration, its stores and jobs off the frame path.
-//! - [`state_file`]: the end state `run --state-file` saves on SIGTERM.
+//! - [`state_file`]: the state `run --state-file` keeps (periodically, durably) and what a start restores.
+//! - [`summary`]: what the run loop hands back, and what the state file is written from.
 //! - [`sd_notify`]: systemd readiness and watchdog notifications.
 //! - [`progress`]: a progress line on terminals for long offline work.
 
@@ -20,3 +21,4 @@ pub mod progress;
 pub mod sd_notify;
 pub mod server;
 pub mod state_file;
+pub mod summary;

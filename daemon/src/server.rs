@@ -33,7 +33,6 @@ use canodom_can::bus::{
 use canodom_can::frame::{CanFrame, ErrorSeverity, FrameId};
 use canodom_can::time::Timestamp;
 use canodom_dbc::{Checksum, Database, SignalHandle};
-use canodom_fusion::ekf::State;
 use canodom_pipeline::config::{Config, FixSignals};
 use canodom_pipeline::gate::{Admit, SecurityGate};
 use canodom_pipeline::pipeline::{Outcome, Pipeline, Step};
@@ -97,25 +96,7 @@ impl Connector for SocketCan {
     }
 }
 
-/// What `run` hands back when it stops.
-#[derive(Clone, Debug)]
-pub struct Summary {
-    /// Pipeline statistics.
-    pub stats: Stats,
-    /// The filter's final state (bit-for-bit comparison with replay).
-    pub state: State,
-    /// The last filter step.
-    pub last_step: Option<Step>,
-    /// Pose samples published.
-    pub poses_published: u64,
-    /// Frames the transport reported lost.
-    pub frames_lost: u64,
-    /// Connections opened (1 + reconnects).
-    pub connections: u64,
-    /// Outages seen: the interface went down, disappeared or went bus-off
-    /// (noticed by the receiver or by a pose send).
-    pub outages: u64,
-}
+pub use crate::summary::Summary;
 
 /// Why the daemon stopped abnormally.
 #[derive(Debug, thiserror::Error)]
@@ -147,10 +128,16 @@ pub struct Observers {
     pub steps: Option<watch::Sender<Option<Step>>>,
     /// Receives the pipeline statistics after every frame batch.
     pub stats: Option<watch::Sender<Stats>>,
-    /// What a previous run learnt (its state file), put into the filter
-    /// before the first frame. Not an observer: it rides here until the
-    /// daemon's start-up options get a struct of their own.
+    /// What a previous run learnt, put into the filter before the first
+    /// frame (over what `state_file` restores). Not an observer: it and
+    /// `state_file` ride here until the daemon's start-up options get a
+    /// struct of their own.
     pub restore_learnt: Option<canodom_fusion::ekf::Learnt>,
+    /// The state file (`run --state-file`): learnt values restored from it
+    /// at start when they were learnt on the parameter set in use, and the
+    /// state written to it periodically, after each applied set and at the
+    /// end (see [`crate::state_file`]).
+    pub state_file: Option<crate::state_file::StateFileOptions>,
     /// Gets every frame and published pose for `run --record` / `--foxglove` (never blocks).
     pub tap: Option<canodom_export::live::Tap>,
 }
@@ -265,6 +252,12 @@ pub async fn run<C: Connector>(
     let mut pipeline = Pipeline::new(&config)?;
     let nominal = *pipeline.params();
     apply_param_file(&mut pipeline, &config.calibration);
+    if let Some(options) = &observers.state_file
+        && let Some(learnt) =
+            crate::state_file::restore_logged(&options.path, &pipeline.param_identity())
+    {
+        pipeline.restore_learnt(&learnt);
+    }
     if let Some(learnt) = &observers.restore_learnt {
         pipeline.restore_learnt(learnt);
     }
@@ -290,6 +283,7 @@ pub async fn run<C: Connector>(
     let (sink_tx, sink_rx) = watch::channel(None);
     let (lost_tx, lost_rx) = mpsc::channel(1);
     let outages = Arc::new(AtomicU64::new(0));
+    let connections = Arc::new(AtomicU64::new(0));
     let link = LinkTask {
         connector,
         filters,
@@ -297,6 +291,7 @@ pub async fn run<C: Connector>(
         sink: sink_tx,
         link_lost: lost_rx,
         outages: Arc::clone(&outages),
+        connections: Arc::clone(&connections),
         token: token.clone(),
     };
     let link_handle = tracker.spawn(link.run());
@@ -311,6 +306,15 @@ pub async fn run<C: Connector>(
         report_root(&config.calibration.param_file),
     );
     let calib_handle = tracker.spawn(calib.run());
+    let (state_out, state_handle) = match &observers.state_file {
+        None => (None, None),
+        Some(options) => {
+            let (tx, rx) = watch::channel(None);
+            let writer =
+                crate::state_file::write_latest(Arc::clone(&config), options.path.clone(), rx);
+            (Some((tx, options.every)), Some(tracker.spawn(writer)))
+        }
+    };
     let task = OdometryTask {
         pipeline,
         encoder,
@@ -331,6 +335,8 @@ pub async fn run<C: Connector>(
         lost: 0,
         link_lost: lost_tx,
         outages: Arc::clone(&outages),
+        connections: Arc::clone(&connections),
+        state_out,
         links,
         calib_cmd_id,
         calib_ack_id,
@@ -358,6 +364,9 @@ pub async fn run<C: Connector>(
     calib_handle
         .await
         .map_err(|e| RunError::Task(e.to_string()))?;
+    if let Some(handle) = state_handle {
+        summary.state_file = handle.await.map_err(|e| RunError::Task(e.to_string()))?;
+    }
     summary.connections = connections;
     summary.outages = outages.load(Ordering::Relaxed);
     Ok(summary)
@@ -453,6 +462,8 @@ struct LinkTask<C: Connector> {
     /// Link losses the pipeline task met while sending (see [`BusError::is_link_loss`]).
     link_lost: mpsc::Receiver<BusError>,
     outages: Arc<AtomicU64>,
+    /// Connections opened, for the state file's periodic writes.
+    connections: Arc<AtomicU64>,
     token: CancellationToken,
 }
 
@@ -474,6 +485,7 @@ impl<C: Connector> LinkTask<C> {
                 Ok((mut rx, tx)) => {
                     failed_opens = 0;
                     connections += 1;
+                    self.connections.store(connections, Ordering::Relaxed);
                     info!(connections, "CAN interface open");
                     // A loss reported by a send on the previous socket is over.
                     while self.link_lost.try_recv().is_ok() {}
@@ -734,6 +746,10 @@ struct OdometryTask<Tx> {
     /// Tells the link task of a link loss a send met (see [`BusError::is_link_loss`]).
     link_lost: mpsc::Sender<BusError>,
     outages: Arc<AtomicU64>,
+    connections: Arc<AtomicU64>,
+    /// The state file's writer and the period of its writes: handed a copy
+    /// of the state, never waited for (see [`crate::state_file::write_latest`]).
+    state_out: Option<(watch::Sender<Option<Summary>>, Duration)>,
     /// The channels to the calibration task (its input sender is dropped
     /// with this task, after the last frame). The bus clock it keeps there
     /// is the last frame's bus timestamp and when it arrived: the pose flags
@@ -761,10 +777,25 @@ impl<Tx: FrameSink + Clone> OdometryTask<Tx> {
         }
         let mut last_stats = *self.pipeline.stats();
         let mut last_stats_at = Instant::now();
+        let state_every = self.state_out.as_ref().map(|(_, every)| *every);
+        // (At least 10 ms: `interval` refuses a zero period.)
+        let mut state_tick = tokio::time::interval(
+            state_every
+                .unwrap_or(Duration::from_secs(3600))
+                .max(Duration::from_millis(10)),
+        );
+        state_tick.set_missed_tick_behavior(MissedTickBehavior::Delay);
+        // Not at once: the file still holds the previous run's state until
+        // there is something new.
+        state_tick.tick().await;
         loop {
             tokio::select! {
                 biased;
-                Some((version, values)) = self.links.apply.recv() => self.apply_params(version, &values),
+                Some((version, values)) = self.links.apply.recv() => {
+                    self.apply_params(version, &values);
+                    // What the set reset, and the set's identity, at once.
+                    self.save_state();
+                }
                 event = self.frames.recv() => match event {
                     Some(event) => self.handle(event).await,
                     None => break,
@@ -797,6 +828,7 @@ impl<Tx: FrameSink + Clone> OdometryTask<Tx> {
                 _ = watchdog_tick.tick(), if watchdog.is_some() => {
                     if let Some(n) = &self.notifier { let _ = n.watchdog(); }
                 }
+                _ = state_tick.tick(), if state_every.is_some() => self.save_state(),
                 () = self.token.cancelled() => {
                     // Drain what the link task already queued: nothing received is lost.
                     while let Ok(event) = self.frames.try_recv() {
@@ -817,14 +849,32 @@ impl<Tx: FrameSink + Clone> OdometryTask<Tx> {
             auth_refused = %lock(&self.security).counts(),
             "pipeline stopped"
         );
+        // The end state, for the writer's last write.
+        self.save_state();
+        self.summary()
+    }
+
+    /// Where the run stands now.
+    fn summary(&self) -> Summary {
         Summary {
             stats: *self.pipeline.stats(),
             state: *self.pipeline.state(),
             last_step: self.pipeline.last_step(),
             poses_published: self.published,
             frames_lost: self.lost,
-            connections: 0,
-            outages: 0,
+            connections: self.connections.load(Ordering::Relaxed),
+            outages: self.outages.load(Ordering::Relaxed),
+            params: self.pipeline.params_in_use(),
+            param_identity: self.pipeline.param_identity(),
+            state_file: None,
+        }
+    }
+
+    /// Hands the state file's writer a copy of where the run stands (it
+    /// replaces one not yet written: only the newest matters).
+    fn save_state(&self) {
+        if let Some((tx, _)) = &self.state_out {
+            tx.send_replace(Some(self.summary()));
         }
     }
 

@@ -14,19 +14,48 @@
 //! the same directory is written and `fsync`ed, renamed over the target,
 //! and the directory `fsync`ed, so a crash or power loss at any instant
 //! leaves either the previous complete file or the new complete one, never
-//! a torn one.
+//! a torn one. The daemon writes it every `--state-every-s` seconds while
+//! it runs, at once after a parameter set was applied, and when it stops
+//! ([`write_latest`], on tokio's blocking pool: the odometry task only hands
+//! over a copy of its state and never waits for the disk), so a power cut
+//! loses at most the last period of learning.
+//!
+//! The learnt values are corrections relative to the parameter set they
+//! were learnt on, so the file records that set's identity
+//! ([`ParamIdentity`]: its version and a checksum of the values in use); a
+//! start on another set (a commit while the daemon was down, an edited
+//! configuration) drops them with a warning naming both ([`restore`]).
 
-use crate::server::Summary;
+use crate::summary::Summary;
 use canodom_pipeline::config::Config;
+use canodom_pipeline::param_set::ParamIdentity;
 use canodom_pipeline::stats::{Reject, Stats};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::fs;
 use std::path::{Path, PathBuf};
-use std::time::{SystemTime, UNIX_EPOCH};
+use std::sync::Arc;
+use std::time::{Duration, SystemTime, UNIX_EPOCH};
+use tokio::sync::watch;
+use tracing::{info, warn};
 
-/// Version of the layout written by this code.
-pub const FORMAT_VERSION: u32 = 1;
+/// Version of the layout written by this code (2: the parameter set's
+/// identity; a file of version 1 cannot tell what its values were learnt on
+/// and is refused).
+pub const FORMAT_VERSION: u32 = 2;
+
+/// How often the daemon writes the state file by default, seconds.
+pub const DEFAULT_EVERY_S: f64 = 10.0;
+
+/// Where and how often the daemon keeps its state (`run --state-file`).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct StateFileOptions {
+    /// The file.
+    pub path: PathBuf,
+    /// The longest time between two writes while running: what a power cut
+    /// may lose.
+    pub every: Duration,
+}
 
 /// Why the state file cannot be written or read.
 #[derive(Debug, thiserror::Error)]
@@ -133,12 +162,53 @@ pub struct SavedParams {
     pub steering_offset_rad: f64,
 }
 
+/// The identity of the parameter set the learnt values were learnt on.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SavedParamSet {
+    /// The calibrated set's version; `null`: the configuration's nominal parameters.
+    pub version: Option<u16>,
+    /// CRC-32 of the values in use, 8 hex digits (as the parameter file writes its checksums).
+    pub values_crc32: String,
+}
+
+impl From<ParamIdentity> for SavedParamSet {
+    fn from(id: ParamIdentity) -> Self {
+        Self {
+            version: id.version,
+            values_crc32: format!("{:08x}", id.values_crc32),
+        }
+    }
+}
+
+impl SavedParamSet {
+    /// The identity, or why the text is not one.
+    ///
+    /// # Errors
+    /// `values_crc32` is not 8 hex digits.
+    pub fn identity(&self) -> Result<ParamIdentity, String> {
+        match u32::from_str_radix(&self.values_crc32, 16) {
+            Ok(values_crc32) if self.values_crc32.len() == 8 => Ok(ParamIdentity {
+                version: self.version,
+                values_crc32,
+            }),
+            _ => Err(format!(
+                "param_set.values_crc32 {:?} is not 8 hex digits",
+                self.values_crc32
+            )),
+        }
+    }
+}
+
 /// Everything the state file holds.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SavedState {
     /// [`FORMAT_VERSION`].
     pub format_version: u32,
+    /// The parameter set in use when the file was written: the one the
+    /// learnt values were learnt on.
+    pub param_set: SavedParamSet,
     /// Wall-clock time of the save, µs since the Unix epoch.
     pub saved_at_unix_us: u64,
     /// The CAN interface.
@@ -311,7 +381,7 @@ impl SavedLearnt {
 }
 
 /// What a start takes from a previous run's state file.
-#[derive(Debug)]
+#[derive(Debug, PartialEq)]
 pub enum Restored {
     /// No file: a first start.
     Nothing,
@@ -320,25 +390,105 @@ pub enum Restored {
     /// The file is damaged, of another version, or a value is out of
     /// bounds: the filter starts from its priors (the caller warns).
     Refused(String),
+    /// The values were learnt on another parameter set than the one in use:
+    /// dropped, the filter starts from its priors (the caller warns).
+    OtherParamSet {
+        /// The set the file's values were learnt on.
+        saved: ParamIdentity,
+        /// The set in use now.
+        in_use: ParamIdentity,
+    },
 }
 
-/// The learnt values of the state file at `path`, if it exists and they pass.
-pub fn restore(path: &Path) -> Restored {
+/// The learnt values of the state file at `path`, if it exists, was learnt
+/// on the parameter set `in_use`, and its values pass [`SavedLearnt::checked`].
+pub fn restore(path: &Path, in_use: &ParamIdentity) -> Restored {
     match load(path) {
         Err(StateFileError::Io { source, .. }) if source.kind() == std::io::ErrorKind::NotFound => {
             Restored::Nothing
         }
         Err(e) => Restored::Refused(e.to_string()),
-        Ok(saved) => match saved.learnt.map(|l| l.checked()) {
-            None => Restored::Nothing,
-            Some(Ok(learnt)) => Restored::Learnt(learnt),
-            Some(Err(e)) => Restored::Refused(format!("{}: {e}", path.display())),
+        Ok(saved) => match saved.param_set.identity() {
+            Err(e) => Restored::Refused(format!("{}: {e}", path.display())),
+            Ok(id) if id != *in_use => Restored::OtherParamSet {
+                saved: id,
+                in_use: *in_use,
+            },
+            Ok(_) => match saved.learnt.map(|l| l.checked()) {
+                None => Restored::Nothing,
+                Some(Ok(learnt)) => Restored::Learnt(learnt),
+                Some(Err(e)) => Restored::Refused(format!("{}: {e}", path.display())),
+            },
         },
     }
 }
 
+/// [`restore`] with its outcome logged: the learnt values to put into the
+/// filter, if any.
+pub fn restore_logged(path: &Path, in_use: &ParamIdentity) -> Option<canodom_fusion::ekf::Learnt> {
+    match restore(path, in_use) {
+        Restored::Nothing => None,
+        Restored::Learnt(learnt) => {
+            info!(file = %path.display(), param_set = %in_use, "learnt values restored from the state file");
+            Some(learnt)
+        }
+        Restored::Refused(why) => {
+            warn!(file = %path.display(), cause = %why, "learnt values not restored; the filter starts from its priors");
+            None
+        }
+        Restored::OtherParamSet { saved, in_use } => {
+            warn!(file = %path.display(), learnt_on = %saved, in_use = %in_use,
+                "learnt values dropped: they were learnt on another parameter set; the filter starts from its priors");
+            None
+        }
+    }
+}
+
+/// Writes the newest summary `latest` holds whenever it changes (what the
+/// odometry task hands over: periodically, after a set was applied, and at
+/// its end), each write on tokio's blocking pool; a summary that arrives
+/// while a write is under way waits, and only the newest is written. Ends
+/// when the sender is gone and its last summary is written; returns how
+/// that last write went (`None`: nothing was handed over).
+pub async fn write_latest(
+    config: Arc<Config>,
+    path: PathBuf,
+    mut latest: watch::Receiver<Option<Summary>>,
+) -> Option<Result<(), String>> {
+    let mut last = None;
+    let mut failing = false;
+    // `changed` reports a value sent just before the sender went away
+    // before it reports the end.
+    while latest.changed().await.is_ok() {
+        let Some(summary) = latest.borrow_and_update().clone() else {
+            continue;
+        };
+        let (config, file) = (Arc::clone(&config), path.clone());
+        let written = tokio::task::spawn_blocking(move || {
+            save(&file, &SavedState::new(&config, &summary)).map_err(|e| e.to_string())
+        })
+        .await
+        .unwrap_or_else(|e| Err(format!("{}: state writer failed: {e}", path.display())));
+        // A failing disk is logged once, and again when it recovers, not at every period.
+        match &written {
+            Err(cause) if !failing => {
+                warn!(cause = %cause, "state file not written (retried every period)");
+                failing = true;
+            }
+            Ok(()) if failing => {
+                info!(file = %path.display(), "state file written again");
+                failing = false;
+            }
+            _ => {}
+        }
+        last = Some(written);
+    }
+    last
+}
+
 impl SavedState {
-    /// The state of a daemon run that ended with `summary`.
+    /// The state of a daemon run that ended with `summary` (or stood at
+    /// it when a periodic write took it).
     pub fn new(config: &Config, summary: &Summary) -> Self {
         let pose = summary.state.pose();
         let unwrapped = summary.state.pose_unwrapped();
@@ -346,10 +496,13 @@ impl SavedState {
         let (a, b, c) = (p[(0, 0)], p[(0, 1)], p[(1, 1)]);
         // The same summary as ODOM_QUALITY.POS_STD: the worst direction.
         let lambda_max = 0.5 * (a + c) + (0.25 * (a - c) * (a - c) + b * b).sqrt();
-        let d = config.params.wheel_diameters_m();
-        let steering = config.params.steering();
+        // The parameters in use (a calibrated set's), not the configuration's nominal ones.
+        let params = &summary.params.params;
+        let d = params.wheel_diameters_m();
+        let steering = params.steering();
         Self {
             format_version: FORMAT_VERSION,
+            param_set: summary.param_identity.into(),
             saved_at_unix_us: SystemTime::now()
                 .duration_since(UNIX_EPOCH)
                 .map_or(0, |d| d.as_micros() as u64),
@@ -373,9 +526,9 @@ impl SavedState {
             connections: summary.connections,
             outages: summary.outages,
             params: SavedParams {
-                wheelbase_m: config.params.wheelbase_m(),
-                rear_tread_m: config.params.rear_tread_m(),
-                front_tread_m: config.params.front_tread_m(),
+                wheelbase_m: params.wheelbase_m(),
+                rear_tread_m: params.rear_tread_m(),
+                front_tread_m: params.front_tread_m(),
                 rear_left_diameter_m: d.rear_left,
                 rear_right_diameter_m: d.rear_right,
                 front_left_diameter_m: d.front_left,
@@ -410,299 +563,32 @@ pub fn save(path: &Path, state: &SavedState) -> Result<(), StateFileError> {
 /// # Errors
 /// Unreadable file, not JSON of this layout, or another format version.
 pub fn load(path: &Path) -> Result<SavedState, StateFileError> {
+    /// The version alone, read first: a file of another version is named as
+    /// such, not as a missing or unknown field of this one.
+    #[derive(Deserialize)]
+    struct Versioned {
+        format_version: u32,
+    }
+    let format = |reason: String| StateFileError::Format {
+        path: path.to_owned(),
+        reason,
+    };
     let text = fs::read_to_string(path).map_err(|source| StateFileError::Io {
         path: path.to_owned(),
         source,
     })?;
-    let state: SavedState = serde_json::from_str(&text).map_err(|e| StateFileError::Format {
-        path: path.to_owned(),
-        reason: e.to_string(),
-    })?;
-    if state.format_version != FORMAT_VERSION {
-        return Err(StateFileError::Format {
-            path: path.to_owned(),
-            reason: format!(
-                "format_version {} is not supported (expected {FORMAT_VERSION})",
-                state.format_version
-            ),
-        });
-    }
-    Ok(state)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::server::{InProcessDaemon, Observers};
-    use canodom_can::frame::{CanFrame, FrameId};
-    use canodom_sim::drive::simulator;
-    use canodom_sim::vehicle::{PathKind, SampleEncoder};
-    use std::sync::Arc;
-    use std::time::Duration;
-
-    fn config() -> Config {
-        Config::load(Path::new(concat!(
-            env!("CARGO_MANIFEST_DIR"),
-            "/examples/rc_car.toml"
-        )))
-        .unwrap()
-    }
-
-    fn scratch(name: &str) -> PathBuf {
-        let dir = std::env::temp_dir().join(format!("canodom-state-{name}-{}", std::process::id()));
-        let _ = fs::remove_dir_all(&dir);
-        fs::create_dir_all(&dir).unwrap();
-        dir
-    }
-
-    /// The daemon on the in-process bus, fed `seconds` of a simulated drive
-    /// plus a few rejects, stopped by its shutdown future once everything
-    /// was sent (the frames still queued must be drained, not lost).
-    async fn daemon_run(config: &Arc<Config>, seconds: f64) -> (Summary, u64) {
-        let daemon = InProcessDaemon::spawn(Arc::clone(config), 1 << 16, Observers::default());
-        let (_, tx) = daemon.bus.open().unwrap();
-        // Let the link task open its endpoint before the first frame.
-        tokio::time::sleep(Duration::from_millis(50)).await;
-        let mut sim = simulator(config, PathKind::FigureEight, None, 1, false).unwrap();
-        let mut enc = SampleEncoder::new(config);
-        let mut frames = Vec::new();
-        let mut sent = 0u64;
-        while let Some(sample) = sim.try_next().unwrap() {
-            if sample.t_s > seconds {
-                break;
-            }
-            frames.clear();
-            enc.encode(&sample, &mut frames);
-            for f in &frames {
-                canodom_can::bus::FrameSink::send(&tx, f).await.unwrap();
-                sent += 1;
-            }
-            // Every 100th sample a rear-wheel frame with a broken checksum.
-            if sent.is_multiple_of(300) {
-                let rear = frames
-                    .iter()
-                    .find(|f| f.id() == FrameId::Standard(0x100))
-                    .unwrap();
-                let mut data = [0u8; 8];
-                data.copy_from_slice(rear.data());
-                data[7] ^= 0x5A;
-                let bad = CanFrame::new_data(FrameId::Standard(0x100), &data).unwrap();
-                canodom_can::bus::FrameSink::send(&tx, &bad).await.unwrap();
-                sent += 1;
-            }
-            tokio::time::sleep(Duration::from_millis(10)).await;
-        }
-        // Stop at once: frames still queued for the pipeline must count.
-        (daemon.stop().await.unwrap(), sent)
-    }
-
-    #[tokio::test(start_paused = true)]
-    async fn the_saved_state_is_the_daemons_end_state_and_survives_a_round_trip() {
-        let config = Arc::new(config());
-        let (summary, sent) = daemon_run(&config, 6.0).await;
-        assert_eq!(summary.stats.frames, sent, "every frame sent was counted");
-        assert!(summary.stats.get(Reject::BadChecksum) > 0);
-        let dir = scratch("roundtrip");
-        let path = dir.join("state.json");
-        let state = SavedState::new(&config, &summary);
-        save(&path, &state).unwrap();
-        let back = load(&path).unwrap();
-        // serde_json reads floats to within an ulp (no `float_roundtrip`):
-        // everything else is exact.
-        let close = |a: f64, b: f64| (a - b).abs() <= 1e-15 * a.abs().max(b.abs());
-        assert_eq!(back.stats, state.stats);
-        assert_eq!(back.params, state.params);
-        assert_eq!(
-            (back.poses_published, back.frames_lost, back.connections),
-            (state.poses_published, state.frames_lost, state.connections)
-        );
-        let (bp, sp) = (back.pose.unwrap(), state.pose.unwrap());
-        assert!(
-            close(bp.x_m, sp.x_m) && close(bp.y_m, sp.y_m) && close(bp.heading_rad, sp.heading_rad)
-        );
-        // The file holds the run's numbers, not defaults.
-        let pose = back.pose.expect("steps were made");
-        let end = summary.state.pose();
-        assert!(close(pose.x_m, end.x_m) && close(pose.y_m, end.y_m));
-        assert!(pose.x_m.hypot(pose.y_m) > 0.1, "the car moved: {pose:?}");
-        assert_eq!(back.stats.frames, sent);
-        assert_eq!(back.stats.steps, summary.stats.steps);
-        assert_eq!(
-            back.stats.rejects["bad_checksum"],
-            summary.stats.get(Reject::BadChecksum)
-        );
-        assert_eq!(back.stats.rejects.len(), Reject::ALL.len());
-        assert!(back.covariance.pos_std_m > 0.0 && back.covariance.pos_std_m.is_finite());
-        assert_eq!(back.params.wheelbase_m, 0.26);
-        assert!(!dir.join(".state.json.tmp").exists(), "temporary file left");
-        fs::remove_dir_all(dir).unwrap();
-    }
-
-    #[test]
-    fn a_failed_save_leaves_the_previous_file_and_bad_files_are_typed() {
-        let dir = scratch("errors");
-        let path = dir.join("state.json");
-        let mut state = SavedState {
-            format_version: FORMAT_VERSION,
-            saved_at_unix_us: 1,
-            interface: "vcan0".into(),
-            config: PathBuf::from("car.toml"),
-            pose: None,
-            covariance: SavedCovariance {
-                pos_std_m: 0.0,
-                heading_std_rad: 0.0,
-                p: [[0.0; 3]; 3],
-            },
-            stats: SavedStats::from(&Stats::default()),
-            poses_published: 0,
-            frames_lost: 0,
-            connections: 1,
-            outages: 0,
-            params: SavedParams {
-                wheelbase_m: 0.26,
-                rear_tread_m: 0.3,
-                front_tread_m: 0.3,
-                rear_left_diameter_m: 0.09,
-                rear_right_diameter_m: 0.09,
-                front_left_diameter_m: 0.09,
-                front_right_diameter_m: 0.09,
-                steering_gain: 1.0,
-                steering_offset_rad: 0.0,
-            },
-            learnt: None,
+    let version = serde_json::from_str::<Versioned>(&text)
+        .map_err(|e| format(e.to_string()))?
+        .format_version;
+    if version != FORMAT_VERSION {
+        let by = if version < FORMAT_VERSION {
+            "an older canodom"
+        } else {
+            "a newer canodom"
         };
-        save(&path, &state).unwrap();
-        // The temporary name is taken by a directory: the write fails and
-        // the previous file is untouched.
-        fs::create_dir(dir.join(".state.json.tmp")).unwrap();
-        state.poses_published = 99;
-        assert!(matches!(
-            save(&path, &state),
-            Err(StateFileError::Io { .. })
-        ));
-        assert_eq!(load(&path).unwrap().poses_published, 0);
-        fs::write(&path, "{\"format_version\": 1}").unwrap();
-        assert!(matches!(load(&path), Err(StateFileError::Format { .. })));
-        let mut text = serde_json::to_string(&state).unwrap();
-        text = text.replace("\"format_version\":1", "\"format_version\":7");
-        fs::write(&path, text).unwrap();
-        let e = load(&path).unwrap_err();
-        assert!(e.to_string().contains("format_version 7"), "{e}");
-        fs::remove_dir_all(dir).unwrap();
+        return Err(format(format!(
+            "format_version {version} is not supported (expected {FORMAT_VERSION}; written by {by})"
+        )));
     }
-
-    fn learnt(offset_deg: f64, yaw_bias_dps: Option<f64>) -> SavedLearnt {
-        SavedLearnt {
-            steer_offset_rad: offset_deg.to_radians(),
-            steer_offset_sigma_rad: 0.001,
-            front_scale: 1.002,
-            front_scale_sigma: 1e-4,
-            yaw_bias_radps: yaw_bias_dps.map(f64::to_radians),
-            yaw_bias_sigma_radps: yaw_bias_dps.map(|_| 1e-4),
-            rear_ratio_err: yaw_bias_dps.map(|_| -4e-4),
-            rear_ratio_sigma: yaw_bias_dps.map(|_| 1e-4),
-            tread_err: yaw_bias_dps.map(|_| 0.01),
-            tread_sigma: yaw_bias_dps.map(|_| 1e-3),
-        }
-    }
-
-    #[test]
-    fn learnt_values_are_restored_within_bounds_and_refused_beyond() {
-        let ok = learnt(0.3, Some(-0.4)).checked().unwrap();
-        assert!((ok.steer_offset_rad - 0.3f64.to_radians()).abs() < 1e-15);
-        let y = ok.yaw_bias.unwrap();
-        assert!((y.yaw_bias_radps + 0.4f64.to_radians()).abs() < 1e-15);
-        assert_eq!(y.rear_ratio_err, -4e-4);
-        assert!(learnt(0.3, None).checked().unwrap().yaw_bias.is_none());
-        // A steering offset of 7°, a 6°/s gyro bias, a 6 % front scale, a NaN:
-        // damaged or learnt from nonsense; each is named.
-        for (bad, name) in [
-            (learnt(7.0, None), "steer_offset_rad"),
-            (learnt(0.3, Some(6.0)), "yaw_bias_radps"),
-            (
-                SavedLearnt {
-                    front_scale: 1.06,
-                    ..learnt(0.0, None)
-                },
-                "front_scale",
-            ),
-            (
-                SavedLearnt {
-                    steer_offset_sigma_rad: f64::NAN,
-                    ..learnt(0.0, None)
-                },
-                "steer_offset_sigma_rad",
-            ),
-            (
-                SavedLearnt {
-                    rear_ratio_err: Some(0.02),
-                    ..learnt(0.0, Some(0.1))
-                },
-                "rear_ratio_err",
-            ),
-        ] {
-            let e = bad.checked().unwrap_err();
-            assert_eq!(e.name, name, "{e}");
-        }
-    }
-
-    #[test]
-    fn restore_takes_back_what_a_run_saved_and_refuses_a_damaged_file() {
-        let dir = scratch("restore");
-        let path = dir.join("state.json");
-        assert!(matches!(restore(&path), Restored::Nothing));
-        fs::write(&path, "{ not json").unwrap();
-        assert!(matches!(restore(&path), Restored::Refused(_)));
-        let mut state = serde_json::from_str::<SavedState>(&format!(
-            r#"{{"format_version":{FORMAT_VERSION},"saved_at_unix_us":1,"interface":"vcan0","config":"c.toml","pose":null,
-            "covariance":{{"pos_std_m":0.0,"heading_std_rad":0.0,"p":[[0,0,0],[0,0,0],[0,0,0]]}},
-            "stats":{{"frames":0,"used":0,"steps":0,"steps_without_front":0,"rejects":{{}}}},
-            "poses_published":0,"frames_lost":0,"connections":1,"outages":0,
-            "params":{{"wheelbase_m":0.26,"rear_tread_m":0.3,"front_tread_m":0.3,"rear_left_diameter_m":0.09,
-            "rear_right_diameter_m":0.09,"front_left_diameter_m":0.09,"front_right_diameter_m":0.09,
-            "steering_gain":1.0,"steering_offset_rad":0.0}}}}"#
-        ))
-        .unwrap();
-        // A file of the version before learnt values: nothing to restore.
-        save(&path, &state).unwrap();
-        assert!(matches!(restore(&path), Restored::Nothing));
-        state.learnt = Some(learnt(0.5, Some(-0.42)));
-        save(&path, &state).unwrap();
-        let Restored::Learnt(l) = restore(&path) else {
-            panic!("not restored")
-        };
-        assert_eq!(Some(l), state.learnt.unwrap().checked().ok());
-        state.learnt = Some(learnt(9.0, None));
-        save(&path, &state).unwrap();
-        let Restored::Refused(why) = restore(&path) else {
-            panic!("restored an out-of-bounds offset")
-        };
-        assert!(
-            why.contains("steer_offset_rad") && why.contains("state.json"),
-            "{why}"
-        );
-        // What the filter learnt goes back into it as it was.
-        let st = canodom_fusion::ekf::State::origin().with_learnt(&l);
-        assert_eq!(SavedLearnt::from_state(&st), learnt(0.5, Some(-0.42)));
-        fs::remove_dir_all(dir).unwrap();
-    }
-
-    #[tokio::test]
-    async fn the_daemon_starts_from_the_restored_learnt_values_and_saves_them() {
-        let config = Arc::new(config());
-        let restored = learnt(0.5, None).checked().unwrap();
-        let daemon = InProcessDaemon::spawn(
-            Arc::clone(&config),
-            1024,
-            Observers {
-                restore_learnt: Some(restored),
-                ..Observers::default()
-            },
-        );
-        tokio::time::sleep(Duration::from_millis(20)).await;
-        let summary = daemon.stop().await.unwrap();
-        assert_eq!(summary.state.learnt(), restored);
-        let saved = SavedState::new(&config, &summary);
-        assert_eq!(saved.learnt, Some(learnt(0.5, None)));
-    }
+    serde_json::from_str(&text).map_err(|e| format(e.to_string()))
 }

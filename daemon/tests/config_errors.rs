@@ -149,3 +149,92 @@ fn calibration_fixes_name_two_signals_of_one_message() {
     assert!(e.contains("not an odometry input"), "{e}");
     assert!(Config::load(&path).unwrap().calibration.fixes.is_none());
 }
+
+/// The examples document every `[ekf]` key commented out with its default:
+/// uncommented, the block must give the filter's defaults (the degree values
+/// are written to six digits), and it must name every key the table takes.
+#[test]
+fn the_examples_ekf_blocks_state_the_defaults() {
+    use canodom_fusion::ekf::EkfConfig;
+    for path in [crate::util::rc_car_toml(), crate::util::toyota_toml()] {
+        let text = std::fs::read_to_string(&path).unwrap();
+        let start = text
+            .find("\n# [ekf]\n")
+            .unwrap_or_else(|| panic!("{}: no commented [ekf] block", path.display()));
+        let block: Vec<&str> = text[start + 1..]
+            .lines()
+            .take_while(|l| l.starts_with('#'))
+            .filter_map(|l| l.strip_prefix("# "))
+            .filter(|l| !l.starts_with(' ') && (l.starts_with("[ekf]") || l.contains(" = ")))
+            .collect();
+        let keys: Vec<&str> = block
+            .iter()
+            .filter_map(|l| l.split_once(" = ").map(|(k, _)| k))
+            .collect();
+        let uncommented = format!("{}\n{}\n", text, block.join("\n"));
+        let config = Config::from_toml(&uncommented, &path).unwrap();
+        let defaults = Config::load(&path).unwrap().ekf;
+        let e = &config.ekf;
+        let close = |a: f64, b: f64| (a - b).abs() <= 1e-5 * b.abs();
+        assert!(close(e.yaw_sigma_radps, defaults.yaw_sigma_radps));
+        assert!(close(e.yaw_bias_walk_radps, defaults.yaw_bias_walk_radps));
+        assert!(close(e.wheel_turn_sigma_rad, defaults.wheel_turn_sigma_rad));
+        assert!(close(
+            e.steer_offset_drift_rad.unwrap(),
+            defaults.steer_offset_drift_rad.unwrap()
+        ));
+        // front_scale_drift is shown with a value to set; unset it is off.
+        assert_eq!(defaults.front_scale_drift, None);
+        let same = EkfConfig {
+            yaw_sigma_radps: defaults.yaw_sigma_radps,
+            yaw_bias_walk_radps: defaults.yaw_bias_walk_radps,
+            wheel_turn_sigma_rad: defaults.wheel_turn_sigma_rad,
+            steer_offset_drift_rad: defaults.steer_offset_drift_rad,
+            front_scale_drift: None,
+            steer_sigma_rad: defaults.steer_sigma_rad,
+            steer_bias_sigma_rad: defaults.steer_bias_sigma_rad,
+            yaw_bias_sigma_radps: defaults.yaw_bias_sigma_radps,
+            ..*e
+        };
+        assert_eq!(same, defaults, "{}", path.display());
+        assert!(close(e.steer_sigma_rad, defaults.steer_sigma_rad));
+        assert!(close(e.yaw_bias_sigma_radps, defaults.yaw_bias_sigma_radps));
+        // Every key of the table is documented.
+        for key in [
+            "k_rear_m",
+            "k_front_m",
+            "steer_sigma_deg",
+            "steer_bias_sigma_deg",
+            "front_scale_sigma",
+            "correct_every",
+            "gate_enabled",
+            "gate_threshold",
+            "gate_action",
+            "min_slip_ratio",
+            "blend_accepted",
+            "learn_steer_offset",
+            "steer_offset_drift_deg",
+            "front_scale_drift",
+            "yaw_sigma_deg_s",
+            "yaw_bias_walk_deg_s_per_sqrt_s",
+            "yaw_bias_sigma_deg_s",
+            "yaw_scale_sigma",
+            "rear_ratio_sigma",
+            "ratio_walk",
+            "tread_sigma",
+            "tread_turn_sigma",
+            "wheel_turn_sigma_deg",
+            "distance_scale_sigma",
+            "still_min_s",
+            "aided_window_s",
+            "yaw_gate_sigma",
+        ] {
+            assert!(
+                keys.contains(&key),
+                "{}: {key} undocumented",
+                path.display()
+            );
+        }
+        assert_eq!(keys.len(), 27, "{}: {keys:?}", path.display());
+    }
+}

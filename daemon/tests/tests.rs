@@ -23,5 +23,6 @@ mod messages;
 mod rav4;
 mod replay_mcap;
 mod run_loop;
+mod state_file;
 mod trajectory;
 mod util;

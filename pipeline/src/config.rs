@@ -204,17 +204,43 @@ impl Default for RawInputs {
     }
 }
 
+/// `[ekf]`: every key optional, absent ones keep `EkfConfig::new`'s value
+/// (the meaning of each is on the `EkfConfig` field of the same name; the
+/// examples list them with units and defaults).
 #[derive(Debug, Deserialize, Default)]
 #[serde(deny_unknown_fields)]
 struct RawEkf {
+    // Wheels and steering.
     k_rear_m: Option<f64>,
     k_front_m: Option<f64>,
     steer_sigma_deg: Option<f64>,
     steer_bias_sigma_deg: Option<f64>,
+    front_scale_sigma: Option<f64>,
+    // Windows, gate and blending.
     correct_every: Option<u32>,
     gate_threshold: Option<f64>,
     gate_enabled: Option<bool>,
+    gate_action: Option<String>,
+    min_slip_ratio: Option<f64>,
+    blend_accepted: Option<bool>,
+    // Online learning of the steering offset and the front scale.
     learn_steer_offset: Option<bool>,
+    steer_offset_drift_deg: Option<f64>,
+    front_scale_drift: Option<f64>,
+    // The yaw-rate-aided estimator.
+    yaw_sigma_deg_s: Option<f64>,
+    yaw_bias_walk_deg_s_per_sqrt_s: Option<f64>,
+    yaw_bias_sigma_deg_s: Option<f64>,
+    yaw_scale_sigma: Option<f64>,
+    rear_ratio_sigma: Option<f64>,
+    ratio_walk: Option<f64>,
+    tread_sigma: Option<f64>,
+    tread_turn_sigma: Option<f64>,
+    wheel_turn_sigma_deg: Option<f64>,
+    distance_scale_sigma: Option<f64>,
+    still_min_s: Option<f64>,
+    aided_window_s: Option<f64>,
+    yaw_gate_sigma: Option<f64>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -612,6 +638,170 @@ impl Validator<'_> {
         }
     }
 
+    fn non_negative(&self, key: &str, v: f64) -> Result<f64, ConfigError> {
+        if v.is_finite() && v >= 0.0 {
+            Ok(v)
+        } else {
+            Err(self.err(key, "a finite number >= 0", v))
+        }
+    }
+
+    /// The `[ekf]` keys beyond the wheel noises and the gate threshold:
+    /// gate, blending, learning and the yaw-rate-aided estimator. Angles are
+    /// written in degrees (deg/s for rates), relative values as fractions.
+    fn ekf_choices(&self, e: &RawEkf, ekf: &mut EkfConfig) -> Result<(), ConfigError> {
+        let deg = |d: f64| d.to_radians();
+        // (key, value, field, must be > 0 rather than >= 0, to radians)
+        let numbers: [(&str, Option<f64>, &mut f64, bool, bool); 14] = [
+            (
+                "front_scale_sigma",
+                e.front_scale_sigma,
+                &mut ekf.front_scale_sigma,
+                false,
+                false,
+            ),
+            (
+                "min_slip_ratio",
+                e.min_slip_ratio,
+                &mut ekf.min_slip_ratio,
+                false,
+                false,
+            ),
+            (
+                "yaw_sigma_deg_s",
+                e.yaw_sigma_deg_s,
+                &mut ekf.yaw_sigma_radps,
+                true,
+                true,
+            ),
+            (
+                "yaw_bias_walk_deg_s_per_sqrt_s",
+                e.yaw_bias_walk_deg_s_per_sqrt_s,
+                &mut ekf.yaw_bias_walk_radps,
+                false,
+                true,
+            ),
+            (
+                "yaw_bias_sigma_deg_s",
+                e.yaw_bias_sigma_deg_s,
+                &mut ekf.yaw_bias_sigma_radps,
+                true,
+                true,
+            ),
+            (
+                "yaw_scale_sigma",
+                e.yaw_scale_sigma,
+                &mut ekf.yaw_scale_sigma,
+                false,
+                false,
+            ),
+            (
+                "rear_ratio_sigma",
+                e.rear_ratio_sigma,
+                &mut ekf.rear_ratio_sigma,
+                true,
+                false,
+            ),
+            (
+                "ratio_walk",
+                e.ratio_walk,
+                &mut ekf.ratio_walk,
+                false,
+                false,
+            ),
+            (
+                "tread_sigma",
+                e.tread_sigma,
+                &mut ekf.tread_sigma,
+                true,
+                false,
+            ),
+            (
+                "tread_turn_sigma",
+                e.tread_turn_sigma,
+                &mut ekf.tread_turn_sigma,
+                false,
+                false,
+            ),
+            (
+                "wheel_turn_sigma_deg",
+                e.wheel_turn_sigma_deg,
+                &mut ekf.wheel_turn_sigma_rad,
+                true,
+                true,
+            ),
+            (
+                "distance_scale_sigma",
+                e.distance_scale_sigma,
+                &mut ekf.distance_scale_sigma,
+                false,
+                false,
+            ),
+            (
+                "still_min_s",
+                e.still_min_s,
+                &mut ekf.still_min_s,
+                false,
+                false,
+            ),
+            (
+                "aided_window_s",
+                e.aided_window_s,
+                &mut ekf.aided_window_s,
+                true,
+                false,
+            ),
+        ];
+        for (name, value, field, strictly_positive, in_degrees) in numbers {
+            let Some(v) = value else { continue };
+            let key = format!("ekf.{name}");
+            let v = if strictly_positive {
+                self.positive(&key, v)?
+            } else {
+                self.non_negative(&key, v)?
+            };
+            *field = if in_degrees { deg(v) } else { v };
+        }
+        if let Some(s) = e.yaw_gate_sigma {
+            ekf.yaw_gate_sigma = self.positive("ekf.yaw_gate_sigma", s)?;
+        }
+        if let Some(b) = e.blend_accepted {
+            ekf.blend_accepted = b;
+        }
+        if let Some(a) = &e.gate_action {
+            use canodom_fusion::ekf::GateAction;
+            ekf.gate_action = match a.as_str() {
+                "consensus" => GateAction::Consensus,
+                "use_front" => GateAction::UseFront,
+                "keep_rear" => GateAction::KeepRear,
+                _ => {
+                    return Err(self.err(
+                        "ekf.gate_action",
+                        "\"consensus\", \"use_front\" or \"keep_rear\"",
+                        format!("{a:?}"),
+                    ));
+                }
+            };
+        }
+        if let Some(d) = e.steer_offset_drift_deg {
+            if e.learn_steer_offset == Some(false) {
+                return Err(self.err(
+                    "ekf.steer_offset_drift_deg",
+                    "no value with learn_steer_offset = false (the offset is not learnt)",
+                    d,
+                ));
+            }
+            ekf.steer_offset_drift_rad = Some(
+                self.non_negative("ekf.steer_offset_drift_deg", d)?
+                    .to_radians(),
+            );
+        }
+        if let Some(d) = e.front_scale_drift {
+            ekf.front_scale_drift = Some(self.non_negative("ekf.front_scale_drift", d)?);
+        }
+        Ok(())
+    }
+
     fn signal(&self, db: &Database, key: &str, path: &str) -> Result<InputSignal, ConfigError> {
         let handle = db.signal(path).map_err(|e| {
             self.err(
@@ -979,10 +1169,9 @@ impl Validator<'_> {
             ekf.steer_sigma_rad = self.positive("ekf.steer_sigma_deg", d)?.to_radians();
         }
         if let Some(d) = e.steer_bias_sigma_deg {
-            if !(d.is_finite() && d >= 0.0) {
-                return Err(self.err("ekf.steer_bias_sigma_deg", "a finite number >= 0", d));
-            }
-            ekf.steer_bias_sigma_rad = d.to_radians();
+            ekf.steer_bias_sigma_rad = self
+                .non_negative("ekf.steer_bias_sigma_deg", d)?
+                .to_radians();
         }
         if let Some(n) = e.correct_every {
             if n == 0 {
@@ -999,6 +1188,7 @@ impl Validator<'_> {
         if e.learn_steer_offset == Some(false) {
             ekf.steer_offset_drift_rad = None;
         }
+        self.ekf_choices(e, &mut ekf)?;
         canodom_fusion::ekf::Ekf::new(ekf)
             .map_err(|err| self.err("ekf", "a valid filter configuration", err))?;
 
@@ -1305,6 +1495,149 @@ algorithm = "crc8_sae_j1850"
         assert_eq!(c.inputs.timeout_factor, 5.0);
         assert_eq!(c.inputs.trusted_after_frames, 2);
         assert_eq!(c.inputs.max_wheel_speed_mps, 5.0);
+    }
+
+    /// The RAV4 configuration with a yaw-rate sensor, and `extra` appended.
+    fn rav4_yaw(extra: &str) -> Result<Config, ConfigError> {
+        let file = PathBuf::from(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../data/comma2k19-rav4/config_yaw.toml"
+        ));
+        let text = std::fs::read_to_string(&file).unwrap();
+        assert!(
+            !text.contains("[ekf]"),
+            "config_yaw.toml grew an [ekf] table"
+        );
+        Config::from_toml(&format!("{text}\n{extra}"), &file)
+    }
+
+    #[test]
+    fn an_empty_ekf_table_is_the_filters_default_with_the_dbcs_yaw_quantum() {
+        let c = rav4_yaw("[ekf]\n").unwrap();
+        // KINEMATICS.YAW_RATE counts in 0.244 deg/s steps.
+        let quantum = 0.244f64.to_radians();
+        assert!((c.ekf.yaw_quantum_radps - quantum).abs() < 1e-15);
+        let want = EkfConfig {
+            yaw_quantum_radps: c.ekf.yaw_quantum_radps,
+            ..EkfConfig::new(c.params)
+        };
+        assert_eq!(c.ekf, want);
+        assert_eq!(rav4_yaw("").unwrap().ekf, want);
+    }
+
+    #[test]
+    fn every_ekf_key_reaches_its_field_in_its_unit() {
+        use canodom_fusion::ekf::GateAction;
+        let c = rav4_yaw(
+            "[ekf]\nfront_scale_sigma = 0.02\nmin_slip_ratio = 0.1\nblend_accepted = true\n\
+             gate_action = \"keep_rear\"\nyaw_gate_sigma = 4.0\nyaw_sigma_deg_s = 0.2\n\
+             yaw_bias_walk_deg_s_per_sqrt_s = 0.001\nyaw_bias_sigma_deg_s = 0.3\n\
+             yaw_scale_sigma = 0.01\nrear_ratio_sigma = 0.002\nratio_walk = 1e-4\n\
+             tread_sigma = 0.04\ntread_turn_sigma = 0.03\nwheel_turn_sigma_deg = 0.02\n\
+             distance_scale_sigma = 0.004\nstill_min_s = 3.0\naided_window_s = 1.0\n\
+             steer_offset_drift_deg = 0.01\nfront_scale_drift = 1e-4\n",
+        )
+        .unwrap();
+        let e = c.ekf;
+        let deg = f64::to_radians;
+        let close = |a: f64, b: f64| (a - b).abs() <= 1e-15 * b.abs();
+        assert_eq!(e.front_scale_sigma, 0.02);
+        assert_eq!(e.min_slip_ratio, 0.1);
+        assert!(e.blend_accepted);
+        assert_eq!(e.gate_action, GateAction::KeepRear);
+        assert_eq!(e.yaw_gate_sigma, 4.0);
+        assert!(close(e.yaw_sigma_radps, deg(0.2)));
+        assert!(close(e.yaw_bias_walk_radps, deg(0.001)));
+        assert!(close(e.yaw_bias_sigma_radps, deg(0.3)));
+        assert_eq!(e.yaw_scale_sigma, 0.01);
+        assert_eq!(e.rear_ratio_sigma, 0.002);
+        assert_eq!(e.ratio_walk, 1e-4);
+        assert_eq!(e.tread_sigma, 0.04);
+        assert_eq!(e.tread_turn_sigma, 0.03);
+        assert!(close(e.wheel_turn_sigma_rad, deg(0.02)));
+        assert_eq!(e.distance_scale_sigma, 0.004);
+        assert_eq!(e.still_min_s, 3.0);
+        assert_eq!(e.aided_window_s, 1.0);
+        assert!(close(e.steer_offset_drift_rad.unwrap(), deg(0.01)));
+        assert_eq!(e.front_scale_drift, Some(1e-4));
+        // Every key set differs from its default: none was silently dropped.
+        let d = EkfConfig::new(c.params);
+        for (name, set, default) in [
+            (
+                "front_scale_sigma",
+                e.front_scale_sigma,
+                d.front_scale_sigma,
+            ),
+            ("min_slip_ratio", e.min_slip_ratio, d.min_slip_ratio),
+            ("yaw_gate_sigma", e.yaw_gate_sigma, d.yaw_gate_sigma),
+            ("yaw_sigma", e.yaw_sigma_radps, d.yaw_sigma_radps),
+            (
+                "yaw_bias_walk",
+                e.yaw_bias_walk_radps,
+                d.yaw_bias_walk_radps,
+            ),
+            (
+                "yaw_bias_sigma",
+                e.yaw_bias_sigma_radps,
+                d.yaw_bias_sigma_radps,
+            ),
+            ("yaw_scale_sigma", e.yaw_scale_sigma, d.yaw_scale_sigma),
+            ("rear_ratio_sigma", e.rear_ratio_sigma, d.rear_ratio_sigma),
+            ("ratio_walk", e.ratio_walk, d.ratio_walk),
+            ("tread_sigma", e.tread_sigma, d.tread_sigma),
+            ("tread_turn_sigma", e.tread_turn_sigma, d.tread_turn_sigma),
+            (
+                "wheel_turn_sigma",
+                e.wheel_turn_sigma_rad,
+                d.wheel_turn_sigma_rad,
+            ),
+            (
+                "distance_scale_sigma",
+                e.distance_scale_sigma,
+                d.distance_scale_sigma,
+            ),
+            ("still_min_s", e.still_min_s, d.still_min_s),
+            ("aided_window_s", e.aided_window_s, d.aided_window_s),
+        ] {
+            assert_ne!(set, default, "{name}");
+        }
+    }
+
+    #[test]
+    fn bad_ekf_values_are_named_with_what_was_expected() {
+        for (line, key, expected) in [
+            ("yaw_sigma_deg_s = 0.0", "ekf.yaw_sigma_deg_s", "> 0"),
+            ("tread_sigma = -0.1", "ekf.tread_sigma", "> 0"),
+            ("aided_window_s = nan", "ekf.aided_window_s", "> 0"),
+            ("min_slip_ratio = -0.05", "ekf.min_slip_ratio", ">= 0"),
+            ("still_min_s = inf", "ekf.still_min_s", ">= 0"),
+            (
+                "yaw_bias_walk_deg_s_per_sqrt_s = -1e-3",
+                "ekf.yaw_bias_walk_deg_s_per_sqrt_s",
+                ">= 0",
+            ),
+            ("yaw_gate_sigma = 0", "ekf.yaw_gate_sigma", "> 0"),
+            ("gate_action = \"front\"", "ekf.gate_action", "keep_rear"),
+            ("front_scale_drift = -1.0", "ekf.front_scale_drift", ">= 0"),
+            (
+                "learn_steer_offset = false\nsteer_offset_drift_deg = 0.01",
+                "ekf.steer_offset_drift_deg",
+                "learn_steer_offset = false",
+            ),
+        ] {
+            let e = rav4_yaw(&format!("[ekf]\n{line}\n"))
+                .unwrap_err()
+                .to_string();
+            assert!(
+                e.contains("config_yaw.toml") && e.contains(key) && e.contains(expected),
+                "{line}: {e}"
+            );
+        }
+        // A key with its unit missing is an unknown key, named.
+        let e = rav4_yaw("[ekf]\nyaw_sigma = 0.2\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("yaw_sigma"), "{e}");
     }
 
     fn invalid(text: &str) -> String {

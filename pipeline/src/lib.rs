@@ -8,12 +8,15 @@
 //! Layout:
 //! - [`config`]: the TOML configuration, validated once into typed values.
 //! - [`pipeline`]: the frame → EKF core shared by run, replay, calibrate and demo.
+//! - [`param_set`]: the identity of the parameter set in use, and which learnt
+//!   values a new set resets.
 //! - [`stats`]: reject reasons and counters.
 //! - [`security`]: `[security]`: the SecOC key, freshness files and lockout, validated.
 //! - [`gate`]: the SecOC gate the daemon passes its calibration frames through.
 
 pub mod config;
 pub mod gate;
+pub mod param_set;
 pub mod pipeline;
 pub mod security;
 pub mod stats;

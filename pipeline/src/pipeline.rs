@@ -27,6 +27,7 @@
 //! while the rear is stale the pose says `POSE_VALID = 0`.
 
 use crate::config::{Config, InputsConfig, WheelKind};
+use crate::param_set;
 use crate::stats::{Reasons, Reject, Stats};
 use canodom_can::frame::{CanFrame, FrameKind};
 use canodom_can::time::Timestamp;
@@ -253,6 +254,8 @@ pub struct Pipeline {
     rear_scale: (f64, f64),
     /// Version of the calibrated set in use; `None` for the nominal parameters.
     param_version: Option<u16>,
+    /// The set's yaw-rate calibration (bias rad/s, scale), part of its identity.
+    set_yaw_rate: (Option<f64>, Option<f64>),
 }
 
 /// Index of a message within `inputs`, by role.
@@ -395,6 +398,7 @@ impl Pipeline {
             decoder_params: params,
             rear_scale: (1.0, 1.0),
             param_version: None,
+            set_yaw_rate: (None, None),
         })
     }
 
@@ -403,6 +407,13 @@ impl Pipeline {
     /// next step on; the pose so far is kept. `None` returns to the nominal
     /// parameters. The caller chooses the instant (canodom applies sets only
     /// at standstill).
+    ///
+    /// What the filter learnt on a parameter the set changes goes back to its
+    /// prior ([`param_set::reset_learnt`]): a new diameter ratio resets the
+    /// rear ratio error (and the front scale), a new tread the effective
+    /// tread error, a new steering map the steering offset, a new yaw-rate
+    /// calibration the yaw-rate bias (to the calibrated one when the set
+    /// carries it). Values learnt on unchanged parameters are kept.
     ///
     /// # Errors
     /// The filter refused the parameters; nothing changed then.
@@ -430,13 +441,24 @@ impl Pipeline {
             d(&params, Wheel::RearLeft) / d(&self.decoder_params, Wheel::RearLeft),
             d(&params, Wheel::RearRight) / d(&self.decoder_params, Wheel::RearRight),
         );
+        let before = self.params_in_use();
         self.ekf = ekf;
         self.params = params;
         self.steer_map = params.steering();
         self.param_version = set.map(|(v, _)| v);
         let (_, values) = set.unzip();
-        self.yaw_scale = values.and_then(|v| v.yaw_rate_scale).unwrap_or(1.0);
-        if let Some(bias) = values.and_then(|v| v.yaw_rate_bias_radps) {
+        self.set_yaw_rate = (
+            values.and_then(|v| v.yaw_rate_bias_radps),
+            values.and_then(|v| v.yaw_rate_scale),
+        );
+        self.yaw_scale = self.set_yaw_rate.1.unwrap_or(1.0);
+        let changes = param_set::ParamChanges::between(&before, &self.params_in_use());
+        if changes.any() {
+            let state = &mut self.states[self.current];
+            let reset = param_set::reset_learnt(&state.learnt(), changes, self.ekf.config());
+            *state = state.with_learnt(&reset);
+        }
+        if let Some(bias) = self.set_yaw_rate.0.filter(|_| changes.yaw_rate) {
             // The calibrated bias as the filter's prior, as sure as a drive
             // calibration gets (a tenth of a degree per second); the rear
             // diameters were calibrated with it, so their error starts at 0.
@@ -478,6 +500,21 @@ impl Pipeline {
     /// The parameters in use (nominal or calibrated).
     pub fn params(&self) -> &VehicleParams {
         &self.params
+    }
+
+    /// The parameters in use with the set's yaw-rate calibration.
+    pub fn params_in_use(&self) -> param_set::ParamsInUse {
+        param_set::ParamsInUse {
+            params: self.params,
+            yaw_rate_bias_radps: self.set_yaw_rate.0,
+            yaw_rate_scale: self.set_yaw_rate.1,
+        }
+    }
+
+    /// Which parameter set the filter runs on, the one its learnt values
+    /// are learnt on (a state file records it).
+    pub fn param_identity(&self) -> param_set::ParamIdentity {
+        param_set::ParamIdentity::of(self.param_version, &self.params_in_use())
     }
 
     /// Version of the calibrated set in use, `None` for nominal.

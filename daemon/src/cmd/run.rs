@@ -7,6 +7,7 @@ use canodom_export::recorder::RecorderOptions;
 use canodom_pipeline::config::Config;
 use std::path::PathBuf;
 use std::sync::Arc;
+use std::time::Duration;
 use tracing::{info, warn};
 
 /// Arguments of `run`.
@@ -31,13 +32,22 @@ pub struct RunArgs {
     /// The configuration file.
     #[arg(long)]
     pub config: PathBuf,
-    /// On stopping, write the end state here (JSON, atomically): last pose,
-    /// covariance, statistics, parameters and what the filter learnt
-    /// (steering offset, yaw-rate bias, ...); at start, take the learnt
-    /// values back from it (refused with a warning if damaged or out of
-    /// bounds).
+    /// Keep the state here (JSON, written atomically and durably): last
+    /// pose, covariance, statistics, the parameter set in use and what the
+    /// filter learnt (steering offset, yaw-rate bias, rear ratio and
+    /// effective tread errors, ...). Written every --state-every-s seconds,
+    /// after a calibrated set is applied, and on stopping. At start the
+    /// learnt values are taken back when they were learnt on the parameter
+    /// set in use; otherwise (another set, an edited configuration, a
+    /// damaged or older file, a value out of bounds) they are dropped with a
+    /// warning and the filter starts from its priors.
     #[arg(long)]
     pub state_file: Option<PathBuf>,
+    /// With --state-file: seconds between two writes while running, the most
+    /// a power cut can lose.
+    #[arg(long, value_name = "SECONDS", default_value_t = crate::state_file::DEFAULT_EVERY_S,
+        value_parser = state_period)]
+    pub state_every_s: f64,
     /// Refuse a DBC file with a message that cannot be decoded (a signal past
     /// its end, ...) instead of leaving the message out with a warning.
     #[arg(long)]
@@ -97,20 +107,13 @@ pub fn execute(args: &RunArgs) -> anyhow::Result<()> {
     let connector = SocketCan {
         iface: config.interface.clone(),
     };
-    let restore_learnt = args.state_file.as_deref().and_then(|path| {
-        use crate::state_file::{Restored, restore};
-        match restore(path) {
-            Restored::Nothing => None,
-            Restored::Learnt(learnt) => {
-                info!(path = %path.display(), "learnt values restored from the state file");
-                Some(learnt)
-            }
-            Restored::Refused(why) => {
-                warn!(path = %path.display(), cause = %why, "learnt values not restored; the filter starts from its priors");
-                None
-            }
-        }
-    });
+    let state_file = args
+        .state_file
+        .clone()
+        .map(|path| crate::state_file::StateFileOptions {
+            path,
+            every: Duration::from_secs_f64(args.state_every_s),
+        });
     let live = (args.record.is_some() || args.foxglove.is_some())
         .then(|| {
             let record = args.record.clone().map(|path| RecorderOptions {
@@ -136,7 +139,7 @@ pub fn execute(args: &RunArgs) -> anyhow::Result<()> {
         connector,
         shutdown_signal(),
         Observers {
-            restore_learnt,
+            state_file,
             tap,
             ..Observers::default()
         },
@@ -147,12 +150,25 @@ pub fn execute(args: &RunArgs) -> anyhow::Result<()> {
         info!(poses = r.poses, dropped = r.dropped, files = ?r.files, "recording and live view stopped");
     }
     let summary = summary?;
-    if let Some(path) = &args.state_file {
-        crate::state_file::save(path, &crate::state_file::SavedState::new(&config, &summary))?;
-        info!(path = %path.display(), "state saved");
+    if let (Some(path), Some(written)) = (&args.state_file, &summary.state_file) {
+        match written {
+            Ok(()) => info!(path = %path.display(), "state saved"),
+            Err(cause) => anyhow::bail!("end state not saved: {cause}"),
+        }
     }
     info!(stats = %summary.stats, poses = summary.poses_published, "canodom stopped");
     Ok(())
+}
+
+/// `--state-every-s`: a finite number of seconds > 0 (and at most a day: a
+/// longer period is a typo, not a choice).
+fn state_period(text: &str) -> Result<f64, String> {
+    match text.parse::<f64>() {
+        Ok(s) if s.is_finite() && s > 0.0 && s <= 86_400.0 => Ok(s),
+        _ => Err(format!(
+            "{text:?} is not a number of seconds > 0 and <= 86400"
+        )),
+    }
 }
 
 /// Completes on SIGINT or SIGTERM.
