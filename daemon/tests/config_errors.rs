@@ -15,7 +15,7 @@ fn both_shipped_examples_load() {
     let rc = crate::util::rc_car();
     assert_eq!(rc.checks.len(), 3);
     let toyota = Config::load(&crate::util::toyota_toml()).unwrap();
-    assert!(toyota.signals.steering_fine.is_some());
+    assert!(toyota.signals.steering.form.fine.is_some());
     assert_eq!(toyota.output.base_id.id().raw(), 0x6A0);
     // Steering-wheel degrees through a ratio of 15.
     let gain = toyota.params.steering().gain;

@@ -10,6 +10,7 @@ mod bad_input;
 mod calib_client;
 mod calib_session;
 mod calibrate;
+mod cars;
 mod cantools_decode;
 mod cli;
 mod config_errors;

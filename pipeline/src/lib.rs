@@ -8,6 +8,7 @@
 //! Layout:
 //! - [`config`]: the TOML configuration, validated once into typed values.
 //! - [`pipeline`]: the frame → EKF core shared by run, replay, calibrate and demo.
+//! - [`signal_forms`]: a quantity's signals: magnitude and sign, sums, units, the reversing signal.
 //! - [`stats`]: reject reasons and counters.
 //! - [`security`]: `[security]`: the SecOC key, freshness files and lockout, validated.
 //! - [`gate`]: the SecOC gate the daemon passes its calibration frames through.
@@ -16,4 +17,5 @@ pub mod config;
 pub mod gate;
 pub mod pipeline;
 pub mod security;
+pub mod signal_forms;
 pub mod stats;
