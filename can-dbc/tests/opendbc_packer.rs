@@ -53,11 +53,17 @@ fn every_maker_checksum_matches_opendbcs_packer_bit_for_bit() {
             assert!(c.is_valid(&data));
             let mut bad = data.clone();
             bad[free] ^= 0x80;
-            assert!(!c.is_valid(&bad), "{platform} {name}: flipped byte {free} passes");
+            assert!(
+                !c.is_valid(&bad),
+                "{platform} {name}: flipped byte {free} passes"
+            );
             let mut again = data.clone();
             again[..].iter_mut().zip(&mask).for_each(|(b, m)| *b &= !m);
             c.apply(&mut again).unwrap();
-            assert_eq!(again, data, "{platform} {name}: apply writes opendbc's frame");
+            assert_eq!(
+                again, data,
+                "{platform} {name}: apply writes opendbc's frame"
+            );
         }
         let e = per_platform.entry(platform.to_owned()).or_default();
         e.0 += 1;

@@ -149,3 +149,63 @@ fn calibration_fixes_name_two_signals_of_one_message() {
     assert!(e.contains("not an odometry input"), "{e}");
     assert!(Config::load(&path).unwrap().calibration.fixes.is_none());
 }
+
+/// The issue's wrong configurations refused at start (#32): tick counters
+/// on km/h signals, a sign signal of another message, an unknown unit.
+#[test]
+fn issue_32_wrong_forms_are_named_at_start() {
+    let path = crate::util::toyota_toml();
+    let text = std::fs::read_to_string(&path).unwrap();
+    let e = Config::from_toml(
+        &text.replace("wheel_kind = \"speed\"", "wheel_kind = \"ticks\"\n"),
+        &path,
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.contains("signals.wheel_kind") && e.contains("\"speed\"") && e.contains("km/h"),
+        "{e}"
+    );
+    let e = Config::from_toml(
+        &text.replace(
+            "rear_left = \"WHEEL_SPEEDS.WHEEL_SPEED_RL\"",
+            "rear_left = { signal = \"WHEEL_SPEEDS.WHEEL_SPEED_RL\", sign = \"KINEMATICS.YAW_RATE\" }",
+        ),
+        &path,
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.contains("signals.rear_left.sign") && e.contains("WHEEL_SPEEDS"),
+        "{e}"
+    );
+    let e = Config::from_toml(
+        &text.replace(
+            "rear_left = \"WHEEL_SPEEDS.WHEEL_SPEED_RL\"",
+            "rear_left = { signal = \"WHEEL_SPEEDS.WHEEL_SPEED_RL\", unit = \"furlongs\" }",
+        ),
+        &path,
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.contains("signals.rear_left.unit") && e.contains("furlongs"),
+        "{e}"
+    );
+    // A steering-wheel angle (±500°) configured as the road wheels' angle.
+    let e = Config::from_toml(
+        &text
+            .replace(
+                "steering_kind = \"steering_wheel\"",
+                "steering_kind = \"road_wheel\"",
+            )
+            .replace("steering_ratio = 15.0\n", ""),
+        &path,
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.contains("signals.steering_kind") && e.contains("500°"),
+        "{e}"
+    );
+}

@@ -171,8 +171,9 @@ struct RawSignals {
     steering: RawSignal,
     /// A second, finer steering signal added to `steering` (Toyota's `STEER_FRACTION`).
     steering_fine: Option<String>,
-    wheel_kind: String,
-    steering_kind: String,
+    /// Optional in serde so that a missing one is named with its values.
+    wheel_kind: Option<String>,
+    steering_kind: Option<String>,
     /// The car's yaw-rate sensor (`KINEMATICS.YAW_RATE` on a Toyota), optional.
     yaw_rate: Option<RawSignal>,
     /// The signal that says the car reverses (wheel speeds as magnitudes).
@@ -692,10 +693,16 @@ impl Validator<'_> {
 
         // Signals.
         let s = &raw.signals;
-        let speed = match s.wheel_kind.as_str() {
-            "ticks" => false,
-            "speed" => true,
-            other => return Err(self.err("signals.wheel_kind", "\"ticks\" or \"speed\"", other)),
+        let speed = match s.wheel_kind.as_deref() {
+            Some("ticks") => false,
+            Some("speed") => true,
+            other => {
+                return Err(self.err(
+                    "signals.wheel_kind",
+                    "\"ticks\" (cumulative encoder counters) or \"speed\" (km/h, m/s or mph signals)",
+                    other.map_or_else(|| "nothing".to_owned(), |o| format!("{o:?}")),
+                ));
+            }
         };
         let wheel_quantity = speed.then_some(Quantity::Speed);
         let wheel = |key: &str, raw: &RawSignal| self.quantity(&db, key, raw, wheel_quantity);
@@ -783,12 +790,8 @@ impl Validator<'_> {
             }
             (WheelKind::Ticks, 1.0)
         };
-        let (mut steering, steer_unit) = self.quantity(
-            &db,
-            "signals.steering",
-            &s.steering,
-            Some(Quantity::Angle),
-        )?;
+        let (mut steering, steer_unit) =
+            self.quantity(&db, "signals.steering", &s.steering, Some(Quantity::Angle))?;
         if let Some(p) = &s.steering_fine {
             let fine = self.signal(&db, "signals.steering_fine", p)?;
             if fine.message_index != steering.message_index {
@@ -809,19 +812,19 @@ impl Validator<'_> {
         }
         let direction = match &s.direction {
             None => None,
-            Some(d) => Some(
-                crate::signal_forms::resolve_direction(&db, d).map_err(|e| self.form(e))?,
-            ),
+            Some(d) => {
+                Some(crate::signal_forms::resolve_direction(&db, d).map_err(|e| self.form(e))?)
+            }
         };
         let tick_bits = wheels.rear_left.handle.size();
-        let steering_kind = match s.steering_kind.as_str() {
-            "road_wheel" => SteeringKind::RoadWheel,
-            "steering_wheel" => SteeringKind::SteeringWheel,
+        let steering_kind = match s.steering_kind.as_deref() {
+            Some("road_wheel") => SteeringKind::RoadWheel,
+            Some("steering_wheel") => SteeringKind::SteeringWheel,
             other => {
                 return Err(self.err(
                     "signals.steering_kind",
-                    "\"road_wheel\" or \"steering_wheel\"",
-                    other,
+                    "\"road_wheel\" (the wheels' angle) or \"steering_wheel\" (divided by vehicle.steering_ratio)",
+                    other.map_or_else(|| "nothing".to_owned(), |o| format!("{o:?}")),
                 ));
             }
         };
@@ -862,6 +865,24 @@ impl Validator<'_> {
             }
         };
         let rad_per_unit = steer_unit.map_or(1.0, Unit::si_per_unit);
+        if steering_kind == SteeringKind::RoadWheel {
+            // A road wheel turns well under 90°; a DBC range far beyond it
+            // is a steering-wheel angle (VW's LWI_01 reaches 800°).
+            let sig =
+                &db.messages()[steering.message_index].signals()[steering.handle.signal_index()];
+            let reach_deg = sig.min().abs().max(sig.max().abs()) * rad_per_unit.to_degrees();
+            if reach_deg > 120.0 {
+                return Err(self.err(
+                    "signals.steering_kind",
+                    &format!(
+                        "\"steering_wheel\" with vehicle.steering_ratio: {} ranges to {reach_deg:.0}°, \
+                         beyond any road wheel",
+                        s.steering.name()
+                    ),
+                    "\"road_wheel\"",
+                ));
+            }
+        }
 
         // Vehicle.
         let v = &raw.vehicle;
@@ -963,10 +984,9 @@ impl Validator<'_> {
                         .handle;
                     let name = alg.as_deref().unwrap_or("crc8_sae_j1850");
                     if let Some(maker) = Maker::from_name(name) {
-                        let c = MakerChecksum::new(maker, m.id().to_dbc(), h, m.length())
-                            .map_err(|e| {
-                                self.err(&format!("{key}.checksum"), "a usable checksum", e)
-                            })?;
+                        let c = MakerChecksum::new(maker, m.id().to_dbc(), h, m.length()).map_err(
+                            |e| self.err(&format!("{key}.checksum"), "a usable checksum", e),
+                        )?;
                         checks.push(MessageCheck {
                             message_index,
                             counter,
@@ -1429,6 +1449,18 @@ algorithm = "crc8_sae_j1850"
         );
         let s = invalid(&RC_CAR.replace("\"ticks\"", "\"pulses\""));
         assert!(s.contains("signals.wheel_kind"), "{s}");
+        // A missing kind is named with the values it takes (it was a TOML
+        // parse error without them).
+        let s = invalid(&RC_CAR.replace("wheel_kind = \"ticks\"\n", ""));
+        assert!(
+            s.contains("signals.wheel_kind") && s.contains("\"speed\"") && s.contains("nothing"),
+            "{s}"
+        );
+        let s = invalid(&RC_CAR.replace("steering_kind = \"road_wheel\"\n", ""));
+        assert!(
+            s.contains("signals.steering_kind") && s.contains("\"steering_wheel\""),
+            "{s}"
+        );
         let s = invalid(&RC_CAR.replace("crc8_sae_j1850", "crc32"));
         assert!(s.contains("checks.WHEEL_ENC_REAR.algorithm"), "{s}");
         let s = invalid(&RC_CAR.replace("rc_car.dbc", "nope.dbc"));

@@ -27,10 +27,10 @@
 //! while the rear is stale the pose says `POSE_VALID = 0`.
 
 use crate::config::{Config, InputsConfig, WheelKind};
+use crate::signal_forms::{DirectionSignal, SignalForm};
 use crate::stats::{Reasons, Reject, Stats};
 use canodom_can::frame::{CanFrame, FrameKind};
 use canodom_can::time::Timestamp;
-use crate::signal_forms::{DirectionSignal, SignalForm};
 use canodom_dbc::{CounterCheck, CounterStatus, FrameId, SignalHandle};
 use canodom_fusion::ekf::{Ekf, Learnt, LearntPair, OdometryInput, State, WindowOutcome};
 pub use canodom_protocol::pose_frames::{PoseFlags, PoseOutput};
@@ -337,37 +337,52 @@ impl Pipeline {
         let s = &config.signals;
         let db = &config.db;
         let mut inputs: Vec<Input> = Vec::new();
-        let mut role = |idx: usize, rear: bool, front: bool, steering: bool, yaw: bool, dir: bool| {
-            let m = &db.messages()[idx];
-            let pos = if let Some(p) = find(&inputs, m.id()) {
-                p
-            } else {
-                let check = config.checks.iter().find(|c| c.message_index == idx);
-                inputs.push(Input {
-                    id: m.id(),
-                    length: m.length(),
-                    rear: false,
-                    front: false,
-                    steering: false,
-                    yaw: false,
-                    direction: false,
-                    counter: check
-                        .and_then(|c| c.counter)
-                        .and_then(|h| CounterCheck::new(h.size()).ok().map(|cc| (h, cc))),
-                    checksum: check.and_then(|c| c.checksum.clone()),
-                    health: Health::new(m.cycle_time_ms(), &config.inputs),
-                });
-                inputs.len() - 1
+        let mut role =
+            |idx: usize, rear: bool, front: bool, steering: bool, yaw: bool, dir: bool| {
+                let m = &db.messages()[idx];
+                let pos = if let Some(p) = find(&inputs, m.id()) {
+                    p
+                } else {
+                    let check = config.checks.iter().find(|c| c.message_index == idx);
+                    inputs.push(Input {
+                        id: m.id(),
+                        length: m.length(),
+                        rear: false,
+                        front: false,
+                        steering: false,
+                        yaw: false,
+                        direction: false,
+                        counter: check
+                            .and_then(|c| c.counter)
+                            .and_then(|h| CounterCheck::new(h.size()).ok().map(|cc| (h, cc))),
+                        checksum: check.and_then(|c| c.checksum.clone()),
+                        health: Health::new(m.cycle_time_ms(), &config.inputs),
+                    });
+                    inputs.len() - 1
+                };
+                let i = &mut inputs[pos];
+                i.rear |= rear;
+                i.front |= front;
+                i.steering |= steering;
+                i.yaw |= yaw;
+                i.direction |= dir;
             };
-            let i = &mut inputs[pos];
-            i.rear |= rear;
-            i.front |= front;
-            i.steering |= steering;
-            i.yaw |= yaw;
-            i.direction |= dir;
-        };
-        role(s.wheels.rear_left.message_index, true, false, false, false, false);
-        role(s.wheels.front_left.message_index, false, true, false, false, false);
+        role(
+            s.wheels.rear_left.message_index,
+            true,
+            false,
+            false,
+            false,
+            false,
+        );
+        role(
+            s.wheels.front_left.message_index,
+            false,
+            true,
+            false,
+            false,
+            false,
+        );
         role(s.steering.message_index, false, false, true, false, false);
         if let Some(y) = &s.yaw_rate {
             role(y.signal.message_index, false, false, false, true, false);

@@ -76,7 +76,9 @@ impl Unit {
     /// VW's spellings cut at 24 characters (`...PerSecon`) are recognised.
     pub fn parse(text: &str) -> Option<Self> {
         let lower = text.trim().to_lowercase().replace([' ', '_', '-'], "");
-        let t = lower.strip_prefix("unit").unwrap_or(&lower)
+        let t = lower
+            .strip_prefix("unit")
+            .unwrap_or(&lower)
             .replace("°grad", "deg")
             .replace('°', "deg");
         Some(match t.as_str() {
@@ -89,12 +91,24 @@ impl Unit {
             "deg" | "degs" | "degree" | "degrees" | "degreofarc" | "degreeofarc" | "grad"
             | "degrad" => Self::Degrees,
             "rad" | "radian" | "radians" => Self::Radians,
-            "deg/s" | "deg/sec" | "deg/sek" | "degree/s" | "degrees/s" | "degrees/sec"
-            | "degrees/second" | "degré/s" | "dps" | "degps" | "grad/s" | "grad/sec"
-            | "degrad/s" | "degreofarcpersecon" | "degreofarcpersecond"
-            | "degreeofarcpersecond" | "degreepersecond" | "degreespersecond" => {
-                Self::DegreesPerSecond
-            }
+            "deg/s"
+            | "deg/sec"
+            | "deg/sek"
+            | "degree/s"
+            | "degrees/s"
+            | "degrees/sec"
+            | "degrees/second"
+            | "degré/s"
+            | "dps"
+            | "degps"
+            | "grad/s"
+            | "grad/sec"
+            | "degrad/s"
+            | "degreofarcpersecon"
+            | "degreofarcpersecond"
+            | "degreeofarcpersecond"
+            | "degreepersecond"
+            | "degreespersecond" => Self::DegreesPerSecond,
             "rad/s" | "rad/sec" | "radps" | "radians/sec" | "radians/second"
             | "radianpersecond" | "radianspersecond" => Self::RadiansPerSecond,
             _ => return None,
@@ -180,10 +194,12 @@ impl<'de> Deserialize<'de> for RawSignal {
             fn visit_str<E: serde::de::Error>(self, v: &str) -> Result<RawSignal, E> {
                 Ok(RawSignal::plain(v))
             }
-            fn visit_map<A: serde::de::MapAccess<'de>>(self, map: A) -> Result<RawSignal, A::Error> {
-                let t = RawSignalTable::deserialize(serde::de::value::MapAccessDeserializer::new(
-                    map,
-                ))?;
+            fn visit_map<A: serde::de::MapAccess<'de>>(
+                self,
+                map: A,
+            ) -> Result<RawSignal, A::Error> {
+                let t =
+                    RawSignalTable::deserialize(serde::de::value::MapAccessDeserializer::new(map))?;
                 Ok(RawSignal {
                     signal: t.signal,
                     sum: t.sum,
@@ -412,11 +428,7 @@ pub fn resolve(
             }
         },
         (Some(_), Some(_)) => {
-            return Err(form_err(
-                key,
-                "either signal or sum, not both",
-                "both",
-            ));
+            return Err(form_err(key, "either signal or sum, not both", "both"));
         }
         (None, None) => {
             return Err(form_err(
@@ -466,7 +478,10 @@ pub fn resolve(
             if negative_raw > max {
                 return Err(form_err(
                     &format!("{key}.negative_when"),
-                    format!("a raw value of the {}-bit sign signal (0..={max})", h.size()),
+                    format!(
+                        "a raw value of the {}-bit sign signal (0..={max})",
+                        h.size()
+                    ),
                     negative_raw,
                 ));
             }
@@ -582,7 +597,8 @@ pub fn resolve_direction(db: &Database, raw: &RawDirection) -> Result<DirectionS
         })
         .and_then(|(r, _)| u64::try_from(*r).ok())
         .filter(|&r| r >= 64 || mask & (1 << r) == 0);
-    let forward_raw = forward_named.unwrap_or_else(|| (0..64).find(|r| mask & (1 << r) == 0).unwrap_or(64));
+    let forward_raw =
+        forward_named.unwrap_or_else(|| (0..64).find(|r| mask & (1 << r) == 0).unwrap_or(64));
     Ok(DirectionSignal {
         handle: h,
         message_index: h.message_index(),
@@ -699,7 +715,10 @@ VAL_ 173 GE_Fahrstufe 5 "P" 6 "R" 7 "N" 8 "D" ;
         );
         assert_eq!(x.key, "signals.steering.sign");
         assert!(x.expected.contains("LWI_01"), "{x:?}");
-        let x = e("s = { signal = \"LWI_01.LWI_Lenkradwinkel\", negative_when = 0 }", None);
+        let x = e(
+            "s = { signal = \"LWI_01.LWI_Lenkradwinkel\", negative_when = 0 }",
+            None,
+        );
         assert_eq!(x.key, "signals.steering.negative_when");
         let x = e("s = { sum = [\"LWI_01.COARSE\"] }", None);
         assert_eq!(x.key, "signals.steering.sum");
@@ -708,10 +727,16 @@ VAL_ 173 GE_Fahrstufe 5 "P" 6 "R" 7 "N" 8 "D" ;
             None,
         );
         assert!(x.expected.contains("0..=1"), "{x:?}");
-        let x = e("s = { signal = \"LWI_01.LWI_Lenkradwinkel\", unit = \"furlong\" }", Some(Quantity::Angle));
+        let x = e(
+            "s = { signal = \"LWI_01.LWI_Lenkradwinkel\", unit = \"furlong\" }",
+            Some(Quantity::Angle),
+        );
         assert_eq!(x.key, "signals.steering.unit");
         let x = e("s = \"Getriebe_11.SPEED\"", Some(Quantity::Angle));
-        assert!(x.expected.contains("angle") && x.got.contains("Unit_KiloMeterPerHour"), "{x:?}");
+        assert!(
+            x.expected.contains("angle") && x.got.contains("Unit_KiloMeterPerHour"),
+            "{x:?}"
+        );
         let x = e("s = \"Getriebe_11.GE_Fahrstufe\"", Some(Quantity::Angle));
         assert!(x.expected.contains("unit = "), "{x:?}");
         // An override fixes a missing unit.
@@ -754,7 +779,10 @@ VAL_ 173 GE_Fahrstufe 5 "P" 6 "R" 7 "N" 8 "D" ;
             },
         )
         .unwrap_err();
-        assert!(e.expected.contains("\"R\"") && e.key == "signals.direction.reverse", "{e:?}");
+        assert!(
+            e.expected.contains("\"R\"") && e.key == "signals.direction.reverse",
+            "{e:?}"
+        );
         let d = resolve_direction(
             &db,
             &RawDirection {

@@ -6,10 +6,10 @@
 
 use canodom_can::frame::{CanFrame, FrameId};
 use canodom_dbc::SignalHandle;
-use canodom_pipeline::signal_forms::{DirectionSignal, SignalForm};
 use canodom_fusion::sim::{Direction, Plan, SimConfig, SteeringSensor, WheelOutput, family};
 use canodom_fusion::{SteeringMap, VehicleParams, Wheel};
 use canodom_pipeline::config::{Config, SteeringKind, WheelKind};
+use canodom_pipeline::signal_forms::{DirectionSignal, SignalForm};
 use serde::Deserialize;
 use std::path::Path;
 

@@ -135,7 +135,9 @@ impl MakerChecksum {
         let all_but_last = &d[..d.len().saturating_sub(1)];
         match self.maker {
             Maker::Toyota => {
-                let s = d.len() as u64 + id_bytes() + all_but_last.iter().map(|&b| u64::from(b)).sum::<u64>();
+                let s = d.len() as u64
+                    + id_bytes()
+                    + all_but_last.iter().map(|&b| u64::from(b)).sum::<u64>();
                 s & 0xFF
             }
             Maker::Honda => {
@@ -201,7 +203,11 @@ impl MakerChecksum {
                 let mut feed = |b: u8| {
                     let mut c = crc ^ (u16::from(b) << 8);
                     for _ in 0..8 {
-                        c = if c & 0x8000 != 0 { (c << 1) ^ 0x1021 } else { c << 1 };
+                        c = if c & 0x8000 != 0 {
+                            (c << 1) ^ 0x1021
+                        } else {
+                            c << 1
+                        };
                     }
                     crc = c;
                 };
@@ -287,7 +293,11 @@ fn crc8_table(poly: u8) -> [u8; 256] {
     for (i, entry) in table.iter_mut().enumerate() {
         let mut r = i as u8;
         for _ in 0..8 {
-            r = if r & 0x80 != 0 { (r << 1) ^ poly } else { r << 1 };
+            r = if r & 0x80 != 0 {
+                (r << 1) ^ poly
+            } else {
+                r << 1
+            };
         }
         *entry = r;
     }
