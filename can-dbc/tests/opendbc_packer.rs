@@ -35,7 +35,7 @@ fn every_maker_checksum_matches_opendbcs_packer_bit_for_bit() {
         // The bytes the checksum signal occupies: a flipped bit elsewhere
         // must be caught.
         let mut mask = vec![0u8; msg.length()];
-        handle.or_bit_mask(&mut mask);
+        msg.signal(checksum_name).unwrap().or_bit_mask(&mut mask);
         let free = mask.iter().position(|&b| b == 0).unwrap();
         let frames = m["frames"].as_array().unwrap();
         for f in frames {

@@ -619,18 +619,7 @@ impl Pipeline {
         // Each wheel signal is read once: its raw bits feed a tick decoder,
         // its physical value the finiteness check and a speed decoder.
         let wheel_raw = |on: bool, f: &SignalForm| {
-            if !on {
-                (0, 0.0)
-            } else if f.is_plain() {
-                let h = &f.main;
-                h.raw(data).map_or((0, f64::NAN), |r| {
-                    let v = h.raw_to_scaled(r) * factor;
-                    (r, if direction { sign * v.abs() } else { v })
-                })
-            } else {
-                let v = val(f) * factor;
-                (0, if direction { sign * v.abs() } else { v })
-            }
+            wheel_reading(on, f, data, factor, direction.then_some(sign))
         };
         let raws = WheelSet {
             rear_left: wheel_raw(rear, &self.wheels.rear_left),
@@ -885,6 +874,30 @@ impl Pipeline {
             flags,
             param_version: self.param_version.unwrap_or(0),
         }
+    }
+}
+
+/// A wheel signal's (raw bits, value in the decoders' unit): the raw bits
+/// feed a tick decoder, the value the finiteness check and a speed decoder;
+/// `signed_by` (the reversing signal's sign) makes the value a magnitude
+/// of that sign. `(0, 0.0)` for a message that does not carry the wheel.
+#[inline]
+fn wheel_reading(
+    on: bool,
+    f: &SignalForm,
+    data: &[u8],
+    factor: f64,
+    signed_by: Option<f64>,
+) -> (u64, f64) {
+    let signed = |v: f64| signed_by.map_or(v, |sign| sign * v.abs());
+    if !on {
+        (0, 0.0)
+    } else if f.is_plain() {
+        let h = &f.main;
+        h.raw(data)
+            .map_or((0, f64::NAN), |r| (r, signed(h.raw_to_scaled(r) * factor)))
+    } else {
+        (0, signed(f.decode(data).unwrap_or(f64::NAN) * factor))
     }
 }
 

@@ -491,12 +491,29 @@ pub fn resolve(
             })
         }
     };
-    let (unit, unit_key, spelled) = match &raw.unit {
-        Some(u) => (Unit::parse(u), format!("{key}.unit"), u.clone()),
-        None => {
-            let text = unit_text(db, main);
-            (Unit::parse(&text), key.to_owned(), text)
-        }
+    let unit = check_unit(db, key, raw, quantity, main, fine)?;
+    Ok(Resolved {
+        form: SignalForm { main, fine, sign },
+        message_index,
+        unit,
+    })
+}
+
+/// The unit of a quantity (the override, else the DBC's), checked to be
+/// of `quantity` when given, a sum's parts in one unit.
+fn check_unit(
+    db: &Database,
+    key: &str,
+    raw: &RawSignal,
+    quantity: Option<Quantity>,
+    main: SignalHandle,
+    fine: Option<SignalHandle>,
+) -> Result<Option<Unit>, FormError> {
+    let (unit, unit_key, spelled) = if let Some(u) = &raw.unit {
+        (Unit::parse(u), format!("{key}.unit"), u.clone())
+    } else {
+        let text = unit_text(db, main);
+        (Unit::parse(&text), key.to_owned(), text)
     };
     if let Some(q) = quantity {
         match unit {
@@ -536,11 +553,7 @@ pub fn resolve(
             }
         }
     }
-    Ok(Resolved {
-        form: SignalForm { main, fine, sign },
-        message_index,
-        unit,
-    })
+    Ok(unit)
 }
 
 /// Resolves `[signals] direction`.

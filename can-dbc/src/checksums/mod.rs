@@ -198,33 +198,7 @@ impl MakerChecksum {
                     .fold(0xFFu8, |r, &b| table[usize::from(r ^ b)]);
                 u64::from(crc ^ 0xFF)
             }
-            Maker::HyundaiCanFd => {
-                let mut crc: u16 = 0;
-                let mut feed = |b: u8| {
-                    let mut c = crc ^ (u16::from(b) << 8);
-                    for _ in 0..8 {
-                        c = if c & 0x8000 != 0 {
-                            (c << 1) ^ 0x1021
-                        } else {
-                            c << 1
-                        };
-                    }
-                    crc = c;
-                };
-                for &b in d.iter().skip(2) {
-                    feed(b);
-                }
-                feed((id & 0xFF) as u8);
-                feed(((id >> 8) & 0xFF) as u8);
-                let xor = match d.len() {
-                    8 => 0x5F29,
-                    16 => 0x041D,
-                    24 => 0x819D,
-                    32 => 0x9F5B,
-                    _ => 0,
-                };
-                u64::from(crc ^ xor)
-            }
+            Maker::HyundaiCanFd => hyundai_can_fd(id, d),
         }
     }
 
@@ -285,6 +259,36 @@ impl FrameChecksum {
             Self::Maker(c) => c.apply(data),
         }
     }
+}
+
+/// Hyundai/Kia CAN FD: CRC-16 XMODEM (poly 0x1021, init 0) over bytes 2..,
+/// then the id's low and high byte, XOR a constant of the frame length.
+fn hyundai_can_fd(id: u32, d: &[u8]) -> u64 {
+    let mut crc: u16 = 0;
+    let mut feed = |b: u8| {
+        let mut c = crc ^ (u16::from(b) << 8);
+        for _ in 0..8 {
+            c = if c & 0x8000 != 0 {
+                (c << 1) ^ 0x1021
+            } else {
+                c << 1
+            };
+        }
+        crc = c;
+    };
+    for &b in d.iter().skip(2) {
+        feed(b);
+    }
+    feed((id & 0xFF) as u8);
+    feed(((id >> 8) & 0xFF) as u8);
+    let xor = match d.len() {
+        8 => 0x5F29,
+        16 => 0x041D,
+        24 => 0x819D,
+        32 => 0x9F5B,
+        _ => 0,
+    };
+    u64::from(crc ^ xor)
 }
 
 /// Byte-wise table of a non-reflected CRC-8 (poly without the x⁸ term).
