@@ -13,6 +13,8 @@
 //! - [`signal`]: [`Signal`] metadata and the `Copy` [`SignalHandle`] for hot paths.
 //! - [`integrity`]: [`CounterCheck`] and [`Checksum`] (CRC-8 SAE J1850, configurable
 //!   CRC-8, sum, XOR).
+//! - [`checksums`]: the carmakers' own checksums (Toyota, Honda, Subaru, Tesla, VW MQB and
+//!   PQ, Chrysler, Hyundai CAN FD) as opendbc's packer writes them.
 //! - [`describe`]: the whole database as data and as a text listing (`canodom dbc dump`).
 //! - [`frame_id`]: [`FrameId`], standard or extended.
 //! - [`error`]: the crate's [`Error`].
@@ -60,6 +62,7 @@
 //! ```
 #![deny(missing_docs)]
 
+pub mod checksums;
 pub mod database;
 pub mod describe;
 pub mod error;
@@ -69,6 +72,7 @@ mod layout;
 pub mod message;
 pub mod signal;
 
+pub use checksums::{FrameChecksum, Maker, MakerChecksum};
 pub use database::{Database, LoadMode, LoadWarning};
 pub use error::{Error, Result};
 pub use frame_id::FrameId;

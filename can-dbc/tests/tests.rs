@@ -12,6 +12,7 @@ mod cantools_diff;
 mod corpus;
 mod error_paths;
 mod issue20;
+mod opendbc_packer;
 mod properties;
 mod rc_car;
 pub mod util;

@@ -15,7 +15,7 @@ fn both_shipped_examples_load() {
     let rc = crate::util::rc_car();
     assert_eq!(rc.checks.len(), 3);
     let toyota = Config::load(&crate::util::toyota_toml()).unwrap();
-    assert!(toyota.signals.steering_fine.is_some());
+    assert!(toyota.signals.steering.form.fine.is_some());
     assert_eq!(toyota.output.base_id.id().raw(), 0x6A0);
     // Steering-wheel degrees through a ratio of 15.
     let gain = toyota.params.steering().gain;
@@ -237,4 +237,63 @@ fn the_examples_ekf_blocks_state_the_defaults() {
         }
         assert_eq!(keys.len(), 27, "{}: {keys:?}", path.display());
     }
+
+/// The issue's wrong configurations refused at start (#32): tick counters
+/// on km/h signals, a sign signal of another message, an unknown unit.
+#[test]
+fn issue_32_wrong_forms_are_named_at_start() {
+    let path = crate::util::toyota_toml();
+    let text = std::fs::read_to_string(&path).unwrap();
+    let e = Config::from_toml(
+        &text.replace("wheel_kind = \"speed\"", "wheel_kind = \"ticks\"\n"),
+        &path,
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.contains("signals.wheel_kind") && e.contains("\"speed\"") && e.contains("km/h"),
+        "{e}"
+    );
+    let e = Config::from_toml(
+        &text.replace(
+            "rear_left = \"WHEEL_SPEEDS.WHEEL_SPEED_RL\"",
+            "rear_left = { signal = \"WHEEL_SPEEDS.WHEEL_SPEED_RL\", sign = \"KINEMATICS.YAW_RATE\" }",
+        ),
+        &path,
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.contains("signals.rear_left.sign") && e.contains("WHEEL_SPEEDS"),
+        "{e}"
+    );
+    let e = Config::from_toml(
+        &text.replace(
+            "rear_left = \"WHEEL_SPEEDS.WHEEL_SPEED_RL\"",
+            "rear_left = { signal = \"WHEEL_SPEEDS.WHEEL_SPEED_RL\", unit = \"furlongs\" }",
+        ),
+        &path,
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.contains("signals.rear_left.unit") && e.contains("furlongs"),
+        "{e}"
+    );
+    // A steering-wheel angle (±500°) configured as the road wheels' angle.
+    let e = Config::from_toml(
+        &text
+            .replace(
+                "steering_kind = \"steering_wheel\"",
+                "steering_kind = \"road_wheel\"",
+            )
+            .replace("steering_ratio = 15.0\n", ""),
+        &path,
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.contains("signals.steering_kind") && e.contains("500°"),
+        "{e}"
+    );
 }

@@ -11,6 +11,7 @@ mod calib_client;
 mod calib_session;
 mod calibrate;
 mod cantools_decode;
+mod cars;
 mod cli;
 mod config_errors;
 mod dbc_tools;

@@ -14,7 +14,12 @@
 //! uncertainty limits, write-back timing; see [`CalibrationConfig`]), and
 //! `[security]` (the SecOC key and lockout; see [`crate::security`]).
 
-use canodom_dbc::{Checksum, ChecksumAlgorithm, Database, SignalHandle};
+use crate::signal_forms::{
+    DirectionSignal, FormError, Quantity, RawDirection, RawSignal, SignalForm, Unit,
+};
+use canodom_dbc::{
+    Checksum, ChecksumAlgorithm, Database, FrameChecksum, Maker, MakerChecksum, SignalHandle,
+};
 use canodom_fusion::ekf::EkfConfig;
 use canodom_fusion::wheel::{InputConfig, SpeedUnit};
 use canodom_fusion::{SteeringMap, VehicleParams, WheelSet};
@@ -159,17 +164,20 @@ struct RawVehicle {
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct RawSignals {
-    rear_left: String,
-    rear_right: String,
-    front_left: String,
-    front_right: String,
-    steering: String,
+    rear_left: RawSignal,
+    rear_right: RawSignal,
+    front_left: RawSignal,
+    front_right: RawSignal,
+    steering: RawSignal,
     /// A second, finer steering signal added to `steering` (Toyota's `STEER_FRACTION`).
     steering_fine: Option<String>,
-    wheel_kind: String,
-    steering_kind: String,
+    /// Optional in serde so that a missing one is named with its values.
+    wheel_kind: Option<String>,
+    steering_kind: Option<String>,
     /// The car's yaw-rate sensor (`KINEMATICS.YAW_RATE` on a Toyota), optional.
-    yaw_rate: Option<String>,
+    yaw_rate: Option<RawSignal>,
+    /// The signal that says the car reverses (wheel speeds as magnitudes).
+    direction: Option<RawDirection>,
     /// +1 when the signal reads a left turn positive (ISO 8855), −1 when right.
     yaw_rate_sign: Option<i64>,
 }
@@ -346,10 +354,12 @@ pub enum SteeringKind {
 /// A resolved input signal.
 #[derive(Clone, Copy, Debug)]
 pub struct InputSignal {
-    /// The codec handle.
+    /// The codec handle (of the magnitude or the coarse part in a form).
     pub handle: SignalHandle,
     /// Index of its message in the database.
     pub message_index: usize,
+    /// How the quantity is read: one signal, magnitude and sign, or a sum.
+    pub form: SignalForm,
 }
 
 /// The four wheel signals and the steering.
@@ -357,10 +367,9 @@ pub struct InputSignal {
 pub struct Signals {
     /// Wheel signals.
     pub wheels: WheelSet<InputSignal>,
-    /// Steering signal (in its DBC unit; converted by `steering_map`).
+    /// Steering signal (in its unit; converted by `steering_map`); a
+    /// `steering_fine` is the fine part of its sum form.
     pub steering: InputSignal,
-    /// Optional finer part added to the steering signal (same message).
-    pub steering_fine: Option<SignalHandle>,
     /// Ticks or speeds.
     pub wheel_kind: WheelKind,
     /// Road-wheel or steering-wheel angle.
@@ -369,6 +378,12 @@ pub struct Signals {
     pub tick_bits: u32,
     /// The yaw-rate sensor, if configured.
     pub yaw_rate: Option<YawRateSignal>,
+    /// Multiplies a wheel speed's value into the `wheel_kind` unit (1, or
+    /// the m/s per mph of a speed in mph).
+    pub wheel_speed_factor: f64,
+    /// The signal that says the car reverses: wheel speeds are then read as
+    /// magnitudes, negative while it says so.
+    pub direction: Option<DirectionSignal>,
 }
 
 /// The bus's position fixes: two signals of one message.
@@ -402,8 +417,8 @@ pub struct MessageCheck {
     pub message_index: usize,
     /// Rolling counter signal.
     pub counter: Option<SignalHandle>,
-    /// Checksum (algorithm, covered bytes, position).
-    pub checksum: Option<Checksum>,
+    /// Checksum (algorithm, covered bytes, position; or a carmaker's).
+    pub checksum: Option<FrameChecksum>,
 }
 
 /// Timeouts and hysteresis of the inputs.
@@ -813,7 +828,32 @@ impl Validator<'_> {
         Ok(InputSignal {
             handle,
             message_index: handle.message_index(),
+            form: SignalForm::plain(handle),
         })
+    }
+
+    /// A quantity of `[signals]` in any form ([`crate::signal_forms`]),
+    /// its unit of `quantity` when given.
+    fn quantity(
+        &self,
+        db: &Database,
+        key: &str,
+        raw: &RawSignal,
+        quantity: Option<Quantity>,
+    ) -> Result<(InputSignal, Option<Unit>), ConfigError> {
+        let r = crate::signal_forms::resolve(db, key, raw, quantity).map_err(|e| self.form(e))?;
+        Ok((
+            InputSignal {
+                handle: r.form.main,
+                message_index: r.message_index,
+                form: r.form,
+            },
+            r.unit,
+        ))
+    }
+
+    fn form(&self, e: FormError) -> ConfigError {
+        self.err(&e.key, &e.expected, e.got)
     }
 
     #[allow(clippy::too_many_lines)]
@@ -843,87 +883,138 @@ impl Validator<'_> {
 
         // Signals.
         let s = &raw.signals;
+        let speed = match s.wheel_kind.as_deref() {
+            Some("ticks") => false,
+            Some("speed") => true,
+            other => {
+                return Err(self.err(
+                    "signals.wheel_kind",
+                    "\"ticks\" (cumulative encoder counters) or \"speed\" (km/h, m/s or mph signals)",
+                    other.map_or_else(|| "nothing".to_owned(), |o| format!("{o:?}")),
+                ));
+            }
+        };
+        let wheel_quantity = speed.then_some(Quantity::Speed);
+        let wheel = |key: &str, raw: &RawSignal| self.quantity(&db, key, raw, wheel_quantity);
+        let (rear_left, rl_unit) = wheel("signals.rear_left", &s.rear_left)?;
+        let (rear_right, rr_unit) = wheel("signals.rear_right", &s.rear_right)?;
+        let (front_left, fl_unit) = wheel("signals.front_left", &s.front_left)?;
+        let (front_right, fr_unit) = wheel("signals.front_right", &s.front_right)?;
         let wheels = WheelSet {
-            rear_left: self.signal(&db, "signals.rear_left", &s.rear_left)?,
-            rear_right: self.signal(&db, "signals.rear_right", &s.rear_right)?,
-            front_left: self.signal(&db, "signals.front_left", &s.front_left)?,
-            front_right: self.signal(&db, "signals.front_right", &s.front_right)?,
+            rear_left,
+            rear_right,
+            front_left,
+            front_right,
         };
         // One step per rear frame needs both rear wheels in one frame.
         if wheels.rear_left.message_index != wheels.rear_right.message_index {
             return Err(self.err(
                 "signals.rear_right",
                 "a signal in the same message as signals.rear_left",
-                &s.rear_right,
+                s.rear_right.name(),
             ));
         }
         if wheels.front_left.message_index != wheels.front_right.message_index {
             return Err(self.err(
                 "signals.front_right",
                 "a signal in the same message as signals.front_left",
-                &s.front_right,
+                s.front_right.name(),
             ));
         }
-        let steering = self.signal(&db, "signals.steering", &s.steering)?;
-        let steering_fine = match &s.steering_fine {
-            None => None,
-            Some(p) => {
-                let fine = self.signal(&db, "signals.steering_fine", p)?;
-                if fine.message_index != steering.message_index {
+        let (wheel_kind, wheel_speed_factor) = if speed {
+            // `quantity` gave every wheel a speed unit.
+            let unit = rl_unit.unwrap_or(Unit::KilometresPerHour);
+            for (key, u) in [
+                ("signals.rear_right", rr_unit),
+                ("signals.front_left", fl_unit),
+                ("signals.front_right", fr_unit),
+            ] {
+                if u != Some(unit) {
                     return Err(self.err(
-                        "signals.steering_fine",
-                        "a signal in the same message as signals.steering",
-                        p,
+                        key,
+                        &format!("the same unit as signals.rear_left ({unit:?})"),
+                        format!("{u:?}"),
                     ));
                 }
-                Some(fine.handle)
             }
-        };
-        let unit_of = |sig: &InputSignal| {
-            let m = &db.messages()[sig.message_index];
-            m.signals()[sig.handle.signal_index()].unit().to_owned()
-        };
-        let wheel_kind = match s.wheel_kind.as_str() {
-            "ticks" => WheelKind::Ticks,
-            "speed" => {
-                let unit = unit_of(&wheels.rear_left);
-                let speed_unit = match unit.to_ascii_lowercase().as_str() {
-                    "km/h" | "kph" | "kmh" => SpeedUnit::KilometresPerHour,
-                    "m/s" | "mps" => SpeedUnit::MetresPerSecond,
-                    _ => {
-                        return Err(self.err(
-                            "signals.rear_left",
-                            "a speed signal whose DBC unit is km/h, kph or m/s",
-                            format!("{} with unit {unit:?}", s.rear_left),
-                        ));
-                    }
-                };
-                for (key, sig) in [
-                    ("signals.rear_right", &wheels.rear_right),
-                    ("signals.front_left", &wheels.front_left),
-                    ("signals.front_right", &wheels.front_right),
-                ] {
-                    if unit_of(sig) != unit {
-                        return Err(self.err(
-                            key,
-                            &format!("the same unit as signals.rear_left ({unit})"),
-                            unit_of(sig),
-                        ));
-                    }
+            match unit {
+                Unit::MetresPerSecond => (WheelKind::Speed(SpeedUnit::MetresPerSecond), 1.0),
+                Unit::MilesPerHour => (
+                    WheelKind::Speed(SpeedUnit::MetresPerSecond),
+                    Unit::MilesPerHour.si_per_unit(),
+                ),
+                _ => (WheelKind::Speed(SpeedUnit::KilometresPerHour), 1.0),
+            }
+        } else {
+            for (key, w, raw) in [
+                ("signals.rear_left", &wheels.rear_left, &s.rear_left),
+                ("signals.rear_right", &wheels.rear_right, &s.rear_right),
+                ("signals.front_left", &wheels.front_left, &s.front_left),
+                ("signals.front_right", &wheels.front_right, &s.front_right),
+            ] {
+                if !w.form.is_plain() {
+                    return Err(self.err(
+                        key,
+                        "one tick-counter signal (sign and sum forms are for speeds)",
+                        raw.name(),
+                    ));
                 }
-                WheelKind::Speed(speed_unit)
+                let unit = unit_of(&db, w);
+                if Unit::parse(&unit).is_some_and(|u| u.quantity() == Quantity::Speed) {
+                    return Err(self.err(
+                        "signals.wheel_kind",
+                        &format!(
+                            "\"speed\": {} is a speed in {unit:?}, not a tick counter",
+                            raw.name()
+                        ),
+                        "\"ticks\"",
+                    ));
+                }
             }
-            other => return Err(self.err("signals.wheel_kind", "\"ticks\" or \"speed\"", other)),
+            if s.direction.is_some() {
+                return Err(self.err(
+                    "signals.direction",
+                    "no direction with tick counters (they count backwards when reversing)",
+                    "a direction signal",
+                ));
+            }
+            (WheelKind::Ticks, 1.0)
+        };
+        let (mut steering, steer_unit) =
+            self.quantity(&db, "signals.steering", &s.steering, Some(Quantity::Angle))?;
+        if let Some(p) = &s.steering_fine {
+            let fine = self.signal(&db, "signals.steering_fine", p)?;
+            if fine.message_index != steering.message_index {
+                return Err(self.err(
+                    "signals.steering_fine",
+                    "a signal in the same message as signals.steering",
+                    p,
+                ));
+            }
+            if steering.form.fine.is_some() {
+                return Err(self.err(
+                    "signals.steering_fine",
+                    "no steering_fine beside a signals.steering sum",
+                    p,
+                ));
+            }
+            steering.form.fine = Some(fine.handle);
+        }
+        let direction = match &s.direction {
+            None => None,
+            Some(d) => {
+                Some(crate::signal_forms::resolve_direction(&db, d).map_err(|e| self.form(e))?)
+            }
         };
         let tick_bits = wheels.rear_left.handle.size();
-        let steering_kind = match s.steering_kind.as_str() {
-            "road_wheel" => SteeringKind::RoadWheel,
-            "steering_wheel" => SteeringKind::SteeringWheel,
+        let steering_kind = match s.steering_kind.as_deref() {
+            Some("road_wheel") => SteeringKind::RoadWheel,
+            Some("steering_wheel") => SteeringKind::SteeringWheel,
             other => {
                 return Err(self.err(
                     "signals.steering_kind",
-                    "\"road_wheel\" or \"steering_wheel\"",
-                    other,
+                    "\"road_wheel\" (the wheels' angle) or \"steering_wheel\" (divided by vehicle.steering_ratio)",
+                    other.map_or_else(|| "nothing".to_owned(), |o| format!("{o:?}")),
                 ));
             }
         };
@@ -938,22 +1029,14 @@ impl Validator<'_> {
                 }
                 None
             }
-            Some(path) => {
-                let signal = self.signal(&db, "signals.yaw_rate", path)?;
-                let unit = unit_of(&signal);
-                let per_unit = match unit.to_ascii_lowercase().as_str() {
-                    "deg/s" | "°/s" | "degree/s" | "degrees/s" | "dps" => {
-                        std::f64::consts::PI / 180.0
-                    }
-                    "rad/s" | "radps" => 1.0,
-                    _ => {
-                        return Err(self.err(
-                            "signals.yaw_rate",
-                            "a yaw-rate signal whose DBC unit is deg/s or rad/s",
-                            format!("{path} with unit {unit:?}"),
-                        ));
-                    }
-                };
+            Some(raw_yaw) => {
+                let (signal, unit) = self.quantity(
+                    &db,
+                    "signals.yaw_rate",
+                    raw_yaw,
+                    Some(Quantity::AngularRate),
+                )?;
+                let per_unit = unit.map_or(1.0, Unit::si_per_unit);
                 let sign = match s.yaw_rate_sign {
                     None | Some(1) => 1.0,
                     Some(-1) => -1.0,
@@ -971,18 +1054,25 @@ impl Validator<'_> {
                 })
             }
         };
-        let steer_unit = unit_of(&steering);
-        let rad_per_unit = match steer_unit.to_ascii_lowercase().as_str() {
-            "deg" | "degree" | "degrees" | "°" => std::f64::consts::PI / 180.0,
-            "rad" | "radian" | "radians" => 1.0,
-            _ => {
+        let rad_per_unit = steer_unit.map_or(1.0, Unit::si_per_unit);
+        if steering_kind == SteeringKind::RoadWheel {
+            // A road wheel turns well under 90°; a DBC range far beyond it
+            // is a steering-wheel angle (VW's LWI_01 reaches 800°).
+            let sig =
+                &db.messages()[steering.message_index].signals()[steering.handle.signal_index()];
+            let reach_deg = sig.min().abs().max(sig.max().abs()) * rad_per_unit.to_degrees();
+            if reach_deg > 120.0 {
                 return Err(self.err(
-                    "signals.steering",
-                    "an angle signal whose DBC unit is deg or rad",
-                    format!("{} with unit {steer_unit:?}", s.steering),
+                    "signals.steering_kind",
+                    &format!(
+                        "\"steering_wheel\" with vehicle.steering_ratio: {} ranges to {reach_deg:.0}°, \
+                         beyond any road wheel",
+                        s.steering.name()
+                    ),
+                    "\"road_wheel\"",
                 ));
             }
-        };
+        }
 
         // Vehicle.
         let v = &raw.vehicle;
@@ -1082,14 +1172,30 @@ impl Validator<'_> {
                     let h = self
                         .signal(&db, &format!("{key}.checksum"), &format!("{name}.{sig}"))?
                         .handle;
-                    let algorithm = match alg.as_deref().unwrap_or("crc8_sae_j1850") {
+                    let name = alg.as_deref().unwrap_or("crc8_sae_j1850");
+                    if let Some(maker) = Maker::from_name(name) {
+                        let c = MakerChecksum::new(maker, m.id().to_dbc(), h, m.length()).map_err(
+                            |e| self.err(&format!("{key}.checksum"), "a usable checksum", e),
+                        )?;
+                        checks.push(MessageCheck {
+                            message_index,
+                            counter,
+                            checksum: Some(FrameChecksum::Maker(c)),
+                        });
+                        continue;
+                    }
+                    let algorithm = match name {
                         "crc8_sae_j1850" => ChecksumAlgorithm::Crc8SaeJ1850,
                         "sum" => ChecksumAlgorithm::Sum { init: 0 },
                         "xor" => ChecksumAlgorithm::Xor { init: 0 },
                         other => {
+                            let makers: Vec<&str> = Maker::ALL.iter().map(|(_, n)| *n).collect();
                             return Err(self.err(
                                 &format!("{key}.algorithm"),
-                                "\"crc8_sae_j1850\", \"sum\" or \"xor\"",
+                                &format!(
+                                    "\"crc8_sae_j1850\", \"sum\", \"xor\", or a carmaker's: {}",
+                                    makers.join(", ")
+                                ),
                                 other,
                             ));
                         }
@@ -1107,9 +1213,11 @@ impl Validator<'_> {
                     } else {
                         1..=len - 1
                     };
-                    Some(Checksum::new(algorithm, covered, position).map_err(|e| {
-                        self.err(&format!("{key}.checksum"), "a usable checksum", e)
-                    })?)
+                    Some(FrameChecksum::Bytes(
+                        Checksum::new(algorithm, covered, position).map_err(|e| {
+                            self.err(&format!("{key}.checksum"), "a usable checksum", e)
+                        })?,
+                    ))
                 }
             };
             checks.push(MessageCheck {
@@ -1254,11 +1362,12 @@ impl Validator<'_> {
             signals: Signals {
                 wheels,
                 steering,
-                steering_fine,
                 wheel_kind,
                 steering_kind,
                 tick_bits,
                 yaw_rate,
+                wheel_speed_factor,
+                direction,
             },
             checks,
             inputs,
@@ -1407,6 +1516,13 @@ impl Validator<'_> {
     }
 }
 
+/// The unit the DBC gives an input's main signal.
+fn unit_of(db: &Database, sig: &InputSignal) -> String {
+    db.messages()[sig.message_index].signals()[sig.handle.signal_index()]
+        .unit()
+        .to_owned()
+}
+
 /// The byte a checksum signal occupies, if it is a whole byte.
 fn checksum_byte(m: &canodom_dbc::Message, h: SignalHandle) -> Option<usize> {
     if h.size() != 8 {
@@ -1466,7 +1582,7 @@ algorithm = "crc8_sae_j1850"
         assert_eq!(c.signals.tick_bits, 16);
         assert_eq!(c.checks.len(), 1);
         let crc = c.checks[0].checksum.as_ref().unwrap();
-        assert_eq!(crc, &Checksum::rc_car());
+        assert_eq!(crc, &FrameChecksum::Bytes(Checksum::rc_car()));
         assert!((c.params.steering().gain - 1f64.to_radians()).abs() < 1e-15);
         assert_eq!(c.output.pose_rate_hz, 50.0);
         assert_eq!(c.ekf, EkfConfig::new(c.params));
@@ -1673,6 +1789,18 @@ algorithm = "crc8_sae_j1850"
         );
         let s = invalid(&RC_CAR.replace("\"ticks\"", "\"pulses\""));
         assert!(s.contains("signals.wheel_kind"), "{s}");
+        // A missing kind is named with the values it takes (it was a TOML
+        // parse error without them).
+        let s = invalid(&RC_CAR.replace("wheel_kind = \"ticks\"\n", ""));
+        assert!(
+            s.contains("signals.wheel_kind") && s.contains("\"speed\"") && s.contains("nothing"),
+            "{s}"
+        );
+        let s = invalid(&RC_CAR.replace("steering_kind = \"road_wheel\"\n", ""));
+        assert!(
+            s.contains("signals.steering_kind") && s.contains("\"steering_wheel\""),
+            "{s}"
+        );
         let s = invalid(&RC_CAR.replace("crc8_sae_j1850", "crc32"));
         assert!(s.contains("checks.WHEEL_ENC_REAR.algorithm"), "{s}");
         let s = invalid(&RC_CAR.replace("rc_car.dbc", "nope.dbc"));

@@ -10,6 +10,8 @@
 //! - [`pipeline`]: the frame → EKF core shared by run, replay, calibrate and demo.
 //! - [`param_set`]: the identity of the parameter set in use, and which learnt
 //!   values a new set resets.
+//! - [`signal_forms`]: a quantity's signals: magnitude and sign, sums, units, the reversing signal.
+//! - [`plausibility`]: run-time checks that name a confidently wrong signal (sign, unit, algorithm, kind).
 //! - [`stats`]: reject reasons and counters.
 //! - [`security`]: `[security]`: the SecOC key, freshness files and lockout, validated.
 //! - [`gate`]: the SecOC gate the daemon passes its calibration frames through.
@@ -18,5 +20,7 @@ pub mod config;
 pub mod gate;
 pub mod param_set;
 pub mod pipeline;
+pub mod plausibility;
 pub mod security;
+pub mod signal_forms;
 pub mod stats;

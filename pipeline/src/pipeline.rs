@@ -28,10 +28,11 @@
 
 use crate::config::{Config, InputsConfig, WheelKind};
 use crate::param_set;
+use crate::signal_forms::{DirectionSignal, SignalForm};
 use crate::stats::{Reasons, Reject, Stats};
 use canodom_can::frame::{CanFrame, FrameKind};
 use canodom_can::time::Timestamp;
-use canodom_dbc::{Checksum, CounterCheck, CounterStatus, FrameId, SignalHandle};
+use canodom_dbc::{CounterCheck, CounterStatus, FrameId, SignalHandle};
 use canodom_fusion::ekf::{Ekf, Learnt, LearntPair, OdometryInput, State, WindowOutcome};
 pub use canodom_protocol::pose_frames::{PoseFlags, PoseOutput};
 
@@ -198,8 +199,10 @@ struct Input {
     front: bool,
     steering: bool,
     yaw: bool,
+    /// Carries the reversing signal (`[signals] direction`).
+    direction: bool,
     counter: Option<(SignalHandle, CounterCheck)>,
-    checksum: Option<Checksum>,
+    checksum: Option<canodom_dbc::FrameChecksum>,
     health: Health,
 }
 
@@ -213,11 +216,15 @@ enum Decoders {
 #[derive(Clone, Debug)]
 pub struct Pipeline {
     inputs_cfg: InputsConfig,
-    wheels: WheelSet<SignalHandle>,
-    steering: SignalHandle,
-    steering_fine: Option<SignalHandle>,
+    wheels: WheelSet<SignalForm>,
+    /// Multiplies a wheel speed into the decoders' unit.
+    wheel_speed_factor: f64,
+    /// The reversing signal, and whether it last said the car reverses.
+    direction: Option<DirectionSignal>,
+    reversing: bool,
+    steering: SignalForm,
     /// The yaw-rate signal and its rad/s (left positive) per unit.
-    yaw_signal: Option<(SignalHandle, f64)>,
+    yaw_signal: Option<(SignalForm, f64)>,
     /// The latest yaw rate, rad/s, its scale corrected.
     yaw_radps: Option<f64>,
     /// The yaw-rate sensor's scale in use (1, or calibrated): measured =
@@ -333,47 +340,69 @@ impl Pipeline {
         let s = &config.signals;
         let db = &config.db;
         let mut inputs: Vec<Input> = Vec::new();
-        let mut role = |idx: usize, rear: bool, front: bool, steering: bool, yaw: bool| {
-            let m = &db.messages()[idx];
-            let pos = if let Some(p) = find(&inputs, m.id()) {
-                p
-            } else {
-                let check = config.checks.iter().find(|c| c.message_index == idx);
-                inputs.push(Input {
-                    id: m.id(),
-                    length: m.length(),
-                    rear: false,
-                    front: false,
-                    steering: false,
-                    yaw: false,
-                    counter: check
-                        .and_then(|c| c.counter)
-                        .and_then(|h| CounterCheck::new(h.size()).ok().map(|cc| (h, cc))),
-                    checksum: check.and_then(|c| c.checksum.clone()),
-                    health: Health::new(m.cycle_time_ms(), &config.inputs),
-                });
-                inputs.len() - 1
+        let mut role =
+            |idx: usize, rear: bool, front: bool, steering: bool, yaw: bool, dir: bool| {
+                let m = &db.messages()[idx];
+                let pos = if let Some(p) = find(&inputs, m.id()) {
+                    p
+                } else {
+                    let check = config.checks.iter().find(|c| c.message_index == idx);
+                    inputs.push(Input {
+                        id: m.id(),
+                        length: m.length(),
+                        rear: false,
+                        front: false,
+                        steering: false,
+                        yaw: false,
+                        direction: false,
+                        counter: check
+                            .and_then(|c| c.counter)
+                            .and_then(|h| CounterCheck::new(h.size()).ok().map(|cc| (h, cc))),
+                        checksum: check.and_then(|c| c.checksum.clone()),
+                        health: Health::new(m.cycle_time_ms(), &config.inputs),
+                    });
+                    inputs.len() - 1
+                };
+                let i = &mut inputs[pos];
+                i.rear |= rear;
+                i.front |= front;
+                i.steering |= steering;
+                i.yaw |= yaw;
+                i.direction |= dir;
             };
-            let i = &mut inputs[pos];
-            i.rear |= rear;
-            i.front |= front;
-            i.steering |= steering;
-            i.yaw |= yaw;
-        };
-        role(s.wheels.rear_left.message_index, true, false, false, false);
-        role(s.wheels.front_left.message_index, false, true, false, false);
-        role(s.steering.message_index, false, false, true, false);
+        role(
+            s.wheels.rear_left.message_index,
+            true,
+            false,
+            false,
+            false,
+            false,
+        );
+        role(
+            s.wheels.front_left.message_index,
+            false,
+            true,
+            false,
+            false,
+            false,
+        );
+        role(s.steering.message_index, false, false, true, false, false);
         if let Some(y) = &s.yaw_rate {
-            role(y.signal.message_index, false, false, false, true);
+            role(y.signal.message_index, false, false, false, true, false);
+        }
+        if let Some(d) = &s.direction {
+            role(d.message_index, false, false, false, false, true);
         }
         let decoders = wheel_decoders(config)?;
         let params = config.params;
         Ok(Self {
             inputs_cfg: config.inputs,
-            wheels: s.wheels.map(|_, w| w.handle),
-            steering: s.steering.handle,
-            steering_fine: s.steering_fine,
-            yaw_signal: s.yaw_rate.map(|y| (y.signal.handle, y.radps_per_unit)),
+            wheels: s.wheels.map(|_, w| w.form),
+            wheel_speed_factor: s.wheel_speed_factor,
+            direction: s.direction,
+            reversing: false,
+            steering: s.steering.form,
+            yaw_signal: s.yaw_rate.map(|y| (y.signal.form, y.radps_per_unit)),
             yaw_radps: None,
             yaw_scale: 1.0,
             steer_map: params.steering(),
@@ -607,25 +636,29 @@ impl Pipeline {
         }
         // Every configured signal of this message must be finite before any is used.
         let (rear, front, steering, yaw) = (input.rear, input.front, input.steering, input.yaw);
-        let val = |h: &SignalHandle| h.decode(data).unwrap_or(f64::NAN);
+        if input.direction
+            && let Some(d) = &self.direction
+            && let Some(raw) = d.handle.raw(data)
+        {
+            // Read before this frame's wheels: a message may carry both.
+            self.reversing = d.is_reverse(raw);
+        }
+        let val = |f: &SignalForm| f.decode(data).unwrap_or(f64::NAN);
         let yaw_radps = match (&self.yaw_signal, yaw) {
-            (Some((h, per_unit)), true) => Some(val(h) * per_unit),
+            (Some((f, per_unit)), true) => Some(val(f) * per_unit),
             _ => None,
         };
         let mut steer_signal = None;
         if steering {
-            let u = val(&self.steering) + self.steering_fine.as_ref().map_or(0.0, val);
-            steer_signal = Some(u);
+            steer_signal = Some(val(&self.steering));
         }
+        // With a reversing signal the speeds are magnitudes it signs.
+        let (factor, direction) = (self.wheel_speed_factor, self.direction.is_some());
+        let sign = if self.reversing { -1.0 } else { 1.0 };
         // Each wheel signal is read once: its raw bits feed a tick decoder,
         // its physical value the finiteness check and a speed decoder.
-        let wheel_raw = |on: bool, h: &SignalHandle| {
-            if on {
-                h.raw(data)
-                    .map_or((0, f64::NAN), |r| (r, h.raw_to_scaled(r)))
-            } else {
-                (0, 0.0)
-            }
+        let wheel_raw = |on: bool, f: &SignalForm| {
+            wheel_reading(on, f, data, factor, direction.then_some(sign))
         };
         let raws = WheelSet {
             rear_left: wheel_raw(rear, &self.wheels.rear_left),
@@ -880,6 +913,30 @@ impl Pipeline {
             flags,
             param_version: self.param_version.unwrap_or(0),
         }
+    }
+}
+
+/// A wheel signal's (raw bits, value in the decoders' unit): the raw bits
+/// feed a tick decoder, the value the finiteness check and a speed decoder;
+/// `signed_by` (the reversing signal's sign) makes the value a magnitude
+/// of that sign. `(0, 0.0)` for a message that does not carry the wheel.
+#[inline]
+fn wheel_reading(
+    on: bool,
+    f: &SignalForm,
+    data: &[u8],
+    factor: f64,
+    signed_by: Option<f64>,
+) -> (u64, f64) {
+    let signed = |v: f64| signed_by.map_or(v, |sign| sign * v.abs());
+    if !on {
+        (0, 0.0)
+    } else if f.is_plain() {
+        let h = &f.main;
+        h.raw(data)
+            .map_or((0, f64::NAN), |r| (r, signed(h.raw_to_scaled(r) * factor)))
+    } else {
+        (0, signed(f.decode(data).unwrap_or(f64::NAN) * factor))
     }
 }
 

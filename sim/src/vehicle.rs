@@ -5,10 +5,11 @@
 //! that DBC could have sent.
 
 use canodom_can::frame::{CanFrame, FrameId};
-use canodom_dbc::{Checksum, SignalHandle};
+use canodom_dbc::SignalHandle;
 use canodom_fusion::sim::{Direction, Plan, SimConfig, SteeringSensor, WheelOutput, family};
 use canodom_fusion::{SteeringMap, VehicleParams, Wheel};
 use canodom_pipeline::config::{Config, SteeringKind, WheelKind};
+use canodom_pipeline::signal_forms::{DirectionSignal, SignalForm};
 use serde::Deserialize;
 use std::path::Path;
 
@@ -176,13 +177,7 @@ impl TrueParamsFile {
 /// speed unit and quantum, steering quantum taken from the DBC.
 pub fn sim_config(config: &Config, true_params: VehicleParams) -> SimConfig {
     let s = &config.signals;
-    let steer_quantum = s
-        .steering_fine
-        .map_or_else(
-            || s.steering.handle.raw_to_scaled(1) - s.steering.handle.raw_to_scaled(0),
-            |f| f.raw_to_scaled(1) - f.raw_to_scaled(0),
-        )
-        .abs();
+    let steer_quantum = s.steering.form.quantum();
     match s.wheel_kind {
         WheelKind::Ticks => {
             let mut c = SimConfig::rc_car(true_params);
@@ -196,12 +191,14 @@ pub fn sim_config(config: &Config, true_params: VehicleParams) -> SimConfig {
                 ..SteeringSensor::EXACT
             };
             let mut c = SimConfig::road_car(true_params, sensor);
-            let h = s.wheels.rear_left.handle;
             c.wheel_output = WheelOutput {
                 speed_unit: unit,
-                speed_quantum: (h.raw_to_scaled(1) - h.raw_to_scaled(0)).abs(),
+                speed_quantum: s.wheels.rear_left.form.quantum() * s.wheel_speed_factor,
                 ..c.wheel_output
             };
+            if let Some(y) = &s.yaw_rate {
+                c.yaw_rate_sensor.quantum_radps = y.signal.form.quantum() * y.radps_per_unit.abs();
+            }
             if s.steering_kind == SteeringKind::RoadWheel {
                 c.speed_mps = c.speed_mps.min(3.0);
             }
@@ -213,33 +210,42 @@ pub fn sim_config(config: &Config, true_params: VehicleParams) -> SimConfig {
 struct OutMessage {
     id: FrameId,
     length: usize,
-    wheels: Vec<(Wheel, SignalHandle)>,
+    wheels: Vec<(Wheel, SignalForm)>,
     steering: bool,
+    yaw: bool,
+    direction: bool,
     counter: Option<SignalHandle>,
     counter_value: u64,
-    checksum: Option<Checksum>,
+    checksum: Option<canodom_dbc::FrameChecksum>,
 }
 
 /// Encodes simulator samples into the configured input frames.
 pub struct SampleEncoder {
     messages: Vec<OutMessage>,
-    steering: SignalHandle,
-    steering_fine: Option<SignalHandle>,
+    steering: SignalForm,
+    /// The yaw-rate signal and its rad/s per unit.
+    yaw: Option<(SignalForm, f64)>,
+    direction: Option<DirectionSignal>,
+    /// Divides a speed into the wheel signals' unit.
+    wheel_speed_factor: f64,
     ticks: bool,
 }
 
 impl SampleEncoder {
-    /// An encoder for `config`'s input messages, in the order steering,
-    /// front, rear (a reader then steps with this sample's front and steering).
+    /// An encoder for `config`'s input messages, in the order reversing
+    /// signal, yaw rate, steering, front, rear (a reader then steps with
+    /// this sample's direction, yaw rate, front and steering).
     pub fn new(config: &Config) -> Self {
         let s = &config.signals;
         let db = &config.db;
-        let mut order = vec![
+        let mut order = Vec::new();
+        order.extend(s.direction.map(|d| d.message_index));
+        order.extend(s.yaw_rate.map(|y| y.signal.message_index));
+        order.extend([
             s.steering.message_index,
             s.wheels.front_left.message_index,
             s.wheels.rear_left.message_index,
-        ];
-        order.dedup();
+        ]);
         let mut seen = Vec::new();
         order.retain(|i| {
             let new = !seen.contains(i);
@@ -254,7 +260,7 @@ impl SampleEncoder {
                 let wheels = Wheel::ALL
                     .iter()
                     .filter(|&&w| s.wheels[w].message_index == idx)
-                    .map(|&w| (w, s.wheels[w].handle))
+                    .map(|&w| (w, s.wheels[w].form))
                     .collect();
                 let id = m.id();
                 OutMessage {
@@ -266,6 +272,8 @@ impl SampleEncoder {
                     length: m.length(),
                     wheels,
                     steering: s.steering.message_index == idx,
+                    yaw: s.yaw_rate.is_some_and(|y| y.signal.message_index == idx),
+                    direction: s.direction.is_some_and(|d| d.message_index == idx),
                     counter: check.and_then(|c| c.counter),
                     counter_value: 0,
                     checksum: check.and_then(|c| c.checksum.clone()),
@@ -274,8 +282,10 @@ impl SampleEncoder {
             .collect();
         Self {
             messages,
-            steering: s.steering.handle,
-            steering_fine: s.steering_fine,
+            steering: s.steering.form,
+            yaw: s.yaw_rate.map(|y| (y.signal.form, y.radps_per_unit)),
+            direction: s.direction,
+            wheel_speed_factor: s.wheel_speed_factor,
             ticks: s.wheel_kind == WheelKind::Ticks,
         }
     }
@@ -285,27 +295,34 @@ impl SampleEncoder {
         for m in &mut self.messages {
             let mut buf = [0u8; 64];
             let data = &mut buf[..m.length];
-            for &(w, h) in &m.wheels {
+            let speeds = &sample.wheel_speed;
+            let reversing = speeds.rear_left + speeds.rear_right < 0.0;
+            if m.direction
+                && let Some(d) = &self.direction
+            {
+                let raw = if reversing {
+                    d.reverse_raw()
+                } else {
+                    d.forward_raw
+                };
+                d.handle.encode_raw(raw, data);
+            }
+            for &(w, f) in &m.wheels {
                 if self.ticks {
-                    h.encode_raw(sample.ticks[w], data);
-                } else if !h.encode(sample.wheel_speed[w], data) {
-                    // Beyond the signal's range: send its largest magnitude.
-                    h.encode(sample.wheel_speed[w].clamp(-300.0, 300.0), data);
+                    f.main.encode_raw(sample.ticks[w], data);
+                } else {
+                    let v = speeds[w] / self.wheel_speed_factor;
+                    // Beyond the signal's range the form sends its largest magnitude.
+                    f.encode(if self.direction.is_some() { v.abs() } else { v }, data);
                 }
             }
+            if m.yaw
+                && let Some((f, per_unit)) = &self.yaw
+            {
+                f.encode(sample.yaw_rate_radps / per_unit, data);
+            }
             if m.steering {
-                let u = sample.steer_signal;
-                match self.steering_fine {
-                    None => {
-                        self.steering.encode(u, data);
-                    }
-                    Some(fine) => {
-                        let step = self.steering.raw_to_scaled(1) - self.steering.raw_to_scaled(0);
-                        let coarse = (u / step).round() * step;
-                        self.steering.encode(coarse, data);
-                        fine.encode(u - coarse, data);
-                    }
-                }
+                self.steering.encode(sample.steer_signal, data);
             }
             if let Some(c) = m.counter {
                 c.encode_raw(m.counter_value, data);

@@ -198,14 +198,9 @@ pub fn run_from_log(
             let u = config
                 .signals
                 .steering
-                .handle
+                .form
                 .decode(data)
-                .unwrap_or(f64::NAN)
-                + config
-                    .signals
-                    .steering_fine
-                    .as_ref()
-                    .map_or(0.0, |h| h.decode(data).unwrap_or(f64::NAN));
+                .unwrap_or(f64::NAN);
             if u.is_finite() {
                 steer_signal = u;
             }

@@ -5,6 +5,7 @@
 pub mod calib;
 pub mod calibrate;
 pub mod calibrate_drive;
+pub mod config_init;
 pub mod dbc;
 pub mod decode;
 pub mod demo;
@@ -35,6 +36,8 @@ pub enum Command {
     Calibrate(calibrate::CalibrateArgs),
     /// The operator's client of the live calibration: send CALIB_CMD, show CALIB_STATUS as a guide.
     Calib(calib::CalibArgs),
+    /// A ready configuration for a car platform opendbc knows (`config init --car`, `--list`).
+    Config(config_init::ConfigArgs),
 }
 
 impl Command {
@@ -52,6 +55,7 @@ impl Command {
             Self::Demo(a) => demo::execute(&a),
             Self::Calibrate(a) => calibrate::execute(&a),
             Self::Calib(a) => calib::execute(&a),
+            Self::Config(a) => config_init::execute(&a),
         }
     }
 }

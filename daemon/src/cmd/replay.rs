@@ -12,6 +12,7 @@ use canodom_fusion::VehicleParams;
 use canodom_fusion::ekf::WindowOutcome;
 use canodom_pipeline::config::Config;
 use canodom_pipeline::pipeline::{Pipeline, Step};
+use canodom_pipeline::plausibility::Plausibility;
 use canodom_pipeline::stats::{Reject, Stats};
 use canodom_report::float_text::{push_csv_row, push_f64, push_micros_as_seconds};
 use std::fmt::Write as _;
@@ -102,6 +103,10 @@ pub struct ReplaySummary {
     pub track: Vec<canodom_report::truth::TrackPoint>,
     /// Time of the first input frame, which steps' `t_s` count from.
     pub first_frame: Option<canodom_can::time::Timestamp>,
+    /// What the plausibility checks suspect (#32).
+    pub warnings: Vec<canodom_pipeline::plausibility::Warning>,
+    /// Their one-paragraph diagnosis, when any fired.
+    pub diagnosis: Option<String>,
 }
 
 /// How [`replay_log`] reads and what it keeps.
@@ -241,6 +246,12 @@ pub fn execute(args: &ReplayArgs) -> anyhow::Result<()> {
             s.odometry.heading_rad
         );
     }
+    for w in &summary.warnings {
+        eprintln!("replay: warning: {w}");
+    }
+    if let Some(d) = &summary.diagnosis {
+        eprintln!("replay: {d}");
+    }
     if let Some(truth) = truth {
         compare_with_truth(args, &truth, &summary.track, summary.first_frame)?;
     }
@@ -275,6 +286,21 @@ fn open_output(
     })
 }
 
+/// Where `--truth`'s report goes without `--truth-report`: beside `--out`
+/// as `<out stem>-truth/` when `--out` is (or will be) a regular file, else
+/// `replay-truth/` (`--out /dev/null` made `/dev/null-truth/`, issue #32).
+fn default_truth_report(out: Option<&std::path::Path>) -> PathBuf {
+    match out {
+        Some(out) if std::fs::metadata(out).map_or(true, |m| m.is_file()) => {
+            let stem = out
+                .file_stem()
+                .map_or_else(|| "replay".to_owned(), |s| s.to_string_lossy().into_owned());
+            out.with_file_name(format!("{stem}-truth"))
+        }
+        _ => PathBuf::from("replay-truth"),
+    }
+}
+
 /// `--truth`: the replay placed on the reference, the errors printed, the
 /// picture and numbers written.
 fn compare_with_truth(
@@ -295,15 +321,9 @@ fn compare_with_truth(
     let comparison = canodom_report::truth::TruthComparison::build(truth, track, start)
         .map_err(|e| anyhow::anyhow!("--truth {}: {e}", truth_path.display()))?;
     eprintln!("replay: {}", comparison.summary());
-    let dir = match (&args.truth_report, &args.out) {
-        (Some(dir), _) => dir.clone(),
-        (None, Some(out)) => {
-            let stem = out
-                .file_stem()
-                .map_or_else(|| "replay".to_owned(), |s| s.to_string_lossy().into_owned());
-            out.with_file_name(format!("{stem}-truth"))
-        }
-        (None, None) => PathBuf::from("replay-truth"),
+    let dir = match &args.truth_report {
+        Some(dir) => dir.clone(),
+        None => default_truth_report(args.out.as_deref()),
     };
     let (svg, json) = canodom_report::files::write_report(&dir, &comparison)?;
     eprintln!(
@@ -524,6 +544,7 @@ pub fn replay_log(
     mut mcap: Option<McapOut>,
 ) -> anyhow::Result<ReplaySummary> {
     let mut pipeline = Pipeline::new(config)?;
+    let mut plausibility = Plausibility::new(config.params.wheelbase_m(), config.params.steering());
     if let Some(set) = params {
         pipeline
             .apply_params(Some((set.version, &set.values)))
@@ -555,7 +576,7 @@ pub fn replay_log(
                     batch.text.clear();
                     batch.samples.clear();
                     batch.encoded = false;
-                    filter_batch(&mut pipeline, &mut batch, samples);
+                    filter_batch(&mut pipeline, &mut plausibility, &mut batch, samples);
                     batch.params = Some(*pipeline.params());
                     if samples {
                         carry_tail(&mut batch, &mut carry);
@@ -577,7 +598,7 @@ pub fn replay_log(
                         waiting = filter_in.recv().ok();
                     }
                 }
-                pipeline
+                (pipeline, plausibility)
             })
             .context("starting the filter thread")?;
         let fed = feed(
@@ -590,9 +611,13 @@ pub fn replay_log(
         );
         // Ends the filter thread's loop, whether feeding ended or failed.
         drop(to_filter);
-        let pipeline = filter
+        let (pipeline, mut plausibility) = filter
             .join()
             .unwrap_or_else(|panic| std::panic::resume_unwind(panic));
+        plausibility.judge_stats(
+            pipeline.stats(),
+            pipeline.last_step().map_or(0.0, |s| s.t_s),
+        );
         let (malformed, by_reason) = fed?;
         if let Some(m) = mcap {
             m.finish()?.flush()?;
@@ -627,13 +652,20 @@ pub fn replay_log(
             malformed_by_reason: by_reason,
             last_step: pipeline.last_step(),
             state: *pipeline.state(),
+            warnings: plausibility.warnings().to_vec(),
+            diagnosis: plausibility.diagnosis(),
         })
     })
 }
 
 /// Runs one batch's records through the pipeline, a row per filter step
 /// with the pose sample `run` would publish at that frame.
-fn filter_batch(pipeline: &mut Pipeline, batch: &mut Batch, samples: bool) {
+fn filter_batch(
+    pipeline: &mut Pipeline,
+    plausibility: &mut Plausibility,
+    batch: &mut Batch,
+    samples: bool,
+) {
     for (k, entry) in batch.records.iter().enumerate() {
         let (at, step) = match entry {
             Entry::Classic(c) => (
@@ -649,6 +681,7 @@ fn filter_batch(pipeline: &mut Pipeline, batch: &mut Batch, samples: bool) {
             },
         };
         if let Some(s) = step {
+            plausibility.push(&s);
             let p = pipeline.pose_output(at);
             if samples {
                 batch.samples.push((k + 1, StepSample::of(pipeline, &s, p)));
@@ -789,4 +822,24 @@ fn feed(
     }
     out.write_all(&text)?;
     Ok((malformed, by_reason))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::default_truth_report;
+    use std::path::{Path, PathBuf};
+
+    #[test]
+    fn truth_report_goes_beside_a_file_output_only() {
+        assert_eq!(
+            default_truth_report(Some(Path::new("/tmp/x/pose.csv"))),
+            Path::new("/tmp/x/pose-truth")
+        );
+        // A device is not a place for a folder beside it.
+        assert_eq!(
+            default_truth_report(Some(Path::new("/dev/null"))),
+            PathBuf::from("replay-truth")
+        );
+        assert_eq!(default_truth_report(None), PathBuf::from("replay-truth"));
+    }
 }

@@ -1,0 +1,145 @@
+//! Production cars' signal forms end to end (#32): a simulated drive encoded
+//! with the car's own DBC and conventions, replayed from its configuration.
+
+use crate::util::{csv_rows, simulated_log};
+use canodom::cmd::replay::replay;
+use canodom_pipeline::config::Config;
+use canodom_pipeline::stats::Reject;
+use canodom_sim::vehicle::PathKind;
+use std::path::PathBuf;
+
+fn example(name: &str) -> PathBuf {
+    PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/examples")).join(name)
+}
+
+/// (distance, fused end error, rear-only end error) of `path` with `seed`.
+pub fn drive(config: &Config, path: PathKind, seed: u64) -> (f64, f64, f64) {
+    let (log, truth_csv) = simulated_log(config, path, seed);
+    let mut csv = Vec::new();
+    let summary = replay(config, &log[..], &mut csv, &mut std::io::sink()).unwrap();
+    let rows = csv_rows(&String::from_utf8(csv).unwrap());
+    let truth = csv_rows(&truth_csv);
+    let distance_m: f64 = truth
+        .windows(2)
+        .map(|w| (w[1][1] - w[0][1]).hypot(w[1][2] - w[0][2]))
+        .sum();
+    let (last, t) = (rows.last().unwrap(), truth.last().unwrap());
+    let fused = (last[1] - t[1]).hypot(last[2] - t[2]);
+    let rear = (last[4] - t[1]).hypot(last[5] - t[2]);
+    println!(
+        "{path:?} seed {seed}: {distance_m:.0} m, rear-only {rear:.3} m, fused {fused:.3} m; {}",
+        summary.stats
+    );
+    let s = summary.stats;
+    for reject in [
+        Reject::BadChecksum,
+        Reject::BadCounter,
+        Reject::NonFinite,
+        Reject::SteerRange,
+    ] {
+        assert_eq!(s.get(reject), 0, "{path:?} seed {seed}: {s}");
+    }
+    assert!(
+        summary.warnings.is_empty(),
+        "{path:?} seed {seed}: a right configuration warned: {:?}",
+        summary.warnings
+    );
+    (distance_m, fused, rear)
+}
+
+/// The wrong VW configurations, replayed on a drive encoded right:
+/// each now ends with a warning naming the signal and the suspicion, and a
+/// diagnosis (the counts and the paragraph are printed for the report).
+#[test]
+fn wrong_vw_configurations_are_diagnosed() {
+    let path = example("vw_mqb.toml");
+    let right = Config::load(&path).unwrap();
+    let (log, _) = simulated_log(&right, PathKind::FullSize, 0);
+    let text = std::fs::read_to_string(&path).unwrap();
+    let cases = [
+        (
+            "steering magnitude without its sign bit",
+            text.replace(
+                "steering = { signal = \"LWI_01.LWI_Lenkradwinkel\", sign = \"LWI_01.LWI_VZ_Lenkradwinkel\" }",
+                "steering = \"LWI_01.LWI_Lenkradwinkel\"",
+            ),
+            ("signals.steering", "sign"),
+        ),
+        (
+            "yaw rate magnitude without its sign bit",
+            text.replace(
+                "yaw_rate = { signal = \"ESP_02.ESP_Gierrate\", sign = \"ESP_02.ESP_VZ_Gierrate\" }",
+                "yaw_rate = \"ESP_02.ESP_Gierrate\"",
+            ),
+            ("signals.yaw_rate", "sign"),
+        ),
+        (
+            "the nearest wrong checksum algorithm",
+            text.replacen("algorithm = \"volkswagen_mqb\"", "algorithm = \"crc8_sae_j1850\"", 1),
+            ("checks", "algorithm"),
+        ),
+    ];
+    for (what, toml_text, (signal, suspicion)) in cases {
+        let config = Config::from_toml(&toml_text, &path).unwrap();
+        let mut csv = Vec::new();
+        let summary = replay(&config, &log[..], &mut csv, &mut std::io::sink()).unwrap();
+        for w in &summary.warnings {
+            println!("{what}: warning: {w}");
+        }
+        println!("{what}: {}", summary.diagnosis.clone().unwrap_or_default());
+        assert!(
+            summary
+                .warnings
+                .iter()
+                .any(|w| w.signal == signal && w.suspicion.to_string() == suspicion),
+            "{what}: {:?}",
+            summary.warnings
+        );
+        assert!(summary.diagnosis.is_some());
+    }
+}
+
+/// The VW Golf 7: steering and yaw rate as magnitude + sign bit, VW
+/// unit spellings, VW's CRC, speeds signed by the gear. The fused pose ends
+/// within 0.05 % of the distance of rear-only or better (it was 12.97 % off).
+#[test]
+fn vw_mqb_drives_fuse_no_worse_than_rear_only() {
+    let config = Config::load(&example("vw_mqb.toml")).unwrap();
+    // Full-size drives only: on the town family (crawling below the
+    // sensors' 2 km/h floor, reversing) the fused pose is worse than
+    // rear-only on the Toyota file too (seed 3: 5.91 m vs 5.08 m), before
+    // any of #32's forms; see the report.
+    for (path, seed) in [
+        (PathKind::FullSize, 0),
+        (PathKind::FullSize, 1),
+        (PathKind::FullSize, 2),
+    ] {
+        let (distance_m, fused, rear) = drive(&config, path, seed);
+        assert!(
+            fused <= rear + 0.0005 * distance_m,
+            "{path:?} seed {seed}: fused {fused} m vs rear-only {rear} m of {distance_m} m"
+        );
+        assert!(
+            fused <= 0.01 * distance_m,
+            "{path:?} seed {seed}: fused {fused} m of {distance_m} m"
+        );
+    }
+}
+
+/// Honda Civic (Nidec): kph magnitudes signed by the gear, a steering angle
+/// with a negative factor, Honda's nibble checksums and 2-bit counter.
+#[test]
+fn honda_drives_fuse_no_worse_than_rear_only() {
+    let config = Config::load(&example("honda.toml")).unwrap();
+    for (path, seed) in [(PathKind::FullSize, 0), (PathKind::FullSize, 1)] {
+        let (distance_m, fused, rear) = drive(&config, path, seed);
+        assert!(
+            fused <= rear + 0.0005 * distance_m,
+            "{path:?} seed {seed}: {fused} vs {rear}"
+        );
+        assert!(
+            fused <= 0.01 * distance_m,
+            "{path:?} seed {seed}: {fused} of {distance_m}"
+        );
+    }
+}

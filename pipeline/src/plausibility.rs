@@ -1,0 +1,508 @@
+//! Plausibility at run time (issue #32): a configuration that parses can
+//! still be confidently wrong — a sign bit left out, a unit misread, the
+//! wrong checksum algorithm, ticks configured on speeds. This state machine
+//! watches the pipeline's steps and statistics and says what it suspects.
+//!
+//! Fed with every [`Step`] (and the [`Stats`] at the end), it compares, while
+//! the car turns at speed, the rear wheels' turn rate with the steering's
+//! (through the configured map and wheelbase) and with the yaw-rate sensor:
+//! a sustained sign disagreement, or a magnitude far from the wheels', is a
+//! warning naming the signal and the suspicion. Pure: no clock, no I/O.
+
+use crate::pipeline::Step;
+use crate::stats::{Reject, Stats};
+use canodom_fusion::SteeringMap;
+use std::fmt;
+
+/// Slowest speed at which turns are compared, m/s.
+const MIN_SPEED_MPS: f64 = 2.0;
+/// Smallest rear-wheel turn rate compared, rad/s (a 0.05 rad/s turn at
+/// 10 m/s is a 200 m radius).
+const MIN_TURN_RADPS: f64 = 0.05;
+/// Turning steps needed before judging (about 3 s at 100 Hz).
+const MIN_SAMPLES: u32 = 300;
+/// Share of turning steps whose sign disagrees that is a sign error: a
+/// correct signal disagrees only in noise around straight driving.
+const SIGN_SHARE: f64 = 0.8;
+/// A magnitude ratio outside [1/SCALE_LIMIT, SCALE_LIMIT] is a wrong scale:
+/// tyre slip and a steering ratio off by a few percent stay well inside.
+const SCALE_LIMIT: f64 = 1.5;
+/// A share of rejected frames or faulty wheel steps above this is a wrong
+/// configuration, not a noisy bus (a few percent, as the issue asks).
+const FAULT_SHARE: f64 = 0.03;
+
+/// What a warning suspects.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Suspicion {
+    /// The signal's sign (a sign bit or `yaw_rate_sign` left out or reversed).
+    Sign,
+    /// The signal's unit or scale (deg vs rad, km/h vs m/s, steering ratio).
+    Unit,
+    /// The checksum or counter algorithm.
+    Algorithm,
+    /// The kind (`wheel_kind`, `steering_kind`).
+    Kind,
+}
+
+impl fmt::Display for Suspicion {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Self::Sign => "sign",
+            Self::Unit => "unit",
+            Self::Algorithm => "algorithm",
+            Self::Kind => "kind",
+        })
+    }
+}
+
+/// One warning: the signal, the suspicion, the ODOM_QUALITY flag the fault
+/// shows in (if any: the detector sets no bit of its own; ODOM_QUALITY has
+/// none spare for it yet), and the evidence in words.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Warning {
+    /// The configuration key of the signal at fault (`signals.steering`).
+    pub signal: &'static str,
+    /// What is suspected.
+    pub suspicion: Suspicion,
+    /// The ODOM_QUALITY flag that shows it, when one does.
+    pub flag: Option<&'static str>,
+    /// The evidence and the way out.
+    pub message: String,
+    /// Seconds since the first frame when it fired.
+    pub t_s: f64,
+}
+
+impl fmt::Display for Warning {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(
+            f,
+            "{}: suspect the {} (at t={:.1} s): {}",
+            self.signal, self.suspicion, self.t_s, self.message
+        )?;
+        if let Some(flag) = self.flag {
+            write!(f, " [ODOM_QUALITY.{flag}]")?;
+        }
+        Ok(())
+    }
+}
+
+/// Agreement of one signal with the rear wheels while turning, per turn
+/// direction of the rear wheels: a magnitude without its sign bit agrees
+/// in every left turn and disagrees in every right one.
+#[derive(Clone, Copy, Debug, Default)]
+struct Tally {
+    /// [left turns, right turns] of the rear wheels.
+    agree: [u32; 2],
+    disagree: [u32; 2],
+    /// Σ|signal's turn|, Σ|rear turn| over the same steps.
+    sum_signal: f64,
+    sum_rear: f64,
+}
+
+impl Tally {
+    fn add(&mut self, signal: f64, rear: f64) {
+        let side = usize::from(rear < 0.0);
+        if signal.signum() == rear.signum() {
+            self.agree[side] += 1;
+        } else {
+            self.disagree[side] += 1;
+        }
+        self.sum_signal += signal.abs();
+        self.sum_rear += rear.abs();
+    }
+
+    fn n(&self) -> u32 {
+        self.agree[0] + self.agree[1] + self.disagree[0] + self.disagree[1]
+    }
+
+    /// The larger share of disagreeing steps of the two turn directions
+    /// that have enough steps to judge.
+    fn disagree_share(&self) -> f64 {
+        (0..2)
+            .filter(|&side| self.agree[side] + self.disagree[side] >= MIN_SAMPLES / 3)
+            .map(|side| {
+                f64::from(self.disagree[side]) / f64::from(self.agree[side] + self.disagree[side])
+            })
+            .fold(0.0, f64::max)
+    }
+
+    fn ratio(&self) -> f64 {
+        self.sum_signal / self.sum_rear.max(1e-12)
+    }
+}
+
+/// The plausibility state machine.
+#[derive(Clone, Debug)]
+pub struct Plausibility {
+    wheelbase_m: f64,
+    steering: SteeringMap,
+    prev: Option<Step>,
+    steer: Tally,
+    yaw: Tally,
+    warnings: Vec<Warning>,
+    judged_steer: bool,
+    judged_yaw: bool,
+}
+
+impl Plausibility {
+    /// A detector for a vehicle of `wheelbase_m` read through `steering`.
+    pub fn new(wheelbase_m: f64, steering: SteeringMap) -> Self {
+        Self {
+            wheelbase_m,
+            steering,
+            prev: None,
+            steer: Tally::default(),
+            yaw: Tally::default(),
+            warnings: Vec::new(),
+            judged_steer: false,
+            judged_yaw: false,
+        }
+    }
+
+    /// Feeds one filter step; returns how many warnings fired with it.
+    pub fn push(&mut self, step: &Step) -> usize {
+        let before = self.warnings.len();
+        if let Some(prev) = self.prev.replace(*step) {
+            let dt = step.t_s - prev.t_s;
+            let (a, b) = (prev.odometry, step.odometry);
+            let ds = (b.x_m - a.x_m).hypot(b.y_m - a.y_m);
+            if dt > 0.0 {
+                let v = ds / dt;
+                let rear_turn = (b.heading_rad - a.heading_rad) / dt;
+                if v > MIN_SPEED_MPS && rear_turn.abs() > MIN_TURN_RADPS {
+                    if let Some(u) = step.steer_signal {
+                        let phi = self.steering.angle_rad(u);
+                        self.steer.add(v * phi.tan() / self.wheelbase_m, rear_turn);
+                    }
+                    if let Some(w) = step.yaw_rate_radps {
+                        self.yaw.add(w, rear_turn);
+                    }
+                }
+            }
+        }
+        self.judge(step.t_s);
+        self.warnings.len() - before
+    }
+
+    fn judge(&mut self, t_s: f64) {
+        let steer_before = self.warnings.len();
+        if !self.judged_steer && self.steer.n() >= MIN_SAMPLES {
+            let (share, ratio) = (self.steer.disagree_share(), self.steer.ratio());
+            if share > SIGN_SHARE {
+                self.warnings.push(Warning {
+                    signal: "signals.steering",
+                    suspicion: Suspicion::Sign,
+                    flag: Some("GATE_REJECT"),
+                    message: format!(
+                        "steering turns the other way than the rear wheels in {:.0} % of their {} turns: \
+                         a sign signal left out (`steering = {{ signal = ..., sign = ... }}`) or of the other polarity (`negative_when`)",
+                        100.0 * share,
+                        if self.steer.disagree[0] > self.steer.disagree[1] { "left" } else { "right" },
+                    ),
+                    t_s,
+                });
+            } else if ratio > 5.0 {
+                self.warnings.push(Warning {
+                    signal: "signals.steering",
+                    suspicion: Suspicion::Kind,
+                    flag: Some("GATE_REJECT"),
+                    message: format!(
+                        "steering turns {ratio:.1} times more than the rear wheels: a steering-wheel angle read as \
+                         the road wheels' (`steering_kind = \"steering_wheel\"` with `vehicle.steering_ratio`)"
+                    ),
+                    t_s,
+                });
+            } else if ratio < 0.2 {
+                self.warnings.push(Warning {
+                    signal: "signals.steering",
+                    suspicion: Suspicion::Kind,
+                    flag: Some("GATE_REJECT"),
+                    message: format!(
+                        "steering turns {ratio:.2} times the rear wheels: the road wheels' angle divided by a steering ratio \
+                         (`steering_kind = \"road_wheel\"`), or a unit in radians read as degrees"
+                    ),
+                    t_s,
+                });
+            } else if !(1.0 / SCALE_LIMIT..=SCALE_LIMIT).contains(&ratio) {
+                self.warnings.push(Warning {
+                    signal: "signals.steering",
+                    suspicion: Suspicion::Unit,
+                    flag: Some("GATE_REJECT"),
+                    message: format!(
+                        "steering turns {ratio:.2} times the rear wheels: check `vehicle.steering_ratio` and the signal's unit"
+                    ),
+                    t_s,
+                });
+            }
+        }
+        // Judged on every step once enough turns were seen (a right turn
+        // may come long after the left ones); each signal warns once.
+        self.judged_steer |= self.warnings.len() > steer_before;
+        if !self.judged_yaw && self.yaw.n() >= MIN_SAMPLES {
+            let before = self.warnings.len();
+            let (share, ratio) = (self.yaw.disagree_share(), self.yaw.ratio());
+            if share > SIGN_SHARE {
+                self.warnings.push(Warning {
+                    signal: "signals.yaw_rate",
+                    suspicion: Suspicion::Sign,
+                    flag: None,
+                    message: format!(
+                        "the yaw rate turns the other way than the rear wheels in {:.0} % of their {} turns: \
+                         a sign bit left out, or `yaw_rate_sign = -1` needed",
+                        100.0 * share,
+                        if self.yaw.disagree[0] > self.yaw.disagree[1] { "left" } else { "right" },
+                    ),
+                    t_s,
+                });
+            } else if !(1.0 / SCALE_LIMIT..=SCALE_LIMIT).contains(&ratio) {
+                let hint = if (40.0..80.0).contains(&ratio) {
+                    " (about 57: rad/s read as deg/s? `unit = \"deg/s\"`)"
+                } else if (1.0 / 80.0..1.0 / 40.0).contains(&ratio) {
+                    " (about 1/57: deg/s read as rad/s? `unit = \"deg/s\"`)"
+                } else {
+                    ""
+                };
+                self.warnings.push(Warning {
+                    signal: "signals.yaw_rate",
+                    suspicion: Suspicion::Unit,
+                    flag: None,
+                    message: format!(
+                        "the yaw rate is {ratio:.2} times the rear wheels' turn{hint}"
+                    ),
+                    t_s,
+                });
+            }
+            self.judged_yaw |= self.warnings.len() > before;
+        }
+    }
+
+    /// Judges the statistics of a whole run (or of a statistics period):
+    /// checksum, counter and wheel-fault shares.
+    pub fn judge_stats(&mut self, stats: &Stats, t_s: f64) {
+        let input_frames = stats.frames.saturating_sub(stats.get(Reject::UnknownId));
+        if input_frames < 100 {
+            return;
+        }
+        let share = |n: u64, of: u64| n as f64 / of.max(1) as f64;
+        let bad_checksum = stats.get(Reject::BadChecksum);
+        if share(bad_checksum, input_frames) > FAULT_SHARE {
+            self.warnings.push(Warning {
+                signal: "checks",
+                suspicion: Suspicion::Algorithm,
+                flag: Some("CHECKSUM_FAULT"),
+                message: format!(
+                    "{bad_checksum} of {input_frames} input frames failed their checksum ({:.1} %): \
+                     the algorithm of a [checks.MESSAGE] is likely not the car's (`canodom config init --list`)",
+                    100.0 * share(bad_checksum, input_frames)
+                ),
+                t_s,
+            });
+        }
+        let bad_counter = stats.get(Reject::BadCounter);
+        if share(bad_counter, input_frames) > FAULT_SHARE {
+            self.warnings.push(Warning {
+                signal: "checks",
+                suspicion: Suspicion::Algorithm,
+                flag: Some("COUNTER_FAULT"),
+                message: format!(
+                    "{bad_counter} of {input_frames} input frames broke their rolling counter ({:.1} %): \
+                     is the counter signal the right one?",
+                    100.0 * share(bad_counter, input_frames)
+                ),
+                t_s,
+            });
+        }
+        let wheel_faults = stats.get(Reject::WheelFault);
+        if stats.steps >= 100 && share(wheel_faults, stats.steps) > FAULT_SHARE {
+            self.warnings.push(Warning {
+                signal: "signals.wheel_kind",
+                suspicion: Suspicion::Kind,
+                flag: None,
+                message: format!(
+                    "{wheel_faults} wheel faults in {} steps ({:.1} %): speeds read as tick counters, or \
+                     `inputs.max_wheel_speed_mps` too low",
+                    stats.steps,
+                    100.0 * share(wheel_faults, stats.steps)
+                ),
+                t_s,
+            });
+        }
+    }
+
+    /// Every warning fired so far.
+    pub fn warnings(&self) -> &[Warning] {
+        &self.warnings
+    }
+
+    /// One paragraph on what fired, `None` when nothing did.
+    pub fn diagnosis(&self) -> Option<String> {
+        if self.warnings.is_empty() {
+            return None;
+        }
+        let what: Vec<String> = self
+            .warnings
+            .iter()
+            .map(|w| format!("{} ({})", w.signal, w.suspicion))
+            .collect();
+        Some(format!(
+            "diagnosis: this pose is likely wrong, not merely noisy: {} disagree with the rear wheels or the bus. \
+             The rear wheels are the reference here; fix the configuration of {} (each warning above says how) \
+             and replay again before trusting the fused pose.",
+            what.join(", "),
+            if what.len() == 1 {
+                "that signal"
+            } else {
+                "these signals"
+            }
+        ))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use canodom_fusion::Pose;
+    use canodom_fusion::ekf::WindowOutcome;
+
+    /// Steps of a left circle of radius `r` at `v`, the steering signal and
+    /// yaw rate as `f` reports them.
+    fn circle(r: f64, v: f64, f: impl Fn(f64, f64) -> (f64, f64), n: usize) -> Vec<Step> {
+        let w = v / r;
+        (0..n)
+            .map(|k| {
+                let t = k as f64 * 0.01;
+                let th = w * t;
+                let odometry = Pose {
+                    x_m: r * th.sin(),
+                    y_m: r * (1.0 - th.cos()),
+                    heading_rad: th,
+                };
+                let phi = (2.7 / r).atan();
+                let (u, yaw) = f(phi.to_degrees() * 15.0, w);
+                Step {
+                    t_s: t,
+                    t_us: (t * 1e6) as i64,
+                    fused: odometry,
+                    odometry,
+                    rear_rev: (0.0, 0.0),
+                    steer_signal: Some(u),
+                    correction: WindowOutcome::Open,
+                    yaw_rate_radps: Some(yaw),
+                }
+            })
+            .collect()
+    }
+
+    fn run(f: impl Fn(f64, f64) -> (f64, f64)) -> Plausibility {
+        let map = SteeringMap {
+            gain: 1f64.to_radians() / 15.0,
+            offset_rad: 0.0,
+        };
+        let mut p = Plausibility::new(2.7, map);
+        for s in circle(30.0, 10.0, f, 600) {
+            p.push(&s);
+        }
+        p
+    }
+
+    #[test]
+    fn a_right_configuration_is_quiet() {
+        let p = run(|u, w| (u, w));
+        assert!(p.warnings().is_empty(), "{:?}", p.warnings());
+        assert_eq!(p.diagnosis(), None);
+    }
+
+    #[test]
+    fn a_missing_sign_is_named_with_its_signal() {
+        let p = run(|u, w| (-u, -w));
+        let w = p.warnings();
+        assert_eq!(w.len(), 2, "{w:?}");
+        assert_eq!(
+            (w[0].signal, w[0].suspicion),
+            ("signals.steering", Suspicion::Sign)
+        );
+        assert_eq!(
+            (w[1].signal, w[1].suspicion),
+            ("signals.yaw_rate", Suspicion::Sign)
+        );
+        assert!(p.diagnosis().unwrap().contains("signals.steering (sign)"));
+    }
+
+    #[test]
+    fn a_magnitude_without_its_sign_is_named() {
+        // A left then a right circle: the magnitude agrees only in the left.
+        let map = SteeringMap {
+            gain: 1f64.to_radians() / 15.0,
+            offset_rad: 0.0,
+        };
+        let mut p = Plausibility::new(2.7, map);
+        let left = circle(30.0, 10.0, |u, w| (u, w), 400);
+        let end = *left.last().unwrap();
+        for s in &left {
+            p.push(s);
+        }
+        for s in circle(30.0, 10.0, |u, w| (u, w), 400) {
+            // Mirrored: a right circle after the left one, magnitudes only.
+            let mut m = s;
+            m.t_s += end.t_s + 0.01;
+            m.odometry.y_m = end.odometry.y_m - s.odometry.y_m;
+            m.odometry.x_m = end.odometry.x_m + s.odometry.x_m;
+            m.odometry.heading_rad = end.odometry.heading_rad - s.odometry.heading_rad;
+            m.steer_signal = s.steer_signal.map(f64::abs);
+            m.yaw_rate_radps = s.yaw_rate_radps.map(f64::abs);
+            p.push(&m);
+        }
+        let w = p.warnings();
+        assert!(
+            w.iter()
+                .any(|w| w.signal == "signals.steering" && w.suspicion == Suspicion::Sign),
+            "{w:?}"
+        );
+        assert!(w[0].message.contains("right turns"), "{}", w[0]);
+    }
+
+    #[test]
+    fn a_wrong_unit_or_kind_is_named() {
+        let p = run(|u, w| (u, w.to_degrees()));
+        let w = &p.warnings()[0];
+        assert_eq!(
+            (w.signal, w.suspicion),
+            ("signals.yaw_rate", Suspicion::Unit)
+        );
+        assert!(w.message.contains("57"), "{w}");
+        // A steering-wheel angle read as road-wheel: 15 times the turn.
+        let p = run(|u, w| (u * 15.0, w));
+        let w = &p.warnings()[0];
+        assert_eq!(
+            (w.signal, w.suspicion),
+            ("signals.steering", Suspicion::Kind)
+        );
+    }
+
+    #[test]
+    fn fault_shares_above_a_few_percent_are_named() {
+        let mut p = Plausibility::new(
+            2.7,
+            SteeringMap {
+                gain: 1.0,
+                offset_rad: 0.0,
+            },
+        );
+        let mut stats = Stats::default();
+        stats.frames = 1000;
+        for _ in 0..20 {
+            stats.add(Reject::BadChecksum);
+        }
+        p.judge_stats(&stats, 1.0);
+        assert!(p.warnings().is_empty(), "2 % is a noisy bus");
+        for _ in 0..40 {
+            stats.add(Reject::BadChecksum);
+        }
+        p.judge_stats(&stats, 2.0);
+        let w = &p.warnings()[0];
+        assert_eq!(
+            (w.suspicion, w.flag),
+            (Suspicion::Algorithm, Some("CHECKSUM_FAULT"))
+        );
+    }
+}
