@@ -8,6 +8,7 @@ pub mod calibrate_drive;
 pub mod dbc;
 pub mod decode;
 pub mod demo;
+pub mod keys;
 pub mod replay;
 pub mod run;
 pub mod simulate;
@@ -35,6 +36,8 @@ pub enum Command {
     Calibrate(calibrate::CalibrateArgs),
     /// The operator's client of the live calibration: send CALIB_CMD, show CALIB_STATUS as a guide.
     Calib(calib::CalibArgs),
+    /// SecOC key files: derive each party's keys from a master key.
+    Keys(keys::KeysArgs),
 }
 
 impl Command {
@@ -52,6 +55,7 @@ impl Command {
             Self::Demo(a) => demo::execute(&a),
             Self::Calibrate(a) => calibrate::execute(&a),
             Self::Calib(a) => calib::execute(&a),
+            Self::Keys(a) => keys::execute(&a),
         }
     }
 }
