@@ -1097,7 +1097,10 @@ mod tests {
         };
         // Set 1's values under a new version (#33: versions are never re-used).
         assert_eq!(stored.current.as_ref().map(|s| s.version), Some(3));
-        assert_eq!(stored.current.as_ref().map(|s| s.values), Some(values(0.30)));
+        assert_eq!(
+            stored.current.as_ref().map(|s| s.values),
+            Some(values(0.30))
+        );
         assert!(cal.is_busy() && cal.is_storing());
         for command in [Command::Rollback, Command::StartSteering, Command::Abort] {
             assert_eq!(

@@ -290,7 +290,11 @@ async fn auth_commands_signed_by_canodom_calib_are_accepted_and_replays_and_forg
     }
     let params_sent = !bench.seen.lock().unwrap().params.is_empty();
     bench.stop().await;
-    assert_eq!(answers, [0, 1, 1, 1, 1, 2], "signed, replay, rolled, plain, next");
+    assert_eq!(
+        answers,
+        [0, 1, 1, 1, 1, 2],
+        "signed, replay, rolled, plain, next"
+    );
     assert!(params_sent, "REQUEST_PARAMS sends CALIB_PARAMS");
     // A restart: the recording of the first command is refused after it.
     let bench = Bench::start(&config).await;
@@ -312,10 +316,15 @@ async fn auth_a_command_kept_back_by_an_interleaved_plain_frame_is_not_accepted_
     // The attacker slips a plain frame in between a command and its
     // authenticator: the command is still carried out.
     let [cmd, auth] = signed_command(&mut op, &config, Command::Abort, 1, bench.now_ms());
-    let slipped = CanFrame::new_data(cmd.id(), &wire.encode_command(Command::Commit, 0, 2)).unwrap();
+    let slipped =
+        CanFrame::new_data(cmd.id(), &wire.encode_command(Command::Commit, 0, 2)).unwrap();
     bench.send(&[cmd, slipped, auth]).await;
     tokio::time::sleep(Duration::from_secs(12)).await;
-    assert_eq!(bench.answered(), 1, "the command went through the interleaving");
+    assert_eq!(
+        bench.answered(),
+        1,
+        "the command went through the interleaving"
+    );
     // A command whose authenticator the attacker kept from the daemon (an
     // error frame over it, say), replayed whole an hour later.
     let [kept, kept_auth] = signed_command(&mut op, &config, Command::Commit, 3, bench.now_ms());
@@ -323,7 +332,11 @@ async fn auth_a_command_kept_back_by_an_interleaved_plain_frame_is_not_accepted_
     tokio::time::sleep(Duration::from_secs(3600)).await;
     bench.send(&[kept, kept_auth]).await;
     tokio::time::sleep(Duration::from_secs(12)).await;
-    assert_eq!(bench.answered(), 1, "the kept-back command was refused as stale");
+    assert_eq!(
+        bench.answered(),
+        1,
+        "the kept-back command was refused as stale"
+    );
     // The operator's next command still passes.
     let [next, next_auth] = signed_command(&mut op, &config, Command::Abort, 4, bench.now_ms());
     bench.send(&[next, next_auth]).await;
@@ -386,7 +399,10 @@ async fn auth_junk_authenticators_at_0_2_per_second_for_30_minutes_keep_no_valid
 #[tokio::test(start_paused = true)]
 async fn auth_guessed_macs_lock_calib_cmd_out_for_a_while_and_the_bus_is_not_told() {
     let dir = tmp_dir("auth-lockout");
-    let (path, _) = configs(&dir, "lockout_failures = 3\nlockout_window_s = 5\nlockout_s = 30\n");
+    let (path, _) = configs(
+        &dir,
+        "lockout_failures = 3\nlockout_window_s = 5\nlockout_s = 30\n",
+    );
     let config = Arc::new(Config::load(&path).unwrap());
     let base = config.output.base_id;
     let wire = CalibWire::new(base).unwrap();
@@ -418,7 +434,10 @@ async fn auth_guessed_macs_lock_calib_cmd_out_for_a_while_and_the_bus_is_not_tol
     tokio::time::sleep(Duration::from_secs(12)).await;
     assert_eq!(bench.answered(), 1, "answered after the lockout");
     let lockout = bench.seen.lock().unwrap().auth_lockout.clone();
-    assert!(!lockout.is_empty() && !lockout.contains(&true), "AUTH_LOCKOUT tells no one");
+    assert!(
+        !lockout.is_empty() && !lockout.contains(&true),
+        "AUTH_LOCKOUT tells no one"
+    );
     bench.stop().await;
 }
 
@@ -464,8 +483,11 @@ async fn auth_only_the_parameter_stores_signed_ack_of_the_set_ends_the_write_bac
     // A statistics line every half second: each takes the gate's figures
     // while the gate is in use (a second lock in the line once hung the daemon).
     let text = std::fs::read_to_string(&path).unwrap();
-    std::fs::write(&path, text.replace("stats_interval_s = 10.0", "stats_interval_s = 0.5"))
-        .unwrap();
+    std::fs::write(
+        &path,
+        text.replace("stats_interval_s = 10.0", "stats_interval_s = 0.5"),
+    )
+    .unwrap();
     let _log = tracing::subscriber::set_default(
         tracing_subscriber::fmt()
             .with_writer(std::io::sink)
@@ -520,8 +542,11 @@ async fn auth_only_the_parameter_stores_signed_ack_of_the_set_ends_the_write_bac
     let ack_frame = CanFrame::new_data(wire.ack_id(), &ack).unwrap();
     let ack_auth_id = OwnFrame::CalibAckAuth.id(config.output.base_id);
     let auth_frame = |key: &Key, data: &[u8; 8], now_ms| {
-        CanFrame::new_data(ack_auth_id, &Authenticator::new(key).sign(wire.ack_id(), data, now_ms))
-            .unwrap()
+        CanFrame::new_data(
+            ack_auth_id,
+            &Authenticator::new(key).sign(wire.ack_id(), data, now_ms),
+        )
+        .unwrap()
     };
     // Forged with another key; unsigned; signed with the operator's command
     // key; the store's key on an ACK of the same version for another set.
@@ -530,7 +555,10 @@ async fn auth_only_the_parameter_stores_signed_ack_of_the_set_ends_the_write_bac
     let attempts = [
         vec![ack_frame, auth_frame(&other, &ack, bench.now_ms())],
         vec![ack_frame],
-        vec![ack_frame, auth_frame(&role_key(Role::CalibCmd), &ack, bench.now_ms())],
+        vec![
+            ack_frame,
+            auth_frame(&role_key(Role::CalibCmd), &ack, bench.now_ms()),
+        ],
         vec![
             CanFrame::new_data(wire.ack_id(), &wrong_set).unwrap(),
             auth_frame(&role_key(Role::CalibAck), &wrong_set, bench.now_ms()),
@@ -548,10 +576,16 @@ async fn auth_only_the_parameter_stores_signed_ack_of_the_set_ends_the_write_bac
     assert_eq!(before.last(), Some(&Writeback::Pending));
     // The parameter store's own signed ACK of this set ends the write-back.
     bench
-        .send(&[ack_frame, auth_frame(&role_key(Role::CalibAck), &ack, bench.now_ms())])
+        .send(&[
+            ack_frame,
+            auth_frame(&role_key(Role::CalibAck), &ack, bench.now_ms()),
+        ])
         .await;
     tokio::time::sleep(Duration::from_millis(100)).await;
-    assert_eq!(bench.seen.lock().unwrap().writeback.last(), Some(&Writeback::Acked));
+    assert_eq!(
+        bench.seen.lock().unwrap().writeback.last(),
+        Some(&Writeback::Acked)
+    );
     bench.stop().await;
 }
 
@@ -567,15 +601,30 @@ fn auth_keys_derive_writes_each_partys_file_0600_and_never_overwrites() {
     std::fs::write(&master_path, format!("{MASTER_HEX}\n")).unwrap();
     std::fs::set_permissions(&master_path, std::fs::Permissions::from_mode(0o600)).unwrap();
     let derive = |extra: &[&str]| {
-        let mut args = vec!["keys", "derive", "--master", master_path.to_str().unwrap(), "--vehicle", VEHICLE];
+        let mut args = vec![
+            "keys",
+            "derive",
+            "--master",
+            master_path.to_str().unwrap(),
+            "--vehicle",
+            VEHICLE,
+        ];
         args.extend_from_slice(extra);
-        std::process::Command::new(env!("CARGO_BIN_EXE_canodom")).args(&args).output().unwrap()
+        std::process::Command::new(env!("CARGO_BIN_EXE_canodom"))
+            .args(&args)
+            .output()
+            .unwrap()
     };
     let o = derive(&["--out", out.to_str().unwrap()]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     for party in Party::ALL {
         let path = out.join(format!("{}.keys", party.name()));
-        assert_eq!(std::fs::metadata(&path).unwrap().mode() & 0o777, 0o600, "{}", path.display());
+        assert_eq!(
+            std::fs::metadata(&path).unwrap().mode() & 0o777,
+            0o600,
+            "{}",
+            path.display()
+        );
         let keys = KeySet::parse(&std::fs::read_to_string(&path).unwrap()).unwrap();
         assert_eq!((keys.party, keys.vehicle.as_str()), (party, VEHICLE));
         for role in Role::ALL {
@@ -604,5 +653,8 @@ fn auth_keys_derive_writes_each_partys_file_0600_and_never_overwrites() {
     std::fs::set_permissions(&master_path, std::fs::Permissions::from_mode(0o644)).unwrap();
     let o = derive(&["--party", "operator"]);
     let err = String::from_utf8_lossy(&o.stderr);
-    assert!(!o.status.success() && err.contains("master.key") && err.contains("0644"), "{err}");
+    assert!(
+        !o.status.success() && err.contains("master.key") && err.contains("0644"),
+        "{err}"
+    );
 }

@@ -186,7 +186,10 @@ fn the_unit_hands_the_key_file_over_as_a_credential_and_the_recipe_starts_with_i
     let out = run_as_service(&config, None, &state, 10);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success(), "{stderr}");
-    assert!(stderr.contains("LoadCredential") && stderr.contains("security.key_file"), "{stderr}");
+    assert!(
+        stderr.contains("LoadCredential") && stderr.contains("security.key_file"),
+        "{stderr}"
+    );
     // systemd's layout: a private folder, the file 0400 plus an ACL entry
     // for the service's user, which stat shows as mode 0440.
     let creds = dir.join("credentials");
@@ -194,7 +197,14 @@ fn the_unit_hands_the_key_file_over_as_a_credential_and_the_recipe_starts_with_i
     let key = creds.join("canodom.keys");
     let _ = std::fs::remove_file(&key);
     let master = MasterKey::parse("00112233445566778899aabbccddeeff").unwrap();
-    std::fs::write(&key, master.key_file("bench-1", Party::Canodom).unwrap().as_bytes()).unwrap();
+    std::fs::write(
+        &key,
+        master
+            .key_file("bench-1", Party::Canodom)
+            .unwrap()
+            .as_bytes(),
+    )
+    .unwrap();
     std::fs::set_permissions(&key, std::fs::Permissions::from_mode(0o440)).unwrap();
     std::fs::set_permissions(&creds, std::fs::Permissions::from_mode(0o500)).unwrap();
     let out = run_as_service(&config, Some(&creds), &state, 3);
@@ -213,5 +223,8 @@ fn the_unit_hands_the_key_file_over_as_a_credential_and_the_recipe_starts_with_i
     std::fs::write(&config, text).unwrap();
     let out = run_as_service(&config, None, &state, 10);
     let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success() && stderr.contains("mode 0440"), "{stderr}");
+    assert!(
+        !out.status.success() && stderr.contains("mode 0440"),
+        "{stderr}"
+    );
 }

@@ -1068,17 +1068,21 @@ impl Validator<'_> {
             inputs,
             ekf,
             output,
-            security: crate::security::validate(self.file, raw.security.as_ref(), &calibration.param_file)
-                .map_err(|e| match e {
-                    crate::security::SecurityError::Invalid(key, expected, got) => {
-                        self.err(&key, &expected, got)
-                    }
-                    crate::security::SecurityError::KeyFile(path, reason) => ConfigError::KeyFile {
-                        file: self.file.to_owned(),
-                        path,
-                        reason,
-                    },
-                })?,
+            security: crate::security::validate(
+                self.file,
+                raw.security.as_ref(),
+                &calibration.param_file,
+            )
+            .map_err(|e| match e {
+                crate::security::SecurityError::Invalid(key, expected, got) => {
+                    self.err(&key, &expected, got)
+                }
+                crate::security::SecurityError::KeyFile(path, reason) => ConfigError::KeyFile {
+                    file: self.file.to_owned(),
+                    path,
+                    reason,
+                },
+            })?,
             calibration,
         })
     }

@@ -429,7 +429,10 @@ mod tests {
     }
 
     fn daemon_keys() -> String {
-        master().key_file(VEHICLE, Party::Canodom).unwrap().to_string()
+        master()
+            .key_file(VEHICLE, Party::Canodom)
+            .unwrap()
+            .to_string()
     }
 
     fn load(dir: &Path, text: &str) -> Result<Config, ConfigError> {
@@ -443,7 +446,12 @@ mod tests {
             ("g", 0o640, good.as_str(), "mode 0640"),
             ("o", 0o604, good.as_str(), "mode 0604"),
             ("w", 0o620, good.as_str(), "chmod 600"),
-            ("short", 0o600, "vehicle a\nparty canodom\nodom_cmd 0102\n", "line 3"),
+            (
+                "short",
+                0o600,
+                "vehicle a\nparty canodom\nodom_cmd 0102\n",
+                "line 3",
+            ),
             ("junk", 0o600, "not a key at all", "line 1"),
             (
                 "single",
@@ -457,7 +465,10 @@ mod tests {
             assert!(e.contains("security.key_file"), "{tag}: {e}");
             assert!(e.contains("canodom.keys"), "{tag}: names the file: {e}");
             assert!(e.contains(needle), "{tag}: {e}");
-            assert!(!e.contains("0102030405"), "{tag}: the key is never echoed: {e}");
+            assert!(
+                !e.contains("0102030405"),
+                "{tag}: the key is never echoed: {e}"
+            );
         }
         let (dir, cfg) = setup("key-missing", 0o600, &good, "");
         std::fs::remove_file(dir.join("canodom.keys")).unwrap();
@@ -486,9 +497,19 @@ mod tests {
     #[test]
     fn auth_secure_defaults_a_security_section_needs_its_key_and_a_bench_says_so() {
         let (dir, cfg) = setup("keys", 0o600, &daemon_keys(), "lockout_failures = 0\n");
-        assert!(load(&dir, &cfg).unwrap_err().to_string().contains("lockout_failures"));
+        assert!(
+            load(&dir, &cfg)
+                .unwrap_err()
+                .to_string()
+                .contains("lockout_failures")
+        );
         let (dir, cfg) = setup("keys2", 0o600, &daemon_keys(), "freshness_window_s = 0\n");
-        assert!(load(&dir, &cfg).unwrap_err().to_string().contains("freshness_window_s"));
+        assert!(
+            load(&dir, &cfg)
+                .unwrap_err()
+                .to_string()
+                .contains("freshness_window_s")
+        );
         let (dir, cfg) = setup(
             "keys3",
             0o600,
@@ -508,7 +529,10 @@ mod tests {
         // A [security] section without a key: refused, naming the bench switch.
         let no_key = cfg.replace("key_file = \"canodom.keys\"\n", "");
         let e = load(&dir, &no_key).unwrap_err().to_string();
-        assert!(e.contains("security.key_file") && e.contains("allow_without_key = true"), "{e}");
+        assert!(
+            e.contains("security.key_file") && e.contains("allow_without_key = true"),
+            "{e}"
+        );
         // The bench says so explicitly.
         let bench = no_key.clone() + "allow_without_key = true\n";
         let c = load(&dir, &bench).unwrap();
@@ -517,12 +541,20 @@ mod tests {
         // and not allowed to run without one (`canodom run` refuses).
         let none = crate::config::tests::RC_CAR.replace(
             "dbc = \"rc_car.dbc\"",
-            &format!("dbc = {:?}", concat!(env!("CARGO_MANIFEST_DIR"), "/../data/dbc/rc_car.dbc")),
+            &format!(
+                "dbc = {:?}",
+                concat!(env!("CARGO_MANIFEST_DIR"), "/../data/dbc/rc_car.dbc")
+            ),
         );
         let c = load(&dir, &none).unwrap();
         assert!(c.security.keys.is_none() && !c.security.allow_without_key);
         let typo = cfg.replace("lockout_s", "lockout_sec");
-        assert!(load(&dir, &typo).unwrap_err().to_string().contains("lockout_sec"));
+        assert!(
+            load(&dir, &typo)
+                .unwrap_err()
+                .to_string()
+                .contains("lockout_sec")
+        );
     }
 
     fn rx(t_us: u64, id: FrameId, data: &[u8]) -> Received {
@@ -553,7 +585,10 @@ mod tests {
         let fv = operator_next_freshness(store, id, now_ms, None).unwrap();
         let op = keys(Party::Operator);
         let auth = Authenticator::new(op.key(Role::CalibCmd).unwrap()).sign(id, &data, fv);
-        [(id, data), (OwnFrame::CalibCmdAuth.id(c.output.base_id), auth)]
+        [
+            (id, data),
+            (OwnFrame::CalibCmdAuth.id(c.output.base_id), auth),
+        ]
     }
 
     #[test]
@@ -571,7 +606,10 @@ mod tests {
         let [(id2, data2), (aid2, auth2)] =
             operator_frames(&c, &mut op, Command::Rollback, 2, T0_MS);
         assert_eq!(gate.admit(&rx(T0_US + 1_000, id2, &data2)), Admit::Held);
-        assert!(matches!(gate.admit(&rx(T0_US + 1_300, aid2, &auth2)), Admit::Authentic(_)));
+        assert!(matches!(
+            gate.admit(&rx(T0_US + 1_300, aid2, &auth2)),
+            Admit::Authentic(_)
+        ));
         // Replayed at once: refused, logged once, then only counted.
         assert_eq!(gate.admit(&rx(T0_US + 2_000, id, &data)), Admit::Held);
         assert!(matches!(
@@ -615,7 +653,13 @@ mod tests {
         let mut op = FreshnessFile::load(&c.security.operator_freshness_file).unwrap();
         let recorded: Vec<_> = (0..5u8)
             .map(|k| {
-                operator_frames(&c, &mut op, Command::Abort, k, T0_MS - two_years_ms + u64::from(k))
+                operator_frames(
+                    &c,
+                    &mut op,
+                    Command::Abort,
+                    k,
+                    T0_MS - two_years_ms + u64::from(k),
+                )
             })
             .collect();
         // The daemon accepted them two years ago; its freshness file is gone.
@@ -684,19 +728,35 @@ mod tests {
             }
         ));
         // The store's key signs the ACK the daemon accepts, but no command.
-        let by_store = Authenticator::new(store.key(Role::CalibAck).unwrap())
-            .sign(wire.ack_id(), &ack, T0_MS + 1);
-        assert_eq!(gate.admit(&rx(T0_US + 1_000, wire.ack_id(), &ack)), Admit::Held);
+        let by_store = Authenticator::new(store.key(Role::CalibAck).unwrap()).sign(
+            wire.ack_id(),
+            &ack,
+            T0_MS + 1,
+        );
+        assert_eq!(
+            gate.admit(&rx(T0_US + 1_000, wire.ack_id(), &ack)),
+            Admit::Held
+        );
         assert!(matches!(
             gate.admit(&rx(T0_US + 1_100, ack_auth, &by_store)),
             Admit::Authentic(_)
         ));
         let cmd = wire.encode_command(Command::Commit, 0, 1);
-        let store_cmd = Authenticator::new(store.key(Role::CalibAck).unwrap())
-            .sign(c.calibration.command_id, &cmd, T0_MS + 2);
-        assert_eq!(gate.admit(&rx(T0_US + 2_000, c.calibration.command_id, &cmd)), Admit::Held);
+        let store_cmd = Authenticator::new(store.key(Role::CalibAck).unwrap()).sign(
+            c.calibration.command_id,
+            &cmd,
+            T0_MS + 2,
+        );
+        assert_eq!(
+            gate.admit(&rx(T0_US + 2_000, c.calibration.command_id, &cmd)),
+            Admit::Held
+        );
         assert!(matches!(
-            gate.admit(&rx(T0_US + 2_100, OwnFrame::CalibCmdAuth.id(base), &store_cmd)),
+            gate.admit(&rx(
+                T0_US + 2_100,
+                OwnFrame::CalibCmdAuth.id(base),
+                &store_cmd
+            )),
             Admit::Refused {
                 reason: AuthFailure::BadMac,
                 ..
@@ -705,9 +765,16 @@ mod tests {
         // Another vehicle's daemon key (same master) signs nothing here.
         let other = master().derive("rc-car-8", Role::CalibCmd);
         let other_cmd = Authenticator::new(&other).sign(c.calibration.command_id, &cmd, T0_MS + 3);
-        assert_eq!(gate.admit(&rx(T0_US + 3_000, c.calibration.command_id, &cmd)), Admit::Held);
+        assert_eq!(
+            gate.admit(&rx(T0_US + 3_000, c.calibration.command_id, &cmd)),
+            Admit::Held
+        );
         assert!(matches!(
-            gate.admit(&rx(T0_US + 3_100, OwnFrame::CalibCmdAuth.id(base), &other_cmd)),
+            gate.admit(&rx(
+                T0_US + 3_100,
+                OwnFrame::CalibCmdAuth.id(base),
+                &other_cmd
+            )),
             Admit::Refused {
                 reason: AuthFailure::BadMac,
                 ..
@@ -773,7 +840,10 @@ mod tests {
 
     #[test]
     fn auth_junk_does_not_lock_out_and_calib_ack_is_never_locked_out() {
-        let (_dir, c) = keyed("lock", "lockout_failures = 3\nlockout_window_s = 5\nlockout_s = 30\n");
+        let (_dir, c) = keyed(
+            "lock",
+            "lockout_failures = 3\nlockout_window_s = 5\nlockout_s = 30\n",
+        );
         let base = c.output.base_id;
         let wire = CalibWire::new(base).unwrap();
         let mut gate = SecurityGate::for_config(&c).unwrap();
@@ -824,13 +894,21 @@ mod tests {
         let ack_aid = OwnFrame::CalibAckAuth.id(base);
         for k in 0..5u64 {
             let _ = gate.admit(&rx(t + 5_000 + k * 1000, wire.ack_id(), &ack));
-            let _ = gate.admit(&rx(t + 5_010 + k * 1000, ack_aid, &guess(t + 5_010 + k * 1000, k)));
+            let _ = gate.admit(&rx(
+                t + 5_010 + k * 1000,
+                ack_aid,
+                &guess(t + 5_010 + k * 1000, k),
+            ));
         }
         assert_eq!(gate.lockouts(), 1, "CALIB_ACK bad MACs do not lock");
         let t2 = t + 20_000;
-        let signed = Authenticator::new(&role_key(Role::CalibAck)).sign(wire.ack_id(), &ack, t2 / 1000);
+        let signed =
+            Authenticator::new(&role_key(Role::CalibAck)).sign(wire.ack_id(), &ack, t2 / 1000);
         assert_eq!(gate.admit(&rx(t2, wire.ack_id(), &ack)), Admit::Held);
-        assert!(matches!(gate.admit(&rx(t2 + 10, ack_aid, &signed)), Admit::Authentic(_)));
+        assert!(matches!(
+            gate.admit(&rx(t2 + 10, ack_aid, &signed)),
+            Admit::Authentic(_)
+        ));
         assert!(matches!(
             gate.admit(&rx(t2 + 20, cmd_id, &cmd)),
             Admit::Refused {

@@ -106,15 +106,15 @@ pub enum KeyFileError {
     Io(#[from] std::io::Error),
     /// A symbolic link: refused rather than followed (it could be swapped
     /// between a check and the read).
-    #[error("is a symbolic link; give the real file (a key file is opened without following links)")]
+    #[error(
+        "is a symbolic link; give the real file (a key file is opened without following links)"
+    )]
     Symlink,
     /// Not a regular file.
     #[error("not a regular file")]
     NotAFile,
     /// Owned by another user than the one reading it (or root).
-    #[error(
-        "owned by uid {owner}, not by the user reading it (uid {reader}) or root: chown it"
-    )]
+    #[error("owned by uid {owner}, not by the user reading it (uid {reader}) or root: chown it")]
     Owner {
         /// The file's owner.
         owner: u32,
@@ -216,7 +216,9 @@ pub fn read_secret_file(path: &Path, access: Access) -> Result<Zeroizing<String>
     }
     // Room for all of it up front: no reallocation leaves a copy behind.
     let mut bytes = Zeroizing::new(Vec::with_capacity(MAX_KEY_FILE as usize + 1));
-    file.by_ref().take(MAX_KEY_FILE + 1).read_to_end(&mut bytes)?;
+    file.by_ref()
+        .take(MAX_KEY_FILE + 1)
+        .read_to_end(&mut bytes)?;
     if bytes.len() as u64 > MAX_KEY_FILE {
         return Err(KeyFileError::TooLarge(bytes.len() as u64));
     }
@@ -282,9 +284,9 @@ pub(crate) fn validate(
             None => (credential, read_credential_key_file),
         };
     let keys = match &key_file {
-        Some(path) => Some(
-            read(path).map_err(|e| SecurityError::KeyFile(path.clone(), e.to_string()))?,
-        ),
+        Some(path) => {
+            Some(read(path).map_err(|e| SecurityError::KeyFile(path.clone(), e.to_string()))?)
+        }
         None if section.is_some() && !raw.allow_without_key => {
             return Err(invalid(
                 "security.key_file",

@@ -867,10 +867,17 @@ mod tests {
         let ext = FrameId::Extended(0x0bc1_bee2);
         assert_eq!(a.mac(ext, &payload, fv), expected[..4]);
         let auth = a.sign(ext, &payload, fv);
-        assert_eq!(auth[..4], (fv as u32).to_le_bytes(), "the low 32 bits travel");
+        assert_eq!(
+            auth[..4],
+            (fv as u32).to_le_bytes(),
+            "the low 32 bits travel"
+        );
         assert_eq!(auth[4..], expected[..4]);
         // The same low bits 2^32 ms (49.7 days) earlier: another MAC.
-        assert_ne!(a.mac(ext, &payload, fv - (1 << 32)), a.mac(ext, &payload, fv));
+        assert_ne!(
+            a.mac(ext, &payload, fv - (1 << 32)),
+            a.mac(ext, &payload, fv)
+        );
     }
 
     #[test]
@@ -916,7 +923,10 @@ mod tests {
             Verdict::Accepted { .. }
         ));
         let c = rx.counts();
-        assert_eq!((c.of(AuthFailure::Replayed), c.of(AuthFailure::Stale)), (2, 1));
+        assert_eq!(
+            (c.of(AuthFailure::Replayed), c.of(AuthFailure::Stale)),
+            (2, 1)
+        );
     }
 
     #[test]
@@ -928,7 +938,10 @@ mod tests {
         let plain = [7, 0, 0, 0, 0, 0, 0x80, 0x22];
         let auth = signed(cmd, T0_MS);
         assert_eq!(rx.on_frame(T0_US, link().secured, &cmd, ok), Verdict::Held);
-        assert_eq!(rx.on_frame(T0_US + 50, link().secured, &plain, ok), Verdict::Held);
+        assert_eq!(
+            rx.on_frame(T0_US + 50, link().secured, &plain, ok),
+            Verdict::Held
+        );
         assert_eq!(
             rx.on_frame(T0_US + 100, link().authenticator, &auth, ok),
             Verdict::Accepted {
@@ -940,7 +953,10 @@ mod tests {
         // The attacker who also blocked the authenticator (say, by an error
         // frame) replays the recorded pair one hour later: stale.
         let mut blocked = receiver(None);
-        assert_eq!(blocked.on_frame(T0_US, link().secured, &cmd, ok), Verdict::Held);
+        assert_eq!(
+            blocked.on_frame(T0_US, link().secured, &cmd, ok),
+            Verdict::Held
+        );
         let later = T0_US + HOUR_US;
         assert_eq!(
             send(&mut blocked, later, cmd, auth),
@@ -1003,7 +1019,11 @@ mod tests {
         assert_eq!(accepted, 360, "{}", rx.counts());
         assert_eq!(rx.lockouts(), 0);
         let c = rx.counts();
-        assert_eq!((c.of(AuthFailure::BadMac), c.of(AuthFailure::Unpaired)), (180, 180), "{c}");
+        assert_eq!(
+            (c.of(AuthFailure::BadMac), c.of(AuthFailure::Unpaired)),
+            (180, 180),
+            "{c}"
+        );
     }
 
     #[test]
@@ -1016,7 +1036,10 @@ mod tests {
             let t = T0_US + k * 100_000;
             let mut bad = signed(payload, t / 1000);
             bad[7] ^= 1;
-            assert_eq!(send(&mut rx, t, payload, bad), Verdict::Refused(AuthFailure::BadMac));
+            assert_eq!(
+                send(&mut rx, t, payload, bad),
+                Verdict::Refused(AuthFailure::BadMac)
+            );
             let mut bad_ack = ack_auth(payload, t / 1000);
             bad_ack[7] ^= 1;
             let _ = rx.on_frame(t + 200, ack_link().secured, &payload, ok);
@@ -1031,9 +1054,17 @@ mod tests {
             rx.on_frame(t, link().secured, &payload, ok),
             Verdict::Refused(AuthFailure::LockedOut)
         );
-        assert_eq!(rx.on_frame(t, ack_link().secured, &payload, ok), Verdict::Held);
+        assert_eq!(
+            rx.on_frame(t, ack_link().secured, &payload, ok),
+            Verdict::Held
+        );
         assert!(matches!(
-            rx.on_frame(t + 10, ack_link().authenticator, &ack_auth(payload, t / 1000), ok),
+            rx.on_frame(
+                t + 10,
+                ack_link().authenticator,
+                &ack_auth(payload, t / 1000),
+                ok
+            ),
             Verdict::Accepted { .. }
         ));
         // After lockout_s the command id is open again.
@@ -1047,7 +1078,12 @@ mod tests {
         for k in 0..1000u64 {
             let t = T0_US + k * 1_000;
             let _ = rx.on_frame(t, link().authenticator, &[0; 8], ok);
-            let _ = send(&mut rx, t + 200, payload, signed(payload, T0_MS - HOUR_US / 1000));
+            let _ = send(
+                &mut rx,
+                t + 200,
+                payload,
+                signed(payload, T0_MS - HOUR_US / 1000),
+            );
             let _ = rx.on_frame(t + 400, link().secured, &payload[..5], ok);
         }
         assert_eq!(rx.lockouts(), 0, "{}", rx.counts());
@@ -1115,7 +1151,10 @@ mod tests {
         let auth = signed(payload, T0_MS);
         let mut stored = None;
         let mut before = receiver(None);
-        assert_eq!(before.on_frame(T0_US, link().secured, &payload, ok), Verdict::Held);
+        assert_eq!(
+            before.on_frame(T0_US, link().secured, &payload, ok),
+            Verdict::Held
+        );
         let v = before.on_frame(T0_US + 50, link().authenticator, &auth, |_, fv| {
             stored = Some(fv);
             Ok::<(), ()>(())
@@ -1191,8 +1230,13 @@ mod tests {
         let payload = [7, 0, 0, 0, 0, 0, 0x60, 0x10];
         let auth = signed(payload, T0_MS);
         let mut rx = receiver(None);
-        assert_eq!(rx.on_frame(T0_US, link().secured, &payload, ok), Verdict::Held);
-        let v = rx.on_frame(T0_US + 1, link().authenticator, &auth, |_, _| Err("disk full"));
+        assert_eq!(
+            rx.on_frame(T0_US, link().secured, &payload, ok),
+            Verdict::Held
+        );
+        let v = rx.on_frame(T0_US + 1, link().authenticator, &auth, |_, _| {
+            Err("disk full")
+        });
         assert_eq!(v, Verdict::Refused(AuthFailure::StoreFailed));
         assert_eq!(rx.last_accepted(link().secured), None);
         assert!(matches!(
@@ -1207,11 +1251,19 @@ mod tests {
         let payload = [9, 0, 0, 0, 0, 0, 0x90, 0x6E];
         // Five plain frames: the oldest is dropped when a fifth waits.
         for k in 0..5 {
-            assert_eq!(rx.on_frame(T0_US + k, link().secured, &payload, ok), Verdict::Held);
+            assert_eq!(
+                rx.on_frame(T0_US + k, link().secured, &payload, ok),
+                Verdict::Held
+            );
         }
         // The other four time out on the next frame after the pairing window.
         assert_eq!(
-            rx.on_frame(T0_US + 10 + PAIR_TIMEOUT_US, FrameId::Standard(0x100), &[0; 8], ok),
+            rx.on_frame(
+                T0_US + 10 + PAIR_TIMEOUT_US,
+                FrameId::Standard(0x100),
+                &[0; 8],
+                ok
+            ),
             Verdict::NotSecured
         );
         // A valid authenticator with nothing to pair with.
@@ -1222,9 +1274,17 @@ mod tests {
             Verdict::Refused(AuthFailure::Unpaired)
         );
         // A late authenticator: its frame expired first.
-        assert_eq!(rx.on_frame(t + 100_000, link().secured, &payload, ok), Verdict::Held);
         assert_eq!(
-            rx.on_frame(t + 100_000 + PAIR_TIMEOUT_US + 5, link().authenticator, &auth, ok),
+            rx.on_frame(t + 100_000, link().secured, &payload, ok),
+            Verdict::Held
+        );
+        assert_eq!(
+            rx.on_frame(
+                t + 100_000 + PAIR_TIMEOUT_US + 5,
+                link().authenticator,
+                &auth,
+                ok
+            ),
             Verdict::Refused(AuthFailure::Unpaired)
         );
         assert_eq!(
@@ -1250,7 +1310,10 @@ mod tests {
         fd.extend_from_slice(&signed(payload, T0_MS));
         assert!(matches!(
             rx.on_frame(T0_US, link().secured, &fd, ok),
-            Verdict::Accepted { freshness: T0_MS, .. }
+            Verdict::Accepted {
+                freshness: T0_MS,
+                ..
+            }
         ));
         assert_eq!(
             rx.on_frame(T0_US + 1, link().secured, &fd, ok),

@@ -60,7 +60,12 @@ pub enum Role {
 
 impl Role {
     /// Every role, in key-file order.
-    pub const ALL: [Self; 4] = [Self::OdomCmd, Self::CalibCmd, Self::CalibParams, Self::CalibAck];
+    pub const ALL: [Self; 4] = [
+        Self::OdomCmd,
+        Self::CalibCmd,
+        Self::CalibParams,
+        Self::CalibAck,
+    ];
 
     /// The name in key files (`odom_cmd`, ...).
     pub fn name(self) -> &'static str {
@@ -140,7 +145,9 @@ impl Party {
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum KeySetError {
     /// The master key is not 32 or 64 hexadecimal digits.
-    #[error("master key: expected 32 or 64 hexadecimal digits (128 or 256 bits) and nothing else, got {got}")]
+    #[error(
+        "master key: expected 32 or 64 hexadecimal digits (128 or 256 bits) and nothing else, got {got}"
+    )]
     Master {
         /// A length or a character class, never the text.
         got: String,
@@ -416,7 +423,10 @@ mod tests {
             }
         }
         // Deterministic: the same inputs give the same key.
-        assert_eq!(m.derive("car-1", Role::CalibCmd), m.derive("car-1", Role::CalibCmd));
+        assert_eq!(
+            m.derive("car-1", Role::CalibCmd),
+            m.derive("car-1", Role::CalibCmd)
+        );
         // A frame signed on one car's key fails on the other's.
         let id = FrameId::Standard(0x610);
         let p = [1u8; 8];
@@ -431,7 +441,10 @@ mod tests {
         let op = KeySet::parse(&m.key_file("car-1", Party::Operator).unwrap()).unwrap();
         assert_eq!(op.party, Party::Operator);
         assert_eq!(op.vehicle, "car-1");
-        assert_eq!(op.key(Role::CalibCmd), Some(&m.derive("car-1", Role::CalibCmd)));
+        assert_eq!(
+            op.key(Role::CalibCmd),
+            Some(&m.derive("car-1", Role::CalibCmd))
+        );
         assert!(op.key(Role::CalibParams).is_none() && op.key(Role::CalibAck).is_none());
         let store = KeySet::parse(&m.key_file("car-1", Party::ParamStore).unwrap()).unwrap();
         assert!(store.key(Role::CalibCmd).is_none());
@@ -448,13 +461,20 @@ mod tests {
 
     #[test]
     fn auth_key_file_errors_name_the_line_and_never_the_key() {
-        assert_eq!(KeySet::parse(&format!("{MASTER}\n")), Err(KeySetError::SingleKey));
+        assert_eq!(
+            KeySet::parse(&format!("{MASTER}\n")),
+            Err(KeySetError::SingleKey)
+        );
         let e = KeySet::parse("vehicle a\nparty operator\nodom_cmd 0011\n").unwrap_err();
         assert!(matches!(e, KeySetError::Line { line: 3, .. }), "{e}");
         assert!(!e.to_string().contains("0011"), "{e}");
-        let e = KeySet::parse("vehicle a\nparty pilot\n").unwrap_err().to_string();
+        let e = KeySet::parse("vehicle a\nparty pilot\n")
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("line 2") && e.contains("pilot"), "{e}");
-        let e = KeySet::parse("vehicle a\nparty operator\n").unwrap_err().to_string();
+        let e = KeySet::parse("vehicle a\nparty operator\n")
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("needs a odom_cmd key"), "{e}");
         assert!(MasterKey::parse("00").is_err());
         assert!(MasterKey::parse(&"0".repeat(32)).is_err());

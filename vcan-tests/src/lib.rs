@@ -126,10 +126,7 @@ pub fn calibration_config(dir: &Path, dbc: &Path, arming_code: u8) -> Result<Pat
         return Err(format!("{}: the dbc line moved", example_path.display()));
     }
     if !config.contains("\n[calibration]\n") {
-        return Err(format!(
-            "{}: [calibration] is gone",
-            example_path.display()
-        ));
+        return Err(format!("{}: [calibration] is gone", example_path.display()));
     }
     config = config.replace(
         "\n[calibration]\n",

@@ -25,7 +25,9 @@ use canodom_protocol::calib_wire::{
     Ack, AckStatus, CalibWire, Counts, ParamsAssembler, Progress, State, StatusPage, Writeback,
 };
 use canodom_protocol::own_dbc::{BaseId, OwnFrame};
-use canodom_protocol::secoc::{Authenticator, DEFAULT_WINDOW_MS, check_freshness, reconstruct, split_auth};
+use canodom_protocol::secoc::{
+    Authenticator, DEFAULT_WINDOW_MS, check_freshness, reconstruct, split_auth,
+};
 use canodom_protocol::secoc_keys::{MasterKey, Party, Role};
 use canodom_vcan_tests::{
     Spawned, calibration_config, canodom_bin, metric, read, read_candump, repo_file, run,
@@ -322,7 +324,10 @@ async fn secoc_replayed_and_edited_session_changes_nothing_and_is_counted_by_rea
     )
     .await;
     let started = Instant::now();
-    calib(&operator, &["start", "--track-radius", "0.78", "--runs", "2"]);
+    calib(
+        &operator,
+        &["start", "--track-radius", "0.78", "--runs", "2"],
+    );
     until(&heard, "READY", Duration::from_secs(70), |h| {
         h.progress.is_some_and(|p| p.state == State::Ready)
     })
@@ -471,7 +476,11 @@ async fn secoc_replayed_and_edited_session_changes_nothing_and_is_counted_by_rea
     // window ago: refused as stale before its MAC is even computed, and its
     // secured frame, left without a valid authenticator, expires.
     assert_eq!(refused(&log, "stale"), 2 * (cmds + acks), "{line}");
-    assert_eq!(refused(&log, "missing_authenticator"), 2 * (cmds + acks), "{line}");
+    assert_eq!(
+        refused(&log, "missing_authenticator"),
+        2 * (cmds + acks),
+        "{line}"
+    );
     for other in [
         "replayed",
         "bad_mac",
@@ -482,5 +491,8 @@ async fn secoc_replayed_and_edited_session_changes_nothing_and_is_counted_by_rea
         assert_eq!(refused(&log, other), 0, "{other}: {line}");
     }
     metric("secoc_refused_stale", refused(&log, "stale"));
-    metric("secoc_refused_missing_authenticator", refused(&log, "missing_authenticator"));
+    metric(
+        "secoc_refused_missing_authenticator",
+        refused(&log, "missing_authenticator"),
+    );
 }

@@ -71,8 +71,14 @@ pub fn execute(args: &KeysArgs) -> anyhow::Result<()> {
     }
 }
 
-fn derive(master: &Path, vehicle: &str, out: Option<&Path>, only: Option<Party>) -> anyhow::Result<()> {
-    let text = read_secret_file(master, Access::OwnerOnly).with_context(|| format!("{}", master.display()))?;
+fn derive(
+    master: &Path,
+    vehicle: &str,
+    out: Option<&Path>,
+    only: Option<Party>,
+) -> anyhow::Result<()> {
+    let text = read_secret_file(master, Access::OwnerOnly)
+        .with_context(|| format!("{}", master.display()))?;
     let master_key = MasterKey::parse(&text).with_context(|| format!("{}", master.display()))?;
     let parties: Vec<Party> = only.map_or_else(|| Party::ALL.to_vec(), |p| vec![p]);
     match out {
@@ -99,11 +105,18 @@ fn derive(master: &Path, vehicle: &str, out: Option<&Path>, only: Option<Party>)
                     .custom_flags(libc::O_NOFOLLOW)
                     .open(&path)
                     .with_context(|| {
-                        format!("{}: not written (an existing key file is never overwritten)", path.display())
+                        format!(
+                            "{}: not written (an existing key file is never overwritten)",
+                            path.display()
+                        )
                     })?;
                 f.write_all(text.as_bytes())?;
                 f.sync_all()?;
-                println!("{}: the {}'s keys for vehicle {vehicle}", path.display(), p.name());
+                println!(
+                    "{}: the {}'s keys for vehicle {vehicle}",
+                    path.display(),
+                    p.name()
+                );
             }
         }
     }
