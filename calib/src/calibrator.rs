@@ -1095,7 +1095,12 @@ mod tests {
         let [Output::Persist(stored)] = out.as_slice() else {
             panic!("a rollback asks for a store and waits: {out:?}");
         };
-        assert_eq!(stored.current.as_ref().map(|s| s.version), Some(1));
+        // Set 1's values under a new version (#33: versions are never re-used).
+        assert_eq!(stored.current.as_ref().map(|s| s.version), Some(3));
+        assert_eq!(
+            stored.current.as_ref().map(|s| s.values),
+            Some(values(0.30))
+        );
         assert!(cal.is_busy() && cal.is_storing());
         for command in [Command::Rollback, Command::StartSteering, Command::Abort] {
             assert_eq!(
@@ -1121,13 +1126,13 @@ mod tests {
             vec![
                 Output::Answer(Ok(())),
                 Output::Apply {
-                    version: 1,
+                    version: 3,
                     values: values(0.30)
                 },
-                Output::Adopted { version: 1 },
+                Output::Adopted { version: 3 },
             ]
         );
-        assert_eq!(cal.file().current.as_ref().map(|s| s.version), Some(1));
+        assert_eq!(cal.file().current.as_ref().map(|s| s.version), Some(3));
         assert_eq!(
             answers(&cal.on_command(3.0, Command::Rollback, true)),
             vec![Err(Refused::WritebackBusy)]

@@ -248,10 +248,14 @@ impl ParamFile {
         self.current.insert(set)
     }
 
-    /// Restores the most recent previous set (with its own version);
-    /// `None`, and no change, when there is none.
+    /// Restores the values of the most recent previous set under the next
+    /// version (issue #33: a version is never re-used for a set written
+    /// back again, so an acknowledgement of its first write-back can never
+    /// count for this one); `None`, and no change, when there is none.
     pub fn rollback(&mut self) -> Option<&ParamSet> {
-        let previous = self.history.pop()?;
+        let mut previous = self.history.pop()?;
+        self.last_version = self.last_version.checked_add(1).unwrap_or(1);
+        previous.version = self.last_version;
         Some(self.current.insert(previous))
     }
 }

@@ -97,7 +97,7 @@ pub struct CalibTask<Tx> {
     pub clock: BusClock,
     /// The sending half of the transport (`None` while disconnected).
     pub sink: watch::Receiver<Option<Tx>>,
-    /// SecOC: signs `CALIB_PARAMS`, stamps the lockout on `CALIB_STATUS`.
+    /// SecOC: signs `CALIB_PARAMS` (nothing is sent when it cannot be signed).
     pub security: Arc<Mutex<SecurityGate>>,
     /// Tells the link task of a link loss a send met.
     pub link_lost: mpsc::Sender<BusError>,
@@ -314,10 +314,17 @@ impl<Tx: FrameSink + Clone> CalibTask<Tx> {
     async fn send(&mut self, frame: &CanFrame) {
         let tx = self.sink.borrow().clone();
         let Some(tx) = tx else { return };
-        let unix_s = std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map_or(0, |d| d.as_secs());
-        let frames = lock(&self.security).outgoing(frame, unix_s);
+        // The bus clock, as the receivers' own timestamps see it: a signed
+        // CALIB_PARAMS page is judged against the parameter store's clock.
+        let now_ms = self.now().map_or_else(
+            || {
+                std::time::SystemTime::now()
+                    .duration_since(std::time::UNIX_EPOCH)
+                    .map_or(0, |d| d.as_millis() as u64)
+            },
+            |t| t.as_micros() / 1000,
+        );
+        let frames = lock(&self.security).outgoing(frame, now_ms);
         for frame in frames {
             if let Err(e) = tx.send(&frame).await {
                 if e.is_link_loss() {

@@ -223,11 +223,25 @@ impl LiveCalibration {
         if !self.wire.checksum_ok(frame.data()) {
             return Vec::new();
         }
-        let Ok((Ack { version, status }, _)) = self.wire.decode_ack(frame.data()) else {
+        let Ok((
+            Ack {
+                version,
+                status,
+                set_crc,
+            },
+            _,
+        )) = self.wire.decode_ack(frame.data())
+        else {
             return Vec::new();
         };
+        // The acknowledgement must echo the set's CRC as well as its
+        // version: one for another set under a re-used version is not ours.
         match self.writeback {
-            Some(wb) if wb.state == Writeback::Pending && wb.set.version == version => {
+            Some(wb)
+                if wb.state == Writeback::Pending
+                    && wb.set.version == version
+                    && self.wire.set_crc(&wb.set).ok() == Some(set_crc) =>
+            {
                 let state = match status {
                     AckStatus::Stored => Writeback::Acked,
                     AckStatus::Refused => Writeback::Failed,
@@ -779,6 +793,23 @@ mod tests {
             .expect("status page 1")
     }
 
+    /// SET_CRC of the `CALIB_PARAMS` set among the outputs.
+    fn sent_set_crc(w: &CalibWire, out: &[Output]) -> u16 {
+        out.iter()
+            .find_map(|o| match o {
+                Output::Send(f) if f.id() == w.params_id() => {
+                    match w.decode_params(f.data()).ok()?.0.data {
+                        canodom_protocol::calib_wire::ParamsData::TreadCrc { set_crc, .. } => {
+                            Some(set_crc)
+                        }
+                        _ => None,
+                    }
+                }
+                _ => None,
+            })
+            .expect("CALIB_PARAMS page 0")
+    }
+
     fn progress(w: &CalibWire, out: &[Output]) -> Option<Progress> {
         status_pages(w, out).find_map(|page| match page {
             StatusPage::Progress(p) => Some(p),
@@ -936,19 +967,38 @@ mod tests {
         let _ = live.on_step(at(0), (0.1, 0.1), Some(0.0), None);
         let out = live.on_command(at(5), &cmd(&w, w.encode_command(Command::Rollback, 0, 1)));
         assert!(!out.iter().any(|o| matches!(o, Output::Apply(..))));
-        let ack = |version, status| {
-            CalibWire::frame(w.ack_id(), &w.encode_ack(Ack { version, status }, 0)).unwrap()
+        let set_crc = sent_set_crc(&w, &out);
+        let ack = |version, set_crc| {
+            let status = AckStatus::Stored;
+            CalibWire::frame(
+                w.ack_id(),
+                &w.encode_ack(
+                    Ack {
+                        version,
+                        status,
+                        set_crc,
+                    },
+                    0,
+                ),
+            )
+            .unwrap()
         };
-        assert!(live.on_ack(at(10), &ack(2, AckStatus::Stored)).is_empty());
+        let version = live.file().current.as_ref().unwrap().version;
+        // Another version, or this version with another set's CRC: not ours.
+        assert!(live.on_ack(at(10), &ack(version + 1, set_crc)).is_empty());
+        assert!(live.on_ack(at(15), &ack(version, set_crc ^ 1)).is_empty());
         assert_eq!(live.writeback(), Writeback::Pending);
-        let out = live.on_ack(at(20), &ack(1, AckStatus::Stored));
+        let out = live.on_ack(at(20), &ack(version, set_crc));
         assert_eq!(progress(&w, &out).unwrap().writeback, Writeback::Acked);
         let _ = live.on_step(at(100), (0.0, 0.0), Some(0.0), None);
         let still_ms = u64::try_from((c.calibration.standstill_time_s * 1000.0) as i64).unwrap();
         let early = live.on_step(at(100 + still_ms - 10), (0.0, 0.0), Some(0.0), None);
         assert!(!early.iter().any(|o| matches!(o, Output::Apply(..))));
         let late = live.on_step(at(100 + still_ms), (0.0, 0.0), Some(0.0), None);
-        assert!(late.iter().any(|o| matches!(o, Output::Apply(1, _))));
+        assert!(
+            late.iter()
+                .any(|o| matches!(o, Output::Apply(v, _) if *v == version))
+        );
         assert_eq!(
             live.tick(at(200 + still_ms))
                 .iter()

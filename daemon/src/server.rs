@@ -210,6 +210,14 @@ impl InProcessDaemon {
             capacity,
             Timestamp::from_micros(canodom_sim::drive::LOG_EPOCH_US),
         );
+        Self::spawn_on(config, bus, observers)
+    }
+
+    /// As [`Self::spawn`] on a bus of the caller's, e.g. one whose clock
+    /// starts at the wall-clock time (SecOC freshness is judged against
+    /// the bus clock, as against the kernel's receive time on SocketCAN).
+    #[must_use]
+    pub fn spawn_on(config: Arc<Config>, bus: InProcessBus, observers: Observers) -> Self {
         let stop = CancellationToken::new();
         let task = tokio::spawn(run(
             config,
@@ -734,10 +742,8 @@ struct OdometryTask<Tx> {
     fixes: Option<(FrameId, FixSignals)>,
     odom_commands: OdomCommands,
     odom_refusals: OdomRefusals,
-    /// SecOC: verifies secured frames before anything acts on them, signs
-    /// `CALIB_PARAMS`, stamps the lockout on `CALIB_STATUS`.
     /// SecOC: verifies secured frames before anything acts on them; the
-    /// calibration task signs and stamps what it sends with the same gate.
+    /// calibration task signs its `CALIB_PARAMS` with the same gate.
     security: Arc<Mutex<SecurityGate>>,
     notifier: Option<Notifier>,
     observers: Observers,

@@ -237,6 +237,7 @@ async fn a_driven_session_commits_the_true_parameters_and_writes_them_back() {
                         let ack = Ack {
                             version: set.version,
                             status: AckStatus::Stored,
+                            set_crc: wire.set_crc(&set).unwrap(),
                         };
                         let data = wire.encode_ack(ack, ack_counter);
                         ack_counter = ack_counter.wrapping_add(1);

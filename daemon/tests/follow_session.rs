@@ -49,6 +49,7 @@ fn ecu_and_listener(bus: &InProcessBus, wire: CalibWire) -> Arc<Mutex<Heard>> {
                 let ack = Ack {
                     version: set.version,
                     status: AckStatus::Stored,
+                    set_crc: wire.set_crc(&set).unwrap(),
                 };
                 let data = wire.encode_ack(ack, counter);
                 counter = counter.wrapping_add(1);

@@ -128,3 +128,103 @@ fn the_unit_keeps_the_calibration_in_its_state_directory() {
     assert!(unit.contains("param_file = \"/var/lib/canodom/"), "{unit}");
     assert!(!unit.contains("params ="), "{unit}");
 }
+
+/// The README's service recipe for the configuration: the example with its
+/// DBC beside it and its bench line deleted (`sed -e '/^allow_without_key = true/d'`).
+fn service_config(name: &str) -> (PathBuf, PathBuf) {
+    let (dir, config) = install(name, "");
+    let text = std::fs::read_to_string(&config).unwrap();
+    let kept: String = text
+        .lines()
+        .filter(|l| !l.starts_with("allow_without_key = true"))
+        .map(|l| format!("{l}\n"))
+        .collect();
+    assert_ne!(kept, text, "the example has its bench line");
+    std::fs::write(&config, kept).unwrap();
+    (dir, config)
+}
+
+/// `canodom run` as the unit starts it: `CREDENTIALS_DIRECTORY` and
+/// `STATE_DIRECTORY` set, killed after `secs`.
+fn run_as_service(config: &Path, credentials: Option<&Path>, state: &Path, secs: u64) -> Output {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_canodom"));
+    cmd.args(["run", "--config", config.to_str().unwrap()])
+        .env("STATE_DIRECTORY", state)
+        .env_remove("CREDENTIALS_DIRECTORY")
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped());
+    if let Some(c) = credentials {
+        cmd.env("CREDENTIALS_DIRECTORY", c);
+    }
+    let start = Instant::now();
+    let mut child = cmd.spawn().unwrap();
+    while child.try_wait().unwrap().is_none() {
+        if start.elapsed() > Duration::from_secs(secs) {
+            child.kill().unwrap();
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    child.wait_with_output().unwrap()
+}
+
+#[test]
+fn the_unit_hands_the_key_file_over_as_a_credential_and_the_recipe_starts_with_it() {
+    use canodom_protocol::secoc_keys::{MasterKey, Party};
+    use std::os::unix::fs::PermissionsExt as _;
+    let unit = std::fs::read_to_string(manifest().join("dist/canodom.service")).unwrap();
+    assert!(
+        unit.contains("\nLoadCredential=canodom.keys:/etc/canodom/canodom.keys\n"),
+        "{unit}"
+    );
+    assert!(unit.contains("\nDynamicUser=yes\n"), "{unit}");
+    let (dir, config) = service_config("install-credential");
+    let state = dir.join("state");
+    std::fs::create_dir_all(&state).unwrap();
+    // Without the credential the recipe's config is refused at once.
+    let out = run_as_service(&config, None, &state, 10);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("LoadCredential") && stderr.contains("security.key_file"),
+        "{stderr}"
+    );
+    // systemd's layout: a private folder, the file 0400 plus an ACL entry
+    // for the service's user, which stat shows as mode 0440.
+    let creds = dir.join("credentials");
+    std::fs::create_dir_all(&creds).unwrap();
+    let key = creds.join("canodom.keys");
+    let _ = std::fs::remove_file(&key);
+    let master = MasterKey::parse("00112233445566778899aabbccddeeff").unwrap();
+    std::fs::write(
+        &key,
+        master
+            .key_file("bench-1", Party::Canodom)
+            .unwrap()
+            .as_bytes(),
+    )
+    .unwrap();
+    std::fs::set_permissions(&key, std::fs::Permissions::from_mode(0o440)).unwrap();
+    std::fs::set_permissions(&creds, std::fs::Permissions::from_mode(0o500)).unwrap();
+    let out = run_as_service(&config, Some(&creds), &state, 3);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.contains("SecOC keys loaded"), "{stderr}");
+    assert!(stderr.contains("bench-1"), "names the vehicle: {stderr}");
+    // Past the key, it waits for its interface (none here) until killed.
+    assert!(stderr.contains(NO_INTERFACE), "{stderr}");
+    // The same file named as key_file, outside the credentials folder, is
+    // refused for its group bit.
+    std::fs::set_permissions(&creds, std::fs::Permissions::from_mode(0o700)).unwrap();
+    let text = std::fs::read_to_string(&config).unwrap().replace(
+        "[security]\n",
+        &format!("[security]\nkey_file = {:?}\n", key.display().to_string()),
+    );
+    std::fs::write(&config, text).unwrap();
+    let out = run_as_service(&config, None, &state, 10);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && stderr.contains("mode 0440"),
+        "{stderr}"
+    );
+}

@@ -14,14 +14,21 @@
 //!
 //! ```text
 //! # canodom SecOC freshness values ...
-//! rx 0x00000610 1764000123
-//! tx 0x00000612 1764000190
+//! rx 0x00000610 1764000123456
+//! tx 0x00000612 1764000190064
 //! ```
 //!
+//! Values are SecOC profile 2 freshness values: milliseconds since the
+//! Unix epoch (issue #33). A file of profile 1 (seconds, below 2^32) loads
+//! as values far in the past, which refuse nothing that the acceptance
+//! window does not refuse anyway.
+//!
 //! The id is the SecOC DataId (bit 31 set for an extended id). A missing
-//! file is an empty store (a first start); a damaged one is an error naming
-//! the file and the line, never silently an empty store, since that would
-//! reopen every value recorded before.
+//! file is an empty store (a first start): since a value is accepted only
+//! within a few seconds of the receiver's clock, losing the file reopens at
+//! most the frames of that last window, never an old recording. A damaged
+//! file is an error naming the file and the line, never silently an empty
+//! store.
 
 use crate::atomic_file::{self, AtomicWriteError};
 use std::collections::BTreeMap;
@@ -42,7 +49,7 @@ pub enum FreshnessError {
     /// A line is not `rx|tx 0xID VALUE`.
     #[error(
         "{}: line {line}: expected `rx 0xID VALUE` or `tx 0xID VALUE`, got {got:?} \
-         (the file is damaged; removing it lets frames recorded before be replayed once)",
+         (the file is damaged; removing it reopens the frames of the last few seconds only)",
         path.display()
     )]
     Malformed {
@@ -69,7 +76,7 @@ enum Dir {
 #[derive(Debug, Clone)]
 pub struct FreshnessFile {
     path: PathBuf,
-    values: BTreeMap<(Dir, u32), u32>,
+    values: BTreeMap<(Dir, u32), u64>,
 }
 
 impl FreshnessFile {
@@ -112,7 +119,7 @@ impl FreshnessFile {
                 .ok_or_else(bad)?;
             let value = it
                 .next()
-                .and_then(|t| t.parse::<u32>().ok())
+                .and_then(|t| t.parse::<u64>().ok())
                 .ok_or_else(bad)?;
             if it.next().is_some() || values.insert((dir, id), value).is_some() {
                 return Err(bad());
@@ -130,12 +137,12 @@ impl FreshnessFile {
     }
 
     /// The last value accepted from `data_id`.
-    pub fn rx(&self, data_id: u32) -> Option<u32> {
+    pub fn rx(&self, data_id: u32) -> Option<u64> {
         self.values.get(&(Dir::Rx, data_id)).copied()
     }
 
     /// The highest value reserved for sending on `data_id`.
-    pub fn tx(&self, data_id: u32) -> Option<u32> {
+    pub fn tx(&self, data_id: u32) -> Option<u64> {
         self.values.get(&(Dir::Tx, data_id)).copied()
     }
 
@@ -144,7 +151,7 @@ impl FreshnessFile {
     ///
     /// # Errors
     /// [`FreshnessError::Write`]; the store is then unchanged.
-    pub fn record_rx(&mut self, data_id: u32, value: u32) -> Result<(), FreshnessError> {
+    pub fn record_rx(&mut self, data_id: u32, value: u64) -> Result<(), FreshnessError> {
         self.set(Dir::Rx, data_id, value)
     }
 
@@ -153,11 +160,11 @@ impl FreshnessFile {
     ///
     /// # Errors
     /// [`FreshnessError::Write`]; the store is then unchanged.
-    pub fn reserve_tx(&mut self, data_id: u32, value: u32) -> Result<(), FreshnessError> {
+    pub fn reserve_tx(&mut self, data_id: u32, value: u64) -> Result<(), FreshnessError> {
         self.set(Dir::Tx, data_id, value)
     }
 
-    fn set(&mut self, dir: Dir, data_id: u32, value: u32) -> Result<(), FreshnessError> {
+    fn set(&mut self, dir: Dir, data_id: u32, value: u64) -> Result<(), FreshnessError> {
         let mut next = self.values.clone();
         next.insert((dir, data_id), value);
         atomic_file::write(&self.path, render(&next).as_bytes())?;
@@ -166,11 +173,11 @@ impl FreshnessFile {
     }
 }
 
-fn render(values: &BTreeMap<(Dir, u32), u32>) -> String {
+fn render(values: &BTreeMap<(Dir, u32), u64>) -> String {
     let mut s = String::from(
         "# canodom SecOC freshness values (issue #22), replaced atomically before each use.\n\
          # rx: last value accepted per secured id; tx: highest value reserved for sending.\n\
-         # Removing this file lets frames recorded before it be replayed once.\n",
+         # Values are ms since the Unix epoch (SecOC profile 2, issue #33).\n",
     );
     for (&(dir, id), value) in values {
         let d = match dir {
@@ -201,11 +208,11 @@ mod tests {
         assert_eq!((f.rx(0x610), f.tx(0x612)), (None, None));
         f.record_rx(0x610, 41).unwrap();
         f.record_rx(0x610, 42).unwrap();
-        f.reserve_tx(0x612, 1_764_000_000).unwrap();
+        f.reserve_tx(0x612, 1_764_000_000_123).unwrap();
         f.record_rx(0x8000_0613, 7).unwrap();
         let back = FreshnessFile::load(&path).unwrap();
         assert_eq!(back.rx(0x610), Some(42));
-        assert_eq!(back.tx(0x612), Some(1_764_000_000));
+        assert_eq!(back.tx(0x612), Some(1_764_000_000_123));
         assert_eq!(back.rx(0x8000_0613), Some(7));
         assert_eq!(back.rx(0x612), None, "rx and tx are kept apart");
         let text = std::fs::read_to_string(&path).unwrap();
@@ -230,7 +237,7 @@ mod tests {
             ("rx 610 5\n", 1),
             ("rx 0x610 5 6\n", 1),
             ("rx 0x610 5\nrx 0x610 6\n", 2),
-            ("tx 0x610 99999999999\n", 1),
+            ("tx 0x610 99999999999999999999\n", 1),
         ] {
             std::fs::write(&path, text).unwrap();
             match FreshnessFile::load(&path) {

@@ -403,12 +403,15 @@ mod tests {
             file.history.iter().map(|s| s.version).collect::<Vec<_>>(),
             [3, 4]
         );
-        assert_eq!(file.rollback().unwrap().version, 4);
-        assert_eq!(file.rollback().unwrap().version, 3);
+        // The values of 4, then of 3, each under a new version (#33).
+        let back = file.rollback().unwrap();
+        assert_eq!((back.version, back.values), (6, values(4)));
+        let back = file.rollback().unwrap();
+        assert_eq!((back.version, back.values), (7, values(3)));
         assert!(file.rollback().is_none());
-        assert_eq!(file.current.as_ref().unwrap().version, 3);
+        assert_eq!(file.current.as_ref().unwrap().version, 7);
         // Versions stay unique after a rollback.
-        assert_eq!(file.commit(values(9), "exact", 0, 2).version, 6);
+        assert_eq!(file.commit(values(9), "exact", 0, 2).version, 8);
         file.last_version = u16::MAX;
         assert_eq!(file.commit(values(9), "exact", 0, 2).version, 1);
     }

@@ -135,8 +135,9 @@ struct RawConfig {
     output: RawOutput,
     #[serde(default)]
     calibration: RawCalibration,
+    /// `None` without a `[security]` section (secure defaults differ: #33).
     #[serde(default)]
-    security: crate::security::RawSecurity,
+    security: Option<crate::security::RawSecurity>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -1373,17 +1374,21 @@ impl Validator<'_> {
             inputs,
             ekf,
             output,
-            security: crate::security::validate(self.file, &raw.security, &calibration.param_file)
-                .map_err(|e| match e {
-                    crate::security::SecurityError::Invalid(key, expected, got) => {
-                        self.err(&key, &expected, got)
-                    }
-                    crate::security::SecurityError::KeyFile(path, reason) => ConfigError::KeyFile {
-                        file: self.file.to_owned(),
-                        path,
-                        reason,
-                    },
-                })?,
+            security: crate::security::validate(
+                self.file,
+                raw.security.as_ref(),
+                &calibration.param_file,
+            )
+            .map_err(|e| match e {
+                crate::security::SecurityError::Invalid(key, expected, got) => {
+                    self.err(&key, &expected, got)
+                }
+                crate::security::SecurityError::KeyFile(path, reason) => ConfigError::KeyFile {
+                    file: self.file.to_owned(),
+                    path,
+                    reason,
+                },
+            })?,
             calibration,
         })
     }

@@ -1,8 +1,10 @@
-//! The daemon's SecOC end (issue #22): [`SecurityGate`], the one object the
-//! daemon asks about every received frame and hands every calibration frame
-//! it sends, and [`Signer`], a sender's end (`canodom calib`, parameter
-//! stores in tests). The profile is [`canodom_protocol::secoc`]'s; the
-//! configuration is [`crate::security`]'s.
+//! The daemon's SecOC end (issues #22, #33): [`SecurityGate`], the one
+//! object the daemon asks about every received frame and hands every
+//! calibration frame it sends, and [`Signer`], a sender's end (`canodom
+//! calib`, parameter stores in tests). The profile is
+//! [`canodom_protocol::secoc`]'s, the keys per role
+//! [`canodom_protocol::secoc_keys`]'s; the configuration is
+//! [`crate::security`]'s.
 
 use crate::security::{SecurityConfig, data_id, receive_links};
 use canodom_can::bus::Received;
@@ -11,9 +13,10 @@ use canodom_params::freshness::FreshnessFile;
 use canodom_protocol::calib_wire::CalibWire;
 use canodom_protocol::own_dbc::{BaseId, OwnFrame};
 use canodom_protocol::secoc::{
-    AuthFailure, Authenticator, FailureCounts, Key, Link, Lockout, Receiver, Verdict,
+    AuthFailure, Authenticator, FailureCounts, Key, Link, Lockout, Receiver, SecuredId, Verdict,
     next_tx_freshness,
 };
+use canodom_protocol::secoc_keys::{KeySet, Role};
 use std::path::Path;
 
 /// Why the gate cannot start.
@@ -25,6 +28,17 @@ pub enum GateError {
     /// The shipped DBC lacks a signal (protocol's tests prove it does not).
     #[error("canodom.dbc: {0}")]
     Dbc(#[from] canodom_protocol::calib_wire::WireError),
+    /// The key file is another party's: the daemon needs all four keys.
+    #[error(
+        "security.key_file holds the keys of the {party} (vehicle {vehicle}), not canodom's: \
+         give the daemon the `canodom` file of `canodom keys derive`"
+    )]
+    WrongParty {
+        /// The party named in the file.
+        party: &'static str,
+        /// Its vehicle.
+        vehicle: String,
+    },
 }
 
 /// What to do with a received frame.
@@ -43,14 +57,15 @@ pub enum Admit {
         reason: AuthFailure,
         /// Whether to log it.
         log: bool,
-        /// The receiver's last accepted freshness value of that id, for the
-        /// log line of a `Replayed` refusal (the sender's resynchronisation).
-        last_accepted: Option<u32>,
+        /// The receiver's last accepted freshness value of that id (ms), for
+        /// the log line of a `Replayed` refusal.
+        last_accepted: Option<u64>,
     },
 }
 
-/// The daemon's SecOC end: verifies what it receives, signs the
-/// `CALIB_PARAMS` it sends, stamps the lockout on `CALIB_STATUS`.
+/// The daemon's SecOC end: verifies what it receives with the command and
+/// acknowledgement keys, signs the `CALIB_PARAMS` it sends with the
+/// parameter key.
 #[derive(Debug)]
 pub struct SecurityGate {
     /// `None` without a key: everything passes, nothing is signed.
@@ -67,23 +82,27 @@ struct Keyed {
     /// The secured ids received and their authenticators (kernel filters).
     links: [Link; 3],
     params_auth_id: FrameId,
-    /// The last freshness value sent on `CALIB_PARAMS`.
-    tx_last: Option<u32>,
-    /// The bus time of the last received frame, µs (the lockout's clock).
-    now_us: u64,
-    /// `CALIB_PARAMS` sent without an authenticator (freshness not stored).
-    unsigned: u64,
+    /// The last freshness value sent on `CALIB_PARAMS`, ms.
+    tx_last: Option<u64>,
+    /// `CALIB_PARAMS` pages not sent because their freshness value could
+    /// not be stored (never sent unsigned).
+    unsent: u64,
 }
 
-/// Values reserved ahead for sending: one store write per this many sends.
-const TX_RESERVE: u32 = 64;
+/// Values reserved ahead for sending: one store write per this many ms of
+/// freshness (a set's four pages take four).
+const TX_RESERVE_MS: u64 = 64;
+
+/// The role of each link of [`receive_links`], in its order.
+const RECEIVE_ROLES: [Role; 3] = [Role::OdomCmd, Role::CalibCmd, Role::CalibAck];
 
 impl SecurityGate {
     /// The gate of a validated configuration (its `[security]`, base id
     /// and `CALIB_CMD` id).
     ///
     /// # Errors
-    /// [`GateError`] when the freshness file is unreadable or damaged.
+    /// [`GateError`] when the freshness file is unreadable or damaged, or
+    /// the key file is not canodom's.
     pub fn for_config(config: &crate::config::Config) -> Result<Self, GateError> {
         Self::new(
             &config.security,
@@ -96,24 +115,40 @@ impl SecurityGate {
     /// `calib_cmd_id`; loads the freshness file.
     ///
     /// # Errors
-    /// [`GateError`] when the freshness file is unreadable or damaged.
+    /// [`GateError`] when the freshness file is unreadable or damaged, or
+    /// the key file is not canodom's.
     pub fn new(
         security: &SecurityConfig,
         base: BaseId,
         calib_cmd_id: FrameId,
     ) -> Result<Self, GateError> {
         let logged = [false; AuthFailure::ALL.len()];
-        let Some(key) = &security.key else {
+        let Some(keys) = &security.keys else {
             return Ok(Self {
                 keyed: None,
                 logged,
             });
         };
+        let key = |role: Role| -> Result<&Key, GateError> {
+            keys.key(role).ok_or_else(|| GateError::WrongParty {
+                party: keys.party.name(),
+                vehicle: keys.vehicle.clone(),
+            })
+        };
+        let params_key = key(Role::CalibParams)?;
         let store = FreshnessFile::load(&security.freshness_file)?;
-        let links: Vec<(Link, Option<u32>)> = receive_links(base, calib_cmd_id)
-            .into_iter()
-            .map(|l| (l, store.rx(data_id(l.secured))))
-            .collect();
+        let links = receive_links(base, calib_cmd_id);
+        let mut ids = Vec::with_capacity(links.len());
+        for (link, role) in links.into_iter().zip(RECEIVE_ROLES) {
+            ids.push(SecuredId {
+                link,
+                key: key(role)?.clone(),
+                last_accepted: store.rx(data_id(link.secured)),
+                // The parameter store's acknowledgement is never locked
+                // out: junk on the bus must not fail a write-back.
+                lockable: role != Role::CalibAck,
+            });
+        }
         let lockout = Lockout::new(
             security.lockout_failures,
             security.lockout_window.as_micros() as u64,
@@ -123,15 +158,18 @@ impl SecurityGate {
         let wire = CalibWire::new(base)?;
         Ok(Self {
             keyed: Some(Keyed {
-                receiver: Receiver::new(key, &links, lockout),
+                receiver: Receiver::new(
+                    &ids,
+                    &lockout,
+                    security.freshness_window.as_millis() as u64,
+                ),
                 tx_last: store.tx(data_id(params_id)),
                 store,
-                signer: Authenticator::new(key),
+                signer: Authenticator::new(params_key),
                 wire,
-                links: receive_links(base, calib_cmd_id),
+                links,
                 params_auth_id: OwnFrame::CalibParamsAuth.id(base),
-                now_us: 0,
-                unsigned: 0,
+                unsent: 0,
             }),
             logged,
         })
@@ -150,13 +188,13 @@ impl SecurityGate {
             .collect()
     }
 
-    /// Judges a received frame (see [`Admit`]).
+    /// Judges a received frame (see [`Admit`]); its timestamp (µs since the
+    /// Unix epoch: the kernel's receive time) is the receiver's clock.
     pub fn admit(&mut self, r: &Received) -> Admit {
         let Some(k) = &mut self.keyed else {
             return Admit::Pass;
         };
         let now_us = r.timestamp.as_micros();
-        k.now_us = now_us;
         let Keyed {
             receiver, store, ..
         } = k;
@@ -178,48 +216,41 @@ impl SecurityGate {
         }
     }
 
-    /// The frames to send for `frame`: a page-0 `CALIB_STATUS` with
-    /// `AUTH_LOCKOUT` stamped; a `CALIB_PARAMS` page followed by its
-    /// authenticator, signed with a freshness value reserved in the store
-    /// first (`unix_s`: the wall clock, for [`next_tx_freshness`]); anything
-    /// else as it is.
-    pub fn outgoing(&mut self, frame: &CanFrame, unix_s: u64) -> Vec<CanFrame> {
+    /// The frames to send for `frame` at `now_ms` (the bus clock, ms since
+    /// the Unix epoch): a `CALIB_PARAMS` page followed by its authenticator,
+    /// signed with a freshness value stored first — or nothing at all when
+    /// it cannot be stored (a page is never sent unsigned; the write-back
+    /// retries and ends FAILED); anything else as it is. `CALIB_STATUS`
+    /// carries no lockout hint: its `AUTH_LOCKOUT` bit stays 0.
+    pub fn outgoing(&mut self, frame: &CanFrame, now_ms: u64) -> Vec<CanFrame> {
         let Some(k) = &mut self.keyed else {
             return vec![*frame];
         };
-        let Ok(mut payload) = <[u8; 8]>::try_from(frame.data()) else {
-            return vec![*frame];
-        };
-        if frame.id() == k.wire.status_id() {
-            let locked = k.receiver.is_locked(k.now_us);
-            if k.wire.stamp_auth_lockout(&mut payload, locked)
-                && let Ok(f) = CanFrame::new_data(frame.id(), &payload)
-            {
-                return vec![f];
-            }
-            return vec![*frame];
-        }
         if frame.id() != k.wire.params_id() {
             return vec![*frame];
         }
-        let Some(fv) = next_tx_freshness(k.tx_last, unix_s) else {
-            k.unsigned += 1;
-            return vec![*frame];
+        let Ok(payload) = <[u8; 8]>::try_from(frame.data()) else {
+            k.unsent += 1;
+            return Vec::new();
         };
+        let fv = next_tx_freshness(k.tx_last, now_ms);
         let id = data_id(frame.id());
         if k.store.tx(id).is_none_or(|reserved| fv > reserved)
             && k.store
-                .reserve_tx(id, fv.saturating_add(TX_RESERVE))
+                .reserve_tx(id, fv.saturating_add(TX_RESERVE_MS))
                 .is_err()
         {
-            k.unsigned += 1;
-            return vec![*frame];
+            k.unsent += 1;
+            return Vec::new();
         }
         k.tx_last = Some(fv);
         let auth = k.signer.sign(frame.id(), &payload, fv);
         match CanFrame::new_data(k.params_auth_id, &auth) {
             Ok(a) => vec![*frame, a],
-            Err(_) => vec![*frame],
+            Err(_) => {
+                k.unsent += 1;
+                Vec::new()
+            }
         }
     }
 
@@ -231,15 +262,15 @@ impl SecurityGate {
             .unwrap_or_default()
     }
 
-    /// Lockouts started since start.
+    /// Lockouts started since start (all ids together).
     pub fn lockouts(&self) -> u64 {
         self.keyed.as_ref().map_or(0, |k| k.receiver.lockouts())
     }
 
-    /// `CALIB_PARAMS` pages sent without an authenticator because their
-    /// freshness value could not be reserved.
-    pub fn unsigned_sends(&self) -> u64 {
-        self.keyed.as_ref().map_or(0, |k| k.unsigned)
+    /// `CALIB_PARAMS` pages not sent because their freshness value could
+    /// not be stored.
+    pub fn unsent_params(&self) -> u64 {
+        self.keyed.as_ref().map_or(0, |k| k.unsent)
     }
 
     /// A statistics line was written: each reason may be logged again.
@@ -248,49 +279,44 @@ impl SecurityGate {
     }
 }
 
-/// `canodom calib`'s freshness: the next value for `secured`, reserved in
-/// `store` before it is returned (the caller sends it or loses it, never
-/// reuses it).
+/// A sender's freshness: the next value for `secured` at `now_ms`,
+/// reserved in `store` before it is returned (the caller sends it or loses
+/// it, never reuses it); `floor` continues above a receiver's mark.
 ///
 /// # Errors
-/// The store could not be written, or the counter is spent.
+/// The store could not be written.
 pub fn operator_next_freshness(
     store: &mut FreshnessFile,
     secured: FrameId,
-    unix_s: u64,
-    floor: Option<u32>,
-) -> Result<u32, canodom_params::freshness::FreshnessError> {
+    now_ms: u64,
+    floor: Option<u64>,
+) -> Result<u64, canodom_params::freshness::FreshnessError> {
     let id = data_id(secured);
     let last = match (store.tx(id), floor) {
         (Some(a), Some(b)) => Some(a.max(b)),
         (a, b) => a.or(b),
     };
-    let fv = next_tx_freshness(last, unix_s).ok_or_else(|| {
-        canodom_params::freshness::FreshnessError::Read {
-            path: store.path().to_owned(),
-            source: std::io::Error::other("the freshness counter is spent (u32::MAX)"),
-        }
-    })?;
+    let fv = next_tx_freshness(last, now_ms);
     store.reserve_tx(id, fv)?;
     Ok(fv)
 }
 
 /// A sender's end for one authenticator id: signs each secured frame with
-/// the next freshness value, reserved in its store first (`canodom calib`,
-/// and test parameter stores).
+/// the next freshness value, reserved in its store first (`canodom calib`
+/// with the operator's command key, test parameter stores with theirs).
 #[derive(Debug)]
 pub struct Signer {
     auth: Authenticator,
     store: FreshnessFile,
     authenticator_id: FrameId,
     /// The receiver's mark a resynchronising sender must continue above.
-    floor: Option<u32>,
+    floor: Option<u64>,
 }
 
 impl Signer {
     /// A signer with `key` whose counter lives in `freshness_file`, sending
-    /// authenticators on `authenticator_id`; `floor` resynchronises a
-    /// sender that fell behind (see [`canodom_protocol::secoc`]).
+    /// authenticators on `authenticator_id`; `floor` continues above a
+    /// receiver's mark (see [`canodom_protocol::secoc`]).
     ///
     /// # Errors
     /// The freshness file is unreadable or damaged.
@@ -298,7 +324,7 @@ impl Signer {
         key: &Key,
         freshness_file: &Path,
         authenticator_id: FrameId,
-        floor: Option<u32>,
+        floor: Option<u64>,
     ) -> Result<Self, canodom_params::freshness::FreshnessError> {
         if let Some(dir) = freshness_file
             .parent()
@@ -315,8 +341,24 @@ impl Signer {
         })
     }
 
-    /// The authenticator frame of `data` sent at `secured` (`unix_s`: the
-    /// wall clock), its freshness value stored before it is returned.
+    /// The signer of `role` from a key set, if the set holds its key.
+    ///
+    /// # Errors
+    /// As [`Self::new`].
+    pub fn for_role(
+        keys: &KeySet,
+        role: Role,
+        freshness_file: &Path,
+        authenticator_id: FrameId,
+    ) -> Result<Option<Self>, canodom_params::freshness::FreshnessError> {
+        keys.key(role)
+            .map(|k| Self::new(k, freshness_file, authenticator_id, None))
+            .transpose()
+    }
+
+    /// The authenticator frame of `data` sent at `secured` at `now_ms`
+    /// (the sender's clock, ms since the Unix epoch), its freshness value
+    /// stored before it is returned.
     ///
     /// # Errors
     /// The freshness value could not be stored (then nothing may be sent).
@@ -324,9 +366,9 @@ impl Signer {
         &mut self,
         secured: FrameId,
         data: &[u8; 8],
-        unix_s: u64,
+        now_ms: u64,
     ) -> Result<CanFrame, canodom_params::freshness::FreshnessError> {
-        let fv = operator_next_freshness(&mut self.store, secured, unix_s, self.floor)?;
+        let fv = operator_next_freshness(&mut self.store, secured, now_ms, self.floor)?;
         let auth = self.auth.sign(secured, data, fv);
         CanFrame::new_data(self.authenticator_id, &auth).map_err(|e| {
             canodom_params::freshness::FreshnessError::Read {
@@ -344,28 +386,53 @@ mod tests {
     use crate::security::DEFAULT_FRESHNESS_FILE;
     use canodom_can::time::Timestamp;
     use canodom_protocol::calib_wire::{Ack, AckStatus, Command};
+    use canodom_protocol::secoc_keys::{MasterKey, Party};
     use std::os::unix::fs::PermissionsExt as _;
     use std::path::PathBuf;
 
-    const KEY_HEX: &str = "000102030405060708090a0b0c0d0e0f";
+    const MASTER_HEX: &str = "000102030405060708090a0b0c0d0e0f";
+    const VEHICLE: &str = "rc-car-7";
+
+    /// 2025-11-24 16:00 UTC, µs: the bus clock of these tests.
+    const T0_US: u64 = 1_764_000_000_000_000;
+    const T0_MS: u64 = T0_US / 1000;
+
+    fn master() -> MasterKey {
+        MasterKey::parse(MASTER_HEX).unwrap()
+    }
+
+    fn keys(party: Party) -> KeySet {
+        KeySet::parse(&master().key_file(VEHICLE, party).unwrap()).unwrap()
+    }
+
+    fn role_key(role: Role) -> Key {
+        master().derive(VEHICLE, role)
+    }
 
     /// A scratch folder holding the rc_car DBC's config, a key file of
-    /// `mode` and `[security]` lines `extra`.
+    /// `mode` with `key_text` and `[security]` lines `extra`.
     fn setup(tag: &str, mode: u32, key_text: &str, extra: &str) -> (PathBuf, String) {
         let dir = std::env::temp_dir().join(format!("canodom-sec-{tag}-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(&dir).unwrap();
-        let key = dir.join("canodom.key");
+        let key = dir.join("canodom.keys");
         std::fs::write(&key, key_text).unwrap();
         std::fs::set_permissions(&key, std::fs::Permissions::from_mode(mode)).unwrap();
         let dbc = concat!(env!("CARGO_MANIFEST_DIR"), "/../data/dbc/rc_car.dbc");
         let text = crate::config::tests::RC_CAR
             .replace("dbc = \"rc_car.dbc\"", &format!("dbc = {dbc:?}"))
             + &format!(
-                "\n[calibration]\nparam_file = \"params.toml\"\n\n[security]\nkey_file = \"canodom.key\"\n\
+                "\n[calibration]\nparam_file = \"params.toml\"\n\n[security]\nkey_file = \"canodom.keys\"\n\
                  operator_freshness_file = \"operator-freshness\"\n{extra}"
             );
         (dir, text)
+    }
+
+    fn daemon_keys() -> String {
+        master()
+            .key_file(VEHICLE, Party::Canodom)
+            .unwrap()
+            .to_string()
     }
 
     fn load(dir: &Path, text: &str) -> Result<Config, ConfigError> {
@@ -373,91 +440,114 @@ mod tests {
     }
 
     #[test]
-    fn auth_key_file_is_refused_when_group_or_others_may_read_it_or_it_is_malformed() {
+    fn auth_key_file_is_refused_when_others_may_read_it_it_is_a_link_or_malformed() {
+        let good = daemon_keys();
         for (tag, mode, text, needle) in [
-            ("g", 0o640, KEY_HEX, "mode 0640"),
-            ("o", 0o604, KEY_HEX, "mode 0604"),
-            ("w", 0o620, KEY_HEX, "chmod 600"),
-            ("short", 0o600, "0102", "32 hexadecimal digits"),
+            ("g", 0o640, good.as_str(), "mode 0640"),
+            ("o", 0o604, good.as_str(), "mode 0604"),
+            ("w", 0o620, good.as_str(), "chmod 600"),
             (
-                "junk",
+                "short",
                 0o600,
-                "not a key at all, not hex, thirtytwo",
-                "hexadecimal",
+                "vehicle a\nparty canodom\nodom_cmd 0102\n",
+                "line 3",
             ),
+            ("junk", 0o600, "not a key at all", "line 1"),
             (
-                "zero",
+                "single",
                 0o600,
-                "00000000000000000000000000000000",
-                "all zeros",
+                "2b7e151628aed2a6abf7158809cf4f3c\n",
+                "canodom keys derive",
             ),
         ] {
             let (dir, cfg) = setup(&format!("key-{tag}"), mode, text, "");
             let e = load(&dir, &cfg).unwrap_err().to_string();
             assert!(e.contains("security.key_file"), "{tag}: {e}");
-            assert!(e.contains("canodom.key"), "{tag}: names the file: {e}");
+            assert!(e.contains("canodom.keys"), "{tag}: names the file: {e}");
             assert!(e.contains(needle), "{tag}: {e}");
             assert!(
                 !e.contains("0102030405"),
                 "{tag}: the key is never echoed: {e}"
             );
         }
-        let (dir, cfg) = setup("key-missing", 0o600, KEY_HEX, "");
-        std::fs::remove_file(dir.join("canodom.key")).unwrap();
+        let (dir, cfg) = setup("key-missing", 0o600, &good, "");
+        std::fs::remove_file(dir.join("canodom.keys")).unwrap();
         let e = load(&dir, &cfg).unwrap_err().to_string();
         assert!(e.contains("cannot read"), "{e}");
-        let (dir, cfg) = setup("key-ok", 0o400, &format!("{KEY_HEX}\n"), "");
+        // A symbolic link to a good key file is not followed.
+        let (dir, cfg) = setup("key-link", 0o600, &good, "");
+        std::fs::rename(dir.join("canodom.keys"), dir.join("real.keys")).unwrap();
+        std::os::unix::fs::symlink(dir.join("real.keys"), dir.join("canodom.keys")).unwrap();
+        let e = load(&dir, &cfg).unwrap_err().to_string();
+        assert!(e.contains("symbolic link"), "{e}");
+        let (dir, cfg) = setup("key-ok", 0o400, &good, "");
         let c = load(&dir, &cfg).unwrap();
-        assert!(c.security.key.is_some());
+        assert_eq!(c.security.keys.as_ref().unwrap().party, Party::Canodom);
         assert_eq!(c.security.freshness_file, dir.join(DEFAULT_FRESHNESS_FILE));
         assert_eq!(
-            (c.security.lockout_failures, c.security.lockout.as_secs()),
-            (10, 60)
+            (
+                c.security.lockout_failures,
+                c.security.lockout.as_secs(),
+                c.security.freshness_window.as_millis()
+            ),
+            (10, 60, 5_000)
         );
     }
 
     #[test]
-    fn auth_security_keys_are_validated() {
-        let (dir, cfg) = setup("keys", 0o600, KEY_HEX, "lockout_failures = 0\n");
+    fn auth_secure_defaults_a_security_section_needs_its_key_and_a_bench_says_so() {
+        let (dir, cfg) = setup("keys", 0o600, &daemon_keys(), "lockout_failures = 0\n");
         assert!(
             load(&dir, &cfg)
                 .unwrap_err()
                 .to_string()
                 .contains("lockout_failures")
         );
-        let (dir, cfg) = setup("keys2", 0o600, KEY_HEX, "lockout_window_s = -1\n");
+        let (dir, cfg) = setup("keys2", 0o600, &daemon_keys(), "freshness_window_s = 0\n");
         assert!(
             load(&dir, &cfg)
                 .unwrap_err()
                 .to_string()
-                .contains("lockout_window_s")
+                .contains("freshness_window_s")
         );
         let (dir, cfg) = setup(
             "keys3",
             0o600,
-            KEY_HEX,
-            "lockout_s = 5\nlockout_failures = 3\nlockout_window_s = 2\n",
+            &daemon_keys(),
+            "lockout_s = 5\nlockout_failures = 3\nlockout_window_s = 2\nfreshness_window_s = 2.5\n",
         );
         let c = load(&dir, &cfg).unwrap();
         assert_eq!(
             (
                 c.security.lockout_failures,
                 c.security.lockout_window.as_secs(),
-                c.security.lockout.as_secs()
+                c.security.lockout.as_secs(),
+                c.security.freshness_window.as_millis()
             ),
-            (3, 2, 5)
+            (3, 2, 5, 2_500)
         );
-        let no_key = cfg.replace(
-            "key_file = \"canodom.key\"\n",
-            "allow_without_key = false\n",
-        );
+        // A [security] section without a key: refused, naming the bench switch.
+        let no_key = cfg.replace("key_file = \"canodom.keys\"\n", "");
         let e = load(&dir, &no_key).unwrap_err().to_string();
         assert!(
-            e.contains("security.key_file") && e.contains("allow_without_key"),
+            e.contains("security.key_file") && e.contains("allow_without_key = true"),
             "{e}"
         );
-        let bench = cfg.replace("key_file = \"canodom.key\"\n", "");
-        assert_eq!(load(&dir, &bench).unwrap().security.key, None);
+        // The bench says so explicitly.
+        let bench = no_key.clone() + "allow_without_key = true\n";
+        let c = load(&dir, &bench).unwrap();
+        assert!(c.security.keys.is_none() && c.security.allow_without_key);
+        // No section at all: loads (decode, replay need no key), but keyless
+        // and not allowed to run without one (`canodom run` refuses).
+        let none = crate::config::tests::RC_CAR.replace(
+            "dbc = \"rc_car.dbc\"",
+            &format!(
+                "dbc = {:?}",
+                concat!(env!("CARGO_MANIFEST_DIR"), "/../data/dbc/rc_car.dbc")
+            ),
+        );
+        let c = load(&dir, &none).unwrap();
+        assert!(c.security.keys.is_none() && !c.security.allow_without_key);
         let typo = cfg.replace("lockout_s", "lockout_sec");
         assert!(
             load(&dir, &typo)
@@ -474,18 +564,27 @@ mod tests {
         }
     }
 
-    /// Operator side: a CALIB_CMD and its authenticator as `canodom calib` sends them.
+    fn keyed(tag: &str, extra: &str) -> (PathBuf, Config) {
+        let (dir, cfg) = setup(tag, 0o600, &daemon_keys(), extra);
+        let c = load(&dir, &cfg).unwrap();
+        (dir, c)
+    }
+
+    /// Operator side: a CALIB_CMD and its authenticator as `canodom calib`
+    /// sends them, with the operator's own key file, at `now_ms`.
     fn operator_frames(
         c: &Config,
         store: &mut FreshnessFile,
         cmd: Command,
         counter: u8,
+        now_ms: u64,
     ) -> [(FrameId, [u8; 8]); 2] {
         let wire = CalibWire::new(c.output.base_id).unwrap();
         let data = wire.encode_command(cmd, 0, counter);
         let id = c.calibration.command_id;
-        let fv = operator_next_freshness(store, id, 1_764_000_000, None).unwrap();
-        let auth = Authenticator::new(c.security.key.as_ref().unwrap()).sign(id, &data, fv);
+        let fv = operator_next_freshness(store, id, now_ms, None).unwrap();
+        let op = keys(Party::Operator);
+        let auth = Authenticator::new(op.key(Role::CalibCmd).unwrap()).sign(id, &data, fv);
         [
             (id, data),
             (OwnFrame::CalibCmdAuth.id(c.output.base_id), auth),
@@ -494,109 +593,207 @@ mod tests {
 
     #[test]
     fn auth_a_signed_calib_command_is_accepted_and_replays_before_and_after_a_restart_are_not() {
-        let (dir, cfg) = setup("gate", 0o600, KEY_HEX, "");
-        let c = load(&dir, &cfg).unwrap();
-        let mut gate =
-            SecurityGate::new(&c.security, c.output.base_id, c.calibration.command_id).unwrap();
+        let (_dir, c) = keyed("gate", "");
+        let mut gate = SecurityGate::for_config(&c).unwrap();
         let mut op = FreshnessFile::load(&c.security.operator_freshness_file).unwrap();
-        let [(id, data), (aid, auth)] = operator_frames(&c, &mut op, Command::Commit, 1);
-        assert_eq!(gate.admit(&rx(0, id, &data)), Admit::Held);
+        let [(id, data), (aid, auth)] = operator_frames(&c, &mut op, Command::Commit, 1, T0_MS);
+        assert_eq!(gate.admit(&rx(T0_US, id, &data)), Admit::Held);
         assert_eq!(
-            gate.admit(&rx(300, aid, &auth)),
+            gate.admit(&rx(T0_US + 300, aid, &auth)),
             Admit::Authentic(CanFrame::new_data(id, &data).unwrap())
         );
-        // The operator's next command is fresh too (same second, counter + 1).
-        let [(id2, data2), (aid2, auth2)] = operator_frames(&c, &mut op, Command::Rollback, 2);
-        assert_eq!(gate.admit(&rx(1_000, id2, &data2)), Admit::Held);
+        // The operator's next command in the same millisecond is fresh too.
+        let [(id2, data2), (aid2, auth2)] =
+            operator_frames(&c, &mut op, Command::Rollback, 2, T0_MS);
+        assert_eq!(gate.admit(&rx(T0_US + 1_000, id2, &data2)), Admit::Held);
         assert!(matches!(
-            gate.admit(&rx(1_300, aid2, &auth2)),
+            gate.admit(&rx(T0_US + 1_300, aid2, &auth2)),
             Admit::Authentic(_)
         ));
         // Replayed at once: refused, logged once, then only counted.
-        assert_eq!(gate.admit(&rx(2_000, id, &data)), Admit::Held);
+        assert_eq!(gate.admit(&rx(T0_US + 2_000, id, &data)), Admit::Held);
         assert!(matches!(
-            gate.admit(&rx(2_300, aid, &auth)),
+            gate.admit(&rx(T0_US + 2_300, aid, &auth)),
             Admit::Refused {
                 reason: AuthFailure::Replayed,
                 log: true,
                 last_accepted: Some(_)
             }
         ));
-        assert_eq!(gate.admit(&rx(3_000, id2, &data2)), Admit::Held);
+        assert_eq!(gate.admit(&rx(T0_US + 3_000, id2, &data2)), Admit::Held);
         assert!(matches!(
-            gate.admit(&rx(3_300, aid2, &auth2)),
+            gate.admit(&rx(T0_US + 3_300, aid2, &auth2)),
             Admit::Refused {
                 reason: AuthFailure::Replayed,
                 log: false,
                 ..
             }
         ));
-        // A restart: a new gate from the same files refuses both.
+        // A restart within the window: a new gate from the same files refuses both.
         drop(gate);
-        let mut gate =
-            SecurityGate::new(&c.security, c.output.base_id, c.calibration.command_id).unwrap();
+        let mut gate = SecurityGate::for_config(&c).unwrap();
         for (t, (i, d)) in [(id, data), (aid, auth), (id2, data2), (aid2, auth2)]
             .into_iter()
             .enumerate()
         {
-            let v = gate.admit(&rx(10_000 + t as u64 * 10, i, &d));
+            let v = gate.admit(&rx(T0_US + 10_000 + t as u64 * 10, i, &d));
             assert!(!matches!(v, Admit::Authentic(_)), "{v:?}");
         }
         assert_eq!(gate.counts().of(AuthFailure::Replayed), 2);
-        // Other frames pass untouched.
         assert_eq!(
-            gate.admit(&rx(20_000, FrameId::Standard(0x100), &[0; 8])),
+            gate.admit(&rx(T0_US + 20_000, FrameId::Standard(0x100), &[0; 8])),
             Admit::Pass
         );
     }
 
     #[test]
-    fn auth_a_forged_calib_ack_is_not_passed_on_and_a_signed_one_is() {
-        let (dir, cfg) = setup("ack", 0o600, KEY_HEX, "");
-        let c = load(&dir, &cfg).unwrap();
+    fn auth_a_deleted_freshness_file_then_a_two_year_old_recording_is_refused() {
+        let (_dir, c) = keyed("deleted", "");
+        let two_years_ms = 2 * 365 * 86_400_000;
+        let mut op = FreshnessFile::load(&c.security.operator_freshness_file).unwrap();
+        let recorded: Vec<_> = (0..5u8)
+            .map(|k| {
+                operator_frames(
+                    &c,
+                    &mut op,
+                    Command::Abort,
+                    k,
+                    T0_MS - two_years_ms + u64::from(k),
+                )
+            })
+            .collect();
+        // The daemon accepted them two years ago; its freshness file is gone.
+        let _ = std::fs::remove_file(&c.security.freshness_file);
+        let mut gate = SecurityGate::for_config(&c).unwrap();
+        for (k, [(id, data), (aid, auth)]) in recorded.iter().enumerate() {
+            let t = T0_US + k as u64 * 1_000_000;
+            assert_eq!(gate.admit(&rx(t, *id, data)), Admit::Held);
+            assert!(
+                matches!(
+                    gate.admit(&rx(t + 100, *aid, auth)),
+                    Admit::Refused {
+                        reason: AuthFailure::Stale,
+                        ..
+                    }
+                ),
+                "recording {k} accepted"
+            );
+        }
+        assert_eq!(gate.counts().of(AuthFailure::Stale), 5);
+        assert!(!c.security.freshness_file.exists(), "nothing was accepted");
+    }
+
+    #[test]
+    fn auth_operator_and_parameter_store_keys_sign_only_their_own_messages() {
+        let (_dir, c) = keyed("roles", "");
         let base = c.output.base_id;
-        let mut gate = SecurityGate::new(&c.security, base, c.calibration.command_id).unwrap();
         let wire = CalibWire::new(base).unwrap();
+        let mut gate = SecurityGate::for_config(&c).unwrap();
+        let op = keys(Party::Operator);
+        let store = keys(Party::ParamStore);
+        // The operator's file holds no CALIB_PARAMS or CALIB_ACK key at all ...
+        assert!(op.key(Role::CalibParams).is_none() && op.key(Role::CalibAck).is_none());
+        // ... and what it signs with its command key as CALIB_PARAMS is
+        // refused by the parameter store's verifier, as CALIB_ACK by the daemon.
+        let set = canodom_protocol::calib_wire::ParamSet {
+            version: 9,
+            rear_tread_m: 0.5,
+            rear_left_diameter_m: 0.09,
+            rear_right_diameter_m: 0.09,
+            diameter_ratio: 1.0,
+            steer_gain: 1.0,
+            steer_offset_rad: 0.0,
+        };
+        let page = wire.encode_params(&set, 0).unwrap()[0];
+        let cmd_key = op.key(Role::CalibCmd).unwrap();
+        let forged = Authenticator::new(cmd_key).sign(wire.params_id(), &page, T0_MS);
+        let store_verifier = Authenticator::new(store.key(Role::CalibParams).unwrap());
+        assert!(!store_verifier.verify(wire.params_id(), &page, &forged, T0_MS));
         let ack = wire.encode_ack(
             Ack {
-                version: 3,
+                version: 9,
                 status: AckStatus::Stored,
+                set_crc: wire.set_crc(&set).unwrap(),
             },
             0,
         );
-        let ack_id = wire.ack_id();
-        // A plain ACK (any node can send one) is held, then refused unpaired.
-        assert_eq!(gate.admit(&rx(0, ack_id, &ack)), Admit::Held);
+        let ack_auth = OwnFrame::CalibAckAuth.id(base);
+        let by_operator = Authenticator::new(cmd_key).sign(wire.ack_id(), &ack, T0_MS);
+        assert_eq!(gate.admit(&rx(T0_US, wire.ack_id(), &ack)), Admit::Held);
         assert!(matches!(
-            gate.admit(&rx(200_000, FrameId::Standard(0x100), &[0; 8])),
-            Admit::Pass
-        ));
-        assert_eq!(gate.counts().of(AuthFailure::MissingAuthenticator), 1);
-        // With a guessed authenticator: refused.
-        assert_eq!(gate.admit(&rx(300_000, ack_id, &ack)), Admit::Held);
-        let forged = [0xFF, 0xFF, 0xFF, 0x7F, 1, 2, 3, 4];
-        assert!(matches!(
-            gate.admit(&rx(300_100, OwnFrame::CalibAckAuth.id(base), &forged)),
+            gate.admit(&rx(T0_US + 100, ack_auth, &by_operator)),
             Admit::Refused {
                 reason: AuthFailure::BadMac,
                 ..
             }
         ));
-        // The parameter store's signed ACK passes.
-        let auth = Authenticator::new(c.security.key.as_ref().unwrap()).sign(ack_id, &ack, 5);
-        assert_eq!(gate.admit(&rx(400_000, ack_id, &ack)), Admit::Held);
+        // The store's key signs the ACK the daemon accepts, but no command.
+        let by_store = Authenticator::new(store.key(Role::CalibAck).unwrap()).sign(
+            wire.ack_id(),
+            &ack,
+            T0_MS + 1,
+        );
+        assert_eq!(
+            gate.admit(&rx(T0_US + 1_000, wire.ack_id(), &ack)),
+            Admit::Held
+        );
         assert!(matches!(
-            gate.admit(&rx(400_100, OwnFrame::CalibAckAuth.id(base), &auth)),
+            gate.admit(&rx(T0_US + 1_100, ack_auth, &by_store)),
             Admit::Authentic(_)
         ));
+        let cmd = wire.encode_command(Command::Commit, 0, 1);
+        let store_cmd = Authenticator::new(store.key(Role::CalibAck).unwrap()).sign(
+            c.calibration.command_id,
+            &cmd,
+            T0_MS + 2,
+        );
+        assert_eq!(
+            gate.admit(&rx(T0_US + 2_000, c.calibration.command_id, &cmd)),
+            Admit::Held
+        );
+        assert!(matches!(
+            gate.admit(&rx(
+                T0_US + 2_100,
+                OwnFrame::CalibCmdAuth.id(base),
+                &store_cmd
+            )),
+            Admit::Refused {
+                reason: AuthFailure::BadMac,
+                ..
+            }
+        ));
+        // Another vehicle's daemon key (same master) signs nothing here.
+        let other = master().derive("rc-car-8", Role::CalibCmd);
+        let other_cmd = Authenticator::new(&other).sign(c.calibration.command_id, &cmd, T0_MS + 3);
+        assert_eq!(
+            gate.admit(&rx(T0_US + 3_000, c.calibration.command_id, &cmd)),
+            Admit::Held
+        );
+        assert!(matches!(
+            gate.admit(&rx(
+                T0_US + 3_100,
+                OwnFrame::CalibCmdAuth.id(base),
+                &other_cmd
+            )),
+            Admit::Refused {
+                reason: AuthFailure::BadMac,
+                ..
+            }
+        ));
+        // The daemon refuses to start on an operator's or a store's key file.
+        for party in [Party::Operator, Party::ParamStore] {
+            let mut sec = c.security.clone();
+            sec.keys = Some(keys(party));
+            let e = SecurityGate::new(&sec, base, c.calibration.command_id).unwrap_err();
+            assert!(e.to_string().contains(party.name()), "{e}");
+        }
     }
 
     #[test]
-    fn auth_calib_params_are_signed_and_calib_status_carries_the_lockout() {
-        let (dir, cfg) = setup("tx", 0o600, KEY_HEX, "lockout_failures = 2\n");
-        let c = load(&dir, &cfg).unwrap();
+    fn auth_calib_params_are_signed_with_the_params_key_and_never_sent_unsigned() {
+        let (dir, c) = keyed("tx", "lockout_failures = 2\n");
         let base = c.output.base_id;
-        let mut gate = SecurityGate::new(&c.security, base, c.calibration.command_id).unwrap();
+        let mut gate = SecurityGate::for_config(&c).unwrap();
         let wire = CalibWire::new(base).unwrap();
         let set = canodom_protocol::calib_wire::ParamSet {
             version: 2,
@@ -607,150 +804,155 @@ mod tests {
             steer_gain: 1.0,
             steer_offset_rad: 0.0,
         };
-        let key = c.security.key.clone().unwrap();
-        let verifier = Authenticator::new(&key);
+        let verifier = Authenticator::new(&role_key(Role::CalibParams));
         let mut fvs = Vec::new();
         for page in wire.encode_params(&set, 0).unwrap() {
-            let out = gate.outgoing(
-                &CanFrame::new_data(wire.params_id(), &page).unwrap(),
-                1_764_000_000,
-            );
+            let out = gate.outgoing(&CanFrame::new_data(wire.params_id(), &page).unwrap(), T0_MS);
             assert_eq!(out.len(), 2);
             assert_eq!(out[1].id(), OwnFrame::CalibParamsAuth.id(base));
             let auth: [u8; 8] = out[1].data().try_into().unwrap();
-            assert!(verifier.verify(wire.params_id(), &page, &auth));
-            fvs.push(canodom_protocol::secoc::split_auth(&auth).0);
+            assert!(verifier.verify(wire.params_id(), &page, &auth, T0_MS));
+            fvs.push(canodom_protocol::secoc::reconstruct(
+                canodom_protocol::secoc::split_auth(&auth).0,
+                T0_MS,
+            ));
         }
-        assert_eq!(
-            fvs,
-            [1_764_000_000, 1_764_000_001, 1_764_000_002, 1_764_000_003]
-        );
+        assert_eq!(fvs, [T0_MS, T0_MS + 1, T0_MS + 2, T0_MS + 3]);
         // After a restart the daemon continues above what it reserved.
-        let mut again = SecurityGate::new(&c.security, base, c.calibration.command_id).unwrap();
+        let mut again = SecurityGate::for_config(&c).unwrap();
         let page = wire.encode_params(&set, 0).unwrap()[0];
-        let out = again.outgoing(
-            &CanFrame::new_data(wire.params_id(), &page).unwrap(),
-            1_764_000_000,
+        let out = again.outgoing(&CanFrame::new_data(wire.params_id(), &page).unwrap(), T0_MS);
+        let low = canodom_protocol::secoc::split_auth(&out[1].data().try_into().unwrap()).0;
+        assert!(canodom_protocol::secoc::reconstruct(low, T0_MS) > T0_MS + 3);
+        // The freshness file cannot be written (its folder does not exist):
+        // nothing is sent, not an unsigned page.
+        let mut sec = c.security.clone();
+        sec.freshness_file = dir.join("no-such-folder/canodom-freshness");
+        let mut stuck = SecurityGate::new(&sec, base, c.calibration.command_id).unwrap();
+        let out = stuck.outgoing(&CanFrame::new_data(wire.params_id(), &page).unwrap(), T0_MS);
+        assert_eq!(out, Vec::<CanFrame>::new());
+        assert_eq!(stuck.unsent_params(), 1);
+        // CALIB_STATUS passes untouched: no lockout hint is stamped on it.
+        let status = [0x10, 0, 0, 0, 0, 0, 0x30, 0x00];
+        let f = CanFrame::new_data(wire.status_id(), &status).unwrap();
+        assert_eq!(gate.outgoing(&f, T0_MS), vec![f]);
+    }
+
+    #[test]
+    fn auth_junk_does_not_lock_out_and_calib_ack_is_never_locked_out() {
+        let (_dir, c) = keyed(
+            "lock",
+            "lockout_failures = 3\nlockout_window_s = 5\nlockout_s = 30\n",
         );
-        let fv = canodom_protocol::secoc::split_auth(&out[1].data().try_into().unwrap()).0;
-        assert!(fv > 1_764_000_003, "{fv}");
-        // Two bad MACs lock out; page 0 of CALIB_STATUS says so.
-        let status = wire.encode_status(
-            &canodom_protocol::calib_wire::StatusPage::Progress(
-                canodom_protocol::calib_wire::Progress {
-                    state: canodom_protocol::calib_wire::State::Idle,
-                    instruction: canodom_protocol::calib_wire::InstructionCode::None,
-                    run_index: 0,
-                    runs_total: 0,
-                    direction: canodom_protocol::calib_wire::WireDirection::None,
-                    start_point: canodom_protocol::calib_wire::StartPoint::None,
-                    run_distance_m: 0.0,
-                    writeback: canodom_protocol::calib_wire::Writeback::Idle,
-                    standstill: true,
-                    writeback_attempts: 0,
-                },
-            ),
-            0,
-        );
-        let status_frame = CanFrame::new_data(wire.status_id(), &status).unwrap();
-        assert_eq!(
-            wire.auth_lockout(gate.outgoing(&status_frame, 0)[0].data()),
-            Some(false)
-        );
+        let base = c.output.base_id;
+        let wire = CalibWire::new(base).unwrap();
+        let mut gate = SecurityGate::for_config(&c).unwrap();
+        let cmd_id = c.calibration.command_id;
         let cmd = wire.encode_command(Command::Abort, 0, 1);
-        for t in [0, 1_000] {
-            let _ = gate.admit(&rx(t, c.calibration.command_id, &cmd));
-            let _ = gate.admit(&rx(t + 10, OwnFrame::CalibCmdAuth.id(base), &[0; 8]));
+        let aid = OwnFrame::CalibCmdAuth.id(base);
+        // Junk that is no MAC guess: unpaired authenticators, short frames,
+        // plain commands. None of it locks out.
+        for k in 0..100u64 {
+            let t = T0_US + k * 10_000;
+            let _ = gate.admit(&rx(t, aid, &[0; 8]));
+            let _ = gate.admit(&rx(t + 1, aid, &[0; 3]));
+            let _ = gate.admit(&rx(t + 2, cmd_id, &cmd));
+        }
+        assert_eq!(gate.lockouts(), 0, "{}", gate.counts());
+        // Three bad MACs on CALIB_CMD lock it; CALIB_ACK stays open.
+        let t = T0_US + 2_000_000;
+        // A guess carries a fresh freshness value: anything else is refused
+        // as stale before a MAC is computed, and is no guess.
+        let guess = |t_us: u64, k: u64| {
+            let mut g = [0, 0, 0, 0, 5, 6, 7, k as u8];
+            g[..4].copy_from_slice(&((t_us / 1000) as u32).to_le_bytes());
+            g
+        };
+        for k in 0..3u64 {
+            let _ = gate.admit(&rx(t + k * 1000, cmd_id, &cmd));
+            let v = gate.admit(&rx(t + k * 1000 + 10, aid, &guess(t + k * 1000, k)));
+            assert!(
+                matches!(
+                    v,
+                    Admit::Refused {
+                        reason: AuthFailure::BadMac | AuthFailure::LockedOut,
+                        ..
+                    }
+                ),
+                "{v:?}"
+            );
         }
         assert_eq!(gate.lockouts(), 1);
-        assert_eq!(
-            wire.auth_lockout(gate.outgoing(&status_frame, 0)[0].data()),
-            Some(true)
+        let ack = wire.encode_ack(
+            Ack {
+                version: 1,
+                status: AckStatus::Stored,
+                set_crc: 0x1234,
+            },
+            0,
         );
+        let ack_aid = OwnFrame::CalibAckAuth.id(base);
+        for k in 0..5u64 {
+            let _ = gate.admit(&rx(t + 5_000 + k * 1000, wire.ack_id(), &ack));
+            let _ = gate.admit(&rx(
+                t + 5_010 + k * 1000,
+                ack_aid,
+                &guess(t + 5_010 + k * 1000, k),
+            ));
+        }
+        assert_eq!(gate.lockouts(), 1, "CALIB_ACK bad MACs do not lock");
+        let t2 = t + 20_000;
+        let signed =
+            Authenticator::new(&role_key(Role::CalibAck)).sign(wire.ack_id(), &ack, t2 / 1000);
+        assert_eq!(gate.admit(&rx(t2, wire.ack_id(), &ack)), Admit::Held);
+        assert!(matches!(
+            gate.admit(&rx(t2 + 10, ack_aid, &signed)),
+            Admit::Authentic(_)
+        ));
+        assert!(matches!(
+            gate.admit(&rx(t2 + 20, cmd_id, &cmd)),
+            Admit::Refused {
+                reason: AuthFailure::LockedOut,
+                ..
+            }
+        ));
     }
 
     #[test]
-    fn auth_a_sender_that_fell_behind_resynchronises_above_the_floor() {
-        let (dir, cfg) = setup("resync", 0o600, KEY_HEX, "");
-        let c = load(&dir, &cfg).unwrap();
-        let id = c.calibration.command_id;
-        let mut store = FreshnessFile::load(&dir.join("sender")).unwrap();
-        // A clock far behind the receiver's mark: refused as a replay ...
-        let mut gate = SecurityGate::for_config(&c).unwrap();
-        let key = c.security.key.clone().unwrap();
-        let wire = CalibWire::new(c.output.base_id).unwrap();
-        let data = wire.encode_command(Command::Abort, 0, 1);
-        let aid = OwnFrame::CalibCmdAuth.id(c.output.base_id);
-        let signed = |fv: u32| Authenticator::new(&key).sign(id, &data, fv);
-        let _ = gate.admit(&rx(0, id, &data));
-        assert!(matches!(
-            gate.admit(&rx(10, aid, &signed(1_800_000_000))),
-            Admit::Authentic(_)
-        ));
-        let behind = operator_next_freshness(&mut store, id, 1_700_000_000, None).unwrap();
-        let _ = gate.admit(&rx(1_000, id, &data));
-        let Admit::Refused {
-            reason: AuthFailure::Replayed,
-            last_accepted: Some(mark),
-            ..
-        } = gate.admit(&rx(1_010, aid, &signed(behind)))
-        else {
-            panic!("a value behind the mark must be refused as a replay");
-        };
-        // ... and with the mark from the refusal as the floor, accepted.
-        let next = operator_next_freshness(&mut store, id, 1_700_000_000, Some(mark)).unwrap();
-        assert_eq!(next, mark + 1);
-        let _ = gate.admit(&rx(2_000, id, &data));
-        assert!(matches!(
-            gate.admit(&rx(2_010, aid, &signed(next))),
-            Admit::Authentic(_)
-        ));
-        // The store keeps the new value: the next one continues above it.
-        assert_eq!(
-            operator_next_freshness(&mut store, id, 0, None).unwrap(),
-            mark + 2
-        );
-    }
-
-    #[test]
-    fn auth_odom_cmd_is_secured_like_calib_cmd() {
-        let (dir, cfg) = setup("odom", 0o600, KEY_HEX, "");
-        let c = load(&dir, &cfg).unwrap();
+    fn auth_odom_cmd_is_secured_with_its_own_key() {
+        let (_dir, c) = keyed("odom", "");
         let base = c.output.base_id;
         let mut gate = SecurityGate::for_config(&c).unwrap();
         let (id, aid) = (OwnFrame::OdomCmd.id(base), OwnFrame::OdomCmdAuth.id(base));
-        // RESET_POSE (request 2), counter 1, CRC-8 in byte 7.
         let mut reset = [2, 0, 0, 0, 0, 0, 0x10, 0];
         let _ = canodom_dbc::Checksum::rc_car().apply(&mut reset);
         // Plain: held, then refused for its missing authenticator.
-        assert_eq!(gate.admit(&rx(0, id, &reset)), Admit::Held);
-        let _ = gate.admit(&rx(200_000, FrameId::Standard(0x100), &[0; 8]));
+        assert_eq!(gate.admit(&rx(T0_US, id, &reset)), Admit::Held);
+        let _ = gate.admit(&rx(T0_US + 200_000, FrameId::Standard(0x100), &[0; 8]));
         assert_eq!(gate.counts().of(AuthFailure::MissingAuthenticator), 1);
-        // An authenticator made for CALIB_CMD does not pass for ODOM_CMD.
-        let key = c.security.key.clone().unwrap();
-        let for_calib = Authenticator::new(&key).sign(c.calibration.command_id, &reset, 9);
-        assert_eq!(gate.admit(&rx(300_000, id, &reset)), Admit::Held);
+        // Signed with the CALIB_CMD key: refused; with the ODOM_CMD key: accepted.
+        let for_calib = Authenticator::new(&role_key(Role::CalibCmd)).sign(id, &reset, T0_MS + 300);
+        assert_eq!(gate.admit(&rx(T0_US + 300_000, id, &reset)), Admit::Held);
         assert!(matches!(
-            gate.admit(&rx(300_010, aid, &for_calib)),
+            gate.admit(&rx(T0_US + 300_010, aid, &for_calib)),
             Admit::Refused {
                 reason: AuthFailure::BadMac,
                 ..
             }
         ));
-        let signed = Authenticator::new(&key).sign(id, &reset, 9);
-        assert_eq!(gate.admit(&rx(400_000, id, &reset)), Admit::Held);
+        let signed = Authenticator::new(&role_key(Role::OdomCmd)).sign(id, &reset, T0_MS + 400);
+        assert_eq!(gate.admit(&rx(T0_US + 400_000, id, &reset)), Admit::Held);
         assert_eq!(
-            gate.admit(&rx(400_010, aid, &signed)),
+            gate.admit(&rx(T0_US + 400_010, aid, &signed)),
             Admit::Authentic(CanFrame::new_data(id, &reset).unwrap())
         );
     }
 
     #[test]
     fn auth_without_a_key_everything_passes_and_nothing_is_signed() {
-        let (dir, cfg) = setup("nokey", 0o600, KEY_HEX, "");
-        let c = load(&dir, &cfg.replace("key_file = \"canodom.key\"\n", "")).unwrap();
-        let mut gate =
-            SecurityGate::new(&c.security, c.output.base_id, c.calibration.command_id).unwrap();
+        let (dir, cfg) = setup("nokey", 0o600, &daemon_keys(), "allow_without_key = true\n");
+        let c = load(&dir, &cfg.replace("key_file = \"canodom.keys\"\n", "")).unwrap();
+        let mut gate = SecurityGate::for_config(&c).unwrap();
         assert!(!gate.is_keyed());
         let f = CanFrame::new_data(c.calibration.command_id, &[0; 8]).unwrap();
         assert_eq!(gate.admit(&rx(0, f.id(), f.data())), Admit::Pass);

@@ -1,31 +1,45 @@
-//! `[security]`: the SecOC key, the freshness files and the lockout
-//! (issue #22), validated once at load (the gate that uses them is
-//! [`crate::gate`]).
+//! `[security]`: the SecOC keys, the freshness files, the acceptance window
+//! and the lockout (issues #22, #33), validated once at load (the gate that
+//! uses them is [`crate::gate`]).
 //!
 //! ```toml
 //! [security]
-//! key_file = "canodom.key"     # 32 hex digits, mode 0600 (refused if group or others may read it)
+//! key_file = "canodom.keys"    # this party's key file from `canodom keys derive`, mode 0600
+//!                              # default: $CREDENTIALS_DIRECTORY/canodom.keys (systemd LoadCredential=)
 //! freshness_file = "canodom-freshness"        # default: beside the parameter file
 //! operator_freshness_file = "operator-freshness"  # `canodom calib`'s counter (default: ~/.local/state/canodom/)
-//! lockout_failures = 10        # this many failed authentications ...
+//! freshness_window_s = 5.0     # a freshness value is accepted only this close to the receiver's clock
+//! lockout_failures = 10        # this many bad MACs on one secured id ...
 //! lockout_window_s = 10.0      # ... within this window ...
-//! lockout_s = 60.0             # ... lock secured frames out this long
-//! allow_without_key = true     # false: a configuration without key_file is refused
+//! lockout_s = 60.0             # ... lock that id out this long (CALIB_ACK never)
+//! allow_without_key = false    # true: a bench without keys (nothing authenticated)
 //! ```
 //!
-//! Without `key_file` nothing is authenticated: commands are judged by
-//! their CRC, rolling counter and the optional arming code only, which stop
-//! mistakes, not an attacker (see the README).
+//! Secure by default: a `[security]` section without a key is refused at
+//! load, and `canodom run` refuses to start without a key unless
+//! `allow_without_key = true` says this is a bench. Without a key nothing
+//! is authenticated: commands are judged by their CRC, rolling counter and
+//! the optional arming code only, which stop mistakes, not an attacker.
 
 use canodom_can::frame::FrameId;
 use canodom_protocol::own_dbc::{BaseId, OwnFrame};
-use canodom_protocol::secoc::{Key, Link};
+use canodom_protocol::secoc::Link;
+use canodom_protocol::secoc_keys::{KeySet, KeySetError};
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
+use zeroize::Zeroizing;
 
 /// Default name of the daemon's freshness file, beside the parameter file.
 pub const DEFAULT_FRESHNESS_FILE: &str = "canodom-freshness";
+
+/// The credential name the key file is looked up under in
+/// `$CREDENTIALS_DIRECTORY` when `key_file` is not set (systemd's
+/// `LoadCredential=canodom.keys:/etc/canodom/canodom.keys`).
+pub const KEY_CREDENTIAL: &str = "canodom.keys";
+
+/// Largest key file read, bytes (a key file is a few hundred).
+const MAX_KEY_FILE: u64 = 16 * 1024;
 
 /// `[security]` as written.
 #[derive(Debug, Deserialize)]
@@ -34,6 +48,7 @@ pub(crate) struct RawSecurity {
     key_file: Option<PathBuf>,
     freshness_file: Option<PathBuf>,
     operator_freshness_file: Option<PathBuf>,
+    freshness_window_s: f64,
     lockout_failures: u32,
     lockout_window_s: f64,
     lockout_s: f64,
@@ -46,10 +61,11 @@ impl Default for RawSecurity {
             key_file: None,
             freshness_file: None,
             operator_freshness_file: None,
+            freshness_window_s: canodom_protocol::secoc::DEFAULT_WINDOW_MS as f64 / 1000.0,
             lockout_failures: 10,
             lockout_window_s: 10.0,
             lockout_s: 60.0,
-            allow_without_key: true,
+            allow_without_key: false,
         }
     }
 }
@@ -57,10 +73,14 @@ impl Default for RawSecurity {
 /// The validated `[security]` section.
 #[derive(Clone, Debug, PartialEq)]
 pub struct SecurityConfig {
-    /// The key, read and checked at load; `None`: nothing is authenticated.
-    pub key: Option<Key>,
-    /// Where the key came from (for messages).
+    /// This party's keys, read and checked at load; `None`: nothing is
+    /// authenticated (only with `allow_without_key`, or without a
+    /// `[security]` section, which `canodom run` then refuses).
+    pub keys: Option<KeySet>,
+    /// Where the keys came from (for messages).
     pub key_file: Option<PathBuf>,
+    /// `allow_without_key = true`: a bench that runs without keys on purpose.
+    pub allow_without_key: bool,
     /// The daemon's freshness values (default beside the parameter file).
     pub freshness_file: PathBuf,
     /// `canodom calib`'s own counter: as configured, else
@@ -68,7 +88,9 @@ pub struct SecurityConfig {
     /// `$HOME/.local/state/canodom/operator-freshness`, else beside the
     /// configuration (its folder is created when the client first signs).
     pub operator_freshness_file: PathBuf,
-    /// Failed authentications within [`Self::lockout_window`] that lock out (≥ 1).
+    /// How far a freshness value may be from the receiver's clock.
+    pub freshness_window: Duration,
+    /// Bad MACs on one id within [`Self::lockout_window`] that lock it out (≥ 1).
     pub lockout_failures: u32,
     /// The window the failures are counted in.
     pub lockout_window: Duration,
@@ -79,12 +101,26 @@ pub struct SecurityConfig {
 /// Why a key file is refused.
 #[derive(Debug, thiserror::Error)]
 pub enum KeyFileError {
-    /// Cannot be read.
+    /// Cannot be opened or read.
     #[error("cannot read: {0}")]
     Io(#[from] std::io::Error),
+    /// A symbolic link: refused rather than followed (it could be swapped
+    /// between a check and the read).
+    #[error(
+        "is a symbolic link; give the real file (a key file is opened without following links)"
+    )]
+    Symlink,
     /// Not a regular file.
     #[error("not a regular file")]
     NotAFile,
+    /// Owned by another user than the one reading it (or root).
+    #[error("owned by uid {owner}, not by the user reading it (uid {reader}) or root: chown it")]
+    Owner {
+        /// The file's owner.
+        owner: u32,
+        /// The effective uid of this process.
+        reader: u32,
+    },
     /// Group or others have any access.
     #[error(
         "mode {mode:04o} lets group or others access the key (a key others can read is no secret): chmod 600 it"
@@ -93,28 +129,108 @@ pub enum KeyFileError {
         /// The file's permission bits.
         mode: u32,
     },
-    /// The content is not a key.
+    /// Larger than any key file.
+    #[error("{0} bytes: too large for a key file")]
+    TooLarge(u64),
+    /// The content is not a key file.
     #[error("{0}")]
-    Malformed(#[from] canodom_protocol::secoc::KeyError),
+    Malformed(#[from] KeySetError),
 }
 
-/// Reads a key file: a regular file, no access for group or others
-/// (`mode & 0o077 == 0`), 32 hexadecimal digits.
+/// Reads a key file safely (see [`read_secret_file`]) and parses it as a
+/// [`KeySet`].
 ///
 /// # Errors
 /// [`KeyFileError`].
-pub fn read_key_file(path: &Path) -> Result<Key, KeyFileError> {
-    use std::os::unix::fs::PermissionsExt as _;
-    let meta = std::fs::metadata(path)?;
+pub fn read_key_file(path: &Path) -> Result<KeySet, KeyFileError> {
+    let text = read_secret_file(path, Access::OwnerOnly)?;
+    Ok(KeySet::parse(&text)?)
+}
+
+/// Who besides the owner may hold a read permission on a secret.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Access {
+    /// No access for group or others at all (`chmod 600`).
+    OwnerOnly,
+    /// systemd's credentials (`LoadCredential=`): a root-owned 0400 file to
+    /// which systemd adds an ACL entry for the service's user, which `stat`
+    /// shows as the group read bit (the ACL mask). The folder is private to
+    /// the service; group write or any access for others is still refused.
+    SystemdCredential,
+}
+
+/// Reads a key file that systemd passed as a credential (see
+/// [`Access::SystemdCredential`]).
+///
+/// # Errors
+/// [`KeyFileError`].
+pub fn read_credential_key_file(path: &Path) -> Result<KeySet, KeyFileError> {
+    let text = read_secret_file(path, Access::SystemdCredential)?;
+    Ok(KeySet::parse(&text)?)
+}
+
+/// Reads a secret (a key file, a master key): opened without following a
+/// symbolic link (`O_NOFOLLOW`), then checked on the open descriptor
+/// (`fstat`: a regular file, owned by this process's user or root, no
+/// access for group or others), read into memory that is wiped when the
+/// returned text is dropped. `access` says which permission bits besides
+/// the owner's are tolerated.
+///
+/// # Errors
+/// [`KeyFileError`].
+pub fn read_secret_file(path: &Path, access: Access) -> Result<Zeroizing<String>, KeyFileError> {
+    use std::io::Read as _;
+    use std::os::unix::fs::{MetadataExt as _, OpenOptionsExt as _};
+    let mut file = std::fs::OpenOptions::new()
+        .read(true)
+        .custom_flags(libc::O_NOFOLLOW | libc::O_CLOEXEC | libc::O_NOCTTY)
+        .open(path)
+        .map_err(|e| {
+            if e.raw_os_error() == Some(libc::ELOOP) {
+                KeyFileError::Symlink
+            } else {
+                KeyFileError::Io(e)
+            }
+        })?;
+    let meta = file.metadata()?;
     if !meta.is_file() {
         return Err(KeyFileError::NotAFile);
     }
-    let mode = meta.permissions().mode() & 0o7777;
-    if mode & 0o077 != 0 {
+    let reader = nix::unistd::geteuid().as_raw();
+    if meta.uid() != reader && meta.uid() != 0 {
+        return Err(KeyFileError::Owner {
+            owner: meta.uid(),
+            reader,
+        });
+    }
+    let mode = meta.mode() & 0o7777;
+    let tolerated = match access {
+        Access::OwnerOnly => 0,
+        Access::SystemdCredential => 0o040,
+    };
+    if mode & 0o077 & !tolerated != 0 {
         return Err(KeyFileError::Permissions { mode });
     }
-    let text = std::fs::read_to_string(path)?;
-    Ok(Key::parse(&text)?)
+    if meta.len() > MAX_KEY_FILE {
+        return Err(KeyFileError::TooLarge(meta.len()));
+    }
+    // Room for all of it up front: no reallocation leaves a copy behind.
+    let mut bytes = Zeroizing::new(Vec::with_capacity(MAX_KEY_FILE as usize + 1));
+    file.by_ref()
+        .take(MAX_KEY_FILE + 1)
+        .read_to_end(&mut bytes)?;
+    if bytes.len() as u64 > MAX_KEY_FILE {
+        return Err(KeyFileError::TooLarge(bytes.len() as u64));
+    }
+    if std::str::from_utf8(&bytes).is_err() {
+        return Err(KeyFileError::Malformed(KeySetError::Line {
+            line: 1,
+            what: "not UTF-8 text".into(),
+        }));
+    }
+    let mut text = Zeroizing::new(String::with_capacity(bytes.len()));
+    text.push_str(std::str::from_utf8(&bytes).unwrap_or_default());
+    Ok(text)
 }
 
 /// A `[security]` value that cannot be used; the configuration names its file.
@@ -126,13 +242,17 @@ pub(crate) enum SecurityError {
     KeyFile(PathBuf, String),
 }
 
-/// Validates `[security]`; relative paths are taken from the configuration's
-/// folder, the default freshness file goes beside `param_file`.
+/// Validates `[security]` (`None`: no section); relative paths are taken
+/// from the configuration's folder, the default freshness file goes beside
+/// `param_file`, and without `key_file` the key file is
+/// `$CREDENTIALS_DIRECTORY/`[`KEY_CREDENTIAL`] when systemd passes one.
 pub(crate) fn validate(
     file: &Path,
-    raw: &RawSecurity,
+    section: Option<&RawSecurity>,
     param_file: &Path,
 ) -> Result<SecurityConfig, SecurityError> {
+    let defaults = RawSecurity::default();
+    let raw = section.unwrap_or(&defaults);
     let invalid = |key: &str, expected: &str, got: String| {
         SecurityError::Invalid(key.to_owned(), expected.to_owned(), got)
     };
@@ -144,30 +264,44 @@ pub(crate) fn validate(
             "0".into(),
         ));
     }
-    let secs = |key: &str, v: f64| {
-        if v.is_finite() && v > 0.0 && v < 1e9 {
+    let secs = |key: &str, v: f64, max: f64| {
+        if v.is_finite() && v > 0.0 && v <= max {
             Ok(Duration::from_secs_f64(v))
         } else {
-            Err(invalid(key, "a number of seconds > 0", v.to_string()))
+            Err(invalid(
+                key,
+                &format!("a number of seconds > 0 and <= {max}"),
+                v.to_string(),
+            ))
         }
     };
-    let key_file = raw.key_file.as_deref().map(beside);
-    let key = match &key_file {
-        Some(path) => Some(
-            read_key_file(path).map_err(|e| SecurityError::KeyFile(path.clone(), e.to_string()))?,
-        ),
-        None if !raw.allow_without_key => {
+    let credential = std::env::var_os("CREDENTIALS_DIRECTORY")
+        .map(|d| PathBuf::from(d).join(KEY_CREDENTIAL))
+        .filter(|p| p.symlink_metadata().is_ok());
+    let (key_file, read): (Option<PathBuf>, fn(&Path) -> Result<KeySet, KeyFileError>) =
+        match raw.key_file.as_deref() {
+            Some(p) => (Some(beside(p)), read_key_file),
+            None => (credential, read_credential_key_file),
+        };
+    let keys = match &key_file {
+        Some(path) => {
+            Some(read(path).map_err(|e| SecurityError::KeyFile(path.clone(), e.to_string()))?)
+        }
+        None if section.is_some() && !raw.allow_without_key => {
             return Err(invalid(
                 "security.key_file",
-                "a key file (allow_without_key = false refuses to run without one)",
+                "a key file: key_file, or $CREDENTIALS_DIRECTORY/canodom.keys from systemd's \
+                 LoadCredential= (a [security] section needs its keys; `allow_without_key = true` \
+                 runs a bench without them)",
                 "none".into(),
             ));
         }
         None => None,
     };
     Ok(SecurityConfig {
-        key,
+        keys,
         key_file,
+        allow_without_key: raw.allow_without_key,
         freshness_file: raw
             .freshness_file
             .as_deref()
@@ -186,9 +320,10 @@ pub(crate) fn validate(
             },
             beside,
         ),
+        freshness_window: secs("security.freshness_window_s", raw.freshness_window_s, 600.0)?,
         lockout_failures: raw.lockout_failures,
-        lockout_window: secs("security.lockout_window_s", raw.lockout_window_s)?,
-        lockout: secs("security.lockout_s", raw.lockout_s)?,
+        lockout_window: secs("security.lockout_window_s", raw.lockout_window_s, 1e8)?,
+        lockout: secs("security.lockout_s", raw.lockout_s, 1e8)?,
     })
 }
 

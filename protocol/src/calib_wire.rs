@@ -663,6 +663,9 @@ pub struct Ack {
     pub version: u16,
     /// Stored or refused.
     pub status: AckStatus,
+    /// The echoed SET_CRC of the set acknowledged (#33): an acknowledgement
+    /// of another set under the same version does not match.
+    pub set_crc: u16,
 }
 
 /// Handles of `CALIB_STATUS` signals.
@@ -683,7 +686,7 @@ pub struct CalibWire {
     cmd: [SignalHandle; 7],
     status: StatusHandles,
     params: [SignalHandle; 9],
-    ack: [SignalHandle; 2],
+    ack: [SignalHandle; 3],
     counters: [SignalHandle; 4],
     /// `CALIB_STATUS.AUTH_LOCKOUT` (page 0), stamped by the SecOC gate.
     auth_lockout: SignalHandle,
@@ -804,7 +807,11 @@ impl CalibWire {
                 p(PARAM_SIGNALS[5])?,
                 p(PARAM_SIGNALS[6])?,
             ],
-            ack: [s(ACK, "ACK_VERSION")?, s(ACK, "ACK_STATUS")?],
+            ack: [
+                s(ACK, "ACK_VERSION")?,
+                s(ACK, "ACK_STATUS")?,
+                s(ACK, "ACK_SET_CRC")?,
+            ],
             auth_lockout: st("AUTH_LOCKOUT")?,
             counters: [
                 s(CMD, "COUNTER")?,
@@ -1216,6 +1223,7 @@ impl CalibWire {
         let mut buf = [0u8; 8];
         self.ack[0].encode_raw(u64::from(ack.version), &mut buf);
         self.ack[1].encode_raw(u64::from(ack.status.code()), &mut buf);
+        self.ack[2].encode_raw(u64::from(ack.set_crc), &mut buf);
         self.seal(3, counter, buf)
     }
 
@@ -1239,27 +1247,15 @@ impl CalibWire {
             Ack {
                 version: self.ack[0].raw(data).unwrap_or(0) as u16,
                 status,
+                set_crc: self.ack[2].raw(data).unwrap_or(0) as u16,
             },
             self.counter_of(3, data),
         ))
     }
 
-    /// Sets `AUTH_LOCKOUT` in a page-0 `CALIB_STATUS` payload and recomputes
-    /// its CRC; other pages and payloads with a bad CRC are left alone
-    /// (returns whether it stamped). The session machine does not know of
-    /// authentication: the SecOC gate stamps its lockout on the way out.
-    pub fn stamp_auth_lockout(&self, data: &mut [u8; 8], locked: bool) -> bool {
-        if !self.checksum_ok(data) || self.status.page.raw(data) != Some(0) {
-            return false;
-        }
-        self.auth_lockout.encode_raw(u64::from(locked), data);
-        // 8 bytes always cover the checksum's range.
-        let _ = self.crc.apply(data);
-        true
-    }
-
-    /// `AUTH_LOCKOUT` of a page-0 `CALIB_STATUS` payload; `None` for another
-    /// page or a bad CRC.
+    /// `AUTH_LOCKOUT` of a page-0 `CALIB_STATUS` payload (reserved, always
+    /// 0 since issue #33: an unauthenticated lockout hint helped only an
+    /// attacker); `None` for another page or a bad CRC.
     pub fn auth_lockout(&self, data: &[u8]) -> Option<bool> {
         if !self.checksum_ok(data) || self.status.page.raw(data) != Some(0) {
             return None;
@@ -1364,7 +1360,7 @@ mod tests {
     use std::collections::HashSet;
 
     #[test]
-    fn auth_lockout_is_stamped_on_page_0_only_with_a_fresh_crc() {
+    fn auth_lockout_is_always_0_on_page_0_and_absent_elsewhere() {
         let w = wire();
         let p0 = StatusPage::Progress(Progress {
             state: State::Idle,
@@ -1378,24 +1374,15 @@ mod tests {
             standstill: true,
             writeback_attempts: 0,
         });
-        let mut data = w.encode_status(&p0, 3);
-        assert_eq!(w.auth_lockout(&data), Some(false));
-        assert!(w.stamp_auth_lockout(&mut data, true));
-        assert_eq!(w.auth_lockout(&data), Some(true));
-        // Still the same page 0, counter and a valid CRC.
-        assert_eq!(w.decode_status(&data).unwrap(), (p0, 3));
-        assert!(w.stamp_auth_lockout(&mut data, false));
-        assert_eq!(data, w.encode_status(&p0, 3));
-        let mut p5 = w.encode_status(
+        assert_eq!(w.auth_lockout(&w.encode_status(&p0, 3)), Some(false));
+        let p5 = w.encode_status(
             &StatusPage::ResultExtra {
                 steer_offset_std_rad: 0.0,
                 version: 1,
             },
             0,
         );
-        let before = p5;
-        assert!(!w.stamp_auth_lockout(&mut p5, true));
-        assert_eq!((p5, w.auth_lockout(&p5)), (before, None));
+        assert_eq!(w.auth_lockout(&p5), None);
     }
 
     fn wire() -> CalibWire {
@@ -1831,21 +1818,27 @@ mod tests {
     #[test]
     fn ack_round_trips() {
         let w = wire();
-        for (v, st) in [(0u16, AckStatus::Stored), (65_535, AckStatus::Refused)] {
+        for (v, st, crc) in [
+            (0u16, AckStatus::Stored, 0u16),
+            (65_535, AckStatus::Refused, 0xBEEF),
+            (7, AckStatus::Stored, 0xFFFF),
+        ] {
             let data = w.encode_ack(
                 Ack {
                     version: v,
                     status: st,
+                    set_crc: crc,
                 },
                 5,
             );
             let (ack, c) = w.decode_ack(&data).unwrap();
-            assert_eq!((ack.version, ack.status, c), (v, st, 5));
+            assert_eq!((ack.version, ack.status, ack.set_crc, c), (v, st, crc, 5));
         }
         let mut data = w.encode_ack(
             Ack {
                 version: 1,
                 status: AckStatus::Stored,
+                set_crc: 0,
             },
             0,
         );

@@ -8,9 +8,11 @@
 //! - [`guide`]: the calibration's status in words, as an operator's client shows it.
 //! - [`calib_wire`]: the calibration commands, status and parameter frames as typed values.
 //! - [`secoc`]: authenticated commands and write-back (SecOC profile, CMAC, freshness, lockout).
+//! - [`secoc_keys`]: a key per message and direction, derived from a master key (HKDF-SHA256).
 
 pub mod calib_wire;
 pub mod guide;
 pub mod own_dbc;
 pub mod pose_frames;
 pub mod secoc;
+pub mod secoc_keys;

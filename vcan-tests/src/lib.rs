@@ -126,16 +126,14 @@ pub fn calibration_config(dir: &Path, dbc: &Path, arming_code: u8) -> Result<Pat
         return Err(format!("{}: the dbc line moved", example_path.display()));
     }
     if !config.contains("\n[calibration]\n") {
-        return Err(format!(
-            "{}: [calibration] is no longer the last table",
-            example_path.display()
-        ));
+        return Err(format!("{}: [calibration] is gone", example_path.display()));
     }
-    // Writing to a String cannot fail.
-    let _ = write!(
-        config,
-        "\nparam_file = \"{}\"\narming_code = {arming_code:#04x}\n",
-        dir.join("params.toml").display()
+    config = config.replace(
+        "\n[calibration]\n",
+        &format!(
+            "\n[calibration]\nparam_file = \"{}\"\narming_code = {arming_code:#04x}\n",
+            dir.join("params.toml").display()
+        ),
     );
     let path = dir.join("canodom.toml");
     std::fs::write(&path, config).map_err(|e| format!("{}: {e}", path.display()))?;

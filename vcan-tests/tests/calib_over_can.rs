@@ -132,6 +132,7 @@ fn listen_and_ack(wire: CalibWire, heard: Arc<Mutex<Heard>>) -> tokio::task::Joi
                 let ack = Ack {
                     version: set.version,
                     status: AckStatus::Stored,
+                    set_crc: wire.set_crc(&set).unwrap(),
                 };
                 let frame = CalibWire::frame(wire.ack_id(), &wire.encode_ack(ack, ack_counter));
                 ack_counter = ack_counter.wrapping_add(1);

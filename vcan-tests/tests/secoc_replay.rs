@@ -1,16 +1,18 @@
-//! Issue #22 on vcan: a sniffed session must not start, commit or roll back
-//! a calibration. The real `canodom run` with a key on `vcan0`; a whole
-//! guided session (the operator's signed `canodom calib` start, compute and
-//! commit, `canodom simulate --follow-calibration` driving the runs, an ECU
-//! emulator that checks `CALIB_PARAMS_AUTH` and signs its `CALIB_ACK`) is
-//! recorded with `candump -L`. The daemon restarts, and an attacker replays
-//! the whole recording with `canplayer`, then a copy of its commands and
+//! Issues #22 and #33 on vcan: a sniffed session must not start, commit or
+//! roll back a calibration. The real `canodom run` with its key file
+//! (`canodom keys derive`'s `canodom` file) on `vcan0`; a whole guided
+//! session (the operator's `canodom calib` start, compute and commit signed
+//! with the operator's key file, `canodom simulate --follow-calibration`
+//! driving the runs, an ECU emulator with the parameter store's key file
+//! that checks `CALIB_PARAMS_AUTH` and signs its `CALIB_ACK`) is recorded
+//! with `candump -L`. The daemon restarts, and an attacker replays the
+//! whole recording with `canplayer`, then a copy of its commands and
 //! acknowledgements with the counters rolled and the CRCs recomputed (their
 //! authenticators kept: the attacker has no key). Judged: no new session,
 //! the parameter file byte for byte and the live parameters (ODOM_QUALITY,
 //! CALIB_STATUS) unchanged, and every replayed secured frame counted by
-//! reason in the daemon's statistics (`replayed` for the first replay,
-//! `bad_mac` for the edited one).
+//! reason in the daemon's statistics: `stale` (recorded more than the
+//! 5-second window ago), its secured frame `missing_authenticator`.
 #![cfg(feature = "vcan")]
 // Test code: the scenario reads top to bottom as the story it checks.
 #![allow(clippy::unwrap_used, clippy::too_many_lines)]
@@ -23,7 +25,10 @@ use canodom_protocol::calib_wire::{
     Ack, AckStatus, CalibWire, Counts, ParamsAssembler, Progress, State, StatusPage, Writeback,
 };
 use canodom_protocol::own_dbc::{BaseId, OwnFrame};
-use canodom_protocol::secoc::{Authenticator, Key};
+use canodom_protocol::secoc::{
+    Authenticator, DEFAULT_WINDOW_MS, check_freshness, reconstruct, split_auth,
+};
+use canodom_protocol::secoc_keys::{MasterKey, Party, Role};
 use canodom_vcan_tests::{
     Spawned, calibration_config, canodom_bin, metric, read, read_candump, repo_file, run,
     scratch_dir, start_daemon, wait_until,
@@ -36,16 +41,36 @@ use std::time::{Duration, Instant};
 
 const BASE: u32 = 0x600;
 const ARMING: u8 = 0x5A;
-const KEY_HEX: &str = "5e1f0c2a9b7d4e3f60718293a4b5c6d7";
+const MASTER_HEX: &str = "5e1f0c2a9b7d4e3f60718293a4b5c6d7";
+const VEHICLE: &str = "vcan-car";
+
+fn master() -> MasterKey {
+    MasterKey::parse(MASTER_HEX).unwrap()
+}
+
+/// Writes `party`'s key file into `dir`, 0600, as `canodom keys derive` does.
+fn key_file(dir: &Path, party: Party) -> PathBuf {
+    let path = dir.join(format!("{}.keys", party.name()));
+    std::fs::write(&path, master().key_file(VEHICLE, party).unwrap().as_bytes()).unwrap();
+    std::fs::set_permissions(&path, std::fs::Permissions::from_mode(0o600)).unwrap();
+    path
+}
+
+fn now_ms() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_millis() as u64)
+}
 
 fn base() -> BaseId {
     BaseId::new(BASE, false).unwrap()
 }
 
 /// The calibration scenario's configuration (input cycle times declared
-/// 40 ms, see calib_over_can.rs) with a 0600 key and `[security]`; the
-/// lockout is set out of reach so every refusal keeps its own reason.
-fn write_config(dir: &Path) -> PathBuf {
+/// 40 ms, see calib_over_can.rs) with the daemon's key file and
+/// `[security]`, and the operator's twin holding the operator's key file;
+/// the lockout is set out of reach so every refusal keeps its own reason.
+fn write_config(dir: &Path) -> (PathBuf, PathBuf) {
     let mut dbc = read(&repo_file("data/dbc/rc_car.dbc"));
     for id in [256, 257, 272] {
         dbc = dbc.replace(
@@ -56,20 +81,25 @@ fn write_config(dir: &Path) -> PathBuf {
     let dbc_path = dir.join("rc_car_40ms.dbc");
     std::fs::write(&dbc_path, dbc).unwrap();
     let config = calibration_config(dir, &dbc_path, ARMING).unwrap();
-    let key = dir.join("canodom.key");
-    std::fs::write(&key, format!("{KEY_HEX}\n")).unwrap();
-    std::fs::set_permissions(&key, std::fs::Permissions::from_mode(0o600)).unwrap();
-    let mut text = read(&config);
-    let _ = write!(
-        text,
-        "\n[security]\nkey_file = {:?}\nfreshness_file = {:?}\noperator_freshness_file = {:?}\n\
-         lockout_failures = 100000\n",
-        key.display().to_string(),
-        dir.join("daemon-freshness").display().to_string(),
-        dir.join("operator-freshness").display().to_string(),
-    );
-    std::fs::write(&config, text).unwrap();
-    config
+    let bench = "[security]\nallow_without_key = true";
+    let text = read(&config);
+    assert!(text.contains(bench), "the example is a bench: {text}");
+    let with_key = |party| {
+        let mut section = String::from("[security]\n");
+        let _ = write!(
+            section,
+            "key_file = {:?}\nfreshness_file = {:?}\noperator_freshness_file = {:?}\n\
+             lockout_failures = 100000\n# allow_without_key = false",
+            key_file(dir, party).display().to_string(),
+            dir.join("daemon-freshness").display().to_string(),
+            dir.join("operator-freshness").display().to_string(),
+        );
+        text.replace(bench, &section)
+    };
+    std::fs::write(&config, with_key(Party::Canodom)).unwrap();
+    let operator = dir.join("operator.toml");
+    std::fs::write(&operator, with_key(Party::Operator)).unwrap();
+    (config, operator)
 }
 
 #[derive(Default)]
@@ -93,10 +123,11 @@ fn listen_and_ack(dir: &Path, heard: Arc<Mutex<Heard>>) -> tokio::task::JoinHand
     let db = Database::parse(&read(&repo_file("protocol/dbc/canodom.dbc")), "canodom.dbc").unwrap();
     let version = db.signal("ODOM_QUALITY.PARAM_VERSION").unwrap();
     let nominal = db.signal("ODOM_QUALITY.NOMINAL_PARAMS").unwrap();
-    let key = Key::parse(KEY_HEX).unwrap();
-    let verifier = Authenticator::new(&key);
+    let store_keys = master();
+    let verifier = Authenticator::new(&store_keys.derive(VEHICLE, Role::CalibParams));
+    let mut last_params: Option<u64> = None;
     let mut signer = Signer::new(
-        &key,
+        &store_keys.derive(VEHICLE, Role::CalibAck),
         &dir.join("ecu-freshness"),
         OwnFrame::CalibAckAuth.id(base()),
         None,
@@ -133,10 +164,18 @@ fn listen_and_ack(dir: &Path, heard: Arc<Mutex<Heard>>) -> tokio::task::JoinHand
                 && let Some(p) = page.take()
             {
                 let auth: [u8; 8] = data.try_into().unwrap();
-                if !verifier.verify(wire.params_id(), &p, &auth) {
+                // As a store does: the MAC with the full freshness value
+                // rebuilt around its clock, the window, and only once.
+                let now = now_ms();
+                let (low, mac) = split_auth(&auth);
+                let fv = reconstruct(low, now);
+                if !verifier.verify_full(wire.params_id(), &p, fv, &mac)
+                    || check_freshness(last_params, fv, now, DEFAULT_WINDOW_MS).is_err()
+                {
                     heard.lock().unwrap().params_refused += 1;
                     continue;
                 }
+                last_params = Some(fv);
                 heard.lock().unwrap().params_verified += 1;
                 if let Ok((pg, _)) = wire.decode_params(&p)
                     && let Some(Ok(set)) = assembler.push(&wire, pg)
@@ -146,14 +185,12 @@ fn listen_and_ack(dir: &Path, heard: Arc<Mutex<Heard>>) -> tokio::task::JoinHand
                         Ack {
                             version: set.version,
                             status: AckStatus::Stored,
+                            set_crc: wire.set_crc(&set).unwrap(),
                         },
                         ack_counter,
                     );
                     ack_counter = ack_counter.wrapping_add(1);
-                    let unix_s = std::time::SystemTime::now()
-                        .duration_since(std::time::UNIX_EPOCH)
-                        .map_or(0, |d| d.as_secs());
-                    let auth = signer.sign(wire.ack_id(), &ack, unix_s).unwrap();
+                    let auth = signer.sign(wire.ack_id(), &ack, now_ms()).unwrap();
                     let _ = tx
                         .send(&CanFrame::new_data(wire.ack_id(), &ack).unwrap())
                         .await;
@@ -228,7 +265,7 @@ fn relog(line: &str, id: u32, data: &[u8]) -> String {
 #[tokio::test]
 async fn secoc_replayed_and_edited_session_changes_nothing_and_is_counted_by_reason() {
     let dir = scratch_dir("secoc-replay").unwrap();
-    let config = write_config(&dir);
+    let (config, operator) = write_config(&dir);
     let params = dir.join("params.toml");
     let truth = dir.join("truth.toml");
     std::fs::write(
@@ -287,17 +324,20 @@ async fn secoc_replayed_and_edited_session_changes_nothing_and_is_counted_by_rea
     )
     .await;
     let started = Instant::now();
-    calib(&config, &["start", "--track-radius", "0.78", "--runs", "2"]);
+    calib(
+        &operator,
+        &["start", "--track-radius", "0.78", "--runs", "2"],
+    );
     until(&heard, "READY", Duration::from_secs(70), |h| {
         h.progress.is_some_and(|p| p.state == State::Ready)
     })
     .await;
-    calib(&config, &["compute"]);
+    calib(&operator, &["compute"]);
     until(&heard, "COMPUTED", Duration::from_secs(10), |h| {
         h.progress.is_some_and(|p| p.state == State::Computed)
     })
     .await;
-    calib(&config, &["commit"]);
+    calib(&operator, &["commit"]);
     until(&heard, "WRITEBACK ACKED", Duration::from_secs(10), |h| {
         h.progress.is_some_and(|p| p.writeback == Writeback::Acked)
     })
@@ -317,7 +357,7 @@ async fn secoc_replayed_and_edited_session_changes_nothing_and_is_counted_by_rea
     candump.stop("INT", Duration::from_secs(5)).unwrap();
     let phase1 = read(&daemon_log);
     assert_eq!(
-        refused(&phase1, "bad_mac") + refused(&phase1, "replayed"),
+        refused(&phase1, "bad_mac") + refused(&phase1, "replayed") + refused(&phase1, "stale"),
         0,
         "{phase1}"
     );
@@ -432,17 +472,27 @@ async fn secoc_replayed_and_edited_session_changes_nothing_and_is_counted_by_rea
         file_before,
         "the parameter file is unchanged"
     );
-    // Each replayed pair is refused once: as a replay, then (edited) for its MAC.
-    assert_eq!(refused(&log, "replayed"), cmds + acks, "{line}");
-    assert_eq!(refused(&log, "bad_mac"), cmds + acks, "{line}");
+    // Every replayed or edited authenticator was recorded more than the
+    // window ago: refused as stale before its MAC is even computed, and its
+    // secured frame, left without a valid authenticator, expires.
+    assert_eq!(refused(&log, "stale"), 2 * (cmds + acks), "{line}");
+    assert_eq!(
+        refused(&log, "missing_authenticator"),
+        2 * (cmds + acks),
+        "{line}"
+    );
     for other in [
-        "missing_authenticator",
+        "replayed",
+        "bad_mac",
         "unpaired_authenticator",
         "locked_out",
         "bad_length",
     ] {
         assert_eq!(refused(&log, other), 0, "{other}: {line}");
     }
-    metric("secoc_refused_replayed", refused(&log, "replayed"));
-    metric("secoc_refused_bad_mac", refused(&log, "bad_mac"));
+    metric("secoc_refused_stale", refused(&log, "stale"));
+    metric(
+        "secoc_refused_missing_authenticator",
+        refused(&log, "missing_authenticator"),
+    );
 }

@@ -19,6 +19,7 @@ use canodom_protocol::guide::{
     Answer, GuideState, judge, reason_text, render_guide, render_line, track_length_m,
 };
 use canodom_protocol::own_dbc::OwnFrame;
+use canodom_protocol::secoc_keys::Role;
 use std::io::{IsTerminal as _, Write as _};
 use std::path::PathBuf;
 use std::time::Duration;
@@ -48,8 +49,10 @@ canodom calib --config car.toml commit         # or abort; rollback undoes a com
 Each command prints `done` (exit 0) or `refused: REASON (why)` (exit 1); exit 2 when the \
 daemon does not answer. Commands go out as CALIB_CMD on [calibration] command_id with the \
 configured arming code, rolling counter and CRC-8, each followed by its CALIB_CMD_AUTH \
-(SecOC: freshness and CMAC) when [security] key_file is set; answers are read from \
-CALIB_STATUS at [output] base_id + 0x11."
+(SecOC: freshness from the clock and CMAC with the operator's calib_cmd key) when [security] \
+key_file is set; answers are read from CALIB_STATUS at [output] base_id + 0x11. \
+CALIB_STATUS and CALIB_PARAMS are not authenticated towards the operator (who holds only the \
+command key): what `status`, `watch` and `params` show could come from any node on the bus."
 )]
 pub struct CalibArgs {
     /// The daemon's configuration file (interface, base id, arming code);
@@ -69,10 +72,11 @@ pub struct CalibArgs {
     #[arg(long, global = true, requires = "print_frame",
           value_parser = clap::value_parser!(u8).range(0..=15))]
     pub counter: Option<u8>,
-    /// SecOC resynchronisation: continue the freshness counter above this
-    /// value (the daemon's `last_accepted` from its refusal log line).
+    /// SecOC resynchronisation: continue the freshness value above this
+    /// one (ms since the Unix epoch: the daemon's `last_accepted` from its
+    /// `replayed` log line). Rarely needed: values follow the clock.
     #[arg(long, global = true)]
-    pub freshness_floor: Option<u32>,
+    pub freshness_floor: Option<u64>,
     /// What to do.
     #[command(subcommand)]
     pub action: Action,
@@ -247,35 +251,51 @@ pub fn cansend_line(
     canodom_can::candump::format_frame(&mut line, &frame);
     if let Some(signer) = signer {
         // The authenticator follows at once (SecOC): a second cansend line.
-        let auth = signer.sign(frame.id(), &data, unix_s())?;
+        let auth = signer.sign(frame.id(), &data, now_ms())?;
         line.extend_from_slice(format!(" && cansend {} ", config.interface).as_bytes());
         canodom_can::candump::format_frame(&mut line, &auth);
     }
     Ok(String::from_utf8_lossy(&line).into_owned())
 }
 
-/// The signer of `CALIB_CMD` when `[security] key_file` is set.
-fn operator_signer(config: &Config, floor: Option<u32>) -> anyhow::Result<Option<Signer>> {
-    let Some(key) = &config.security.key else {
+/// The signer of `CALIB_CMD` when `[security] key_file` is set: the
+/// operator's `calib_cmd` key (the daemon's own key file holds it too).
+fn operator_signer(config: &Config, floor: Option<u64>) -> anyhow::Result<Option<Signer>> {
+    let Some(keys) = &config.security.keys else {
         return Ok(None);
     };
-    let (file, auth_id) = (
-        &config.security.operator_freshness_file,
-        OwnFrame::CalibCmdAuth,
-    );
+    let Some(key) = keys.key(Role::CalibCmd) else {
+        anyhow::bail!(
+            "{}: the key file of the {} holds no calib_cmd key; `canodom calib` signs with the \
+             operator's file of `canodom keys derive`",
+            config
+                .security
+                .key_file
+                .as_deref()
+                .unwrap_or(std::path::Path::new("key file"))
+                .display(),
+            keys.party.name()
+        );
+    };
     Ok(Some(Signer::new(
         key,
-        file,
-        auth_id.id(config.output.base_id),
+        &config.security.operator_freshness_file,
+        OwnFrame::CalibCmdAuth.id(config.output.base_id),
         floor,
     )?))
 }
 
-fn unix_s() -> u64 {
+/// The operator's clock, ms since the Unix epoch (the freshness value).
+fn now_ms() -> u64 {
     std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_secs())
+        .map_or(0, |d| d.as_millis() as u64)
 }
+
+/// Said once when a keyed client reads what the daemon sends.
+const UNAUTHENTICATED_NOTE: &str = "note: CALIB_STATUS and CALIB_PARAMS are not authenticated \
+towards canodom calib (an operator holds only the command key): what is shown could come from \
+any node on the bus; commands and the write-back to the parameter store are authenticated";
 
 /// Exit code when the daemon does not answer.
 const EXIT_NO_ANSWER: i32 = 2;
@@ -411,7 +431,7 @@ impl<R: FrameSource, T: FrameSink> Link<R, T> {
                 .await
                 .with_context(|| format!("sending CALIB_CMD on {}", self.iface))?;
             if let Some(signer) = &mut self.signer {
-                let auth = signer.sign(cmd_id, &data, unix_s())?;
+                let auth = signer.sign(cmd_id, &data, now_ms())?;
                 self.tx
                     .send(&auth)
                     .await
@@ -594,6 +614,14 @@ fn run(args: &CalibArgs) -> anyhow::Result<()> {
     rt.block_on(async {
         let mut link = Link::open(&config, timeout)?;
         link.signer = operator_signer(&config, args.freshness_floor)?;
+        if link.signer.is_some()
+            && matches!(
+                args.action,
+                Action::Status | Action::Watch { .. } | Action::Params
+            )
+        {
+            eprintln!("{UNAUTHENTICATED_NOTE}");
+        }
         match &args.action {
             Action::Status => {
                 let g = link.status().await?;

@@ -9,6 +9,7 @@ pub mod config_init;
 pub mod dbc;
 pub mod decode;
 pub mod demo;
+pub mod keys;
 pub mod replay;
 pub mod run;
 pub mod simulate;
@@ -38,6 +39,8 @@ pub enum Command {
     Calib(calib::CalibArgs),
     /// A ready configuration for a car platform opendbc knows (`config init --car`, `--list`).
     Config(config_init::ConfigArgs),
+    /// SecOC key files: derive each party's keys from a master key.
+    Keys(keys::KeysArgs),
 }
 
 impl Command {
@@ -56,6 +59,7 @@ impl Command {
             Self::Calibrate(a) => calibrate::execute(&a),
             Self::Calib(a) => calib::execute(&a),
             Self::Config(a) => config_init::execute(&a),
+            Self::Keys(a) => keys::execute(&a),
         }
     }
 }

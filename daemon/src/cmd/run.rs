@@ -99,11 +99,7 @@ pub fn execute(args: &RunArgs) -> anyhow::Result<()> {
     // would otherwise only show at the first commit, after a whole
     // calibration drive.
     config.check_param_file()?;
-    if config.security.key.is_none() {
-        warn!(
-            "no [security] key_file: commands and CALIB_ACK are not authenticated (README: Security)"
-        );
-    }
+    require_keys(&config.security)?;
     let connector = SocketCan {
         iface: config.interface.clone(),
     };
@@ -182,5 +178,34 @@ pub async fn shutdown_signal() {
                 None => std::future::pending::<()>().await,
             }
         } => {}
+    }
+}
+
+/// Secure by default (#33): `run` authenticates commands and
+/// acknowledgements unless the configuration says this is a bench.
+///
+/// # Errors
+/// No key and no `allow_without_key = true`.
+fn require_keys(security: &canodom_pipeline::security::SecurityConfig) -> anyhow::Result<()> {
+    match (&security.keys, security.allow_without_key) {
+        (Some(keys), _) => {
+            info!(vehicle = %keys.vehicle, party = keys.party.name(),
+                key_file = %security.key_file.as_deref().unwrap_or(std::path::Path::new("")).display(),
+                "SecOC keys loaded: commands and CALIB_ACK are authenticated");
+            Ok(())
+        }
+        (None, true) => {
+            warn!(
+                "allow_without_key = true: commands and CALIB_ACK are NOT authenticated; a bench only (README: Security)"
+            );
+            Ok(())
+        }
+        (None, false) => anyhow::bail!(
+            "no SecOC keys: canodom run authenticates commands by default. Give [security] key_file \
+             (the `canodom` file of `canodom keys derive`), or run under systemd with \
+             LoadCredential={}:..., or for a bench without keys add\n  [security]\n  allow_without_key = true\n\
+             (README: Security)",
+            canodom_pipeline::security::KEY_CREDENTIAL
+        ),
     }
 }
