@@ -1,7 +1,8 @@
-//! `canodom replay`: the daemon's pipeline over a candump log, timed by the
-//! log's timestamps, as fast as the machine goes; one CSV row per filter step.
+//! `canodom replay`'s work: the daemon's pipeline over a CAN log, timed by
+//! the log's timestamps, as fast as the machine goes; one CSV row (or one
+//! [`ReplayRow`] of values) per filter step.
 
-use anyhow::Context as _;
+use crate::{Error, Result};
 use canodom_can::candump::{ClassicData, MalformedCounts, ReadError};
 use canodom_can::frame::CanFrame;
 use canodom_can::time::Timestamp;
@@ -12,76 +13,14 @@ use canodom_fusion::VehicleParams;
 use canodom_fusion::ekf::WindowOutcome;
 use canodom_pipeline::config::Config;
 use canodom_pipeline::pipeline::{Pipeline, Step};
-use canodom_pipeline::stats::{Reject, Stats};
+use canodom_pipeline::stats::Stats;
 use canodom_report::float_text::{push_csv_row, push_f64, push_micros_as_seconds};
-use std::fmt::Write as _;
 use std::io::{Read, Write};
-use std::path::PathBuf;
 use std::sync::mpsc;
 
 /// The CSV header `replay` writes.
 pub const CSV_HEADER: &str = "t_s,x_m,y_m,heading_rad,odo_x_m,odo_y_m,odo_heading_rad,correction,\
 t_unix_s,speed_mps,pos_std_m,heading_std_rad,pose_valid,quality";
-
-/// Arguments of `replay`.
-#[derive(Debug, clap::Args)]
-#[command(
-    after_help = "Example:\n  canodom simulate --config rc_car.toml --log drive.log --truth truth.csv\n  \
-canodom replay --config rc_car.toml drive.log --out pose.csv\n  canodom replay --config rc_car.toml drive.log --out drive.mcap   # Foxglove, ROS 2\n  \
-canodom replay --config car.toml --params params.toml drive.log --out pose.csv\n\n\
-The CSV has one row per filter step (one per rear-wheel frame): seconds since the first input \
-frame, the fused pose, then rear-wheel-only odometry; both start at (0, 0, 0) at the first \
-wheel sample, headings are unwrapped (total turn, radians). The last column says what the \
-filter's correction window did at that step: empty inside a window; `accepted` (front and rear \
-agree: the rear increment is kept), `kept_rear` or `used_front` (the gate rejected the window \
-and blamed a front or a rear wheel), `no_front` (front wheels or steering stale). Statistics \
-go to stderr, with the gate's rejections by action and by the wheel blamed."
-)]
-pub struct ReplayArgs {
-    /// The configuration file (the same one `run` uses).
-    #[arg(long)]
-    pub config: PathBuf,
-    /// The CAN log: candump (`-L` or plain), Vector ASC or BLF, each also
-    /// `.gz` or `.zst` compressed, told apart by content; `-` reads standard
-    /// input.
-    pub log: PathBuf,
-    /// Where to write the CSV (standard output when absent), or the MCAP
-    /// file (`.mcap`): Foxglove and ROS 2 messages of every step.
-    #[arg(long)]
-    pub out: Option<PathBuf>,
-    /// `csv` or `mcap` (default: told by --out's extension).
-    #[arg(long, value_parser = ["csv", "mcap"])]
-    pub format: Option<String>,
-    /// MCAP chunk compression: `lz4` (a quarter of the size) or `none`
-    /// (faster to make where the file's bytes cost nothing to write).
-    #[arg(long, default_value = "lz4")]
-    pub compression: canodom_export::mcap_file::Compression,
-    /// A calibrated parameter file (written by `calibrate --out`, or the
-    /// daemon's `param_file`): its current set is used from the first frame,
-    /// as `run` uses it. Checksums and the configuration's bounds are checked.
-    #[arg(long)]
-    pub params: Option<PathBuf>,
-    /// Refuse a DBC file with a message that cannot be decoded (a signal past
-    /// its end, ...) instead of leaving the message out with a warning.
-    #[arg(long)]
-    pub strict: bool,
-    /// Only the frames of this interface (a log may hold several buses).
-    #[arg(long)]
-    pub interface: Option<String>,
-    /// A reference trajectory to compare with: CSV `t_unix_s,x_m,y_m[,heading_rad]`
-    /// on the log's clock (the format of `calibrate --fixes`), e.g. GNSS in a local
-    /// metric frame or motion capture.
-    #[arg(long, value_name = "CSV")]
-    pub truth: Option<PathBuf>,
-    /// With --truth: dead-reckon from the reference's pose this many seconds after
-    /// the log's first frame (default: the first step inside the reference).
-    #[arg(long, requires = "truth", value_name = "SECONDS")]
-    pub truth_start_s: Option<f64>,
-    /// With --truth: where the comparison's picture and numbers go
-    /// (default: beside --out, `<out stem>-truth/`, else `replay-truth/`).
-    #[arg(long, requires = "truth", value_name = "DIR")]
-    pub truth_report: Option<PathBuf>,
-}
 
 /// What a replay did.
 #[derive(Clone, Debug)]
@@ -97,7 +36,7 @@ pub struct ReplaySummary {
     /// The filter's final state.
     pub state: canodom_fusion::ekf::State,
     /// The log's interfaces and the lines of others skipped.
-    pub seen: super::LogSeen,
+    pub seen: canodom_can::log_format::LogSeen,
     /// Every step at its absolute time, when [`ReplayOptions::keep_track`] asked.
     pub track: Vec<canodom_report::truth::TrackPoint>,
     /// Time of the first input frame, which steps' `t_s` count from.
@@ -125,195 +64,6 @@ impl ReplayOptions<'_> {
     }
 }
 
-/// `--params`: the current set of a parameter file, if one is given.
-///
-/// # Errors
-/// A damaged file, or one without a current set.
-fn load_params(
-    args: &ReplayArgs,
-    config: &Config,
-) -> anyhow::Result<Option<canodom_params::persist::ParamSet>> {
-    Ok(match &args.params {
-        None => None,
-        Some(path) => {
-            let file = canodom_params::persist::load(path, &config.calibration.bounds)
-                .with_context(|| "--params".to_string())?;
-            let set = file.current.with_context(|| {
-                format!(
-                    "--params {}: the file has no current set (rolled back to nominal)",
-                    path.display()
-                )
-            })?;
-            eprintln!(
-                "replay: parameters version {} ({}) from {}",
-                set.version,
-                set.method,
-                path.display()
-            );
-            Some(set)
-        }
-    })
-}
-
-/// Runs `replay`.
-///
-/// # Errors
-/// Configuration, unreadable log, write failure.
-pub fn execute(args: &ReplayArgs) -> anyhow::Result<()> {
-    let config = Config::load(&args.config)?;
-    super::dbc_warnings(&config.db, args.strict)?;
-    let params = load_params(args, &config)?;
-    let truth = match &args.truth {
-        None => None,
-        Some(path) => {
-            let text = std::fs::read_to_string(path).map_err(|e| {
-                anyhow::anyhow!("{}: cannot read the reference: {e}", path.display())
-            })?;
-            Some(canodom_calib::drive::parse_fixes(
-                &text,
-                &path.display().to_string(),
-            )?)
-        }
-    };
-    let mut input = super::open_input(&args.log, "replay")?;
-    let started = std::time::Instant::now();
-    let (sink, mcap) = open_output(args, &config)?;
-    let mut w = std::io::BufWriter::with_capacity(WRITE_BYTES, sink);
-    let summary = replay_log(
-        &config,
-        params.as_ref(),
-        ReplayOptions {
-            interface: args.interface.as_deref(),
-            keep_track: truth.is_some(),
-            log_name: Some(&args.log.display().to_string()),
-        },
-        &mut input,
-        &mut w,
-        &mut std::io::stderr(),
-        mcap,
-    )
-    .with_context(|| args.log.display().to_string())?;
-    w.flush()?;
-    input.finish();
-    super::check_log_read(
-        "replay",
-        &args.log,
-        &summary.seen,
-        args.interface.as_deref(),
-    )?;
-    if summary.stats.get(Reject::UnknownId) == summary.stats.frames {
-        anyhow::bail!(
-            "{}: none of its {} frames has an id the configuration reads ({}): \
-             is this the configured vehicle's log, and {} its DBC? \
-             (`canodom decode --dbc {} {}` shows what the DBC knows of it)",
-            args.log.display(),
-            summary.stats.frames,
-            config
-                .input_ids()
-                .iter()
-                .map(ToString::to_string)
-                .collect::<Vec<_>>()
-                .join(", "),
-            config.db.source_name(),
-            config.db.source_name(),
-            args.log.display()
-        );
-    }
-    let secs = started.elapsed().as_secs_f64();
-    let mut malformed = format!("malformed lines {}", summary.malformed);
-    for (reason, n) in summary.malformed_by_reason.nonzero() {
-        let _ = write!(malformed, " {reason}={n}");
-    }
-    eprintln!(
-        "replay: {} ({:.0} frames/s), {malformed}",
-        summary.stats,
-        summary.stats.frames as f64 / secs.max(1e-9),
-    );
-    if let Some(s) = summary.last_step {
-        eprintln!(
-            "replay: end at t={:.3} s: fused ({:.4}, {:.4}, {:.4} rad), rear-only ({:.4}, {:.4}, {:.4} rad)",
-            s.t_s,
-            s.fused.x_m,
-            s.fused.y_m,
-            s.fused.heading_rad,
-            s.odometry.x_m,
-            s.odometry.y_m,
-            s.odometry.heading_rad
-        );
-    }
-    if let Some(truth) = truth {
-        compare_with_truth(args, &truth, &summary.track, summary.first_frame)?;
-    }
-    Ok(())
-}
-
-/// The CSV output (standard output without `--out`), or the MCAP file.
-fn open_output(
-    args: &ReplayArgs,
-    config: &Config,
-) -> anyhow::Result<(Box<dyn Write>, Option<McapOut>)> {
-    let is_mcap = args.format.as_deref().map_or_else(
-        || args.out.as_ref().and_then(|p| p.extension()) == Some("mcap".as_ref()),
-        |f| f == "mcap",
-    );
-    let create = |path: &PathBuf| {
-        std::fs::File::create(path).with_context(|| format!("cannot create {}", path.display()))
-    };
-    Ok(match (&args.out, is_mcap) {
-        (None, true) => anyhow::bail!("--format mcap needs --out FILE"),
-        (None, false) => (Box::new(std::io::stdout().lock()), None),
-        (Some(path), false) => (Box::new(create(path)?), None),
-        (Some(path), true) => {
-            let file = std::io::BufWriter::with_capacity(1 << 20, create(path)?);
-            let options = canodom_export::mcap_file::McapOptions {
-                compression: args.compression,
-                ..Default::default()
-            };
-            let writer = McapOut::new(file, options, config.ekf.k_rear_m)?;
-            (Box::new(std::io::sink()), Some(writer))
-        }
-    })
-}
-
-/// `--truth`: the replay placed on the reference, the errors printed, the
-/// picture and numbers written.
-fn compare_with_truth(
-    args: &ReplayArgs,
-    truth: &[canodom_calib::drive::Fix],
-    track: &[canodom_report::truth::TrackPoint],
-    first_frame: Option<canodom_can::time::Timestamp>,
-) -> anyhow::Result<()> {
-    // Seconds after the log's first frame, on the log's clock.
-    let start = args
-        .truth_start_s
-        .zip(first_frame)
-        .map(|(s, t0)| t0.as_secs_f64() + s);
-    let truth_path = args
-        .truth
-        .as_deref()
-        .unwrap_or(std::path::Path::new("truth"));
-    let comparison = canodom_report::truth::TruthComparison::build(truth, track, start)
-        .map_err(|e| anyhow::anyhow!("--truth {}: {e}", truth_path.display()))?;
-    eprintln!("replay: {}", comparison.summary());
-    let dir = match (&args.truth_report, &args.out) {
-        (Some(dir), _) => dir.clone(),
-        (None, Some(out)) => {
-            let stem = out
-                .file_stem()
-                .map_or_else(|| "replay".to_owned(), |s| s.to_string_lossy().into_owned());
-            out.with_file_name(format!("{stem}-truth"))
-        }
-        (None, None) => PathBuf::from("replay-truth"),
-    };
-    let (svg, json) = canodom_report::files::write_report(&dir, &comparison)?;
-    eprintln!(
-        "replay: comparison in {} and {}",
-        svg.display(),
-        json.display()
-    );
-    Ok(())
-}
-
 /// Records per batch handed from the reading thread to the filter thread:
 /// enough that the hand-over costs nothing per record and a thread seldom
 /// sleeps on the other (1,024 made ~370 context switches a million frames,
@@ -324,7 +74,7 @@ const BATCH_RECORDS: usize = 4096;
 /// CSV bytes written at once: what `execute`'s `BufWriter` holds, so that it
 /// passes each write straight on (a copy into it was 3 % of the reading
 /// thread's instructions).
-const WRITE_BYTES: usize = 1 << 16;
+pub const WRITE_BYTES: usize = 1 << 16;
 
 /// Batches in existence at once (reused, never reallocated): the memory of a
 /// replay is bounded by these whatever the log's length.
@@ -337,7 +87,7 @@ struct Batch {
     records: Vec<Entry>,
     /// The frames of [`Entry::Other`], in order.
     others: Vec<(Timestamp, CanFrame)>,
-    rows: Vec<Row>,
+    rows: Vec<ReplayRow>,
     /// `rows` as CSV lines, or empty: then the reading thread writes them.
     text: Vec<u8>,
     /// For an MCAP file: each step's sample and the index of the record after its frame.
@@ -352,6 +102,23 @@ struct Batch {
     chunk: Chunk,
     /// Whether `chunk` holds the batch's steps.
     encoded: bool,
+}
+
+impl Batch {
+    /// An empty batch with room for [`BATCH_RECORDS`] records.
+    fn new() -> Self {
+        Self {
+            records: Vec::with_capacity(BATCH_RECORDS),
+            others: Vec::new(),
+            rows: Vec::with_capacity(BATCH_RECORDS),
+            text: Vec::new(),
+            samples: Vec::new(),
+            params: None,
+            carried: FrameBuffer::default(),
+            chunk: Chunk::default(),
+            encoded: false,
+        }
+    }
 }
 
 /// Moves the frames `carry` holds into `batch` (they belong to its first
@@ -424,23 +191,30 @@ enum Entry {
     Other(usize),
 }
 
-/// One CSV row: the step's time in microseconds since the first frame
-/// (written from the integer: exact, and no float to take apart) and the
-/// six pose values.
-struct Row {
-    t_us: i64,
-    values: [f64; 6],
-    correction: WindowOutcome,
-    /// The step's time on the log's clock, µs.
-    t_unix_us: i64,
-    /// Speed, position and heading standard deviations of the pose sample.
-    sample: [f64; 3],
-    /// The pose sample's flags ([`canodom_protocol::pose_frames::PoseFlags::bits`]).
-    quality: u8,
+/// One filter step as replay's CSV row holds it, as values: the step's time
+/// in microseconds since the first frame (the CSV writes it from the
+/// integer: exact, and no float to take apart), the six pose values and the
+/// pose sample `run` would publish there.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ReplayRow {
+    /// The step's time since the log's first frame, µs (`t_s`).
+    pub t_us: i64,
+    /// `x_m, y_m, heading_rad` fused, then `odo_x_m, odo_y_m, odo_heading_rad` rear-only.
+    pub values: [f64; 6],
+    /// What the correction window did at the step (`correction`).
+    pub correction: WindowOutcome,
+    /// The step's time on the log's clock, µs (`t_unix_s`).
+    pub t_unix_us: i64,
+    /// Speed, position and heading standard deviations of the pose sample
+    /// (`speed_mps, pos_std_m, heading_std_rad`).
+    pub sample: [f64; 3],
+    /// The pose sample's flags ([`canodom_protocol::pose_frames::PoseFlags::bits`]):
+    /// `quality`, its bit 0 `pose_valid`.
+    pub quality: u8,
 }
 
 /// Appends `rows` to `text` as CSV lines.
-fn push_rows(text: &mut Vec<u8>, rows: &[Row]) {
+fn push_rows(text: &mut Vec<u8>, rows: &[ReplayRow]) {
     for row in rows {
         push_csv_row(text, row.t_us, &row.values);
         // The text column after the numbers: the row's newline becomes
@@ -484,7 +258,7 @@ pub fn replay(
     input: impl Read,
     out: &mut impl Write,
     diag: &mut impl Write,
-) -> anyhow::Result<ReplaySummary> {
+) -> Result<ReplaySummary> {
     replay_with(config, None, input, out, diag)
 }
 
@@ -498,7 +272,7 @@ pub fn replay_with(
     input: impl Read,
     out: &mut impl Write,
     diag: &mut impl Write,
-) -> anyhow::Result<ReplaySummary> {
+) -> Result<ReplaySummary> {
     replay_log(
         config,
         params,
@@ -522,16 +296,12 @@ pub fn replay_log(
     out: &mut impl Write,
     diag: &mut impl Write,
     mut mcap: Option<McapOut>,
-) -> anyhow::Result<ReplaySummary> {
-    let mut pipeline = Pipeline::new(config)?;
-    if let Some(set) = params {
-        pipeline
-            .apply_params(Some((set.version, &set.values)))
-            .with_context(|| format!("parameter set version {}", set.version))?;
-    }
+) -> Result<ReplaySummary> {
+    let mut pipeline = new_pipeline(config, params)?;
     // Read unbuffered by LogReader's own large blocks (a BufReader passes
     // reads larger than its buffer straight through); other formats use it.
-    let mut reader = super::log_reader(std::io::BufReader::new(input), options.interface, true)?;
+    let mut reader =
+        crate::log::log_reader(std::io::BufReader::new(input), options.interface, true)?;
     let mut kept = options.keep_track.then(Vec::new);
     let samples = mcap.is_some();
     if !samples {
@@ -578,8 +348,7 @@ pub fn replay_log(
                     }
                 }
                 pipeline
-            })
-            .context("starting the filter thread")?;
+            })?;
         let fed = feed(
             &mut reader,
             &to_filter,
@@ -597,37 +366,7 @@ pub fn replay_log(
         if let Some(m) = mcap {
             m.finish()?.flush()?;
         }
-        let seen = super::LogSeen::of(&reader, pipeline.stats().frames, malformed);
-        let t0_us = pipeline
-            .first_frame_time()
-            .map_or(0, |t| t.as_micros() as i64);
-        let track = kept
-            .unwrap_or_default()
-            .into_iter()
-            .map(|(t_us, v)| canodom_report::truth::TrackPoint {
-                t_unix_s: (t0_us + t_us) as f64 / 1e6,
-                fused: canodom_fusion::Pose {
-                    x_m: v[0],
-                    y_m: v[1],
-                    heading_rad: v[2],
-                },
-                rear: canodom_fusion::Pose {
-                    x_m: v[3],
-                    y_m: v[4],
-                    heading_rad: v[5],
-                },
-            })
-            .collect();
-        Ok(ReplaySummary {
-            seen,
-            track,
-            first_frame: pipeline.first_frame_time(),
-            stats: *pipeline.stats(),
-            malformed,
-            malformed_by_reason: by_reason,
-            last_step: pipeline.last_step(),
-            state: *pipeline.state(),
-        })
+        Ok(summary_of(&pipeline, &reader, (malformed, by_reason), kept))
     })
 }
 
@@ -656,7 +395,7 @@ fn filter_batch(pipeline: &mut Pipeline, batch: &mut Batch, samples: bool) {
             let t0_us = pipeline
                 .first_frame_time()
                 .map_or(0, |t| t.as_micros() as i64);
-            batch.rows.push(Row {
+            batch.rows.push(ReplayRow {
                 t_us: s.t_us,
                 values: [
                     s.fused.x_m,
@@ -679,34 +418,22 @@ fn filter_batch(pipeline: &mut Pipeline, batch: &mut Batch, samples: bool) {
 /// filter thread and writes the rows of those it has finished, in order.
 /// Returns the malformed line counts.
 fn feed(
-    reader: &mut super::AnyLogReader<'_>,
+    reader: &mut canodom_can::any_log::AnyLogReader<'_>,
     to_filter: &mpsc::Sender<Batch>,
     from_filter: &mpsc::Receiver<Batch>,
     (out, mut mcap): (&mut impl Write, Option<&mut McapOut>),
     (diag, warn_prefix): (&mut impl Write, &str),
     mut kept: Option<&mut Vec<(i64, [f64; 6])>>,
-) -> anyhow::Result<(u64, MalformedCounts)> {
+) -> Result<(u64, MalformedCounts)> {
     let mut malformed = 0u64;
     let mut by_reason = MalformedCounts::default();
-    let mut spare: Vec<Batch> = (0..BATCHES)
-        .map(|_| Batch {
-            records: Vec::with_capacity(BATCH_RECORDS),
-            others: Vec::new(),
-            rows: Vec::with_capacity(BATCH_RECORDS),
-            text: Vec::new(),
-            samples: Vec::new(),
-            params: None,
-            carried: FrameBuffer::default(),
-            chunk: Chunk::default(),
-            encoded: false,
-        })
-        .collect();
+    let mut spare: Vec<Batch> = (0..BATCHES).map(|_| Batch::new()).collect();
     let mut in_flight = 0usize;
     let mut text = Vec::with_capacity(2 * WRITE_BYTES);
     // Rows are gathered until at least `WRITE_BYTES` (a `BufWriter` of that
     // capacity then hands them on without copying them into its buffer).
     let mut encoder = mcap.as_deref().map(McapOut::encoder);
-    let mut write_rows = |batch: &mut Batch, out: &mut dyn Write| -> anyhow::Result<()> {
+    let mut write_rows = |batch: &mut Batch, out: &mut dyn Write| -> Result<()> {
         if let Some(kept) = kept.as_deref_mut() {
             kept.extend(batch.rows.iter().map(|r| (r.t_us, r.values)));
         }
@@ -734,7 +461,7 @@ fn feed(
         }
         Ok(())
     };
-    let filter_gone = || anyhow::anyhow!("replay: the filter thread stopped");
+    let filter_gone = || Error::FilterThread;
     let mut at_end = false;
     while !at_end {
         let mut batch = if let Some(b) = spare.pop() {
@@ -746,33 +473,13 @@ fn feed(
             write_rows(&mut b, out)?;
             b
         };
-        batch.records.clear();
-        batch.others.clear();
-        while batch.records.len() < BATCH_RECORDS {
-            // The common line first, then any other (or the end, or an error).
-            if let Some(c) = reader.next_classic() {
-                batch.records.push(Entry::Classic(c));
-                continue;
-            }
-            match reader.next_record_general() {
-                Ok(Some(r)) => {
-                    batch.records.push(Entry::Other(batch.others.len()));
-                    batch.others.push((r.timestamp, r.frame));
-                }
-                Ok(None) => {
-                    at_end = true;
-                    break;
-                }
-                Err(ReadError::Malformed(m)) => {
-                    malformed += 1;
-                    by_reason.add(m.reason);
-                    if malformed <= 20 {
-                        writeln!(diag, "{warn_prefix}: {m}; skipped")?;
-                    }
-                }
-                Err(e @ (ReadError::Io(_) | ReadError::Corrupt(_))) => return Err(e.into()),
-            }
-        }
+        at_end = fill_batch(
+            reader,
+            &mut batch,
+            &mut malformed,
+            &mut by_reason,
+            (&mut *diag, warn_prefix),
+        )?;
         to_filter.send(batch).map_err(|_| filter_gone())?;
         in_flight += 1;
         // Write what the filter finished meanwhile, without waiting.
@@ -789,4 +496,146 @@ fn feed(
     }
     out.write_all(&text)?;
     Ok((malformed, by_reason))
+}
+
+/// Fills `batch` with the log's next records, counting (and reporting the
+/// first 20 of) its malformed lines. Returns whether the log has ended.
+fn fill_batch(
+    reader: &mut canodom_can::any_log::AnyLogReader<'_>,
+    batch: &mut Batch,
+    malformed: &mut u64,
+    by_reason: &mut MalformedCounts,
+    (diag, warn_prefix): (&mut impl Write, &str),
+) -> Result<bool> {
+    batch.records.clear();
+    batch.others.clear();
+    while batch.records.len() < BATCH_RECORDS {
+        // The common line first, then any other (or the end, or an error).
+        if let Some(c) = reader.next_classic() {
+            batch.records.push(Entry::Classic(c));
+            continue;
+        }
+        match reader.next_record_general() {
+            Ok(Some(r)) => {
+                batch.records.push(Entry::Other(batch.others.len()));
+                batch.others.push((r.timestamp, r.frame));
+            }
+            Ok(None) => return Ok(true),
+            Err(ReadError::Malformed(m)) => {
+                *malformed += 1;
+                by_reason.add(m.reason);
+                if *malformed <= 20 {
+                    writeln!(diag, "{warn_prefix}: {m}; skipped")?;
+                }
+            }
+            Err(e @ (ReadError::Io(_) | ReadError::Corrupt(_))) => {
+                return Err(Error::Read {
+                    path: warn_prefix.trim_start_matches("replay: ").to_owned(),
+                    source: e,
+                });
+            }
+        }
+    }
+    Ok(false)
+}
+
+/// A fresh pipeline for `config`, with `params` in use from the first frame.
+fn new_pipeline(
+    config: &Config,
+    params: Option<&canodom_params::persist::ParamSet>,
+) -> Result<Pipeline> {
+    let mut pipeline = Pipeline::new(config).map_err(|source| Error::Filter {
+        context: "the configured vehicle".to_owned(),
+        source,
+    })?;
+    if let Some(set) = params {
+        pipeline
+            .apply_params(Some((set.version, &set.values)))
+            .map_err(|source| Error::Filter {
+                context: format!("parameter set version {}", set.version),
+                source,
+            })?;
+    }
+    Ok(pipeline)
+}
+
+/// What a finished replay did.
+fn summary_of(
+    pipeline: &Pipeline,
+    reader: &canodom_can::any_log::AnyLogReader<'_>,
+    (malformed, by_reason): (u64, MalformedCounts),
+    kept: Option<Vec<(i64, [f64; 6])>>,
+) -> ReplaySummary {
+    let seen = canodom_can::log_format::LogSeen::of(reader, pipeline.stats().frames, malformed);
+    let t0_us = pipeline
+        .first_frame_time()
+        .map_or(0, |t| t.as_micros() as i64);
+    let track = kept
+        .unwrap_or_default()
+        .into_iter()
+        .map(|(t_us, v)| canodom_report::truth::TrackPoint {
+            t_unix_s: (t0_us + t_us) as f64 / 1e6,
+            fused: canodom_fusion::Pose {
+                x_m: v[0],
+                y_m: v[1],
+                heading_rad: v[2],
+            },
+            rear: canodom_fusion::Pose {
+                x_m: v[3],
+                y_m: v[4],
+                heading_rad: v[5],
+            },
+        })
+        .collect();
+    ReplaySummary {
+        seen,
+        track,
+        first_frame: pipeline.first_frame_time(),
+        stats: *pipeline.stats(),
+        malformed,
+        malformed_by_reason: by_reason,
+        last_step: pipeline.last_step(),
+        state: *pipeline.state(),
+    }
+}
+
+/// [`replay_log`]'s steps as values instead of text, on the calling thread
+/// alone (a fleet job runs one log per core; replay's second thread would
+/// only compete with the next log's). The same pipeline and the same
+/// reading of the log as the CSV: each row holds the values its CSV line
+/// prints. Memory: the rows, and one batch of records.
+///
+/// # Errors
+/// As [`replay_log`].
+pub fn replay_rows(
+    config: &Config,
+    params: Option<&canodom_params::persist::ParamSet>,
+    options: ReplayOptions<'_>,
+    input: impl Read,
+    diag: &mut impl Write,
+) -> Result<(Vec<ReplayRow>, ReplaySummary)> {
+    let mut pipeline = new_pipeline(config, params)?;
+    let mut reader =
+        crate::log::log_reader(std::io::BufReader::new(input), options.interface, true)?;
+    let mut batch = Batch::new();
+    let mut rows = Vec::new();
+    let (mut malformed, mut by_reason) = (0, MalformedCounts::default());
+    let prefix = options.warning_prefix();
+    loop {
+        let at_end = fill_batch(
+            &mut reader,
+            &mut batch,
+            &mut malformed,
+            &mut by_reason,
+            (&mut *diag, &prefix),
+        )?;
+        batch.rows.clear();
+        filter_batch(&mut pipeline, &mut batch, false);
+        rows.extend_from_slice(&batch.rows);
+        if at_end {
+            break;
+        }
+    }
+    let summary = summary_of(&pipeline, &reader, (malformed, by_reason), None);
+    Ok((rows, summary))
 }
