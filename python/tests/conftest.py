@@ -33,11 +33,14 @@ def run_cli(cli: Path, *args, **kwargs) -> subprocess.CompletedProcess:
     return done
 
 
-def simulate(cli: Path, out: Path, seed: int, path: str = "random", laps: int = 1, true_params: str = "") -> Path:
+def simulate(cli: Path, out: Path, seed: int, path: str = "random", laps: int = 1, true_params: str = "",
+             speed_mps: float = 0.0) -> Path:
     """A simulated drive of the 1:10 car: out/drive.log and out/truth.csv."""
     out.mkdir(parents=True, exist_ok=True)
     args = ["simulate", "--config", RC_CAR, "--log", out / "drive.log", "--path", path,
             "--seed", seed, "--laps", laps, "--truth", out / "truth.csv"]
+    if speed_mps:
+        args += ["--speed-mps", speed_mps]
     if true_params:
         (out / "true.toml").write_text(true_params)
         args += ["--true-params", out / "true.toml"]

@@ -59,7 +59,11 @@ def assert_same(tables, expected):
                 elif want is None:  # NaN or infinite: JSON null
                     assert got is not None and not math.isfinite(got), (name, c, i, got)
                 else:
-                    assert got == want and type(got) is type(want), (name, c, i, got, want)
+                    # JSON reads an integral float (`1200`) as an int: the
+                    # value is compared; int columns are checked apart.
+                    assert got == want, (name, c, i, got, want)
+                    if isinstance(got, int):
+                        assert isinstance(want, int), (name, c, i, got, want)
 
 
 @pytest.mark.parametrize("dbc", DBCS, ids=lambda p: p.stem)

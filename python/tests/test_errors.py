@@ -28,7 +28,9 @@ def test_a_dbc_with_a_bad_message_is_refused_under_strict(tmp_path):
     bad = tmp_path / "bad.dbc"
     text = (DATA / "dbc" / "rc_car.dbc").read_text()
     # A signal past its message's end: the message cannot be decoded.
-    bad.write_text(text + '\nBO_ 1999 BROKEN: 2 Vector__XXX\n SG_ TOO_FAR : 40|16@1+ (1,0) [0|0] "" Vector__XXX\n')
+    broken = 'BO_ 1999 BROKEN: 2 Vector__XXX\n SG_ TOO_FAR : 40|16@1+ (1,0) [0|0] "" Vector__XXX\n\n'
+    at = text.index("\nBO_ ") + 1
+    bad.write_text(text[:at] + broken + text[at:])
     with pytest.raises(canodom.DbcError, match="BROKEN"):
         canodom.decode(RAV4 / "drive.log", bad, strict=True)
 

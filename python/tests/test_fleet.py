@@ -35,11 +35,11 @@ def fleet(tmp_path_factory, canodom_cli):
         if v in SCALE_ERROR:
             d = NOMINAL_D * SCALE_ERROR[v]
             true = f"rear_left_diameter_m = {d}\nrear_right_diameter_m = {d}\n"
-        log = simulate(canodom_cli, root / f"v{v:02d}", seed=100 + v, path="random", laps=3, true_params=true)
+        log = simulate(canodom_cli, root / f"v{v:02d}", seed=100 + v, path="random", laps=2, true_params=true, speed_mps=0.5)
         # Every third correctly calibrated vehicle and every miscalibrated one has fixes.
         fixes = ""
         if v % 3 == 0 or v in RATIO_ERROR or v in SCALE_ERROR:
-            fixes = str(fixes_from_truth(root / f"v{v:02d}" / "truth.csv", root / f"v{v:02d}" / "fixes.csv"))
+            fixes = str(fixes_from_truth(root / f"v{v:02d}" / "truth.csv", root / f"v{v:02d}" / "fixes.csv", every_s=0.5))
         lines.append(f"car-{v:02d},{log},{RC_CAR},{fixes}")
     # A corrupt log: a gzip file cut in the middle.
     good = (root / "v00" / "drive.log").read_bytes()
