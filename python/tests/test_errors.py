@@ -40,7 +40,7 @@ def test_a_config_with_a_typo_names_file_line_and_key(tmp_path):
     text = (RAV4 / "config.toml").read_text().replace("wheelbase_m", "wheelbase_mm")
     text = text.replace('"../dbc/', f'"{DATA}/dbc/')
     config.write_text(text)
-    with pytest.raises(canodom.ConfigError, match=r"car\.toml.*wheelbase_mm"):
+    with pytest.raises(canodom.ConfigError, match=r"(?s)car\.toml.*line 6.*wheelbase_mm"):
         canodom.replay(RAV4 / "drive.log", config)
 
 
