@@ -243,6 +243,14 @@ pub fn decode(
             path.display()
         ))));
     }
+    message_tables(&db, messages)
+}
+
+/// Each decoded message's columns as a record batch, by name.
+fn message_tables(
+    db: &Database,
+    mut messages: HashMap<*const canodom_dbc::Message, MessageColumns>,
+) -> Work<BTreeMap<String, (RecordBatch, SchemaRef)>> {
     let mut out = BTreeMap::new();
     for message in db.messages() {
         let Some(columns) = messages.remove(&std::ptr::from_ref(message)) else {

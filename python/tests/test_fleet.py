@@ -117,10 +117,12 @@ def test_one_and_two_cpus_give_identical_tables(fleet):
         b = pq.read_table(fleet["out2"] / name)
         if "seconds" in a.column_names:
             a, b = a.drop_columns(["seconds"]), b.drop_columns(["seconds"])
-        assert a.equals(b), name
+        assert a.schema == b.schema, name
+        # pandas' equals: NaN (the failed log's poses) equals NaN.
+        assert a.to_pandas().equals(b.to_pandas()), name
     poses = [
         pads.dataset(fleet[o] / "poses", partitioning="hive").to_table().sort_by([("log", "ascending"), ("t_s", "ascending")])
         for o in ("out1", "out2")
     ]
-    assert poses[0].num_rows > 0 and poses[0].equals(poses[1])
+    assert poses[0].num_rows > 0 and poses[0].to_pandas().equals(poses[1].to_pandas())
     assert set(poses[0].column("vehicle_id").to_pylist()) == {f"car-{v:02d}" for v in range(VEHICLES)}

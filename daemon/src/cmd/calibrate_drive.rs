@@ -190,6 +190,7 @@ pub fn execute(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use canodom_calib::drive::calibrated_values;
 
     fn estimate(value: f64, observable: bool) -> Estimate {
         Estimate {
