@@ -182,7 +182,7 @@ pub fn run_from_log(
     max_gap_s: f64,
     interface: Option<&str>,
 ) -> anyhow::Result<Run> {
-    let mut frames = super::LogFrames::open(log, "calibrate", interface)?;
+    let mut frames = super::log_frames(log, "calibrate", interface)?;
     let mut pipeline = Pipeline::new(config)?;
     let params = config.params;
     let tread_m = params.rear_tread_m();
@@ -227,7 +227,9 @@ pub fn run_from_log(
             input_faults(&pipeline),
         ));
     }
-    frames.finish(pipeline.stats().frames)?;
+    if let Some(warning) = frames.finish(pipeline.stats().frames)? {
+        tracing::warn!("calibrate: {warning}");
+    }
     let malformed = frames.malformed();
     let moving = |s: &RevSample| s.rear_left_rev.abs().max(s.rear_right_rev.abs()) > MOVING_REV;
     let Some(first) = samples.iter().position(|(s, _)| moving(s)) else {

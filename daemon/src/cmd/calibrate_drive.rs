@@ -12,13 +12,10 @@
 //! file as a new set (history kept, bounds checked), which `replay --params`
 //! and `run` (through `param_file`) then use.
 
-use anyhow::{Context as _, bail};
-use canodom_calib::drive::{
-    DriveCalibration, DriveModel, DriveSample, Estimate, Fix, calibrate_drive, calibrated_values,
-};
+use anyhow::bail;
+use canodom_calib::drive::{DriveCalibration, Estimate};
 use canodom_params::persist::{ParamFile, ParamSet, ParamValues, PersistError};
 use canodom_pipeline::config::Config;
-use canodom_pipeline::pipeline::{Outcome, Pipeline};
 use std::fmt::Write as _;
 use std::path::Path;
 
@@ -34,38 +31,10 @@ pub fn load_or_new(path: &Path, config: &Config) -> anyhow::Result<ParamFile> {
     }
 }
 
-/// The values a set describes when `set` is absent: the configuration's nominal parameters.
-pub fn values_in_use(config: &Config, set: Option<&ParamSet>) -> ParamValues {
-    set.map_or_else(
-        || {
-            let p = &config.params;
-            let steer = p.steering();
-            ParamValues {
-                rear_tread_m: p.rear_tread_m(),
-                rear_left_diameter_m: p.wheel_diameter_m(canodom_fusion::Wheel::RearLeft),
-                rear_right_diameter_m: p.wheel_diameter_m(canodom_fusion::Wheel::RearRight),
-                steering_gain: steer.gain,
-                steering_offset_rad: steer.offset_rad,
-                yaw_rate_bias_radps: None,
-                yaw_rate_scale: None,
-            }
-        },
-        |s| s.values,
-    )
-}
-
-/// What one log gave: the samples and how the pipeline judged its frames.
-pub struct DriveLog {
-    /// One sample a filter step, on the log's clock.
-    pub samples: Vec<DriveSample>,
-    /// The pipeline's statistics line.
-    pub stats: String,
-    /// Malformed lines skipped.
-    pub malformed: u64,
-}
+pub use canodom_offline::drive::{DriveLog, values_in_use};
 
 /// Runs `log` through the pipeline with `set` in use and collects a
-/// [`DriveSample`] per filter step.
+/// [`canodom_calib::drive::DriveSample`] per filter step ([`canodom_offline::drive::samples_from_frames`]).
 ///
 /// # Errors
 /// Unreadable log, a set the filter refuses, or no step at all.
@@ -75,50 +44,17 @@ pub fn samples_from_log(
     log: &Path,
     interface: Option<&str>,
 ) -> anyhow::Result<DriveLog> {
-    let mut frames = super::LogFrames::open(log, "calibrate", interface)?;
-    let mut pipeline = Pipeline::new(config)?;
-    if let Some(s) = set {
-        pipeline.apply_params(Some((s.version, &s.values)))?;
+    let frames = super::log_frames(log, "calibrate", interface)?;
+    let drive = canodom_offline::drive::samples_from_frames(
+        config,
+        set,
+        frames,
+        &log.display().to_string(),
+    )?;
+    if let Some(warning) = &drive.mixed_buses {
+        tracing::warn!("calibrate: {warning}");
     }
-    let map = pipeline.params().steering();
-    let (d_left, d_right) = {
-        let p = pipeline.params();
-        (
-            std::f64::consts::PI * p.wheel_diameter_m(canodom_fusion::Wheel::RearLeft),
-            std::f64::consts::PI * p.wheel_diameter_m(canodom_fusion::Wheel::RearRight),
-        )
-    };
-    let mut samples = Vec::new();
-    while let Some((timestamp, frame)) = frames.next_frame()? {
-        let Outcome::Step(step, _) = pipeline.push(timestamp, &frame) else {
-            continue;
-        };
-        let t0 = pipeline
-            .first_frame_time()
-            .map_or(0.0, |t| t.as_micros() as f64 / 1e6);
-        samples.push(DriveSample {
-            t_s: t0 + step.t_s,
-            rear_left_m: step.rear_rev.0 * d_left,
-            rear_right_m: step.rear_rev.1 * d_right,
-            steer_angle_rad: step.steer_signal.map(|u| map.angle_rad(u)),
-            yaw_rate_radps: step.yaw_rate_radps,
-        });
-    }
-    frames.finish(pipeline.stats().frames)?;
-    let malformed = frames.malformed();
-    if samples.len() < 2 {
-        bail!(
-            "{}: {} filter steps ({}); is this the configured car's log?",
-            log.display(),
-            samples.len(),
-            pipeline.stats()
-        );
-    }
-    Ok(DriveLog {
-        samples,
-        stats: pipeline.stats().to_string(),
-        malformed,
-    })
+    Ok(drive)
 }
 
 /// The human report of a drive calibration: every parameter with its σ,
@@ -194,26 +130,18 @@ pub fn execute(
     report_dir: Option<&Path>,
     interface: Option<&str>,
 ) -> anyhow::Result<()> {
-    let text = std::fs::read_to_string(fixes_path)
-        .with_context(|| format!("{}: cannot read the fixes", fixes_path.display()))?;
-    let all_fixes = canodom_calib::drive::parse_fixes(&text, &fixes_path.display().to_string())?;
+    let all_fixes = canodom_offline::drive::read_fixes(fixes_path)?;
     let mut file = load_or_new(out, config)?;
     let base_set = file.current.clone();
     let base = values_in_use(config, base_set.as_ref());
     let drive = samples_from_log(config, base_set.as_ref(), log, interface)?;
-    let (first, last) = (
-        drive.samples[0].t_s,
-        drive.samples[drive.samples.len() - 1].t_s,
-    );
-    let fixes: Vec<Fix> = all_fixes
-        .iter()
-        .copied()
-        .filter(|f| f.t_s >= first && f.t_s <= last)
-        .collect();
-    let outside = all_fixes.len() - fixes.len();
-    if outside > 0 {
+    let what = format!("{} against {}", log.display(), fixes_path.display());
+    let fit = canodom_offline::drive::fit_drive(config, base, &drive, &all_fixes, &what)?;
+    let (first, last) = fit.span_s;
+    if fit.fixes_outside > 0 {
         eprintln!(
-            "calibrate: {outside} of {} fixes lie outside the log's {first:.3}–{last:.3} s and are left out",
+            "calibrate: {} of {} fixes lie outside the log's {first:.3}–{last:.3} s and are left out",
+            fit.fixes_outside,
             all_fixes.len()
         );
     }
@@ -228,24 +156,11 @@ pub fn execute(
             String::new()
         }
     );
-    let model = DriveModel {
-        rear_tread_m: base.rear_tread_m,
-        wheelbase_m: config.params.wheelbase_m(),
-    };
-    let cal = calibrate_drive(&drive.samples, &fixes, &model).with_context(|| {
-        format!(
-            "calibration of {} against {} failed",
-            log.display(),
-            fixes_path.display()
-        )
-    })?;
-    let values = calibrated_values(&base, &cal);
+    let (cal, values, fixes) = (fit.calibration, fit.values, fit.fixes);
     print!("{}", report_text(&cal, &base, &values));
-    config
-        .calibration
-        .bounds
-        .check(&values)
-        .context("the calibrated set is outside the configured bounds; not committed")?;
+    if let Some(why) = fit.out_of_bounds {
+        bail!("the calibrated set is outside the configured bounds; not committed: {why}");
+    }
     let created = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .map_or(0, |d| d.as_secs());
@@ -275,6 +190,7 @@ pub fn execute(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use canodom_calib::drive::calibrated_values;
 
     fn estimate(value: f64, observable: bool) -> Estimate {
         Estimate {

@@ -94,41 +94,20 @@ pub fn open_input(
     Ok(crate::progress::Progress::new(reader, label, total))
 }
 
-/// A reader of whatever log `input` holds (candump -L, plain or timed
-/// candump, Vector ASC or BLF, each perhaps gzip- or zstd-compressed: judged
-/// from the content), keeping only interface `interface` when given. A log
-/// of a format not read (python-can CSV, PEAK TRC, an empty one) is refused
-/// by name with the way forward, and so is one without time (plain candump
-/// output) when the command `needs_time`. The error does not name the file:
-/// the caller adds it.
+/// A reader of whatever log `input` holds, judged from its content
+/// ([`canodom_offline::log::log_reader`]). The error does not name the
+/// file: the caller adds it.
 ///
 /// # Errors
-/// As above, or its first bytes cannot be read or decompressed.
+/// A format not read, no time when `needs_time`, unreadable first bytes.
 pub fn log_reader<'a>(
     input: impl std::io::BufRead + 'a,
     interface: Option<&str>,
     needs_time: bool,
 ) -> anyhow::Result<AnyLogReader<'a>> {
-    use canodom_can::any_log::OpenError;
-    let (reader, format, _) = match AnyLogReader::open(input) {
-        Ok(opened) => opened,
-        Err(e @ OpenError::Io(_)) => return Err(e.into()),
-        Err(e) => {
-            let way = e.way_forward().unwrap_or("");
-            anyhow::bail!("{e}; {way}");
-        }
-    };
-    if needs_time && !reader.has_time() {
-        anyhow::bail!(
-            "this is {}: {}",
-            format.name(),
-            canodom_can::log_format::LogFormat::untimed_way_forward()
-        );
-    }
-    Ok(match interface {
-        Some(name) => reader.only_interface(name),
-        None => reader,
-    })
+    Ok(canodom_offline::log::log_reader(
+        input, interface, needs_time,
+    )?)
 }
 
 /// Refuses a log from which no frame was read (exit non-zero, saying why),
@@ -143,11 +122,8 @@ pub fn check_log_read(
     seen: &LogSeen,
     interface: Option<&str>,
 ) -> anyhow::Result<()> {
-    if let Some(why) = seen.refusal(interface) {
-        anyhow::bail!("{}: {why}", path.display());
-    }
-    if let Some(warning) = seen.mixed_buses(interface) {
-        tracing::warn!("{label}: {}: {warning}", path.display());
+    if let Some(warning) = canodom_offline::log::check_log_read(path, seen, interface)? {
+        tracing::warn!("{label}: {warning}");
     }
     Ok(())
 }
@@ -184,79 +160,19 @@ pub fn write_timestamp(out: &mut Vec<u8>, t: canodom_can::time::Timestamp) {
     let _ = write!(out, "{}.{:06}", t.secs(), t.subsec_micros());
 }
 
-/// The frames of one log for a command that works through them in order
-/// (calibrate): malformed lines skipped and counted (the first five named on
-/// stderr), one interface kept when asked, and the log refused at the end
-/// when nothing usable was in it.
-pub struct LogFrames<'a> {
-    reader: AnyLogReader<'static>,
+pub use canodom_offline::log::LogFrames;
+
+/// The frames of the log at `path` ([`LogFrames`]), read through
+/// [`open_input`] (its progress line on a terminal).
+///
+/// # Errors
+/// As [`open_input`] and [`log_reader`].
+pub fn log_frames<'a>(
     path: &'a Path,
     label: &'static str,
     interface: Option<&'a str>,
-    malformed: u64,
-}
-
-impl<'a> LogFrames<'a> {
-    /// Opens `path` as [`open_input`] does.
-    ///
-    /// # Errors
-    /// As [`open_input`].
-    pub fn open(
-        path: &'a Path,
-        label: &'static str,
-        interface: Option<&'a str>,
-    ) -> anyhow::Result<Self> {
-        Ok(Self {
-            reader: log_reader(open_input(path, label)?, interface, true)
-                .map_err(|e| anyhow::anyhow!("{}: {e:#}", path.display()))?,
-            path,
-            label,
-            interface,
-            malformed: 0,
-        })
-    }
-
-    /// The next frame with its time; `None` at the end of the log.
-    ///
-    /// # Errors
-    /// The log cannot be read.
-    pub fn next_frame(
-        &mut self,
-    ) -> anyhow::Result<Option<(canodom_can::time::Timestamp, canodom_can::frame::CanFrame)>> {
-        loop {
-            match self.reader.next_record() {
-                Ok(r) => return Ok(r.map(|r| (r.timestamp, r.frame))),
-                Err(canodom_can::candump::ReadError::Malformed(m)) => {
-                    self.malformed += 1;
-                    if self.malformed <= 5 {
-                        eprintln!("{}: {}: {m}; skipped", self.label, self.path.display());
-                    }
-                }
-                Err(
-                    e @ (canodom_can::candump::ReadError::Io(_)
-                    | canodom_can::candump::ReadError::Corrupt(_)),
-                ) => {
-                    return Err(anyhow::Error::new(e).context(format!("{}", self.path.display())));
-                }
-            }
-        }
-    }
-
-    /// Malformed lines skipped so far.
-    pub fn malformed(&self) -> u64 {
-        self.malformed
-    }
-
-    /// [`check_log_read`] once the log is read, `frames` of it used.
-    ///
-    /// # Errors
-    /// No frame read.
-    pub fn finish(&self, frames: u64) -> anyhow::Result<()> {
-        check_log_read(
-            self.label,
-            self.path,
-            &LogSeen::of(&self.reader, frames, self.malformed),
-            self.interface,
-        )
-    }
+) -> anyhow::Result<LogFrames<'a>> {
+    let reader = log_reader(open_input(path, label)?, interface, true)
+        .map_err(|e| anyhow::anyhow!("{}: {e:#}", path.display()))?;
+    Ok(LogFrames::new(reader, path, label, interface))
 }

@@ -1,0 +1,182 @@
+//! A drive's calibration against position fixes (`canodom calibrate
+//! --fixes`): the log goes through the daemon's own [`Pipeline`] with the
+//! parameters in use, each filter step becomes a [`DriveSample`] on the
+//! log's clock, and [`canodom_calib::drive`] fits the parameters the drive
+//! tells to the fixes; what it could not tell is held.
+
+use crate::log::LogFrames;
+use crate::{Error, Result};
+use canodom_calib::drive::{
+    DriveCalibration, DriveModel, DriveSample, Fix, calibrate_drive, calibrated_values,
+};
+use canodom_params::persist::{ParamSet, ParamValues};
+use canodom_pipeline::config::Config;
+use canodom_pipeline::pipeline::{Outcome, Pipeline};
+
+/// The values a set describes when `set` is absent: the configuration's nominal parameters.
+pub fn values_in_use(config: &Config, set: Option<&ParamSet>) -> ParamValues {
+    set.map_or_else(
+        || {
+            let p = &config.params;
+            let steer = p.steering();
+            ParamValues {
+                rear_tread_m: p.rear_tread_m(),
+                rear_left_diameter_m: p.wheel_diameter_m(canodom_fusion::Wheel::RearLeft),
+                rear_right_diameter_m: p.wheel_diameter_m(canodom_fusion::Wheel::RearRight),
+                steering_gain: steer.gain,
+                steering_offset_rad: steer.offset_rad,
+                yaw_rate_bias_radps: None,
+                yaw_rate_scale: None,
+            }
+        },
+        |s| s.values,
+    )
+}
+
+/// What one log gave: the samples and how the pipeline judged its frames.
+pub struct DriveLog {
+    /// One sample a filter step, on the log's clock.
+    pub samples: Vec<DriveSample>,
+    /// The pipeline's statistics line.
+    pub stats: String,
+    /// Malformed lines skipped.
+    pub malformed: u64,
+    /// The warning when the log mixes several interfaces and none was chosen.
+    pub mixed_buses: Option<String>,
+}
+
+/// Runs `frames` through the pipeline with `set` in use and collects a
+/// [`DriveSample`] per filter step.
+///
+/// # Errors
+/// Unreadable log, a set the filter refuses, or no step at all.
+pub fn samples_from_frames(
+    config: &Config,
+    set: Option<&ParamSet>,
+    mut frames: LogFrames<'_>,
+    log_name: &str,
+) -> Result<DriveLog> {
+    let filter = |context: &str| {
+        let context = context.to_owned();
+        move |source| Error::Filter { context, source }
+    };
+    let mut pipeline = Pipeline::new(config).map_err(filter("the configured vehicle"))?;
+    if let Some(s) = set {
+        pipeline
+            .apply_params(Some((s.version, &s.values)))
+            .map_err(filter(&format!("parameter set version {}", s.version)))?;
+    }
+    let map = pipeline.params().steering();
+    let (d_left, d_right) = {
+        let p = pipeline.params();
+        (
+            std::f64::consts::PI * p.wheel_diameter_m(canodom_fusion::Wheel::RearLeft),
+            std::f64::consts::PI * p.wheel_diameter_m(canodom_fusion::Wheel::RearRight),
+        )
+    };
+    let mut samples = Vec::new();
+    while let Some((timestamp, frame)) = frames.next_frame()? {
+        let Outcome::Step(step, _) = pipeline.push(timestamp, &frame) else {
+            continue;
+        };
+        let t0 = pipeline
+            .first_frame_time()
+            .map_or(0.0, |t| t.as_micros() as f64 / 1e6);
+        samples.push(DriveSample {
+            t_s: t0 + step.t_s,
+            rear_left_m: step.rear_rev.0 * d_left,
+            rear_right_m: step.rear_rev.1 * d_right,
+            steer_angle_rad: step.steer_signal.map(|u| map.angle_rad(u)),
+            yaw_rate_radps: step.yaw_rate_radps,
+        });
+    }
+    let mixed_buses = frames.finish(pipeline.stats().frames)?;
+    if samples.len() < 2 {
+        return Err(Error::Log(format!(
+            "{log_name}: {} filter steps ({}); is this the configured car's log?",
+            samples.len(),
+            pipeline.stats()
+        )));
+    }
+    Ok(DriveLog {
+        samples,
+        stats: pipeline.stats().to_string(),
+        malformed: frames.malformed(),
+        mixed_buses,
+    })
+}
+
+/// A drive calibrated against its fixes.
+pub struct DriveFit {
+    /// The fit: each parameter with its σ and whether the drive told it.
+    pub calibration: DriveCalibration,
+    /// The values in use during the drive (the configured set without a parameter file).
+    pub base: ParamValues,
+    /// The calibrated values: the fit applied to `base`, what it could not tell held.
+    pub values: ParamValues,
+    /// The fixes within the log's time, which the fit used.
+    pub fixes: Vec<Fix>,
+    /// The fixes outside the log's time, left out.
+    pub fixes_outside: usize,
+    /// The first and last filter step's time on the log's clock, s.
+    pub span_s: (f64, f64),
+    /// Why the calibrated set is outside the configured bounds (`[calibration]
+    /// bounds_rel`, ...), if it is: then it is not to be committed.
+    pub out_of_bounds: Option<String>,
+}
+
+/// Fits `drive` to the fixes of `all_fixes` within its time.
+///
+/// # Errors
+/// [`Error::Calibration`] when the fit fails (too few fixes in the log, ...).
+pub fn fit_drive(
+    config: &Config,
+    base: ParamValues,
+    drive: &DriveLog,
+    all_fixes: &[Fix],
+    what: &str,
+) -> Result<DriveFit> {
+    let first = drive.samples.first().map_or(0.0, |s| s.t_s);
+    let last = drive.samples.last().map_or(0.0, |s| s.t_s);
+    let fixes: Vec<Fix> = all_fixes
+        .iter()
+        .copied()
+        .filter(|f| f.t_s >= first && f.t_s <= last)
+        .collect();
+    let model = DriveModel {
+        rear_tread_m: base.rear_tread_m,
+        wheelbase_m: config.params.wheelbase_m(),
+    };
+    let calibration = calibrate_drive(&drive.samples, &fixes, &model)
+        .map_err(|e| Error::Calibration(format!("calibration of {what} failed: {e}")))?;
+    let values = calibrated_values(&base, &calibration);
+    let out_of_bounds = config
+        .calibration
+        .bounds
+        .check(&values)
+        .err()
+        .map(|e| e.to_string());
+    Ok(DriveFit {
+        calibration,
+        base,
+        values,
+        fixes_outside: all_fixes.len() - fixes.len(),
+        fixes,
+        span_s: (first, last),
+        out_of_bounds,
+    })
+}
+
+/// Reads position fixes (CSV `t_unix_s,x_m,y_m[,heading_rad]`) from `path`.
+///
+/// # Errors
+/// The file cannot be read, or a line is not a fix ([`Error::Calibration`] naming it).
+pub fn read_fixes(path: &std::path::Path) -> Result<Vec<Fix>> {
+    let text = std::fs::read_to_string(path).map_err(|source| Error::File {
+        path: crate::shown(path),
+        what: "read the fixes",
+        source,
+    })?;
+    canodom_calib::drive::parse_fixes(&text, &path.display().to_string())
+        .map_err(|e| Error::Calibration(e.to_string()))
+}
