@@ -228,6 +228,11 @@ fn the_examples_ekf_blocks_state_the_defaults() {
             "still_min_s",
             "aided_window_s",
             "yaw_gate_sigma",
+            "slip_accel_sigma",
+            "straight_yaw_sigma_deg_s",
+            "straight_max_deg_s",
+            "straight_max_steer_deg",
+            "straight_min_s",
         ] {
             assert!(
                 keys.contains(&key),
@@ -235,8 +240,9 @@ fn the_examples_ekf_blocks_state_the_defaults() {
                 path.display()
             );
         }
-        assert_eq!(keys.len(), 27, "{}: {keys:?}", path.display());
+        assert_eq!(keys.len(), 32, "{}: {keys:?}", path.display());
     }
+}
 
 /// The wrong configurations refused at start (#32): tick counters
 /// on km/h signals, a sign signal of another message, an unknown unit.

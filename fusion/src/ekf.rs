@@ -1487,7 +1487,7 @@ impl Ekf {
         let fastest = [w.rear_left, w.rear_right, w.front_left, w.front_right][..wheels]
             .iter()
             .fold(0.0f64, |m, d| m.max(d.abs()));
-        if !(dt_s > 0.0) || fastest > MAX_FLOOR_FILL_MPS * dt_s {
+        if dt_s <= 0.0 || dt_s.is_nan() || fastest > MAX_FLOOR_FILL_MPS * dt_s {
             return *w;
         }
         let zeros = usize::from(w.rear_left == 0.0)
@@ -1556,6 +1556,7 @@ impl Ekf {
     }
 
     /// The anchored correction; returns the fused window increment and covariance.
+    #[allow(clippy::too_many_lines)]
     fn correct_anchored(&self, st: &mut State) -> Result<(Vec3, Mat3)> {
         let mut nu = st.front_w - st.rear_w;
         nu.z = wrap_angle(nu.z);

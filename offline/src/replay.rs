@@ -590,7 +590,10 @@ fn summary_of(
     (malformed, by_reason): (u64, MalformedCounts),
     kept: Option<Vec<(i64, [f64; 6])>>,
 ) -> ReplaySummary {
-    plausibility.judge_stats(pipeline.stats(), pipeline.last_step().map_or(0.0, |s| s.t_s));
+    plausibility.judge_stats(
+        pipeline.stats(),
+        pipeline.last_step().map_or(0.0, |s| s.t_s),
+    );
     let seen = canodom_can::log_format::LogSeen::of(reader, pipeline.stats().frames, malformed);
     let t0_us = pipeline
         .first_frame_time()

@@ -250,6 +250,11 @@ struct RawEkf {
     still_min_s: Option<f64>,
     aided_window_s: Option<f64>,
     yaw_gate_sigma: Option<f64>,
+    slip_accel_sigma: Option<f64>,
+    straight_yaw_sigma_deg_s: Option<f64>,
+    straight_max_deg_s: Option<f64>,
+    straight_max_steer_deg: Option<f64>,
+    straight_min_s: Option<f64>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -668,7 +673,7 @@ impl Validator<'_> {
     fn ekf_choices(&self, e: &RawEkf, ekf: &mut EkfConfig) -> Result<(), ConfigError> {
         let deg = |d: f64| d.to_radians();
         // (key, value, field, must be > 0 rather than >= 0, to radians)
-        let numbers: [(&str, Option<f64>, &mut f64, bool, bool); 14] = [
+        let numbers: [(&str, Option<f64>, &mut f64, bool, bool); 19] = [
             (
                 "front_scale_sigma",
                 e.front_scale_sigma,
@@ -765,6 +770,41 @@ impl Validator<'_> {
                 e.aided_window_s,
                 &mut ekf.aided_window_s,
                 true,
+                false,
+            ),
+            (
+                "slip_accel_sigma",
+                e.slip_accel_sigma,
+                &mut ekf.slip_accel_sigma,
+                false,
+                false,
+            ),
+            (
+                "straight_yaw_sigma_deg_s",
+                e.straight_yaw_sigma_deg_s,
+                &mut ekf.straight_yaw_sigma_radps,
+                false,
+                true,
+            ),
+            (
+                "straight_max_deg_s",
+                e.straight_max_deg_s,
+                &mut ekf.straight_max_radps,
+                true,
+                true,
+            ),
+            (
+                "straight_max_steer_deg",
+                e.straight_max_steer_deg,
+                &mut ekf.straight_max_steer_rad,
+                true,
+                true,
+            ),
+            (
+                "straight_min_s",
+                e.straight_min_s,
+                &mut ekf.straight_min_s,
+                false,
                 false,
             ),
         ];

@@ -274,7 +274,7 @@ fn check_vehicle(vehicle: &str) -> Result<(), KeySetError> {
 }
 
 fn decode_hex(t: &str) -> Option<Zeroizing<Vec<u8>>> {
-    if t.len() % 2 != 0 || !t.bytes().all(|b| b.is_ascii_hexdigit()) {
+    if !t.len().is_multiple_of(2) || !t.bytes().all(|b| b.is_ascii_hexdigit()) {
         return None;
     }
     let mut out = Zeroizing::new(Vec::with_capacity(t.len() / 2));

@@ -197,11 +197,9 @@ impl Aided {
                 self.p[k][i] = 0.0;
             }
         }
-        for i in 0..3 {
+        for (i, row) in p_pose.iter().enumerate() {
             self.x[i] = pose[i];
-            for j in 0..3 {
-                self.p[i][j] = p_pose[i][j];
-            }
+            self.p[i][..3].copy_from_slice(row);
         }
         self.cs = (pose[2].cos(), pose[2].sin());
         self.reset_window();
@@ -340,13 +338,10 @@ impl Aided {
         if d2 > gate_sigma * gate_sigma {
             return None;
         }
-        let mut gain = [0.0; N];
-        for k in 0..N {
-            gain[k] = ph[k] / s;
-        }
+        let mut gain = ph.map(|v| v / s);
         gain[GSCALE] = 0.0;
-        for k in 0..N {
-            self.x[k] += gain[k] * nu;
+        for (x, g) in self.x.iter_mut().zip(gain) {
+            *x += g * nu;
         }
         // (I − K H) P (I − K H)ᵀ + K R Kᵀ = P − K phᵀ − ph Kᵀ + s K Kᵀ, valid
         // for the Schmidt gain with the considered entries at zero.
@@ -395,6 +390,7 @@ struct Centre {
     slipped: WheelSet<bool>,
 }
 
+#[allow(clippy::too_many_arguments)]
 /// The axle centre distance from the four wheels, given the sample's turn
 /// of the body `turn_rad` (from the gyro) and the front pair's sum of
 /// distance factors `g_front_sum` (`g_FL + g_FR`, from the steering).
@@ -472,6 +468,7 @@ fn centre_distance(
 /// One sample of the aided estimator; `w` is floor-filled, `g_front_sum`
 /// the front distance factors' sum at the sample's steering angle, and
 /// `tan_phi` its tangent (for the turn when the gyro is missing).
+#[allow(clippy::too_many_lines)]
 pub(crate) fn step(
     cfg: &EkfConfig,
     k: &Derived,
@@ -502,8 +499,8 @@ pub(crate) fn step(
         }
     } else {
         // Without the gyro, the steering's turn decides the rear pair.
-        let turn_ref = turn_gyro
-            .unwrap_or_else(|| 0.5 * (w.rear_left + w.rear_right) * tan_phi * k.inv_wheelbase);
+        let turn_ref =
+            turn_gyro.unwrap_or(0.5 * (w.rear_left + w.rear_right) * tan_phi * k.inv_wheelbase);
         centre_distance(
             w,
             input.front_valid,
@@ -662,6 +659,7 @@ fn close_window(cfg: &EkfConfig, ib: f64, st: &mut State) {
             (RATIO, -dist * ib),
         ];
         let res = a.update(nu, &h, r, cfg.yaw_gate_sigma);
+        #[allow(clippy::single_match_else)]
         match res {
             Some(d2) => {
                 straight_prior(cfg, ib, a);
