@@ -534,6 +534,8 @@ pub fn replay_with(
 ///
 /// # Errors
 /// Pipeline construction, a set the filter refuses, I/O.
+// The reading, filter and writer threads are set up and joined in one place.
+#[allow(clippy::too_many_lines)]
 pub fn replay_log(
     config: &Config,
     params: Option<&canodom_params::persist::ParamSet>,
