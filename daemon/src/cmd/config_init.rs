@@ -96,6 +96,7 @@ impl Platform {
     /// The configuration text: the example with the DBC beside it and the
     /// given interface, headed by what to check.
     pub fn config_text(&self, interface: &str) -> String {
+        use std::fmt::Write as _;
         let mut out = format!(
             "# Written by `canodom config init --car {}`: {}.\n\
              # CHECK THESE before trusting the pose: the [vehicle] values are the\n\
@@ -106,9 +107,9 @@ impl Platform {
         );
         for line in self.example.lines() {
             if line.starts_with("dbc = ") {
-                out.push_str(&format!("dbc = \"{}\"\n", self.dbc_file));
+                let _ = writeln!(out, "dbc = \"{}\"", self.dbc_file);
             } else if line.starts_with("interface = ") {
-                out.push_str(&format!("interface = {interface:?}\n"));
+                let _ = writeln!(out, "interface = {interface:?}");
             } else if line == "[vehicle]" {
                 out.push_str("[vehicle]                        # check these\n");
             } else {
