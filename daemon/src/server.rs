@@ -249,6 +249,7 @@ impl InProcessDaemon {
 ///
 /// # Errors
 /// [`RunError`].
+#[allow(clippy::too_many_lines)] // the tasks are wired in one place, as mini-redis does
 pub async fn run<C: Connector>(
     config: Arc<Config>,
     connector: C,

@@ -475,6 +475,7 @@ async fn auth_a_deleted_freshness_file_then_a_two_year_old_recording_is_not_carr
     bench.stop().await;
 }
 
+#[allow(clippy::too_many_lines)]
 #[tokio::test(start_paused = true)]
 async fn auth_only_the_parameter_stores_signed_ack_of_the_set_ends_the_write_back() {
     use canodom_params::persist::{ParamFile, ParamValues, store};

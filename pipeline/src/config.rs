@@ -670,6 +670,8 @@ impl Validator<'_> {
     /// The `[ekf]` keys beyond the wheel noises and the gate threshold:
     /// gate, blending, learning and the yaw-rate-aided estimator. Angles are
     /// written in degrees (deg/s for rates), relative values as fractions.
+    // One table row per key: splitting it would only scatter the table.
+    #[allow(clippy::too_many_lines)]
     fn ekf_choices(&self, e: &RawEkf, ekf: &mut EkfConfig) -> Result<(), ConfigError> {
         let deg = |d: f64| d.to_radians();
         // (key, value, field, must be > 0 rather than >= 0, to radians)

@@ -245,6 +245,7 @@ impl SecurityGate {
         }
         k.tx_last = Some(fv);
         let auth = k.signer.sign(frame.id(), &payload, fv);
+        #[allow(clippy::single_match_else)]
         match CanFrame::new_data(k.params_auth_id, &auth) {
             Ok(a) => vec![*frame, a],
             Err(_) => {

@@ -98,6 +98,8 @@ impl std::fmt::Display for ParamIdentity {
 
 /// Which groups of parameters a new set changes against the one in use,
 /// each the reference of some learnt values.
+// One flag per kind of parameter a set can change: they are independent.
+#[allow(clippy::struct_excessive_bools)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct ParamChanges {
     /// A rear wheel diameter: the rear ratio error, and the front scale

@@ -278,6 +278,7 @@ pub(crate) fn validate(
     let credential = std::env::var_os("CREDENTIALS_DIRECTORY")
         .map(|d| PathBuf::from(d).join(KEY_CREDENTIAL))
         .filter(|p| p.symlink_metadata().is_ok());
+    #[allow(clippy::type_complexity)]
     let (key_file, read): (Option<PathBuf>, fn(&Path) -> Result<KeySet, KeyFileError>) =
         match raw.key_file.as_deref() {
             Some(p) => (Some(beside(p)), read_key_file),

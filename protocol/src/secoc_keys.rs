@@ -404,7 +404,11 @@ mod tests {
         let hk = hkdf::Hkdf::<sha2::Sha256>::new(Some(&salt), &ikm);
         let mut okm = [0u8; 42];
         hk.expand(&info, &mut okm).unwrap();
-        let hex: String = okm.iter().map(|b| format!("{b:02x}")).collect();
+        let hex = okm.iter().fold(String::new(), |mut out, b| {
+            use std::fmt::Write as _;
+            let _ = write!(out, "{b:02x}");
+            out
+        });
         assert_eq!(
             hex,
             "3cb25f25faacd57a90434f64d0362f2a2d2d0a90cf1a5a4c5db02d56ecc4c5bf34007208d5b887185865"
