@@ -1,0 +1,179 @@
+//! Issue #30's judge: drives on CommonRoad's multi-body vehicle model (Pacejka
+//! tyres, load transfer, wheels that lock and spin; `data/multibody/`, made by
+//! `sim/multibody/generate.py`), read through a Toyota's sensors and replayed
+//! through the daemon's pipeline exactly as `canodom replay` does.
+//!
+//! Bars (the issue's): with the yaw-rate sensor, every drive ends within 1.0 %
+//! of its distance, and the published heading σ covers the error (at least
+//! 90 % of the family's steps inside 3σ); without it, a drive on which no wheel slipped
+//! ends no worse than rear-only + 0.05 % of the distance. On drives whose
+//! wheels lock or spin, rear-only takes each slip as a heading jump and the
+//! fused pose does not; which of them ends nearer the truth is then a matter of
+//! how those jumps happen to cancel the rear wheels' drift, so the test prints
+//! both and `sim/multibody/evaluate.py` tabulates them.
+
+#![allow(clippy::unwrap_used)]
+
+use canodom_offline::replay::{ReplayOptions, ReplayRow, replay_rows};
+use canodom_pipeline::config::Config;
+use std::path::{Path, PathBuf};
+
+fn root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../data/multibody")
+}
+
+/// Truth: `t_unix_s, x_m, y_m, heading_rad` (heading unwrapped here).
+fn truth(dir: &Path) -> Vec<[f64; 4]> {
+    let text = std::fs::read_to_string(dir.join("truth.csv")).unwrap();
+    let mut rows: Vec<[f64; 4]> = text
+        .lines()
+        .skip(1)
+        .map(|l| {
+            let v: Vec<f64> = l.split(',').map(|x| x.parse().unwrap()).collect();
+            [v[0], v[1], v[2], v[3]]
+        })
+        .collect();
+    for k in 1..rows.len() {
+        let d = rows[k][3] - rows[k - 1][3];
+        let wrap = (d / std::f64::consts::TAU).round() * std::f64::consts::TAU;
+        for row in &mut rows[k..] {
+            row[3] -= wrap;
+        }
+    }
+    rows
+}
+
+fn at(truth: &[[f64; 4]], t: f64) -> [f64; 3] {
+    let k = truth
+        .partition_point(|r| r[0] < t)
+        .clamp(1, truth.len() - 1);
+    let (a, b) = (truth[k - 1], truth[k]);
+    let f = ((t - a[0]) / (b[0] - a[0])).clamp(0.0, 1.0);
+    [0, 1, 2].map(|i| a[i + 1] + f * (b[i + 1] - a[i + 1]))
+}
+
+struct Judged {
+    distance_m: f64,
+    fused_pct: f64,
+    rear_pct: f64,
+    heading_in_3_sigma: f64,
+    slipped: bool,
+}
+
+fn judge(dir: &Path, config: &str) -> Judged {
+    let config = Config::load(&dir.parent().unwrap().join(config)).unwrap();
+    let log = std::fs::File::open(dir.join("drive.log.zst")).unwrap();
+    let (rows, _) = replay_rows(
+        &config,
+        None,
+        ReplayOptions::default(),
+        log,
+        &mut std::io::sink(),
+    )
+    .unwrap();
+    let truth = truth(dir);
+    let t_of = |r: &ReplayRow| r.t_unix_us as f64 / 1e6;
+    let t0 = t_of(&rows[0]);
+    let start = at(&truth, t0);
+    let (c, s) = (start[2].cos(), start[2].sin());
+    let place = |x: f64, y: f64| [start[0] + c * x - s * y, start[1] + s * x + c * y];
+    let last = rows.last().unwrap();
+    let end = at(&truth, t_of(last));
+    let mut distance_m = 0.0;
+    let mut prev = start;
+    let mut inside = 0usize;
+    for r in &rows {
+        let p = at(&truth, t_of(r));
+        distance_m += (p[0] - prev[0]).hypot(p[1] - prev[1]);
+        prev = p;
+        let err = start[2] + r.values[2] - p[2];
+        if err.abs() <= 3.0 * r.sample[2] + 1e-9 {
+            inside += 1;
+        }
+    }
+    let err = |x: f64, y: f64| {
+        let q = place(x, y);
+        100.0 * (q[0] - end[0]).hypot(q[1] - end[1]) / distance_m
+    };
+    let meta = std::fs::read_to_string(dir.join("meta.json")).unwrap();
+    Judged {
+        distance_m,
+        fused_pct: err(last.values[0], last.values[1]),
+        rear_pct: err(last.values[3], last.values[4]),
+        heading_in_3_sigma: inside as f64 / rows.len() as f64,
+        slipped: meta.contains("\"brake_lock\"") || meta.contains("\"spin\""),
+    }
+}
+
+fn drives() -> Vec<PathBuf> {
+    let mut found = Vec::new();
+    for vehicle in ["escort", "bmw320i", "vanagon"] {
+        for entry in std::fs::read_dir(root().join(vehicle)).unwrap() {
+            let p = entry.unwrap().path();
+            if p.join("drive.log.zst").exists() {
+                found.push(p);
+            }
+        }
+    }
+    found.sort();
+    assert_eq!(found.len(), 6, "two drives per vehicle: {found:?}");
+    found
+}
+
+#[test]
+fn with_the_yaw_rate_sensor_every_drive_ends_within_one_percent_and_sigma_covers_the_heading() {
+    let (mut inside, mut drives_n) = (0.0, 0.0);
+    for dir in drives() {
+        let j = judge(&dir, "config_yaw.toml");
+        println!(
+            "{}: {:.0} m, fused with the gyro {:.2} % (rear-only {:.2} %), heading inside 3σ {:.0} %",
+            dir.display(),
+            j.distance_m,
+            j.fused_pct,
+            j.rear_pct,
+            100.0 * j.heading_in_3_sigma
+        );
+        assert!(
+            j.fused_pct <= 1.0,
+            "{}: {:.2} %",
+            dir.display(),
+            j.fused_pct
+        );
+        inside += j.heading_in_3_sigma;
+        drives_n += 1.0;
+    }
+    // Consistency is the family's: one drive (Escort seed 3) is inside 3σ on
+    // only 71 % of its steps, the six together on 95 %.
+    assert!(
+        inside / drives_n >= 0.9,
+        "heading inside 3σ on {:.0} % of steps",
+        100.0 * inside / drives_n
+    );
+}
+
+#[test]
+fn without_it_a_slip_free_drive_is_never_worse_than_rear_only() {
+    let mut judged = 0;
+    for dir in drives() {
+        let j = judge(&dir, "config.toml");
+        println!(
+            "{}: {:.0} m, fused {:.2} %, rear-only {:.2} %{}",
+            dir.display(),
+            j.distance_m,
+            j.fused_pct,
+            j.rear_pct,
+            if j.slipped { " (wheels slip)" } else { "" }
+        );
+        if !j.slipped {
+            judged += 1;
+            assert!(
+                j.fused_pct <= j.rear_pct + 0.05,
+                "{}: fused {:.2} % against rear-only {:.2} %",
+                dir.display(),
+                j.fused_pct,
+                j.rear_pct
+            );
+        }
+    }
+    assert!(judged >= 1, "no slip-free drive to judge");
+}
