@@ -94,6 +94,18 @@ fn ekf_step(c: &mut Criterion) {
             });
         },
     );
+    // With a yaw-rate sensor: the aided estimator (issue #30), its window
+    // measurement every 0.5 s of samples 10 ms apart.
+    g.bench_function("step with the yaw-rate sensor (aided, per sample)", |b| {
+        let mut inp = input(&p, 0.0);
+        inp.yaw_rate_radps = Some(0.02);
+        let mut st = State::origin();
+        b.iter(|| {
+            st = default
+                .step(black_box(&st), black_box(&inp))
+                .unwrap_or_else(|e| panic!("{e}"));
+        });
+    });
     g.finish();
 }
 
