@@ -24,9 +24,16 @@ fn every_maker_checksum_matches_opendbcs_packer_bit_for_bit() {
             .iter()
             .map(|l| l.as_str().unwrap())
             .collect();
-        let text = format!("VERSION \"\"\n{}\n", lines.join("\n "));
+        // The sections the crates.io parser expects before the messages.
+        let text = format!(
+            "VERSION \"\"\n\nNS_ :\n\nBS_:\n\nBU_: XXX\n\n{}\n\n",
+            lines.join("\n ")
+        );
         let db = Database::parse(&text, "packed.json").unwrap();
-        let msg = &db.messages()[0];
+        let msg = db
+            .messages()
+            .first()
+            .unwrap_or_else(|| panic!("{platform} {name}: no message in {text:?}"));
         let checksum_name = lines[1].split_whitespace().nth(1).unwrap();
         let handle = db.signal(&format!("{name}.{checksum_name}")).unwrap();
         let address = m["address"].as_u64().unwrap();

@@ -920,12 +920,14 @@ mod tests {
         let (mut live, w, stored) = core(&c, two_sets(), false);
         let out = live.on_command(at(0), &cmd(&w, w.encode_command(Command::Rollback, 0, 1)));
         assert_eq!(counts(&w, &out).cmd_reason, Reason::None);
-        assert_eq!(counts(&w, &out).active_version, 1);
-        assert_eq!(params_sent(&w, &out), vec![1; 4]);
+        // A rollback writes set 1's values back under a new version (3), so
+        // no acknowledgement of the old version 1 can end its write-back.
+        assert_eq!(counts(&w, &out).active_version, 3);
+        assert_eq!(params_sent(&w, &out), vec![3; 4]);
         // No wheel data yet: standing still, applied at once.
         assert!(
             out.iter()
-                .any(|o| matches!(o, Output::Apply(1, v) if *v == values(0.30)))
+                .any(|o| matches!(o, Output::Apply(3, v) if *v == values(0.30)))
         );
         assert_eq!(
             stored
@@ -937,7 +939,7 @@ mod tests {
                 .as_ref()
                 .unwrap()
                 .version,
-            1
+            3
         );
         let mut sends = 1;
         let mut failed_at = None;
@@ -956,7 +958,7 @@ mod tests {
         }
         assert_eq!(sends, 1 + retries);
         assert_eq!(failed_at, Some(timeout_ms * u64::from(retries + 1)));
-        assert_eq!(live.file().current.as_ref().unwrap().version, 1);
+        assert_eq!(live.file().current.as_ref().unwrap().version, 3);
     }
 
     #[test]
