@@ -116,30 +116,13 @@ impl Aided {
     /// The estimator at the origin with the configuration's priors for the
     /// sensor errors; [`Aided::set_pose`] places it.
     pub(crate) fn new(cfg: &EkfConfig) -> Self {
-        let mut p = [[0.0; N]; N];
-        p[BIAS][BIAS] = cfg.yaw_bias_sigma_radps.powi(2);
-        p[GSCALE][GSCALE] = cfg.yaw_scale_sigma.powi(2);
-        p[RATIO][RATIO] = cfg.rear_ratio_sigma.powi(2);
-        p[TREAD][TREAD] = cfg.tread_sigma.powi(2);
-        p[DSCALE][DSCALE] = cfg.distance_scale_sigma.powi(2);
-        Self {
-            x: [0.0; N],
-            p,
-            cs: (1.0, 0.0),
-            win_t_s: 0.0,
-            win_wheel_turn_rad: 0.0,
-            win_distance_m: 0.0,
-            win_unusable: false,
-            win_all_still: true,
-            win_still_n: 0.0,
-            win_still_sum: 0.0,
-            win_still_sq: 0.0,
-            win_v0_mps: 0.0,
-            win_steer_max: 0.0,
-            straight_s: 0.0,
-            still_s: 0.0,
-            last_speed_mps: 0.0,
-        }
+        let mut a = Self::zeroed();
+        a.p[BIAS][BIAS] = cfg.yaw_bias_sigma_radps.powi(2);
+        a.p[GSCALE][GSCALE] = cfg.yaw_scale_sigma.powi(2);
+        a.p[RATIO][RATIO] = cfg.rear_ratio_sigma.powi(2);
+        a.p[TREAD][TREAD] = cfg.tread_sigma.powi(2);
+        a.p[DSCALE][DSCALE] = cfg.distance_scale_sigma.powi(2);
+        a
     }
 
     /// An estimator with every entry 0, the placeholder of a state whose
