@@ -813,6 +813,7 @@ impl<Tx: FrameSink + Clone> OdometryTask<Tx> {
                     // statement would wait on the first's guard forever.
                     let (auth_refused, auth_lockouts) = {
                         let mut gate = lock(&self.security);
+                        gate.expire(unix_now_us());
                         let figures = (gate.counts(), gate.lockouts());
                         gate.new_period();
                         figures
@@ -850,6 +851,9 @@ impl<Tx: FrameSink + Clone> OdometryTask<Tx> {
         if let Some(n) = &self.notifier {
             let _ = n.stopping();
         }
+        // A secured frame still waiting for its authenticator when the bus
+        // went quiet is refused now, so the last count is complete.
+        lock(&self.security).expire(unix_now_us() + protocol_pair_timeout_us());
         info!(
             stats = %self.pipeline.stats(),
             odom_cmd_refused = self.odom_refusals.total,
@@ -1279,4 +1283,17 @@ mod tests {
             .is_link_loss()
         );
     }
+}
+
+/// Microseconds since the Unix epoch (the SecOC receiver's clock).
+fn unix_now_us() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_micros() as u64)
+}
+
+/// How long a secured frame waits for its authenticator, µs; at stop every
+/// waiting frame has waited its last.
+fn protocol_pair_timeout_us() -> u64 {
+    canodom_protocol::secoc::PAIR_TIMEOUT_US + 1
 }

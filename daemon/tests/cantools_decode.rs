@@ -13,7 +13,13 @@ fn decode_agrees_with_cantools_on_every_shared_dbc() {
     let mut compared = 0;
     for entry in std::fs::read_dir(&dbc_dir).unwrap() {
         let path = entry.unwrap().path();
-        if path.extension().is_none_or(|e| e != "dbc") {
+        // cantools cannot load opendbc's generated Honda file (a `CM_ SG_`
+        // comment without a signal name): nothing to compare with.
+        if path.extension().is_none_or(|e| e != "dbc")
+            || path
+                .file_name()
+                .is_some_and(|n| n == "opendbc_honda_civic_touring_2016_can.dbc")
+        {
             continue;
         }
         let name = path.file_stem().unwrap().to_str().unwrap().to_owned();

@@ -409,7 +409,11 @@ async fn an_applied_set_resets_what_was_learnt_on_the_parameters_it_sets() {
     // Within a period: the write after an applied set does not wait for it.
     stand(&tx, &mut enc, &first, 0.2).await;
     let after = load(&path).unwrap();
-    assert_eq!(after.param_set.identity().unwrap(), set_one);
+    // A rollback re-issues set one's values under a new version (#33).
+    assert_eq!(
+        after.param_set.identity().unwrap().values_crc32,
+        set_one.values_crc32
+    );
     assert!((after.params.rear_tread_m - 0.30).abs() < 1e-12);
     let l = after.learnt.unwrap().checked().unwrap();
     let priors = &config.ekf;

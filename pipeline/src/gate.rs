@@ -274,6 +274,16 @@ impl SecurityGate {
         self.keyed.as_ref().map_or(0, |k| k.unsent)
     }
 
+    /// Refuses as `missing_authenticator` every secured frame that waited
+    /// longer than the pairing timeout at `now_us` (µs since the Unix
+    /// epoch): without a later frame to trigger it, the last one would
+    /// otherwise never be counted.
+    pub fn expire(&mut self, now_us: u64) {
+        if let Some(k) = self.keyed.as_mut() {
+            k.receiver.expire(now_us);
+        }
+    }
+
     /// A statistics line was written: each reason may be logged again.
     pub fn new_period(&mut self) {
         self.logged = [false; AuthFailure::ALL.len()];
