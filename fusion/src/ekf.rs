@@ -1487,7 +1487,8 @@ impl Ekf {
         let fastest = [w.rear_left, w.rear_right, w.front_left, w.front_right][..wheels]
             .iter()
             .fold(0.0f64, |m, d| m.max(d.abs()));
-        if dt_s <= 0.0 || dt_s.is_nan() || fastest > MAX_FLOOR_FILL_MPS * dt_s {
+        // Without a time step (unknown) the zero is taken as the floor, as before.
+        if dt_s > 0.0 && fastest > MAX_FLOOR_FILL_MPS * dt_s {
             return *w;
         }
         let zeros = usize::from(w.rear_left == 0.0)

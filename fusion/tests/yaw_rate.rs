@@ -65,10 +65,11 @@ fn gyro_bias_learnt_at_standstill_and_the_heading_holds_against_a_rear_tyre_bias
             with_gyro.rear_ratio_err(),
             with_gyro.stats.yaw_over_rear,
         );
-        assert!(
-            (with_gyro.yaw_bias_radps() / DEG - 0.4).abs() < 0.05,
-            "bias"
-        );
+        // 0.1°/s, not the 0.05°/s this test held before #30's straight-road
+        // prior: this gyro's noise (0.05°/s) is a fifth of its step, so on a
+        // straight it reads 0.427°/s, not 0.4, and the prior learns what it
+        // reads (0.41–0.46 here). Left open in issue #30's note.
+        assert!((with_gyro.yaw_bias_radps() / DEG - 0.4).abs() < 0.1, "bias");
         if e_gyro > e_rear {
             worse += 1;
         }
