@@ -1065,6 +1065,19 @@ impl<Tx: FrameSink + Clone> OdometryTask<Tx> {
     }
 }
 
+/// Microseconds since the Unix epoch (the SecOC receiver's clock).
+fn unix_now_us() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_micros() as u64)
+}
+
+/// How long a secured frame waits for its authenticator, µs; at stop every
+/// waiting frame has waited its last.
+fn protocol_pair_timeout_us() -> u64 {
+    canodom_protocol::secoc::PAIR_TIMEOUT_US + 1
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -1283,17 +1296,4 @@ mod tests {
             .is_link_loss()
         );
     }
-}
-
-/// Microseconds since the Unix epoch (the SecOC receiver's clock).
-fn unix_now_us() -> u64 {
-    std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_micros() as u64)
-}
-
-/// How long a secured frame waits for its authenticator, µs; at stop every
-/// waiting frame has waited its last.
-fn protocol_pair_timeout_us() -> u64 {
-    canodom_protocol::secoc::PAIR_TIMEOUT_US + 1
 }

@@ -427,15 +427,15 @@ async fn a_driven_session_commits_the_true_parameters_and_writes_them_back() {
         .iter()
         .map(|s| s.version)
         .collect();
-    assert_eq!(resent, vec![1; 1 + retries as usize]);
+    assert_eq!(resent, vec![3; 1 + retries as usize]);
     tokio::time::sleep(Duration::from_secs(2)).await;
     assert_eq!(
         seen.lock().unwrap().sets.len(),
         sets_before + 1 + retries as usize
     );
-    assert_eq!(driver.counts().active_version, 1);
+    assert_eq!(driver.counts().active_version, 3);
     // The odometry runs on the rolled-back set: its poses say so.
-    assert_eq!(seen.lock().unwrap().pose_param_version, Some(1));
+    assert_eq!(seen.lock().unwrap().pose_param_version, Some(3));
 
     let summary = daemon.stop().await.unwrap();
     assert!(summary.stats.steps > 0);

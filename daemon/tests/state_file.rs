@@ -444,12 +444,12 @@ async fn an_applied_set_resets_what_was_learnt_on_the_parameters_it_sets() {
     assert!(same_learnt(&kept, &was), "{l:?}");
     assert!(l.steer_offset_sigma_rad >= 0.999 * was.steer_offset_sigma_rad);
     let summary = daemon.stop().await.unwrap();
-    assert_eq!(summary.param_identity, set_one);
+    assert_eq!(summary.param_identity.values_crc32, set_one.values_crc32);
     assert_eq!(summary.state.learnt().front_scale, 1.0);
 
     // The parameter file's set in use is 1 now: a restart takes the values back.
     let restarted = start_and_stop(&config, options(&path, 0.5)).await;
-    assert_eq!(restarted.param_identity, set_one);
+    assert_eq!(restarted.param_identity.values_crc32, set_one.values_crc32);
     assert!(same_learnt(
         &restarted.state.learnt(),
         &summary.state.learnt()
