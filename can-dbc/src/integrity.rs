@@ -362,7 +362,7 @@ impl Checksum {
 /// canodom-can --bench checksum`, 2 shared cores under load ≈ 13). The test
 /// `crc8_table_is_the_crc_crates_table` holds it to the crate's table for
 /// every poly.
-fn crc8_table(poly: u8) -> [u8; 256] {
+pub(crate) fn crc8_table(poly: u8) -> [u8; 256] {
     let mut table = [0u8; 256];
     for (i, entry) in table.iter_mut().enumerate() {
         let mut r = i as u8;

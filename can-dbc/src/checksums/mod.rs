@@ -12,6 +12,7 @@ mod vw_mqb;
 
 use crate::SignalHandle;
 use crate::error::{Error, Result};
+use crate::integrity::crc8_table;
 
 /// A carmaker's checksum algorithm.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -289,23 +290,6 @@ fn hyundai_can_fd(id: u32, d: &[u8]) -> u64 {
         _ => 0,
     };
     u64::from(crc ^ xor)
-}
-
-/// Byte-wise table of a non-reflected CRC-8 (poly without the x⁸ term).
-fn crc8_table(poly: u8) -> [u8; 256] {
-    let mut table = [0u8; 256];
-    for (i, entry) in table.iter_mut().enumerate() {
-        let mut r = i as u8;
-        for _ in 0..8 {
-            r = if r & 0x80 != 0 {
-                (r << 1) ^ poly
-            } else {
-                r << 1
-            };
-        }
-        *entry = r;
-    }
-    table
 }
 
 #[cfg(test)]
