@@ -280,6 +280,10 @@ pub struct EkfConfig {
     pub gate_action: GateAction,
     /// Where the front heading comes from.
     pub front_heading: FrontHeading,
+    /// A window whose rear axle the gate rejected takes its heading change
+    /// from the front pair's distances instead of the steering (a locked
+    /// rear axle lets the car yaw while the driver counter-steers).
+    pub rejected_front_from_pair: bool,
     /// Learn the steering sensor's offset online (`None`: off): a scalar
     /// Kalman filter on the offset, fed by each accepted window's heading
     /// innovation, whose random walk has this standard deviation per window.
@@ -359,6 +363,7 @@ impl EkfConfig {
             gate_threshold: Some(CHI2_3_99),
             gate_action: GateAction::Consensus,
             front_heading: FrontHeading::Steering,
+            rejected_front_from_pair: true,
             steer_offset_drift_rad: Some(0.005f64.to_radians()),
             front_scale_drift: None,
         }
@@ -1643,7 +1648,7 @@ impl Ekf {
             return Ok(if use_front {
                 st.stats.rejected_used_front += 1;
                 st.last_window = WindowOutcome::RejectedUsedFront;
-                (st.front_w, p_front)
+                (self.front_pair_turn(st), p_front)
             } else {
                 st.stats.rejected_kept_rear += 1;
                 st.last_window = WindowOutcome::RejectedKeptRear;
@@ -1690,6 +1695,34 @@ impl Ekf {
         let K = st.p_rear_w * S_inv;
         let w = st.rear_w + K * nu;
         Ok((w, joseph(&K, &st.p_rear_w, &p_front)))
+    }
+
+    /// The front increment with its heading change from the front pair's
+    /// distances, not the steering: a rear axle that slipped this window —
+    /// locked under hard braking, most often — lets the car yaw on its own
+    /// while the driver counter-steers, so the steering geometry turns the
+    /// wrong way (on the multi-body BMW the steering said +0.44° where the car
+    /// turned −0.76° in a quarter second; the front pair said −0.90°). The
+    /// chord keeps its length and points half the turn.
+    fn front_pair_turn(&self, st: &State) -> Vec3 {
+        if !self.cfg.rejected_front_from_pair {
+            return st.front_w;
+        }
+        let [rl, rr, fl, fr] = st.wheel_sum_m;
+        // The pair's difference over the sum of its distance factors (exact
+        // on an arc, as FrontHeading::WheelDifference), at the window's mean
+        // steering: near 1 each at the small angles of a slip at speed.
+        let d_rear = 0.5 * (rl + rr);
+        let tan_phi = if d_rear.abs() > 1e-9 {
+            st.steer_turn_sum_m / d_rear
+        } else {
+            0.0
+        };
+        let [_, _, g_fl, g_fr] = distance_factors(&self.k, tan_phi);
+        let turn = (fr - fl) * (g_fl + g_fr) * self.k.inv_two_front_tread;
+        let chord = st.front_w.x.hypot(st.front_w.y).copysign(st.front_w.x);
+        let (s, c) = (0.5 * turn).sin_cos();
+        Vec3::new(chord * c, chord * s, turn)
     }
 
     /// Each wheel's implied centre distance over the window (in
