@@ -98,8 +98,10 @@ pub const PLATFORMS: &[Platform] = &[
             "honda_civic",
             "civic",
             "honda_civic_touring_2016_can",
+            "honda_bosch",
+            "honda_civic_hatchback_ex_2017_can",
         ],
-        cars: "Honda Civic 2016-18 and other Nidec Hondas with this bus",
+        cars: "Honda Civic 2016-21 (Nidec, and Bosch hatchback: the same messages) and other Hondas with this bus",
         provides: "WHEEL_SPEEDS (4 kph magnitudes) signed by GEARBOX_AUTO gear, STEERING_SENSORS angle; Honda checksums and counter",
         dbc_file: "opendbc_honda_civic_touring_2016_can.dbc",
         dbc_text: include_str!("../../../data/dbc/opendbc_honda_civic_touring_2016_can.dbc"),
@@ -533,6 +535,8 @@ mod tests {
             ("VW MQB", "vw_mqb"),
             ("opendbc_vw_mqb.dbc", "vw_mqb"),
             ("Acura", "honda"),
+            ("honda_civic_hatchback_ex_2017_can_generated", "honda"),
+            ("Honda Bosch", "honda"),
         ] {
             assert_eq!(
                 platform(name).map(|p| p.name),
