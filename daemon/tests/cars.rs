@@ -96,7 +96,28 @@ fn wrong_vw_configurations_are_diagnosed() {
             summary.warnings
         );
         assert!(summary.diagnosis.is_some());
+        // The pipeline `run` publishes from sets ODOM_QUALITY's
+        // INPUT_IMPLAUSIBLE (bit 8 of the quality column) from the first
+        // warning on.
+        let rows = csv_rows(&String::from_utf8(csv).unwrap());
+        let quality = |r: &Vec<f64>| *r.last().unwrap() as u16;
+        let first = rows.iter().position(|r| quality(r) & 0x100 != 0);
+        assert!(first.is_some(), "{what}: INPUT_IMPLAUSIBLE never set");
+        assert!(
+            rows[first.unwrap()..]
+                .iter()
+                .all(|r| quality(r) & 0x100 != 0),
+            "{what}: INPUT_IMPLAUSIBLE cleared"
+        );
     }
+    // The right configuration never sets it.
+    let mut csv = Vec::new();
+    replay(&right, &log[..], &mut csv, &mut std::io::sink()).unwrap();
+    let rows = csv_rows(&String::from_utf8(csv).unwrap());
+    assert!(
+        rows.iter()
+            .all(|r| (*r.last().unwrap() as u16) & 0x100 == 0)
+    );
 }
 
 /// The VW Golf 7: steering and yaw rate as magnitude + sign bit, VW
