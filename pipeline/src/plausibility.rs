@@ -322,7 +322,9 @@ impl Plausibility {
             });
         }
         let wheel_faults = stats.get(Reject::WheelFault);
-        if !self.judged_stats[2] && stats.steps >= 100 && share(wheel_faults, stats.steps) > FAULT_SHARE
+        if !self.judged_stats[2]
+            && stats.steps >= 100
+            && share(wheel_faults, stats.steps) > FAULT_SHARE
         {
             self.judged_stats[2] = true;
             self.warnings.push(Warning {

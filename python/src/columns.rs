@@ -7,8 +7,8 @@ use arrow_array::builder::{
     BinaryBuilder, BooleanBuilder, Float64Builder, StringBuilder, UInt32Builder,
 };
 use arrow_array::{
-    ArrayRef, Decimal128Array, Float64Array, Int64Array, RecordBatch, StringArray, UInt16Array, UInt8Array,
-    UInt64Array,
+    ArrayRef, Decimal128Array, Float64Array, Int64Array, RecordBatch, StringArray, UInt8Array,
+    UInt16Array, UInt64Array,
 };
 use arrow_schema::{DataType, Field, Schema, SchemaRef};
 use canodom_can::candump::ReadError;
@@ -368,7 +368,9 @@ pub fn replay(
     // ODOM_QUALITY's nine flags: INPUT_IMPLAUSIBLE is bit 8.
     fields.push(Field::new("quality", DataType::UInt16, false));
     arrays.push(Arc::new(
-        rows.iter().map(|r| Some(r.quality)).collect::<UInt16Array>(),
+        rows.iter()
+            .map(|r| Some(r.quality))
+            .collect::<UInt16Array>(),
     ));
     let stats = &summary.stats;
     let mut rejects = serde_json::Map::new();
