@@ -9,8 +9,8 @@
 //! a sustained sign disagreement, or a magnitude far from the wheels', is a
 //! warning naming the signal and the suspicion. Pure: no clock, no I/O.
 
-use crate::pipeline::Step;
 use crate::stats::{Reject, Stats};
+use crate::step::Step;
 use canodom_fusion::SteeringMap;
 use std::fmt;
 
