@@ -178,3 +178,73 @@ fn honda_drives_fuse_no_worse_than_rear_only() {
         );
     }
 }
+
+/// README explains every statistics counter and every bit of the `quality`
+/// column (#32: they were explained nowhere), in the order `bits()` uses.
+#[test]
+fn readme_explains_every_counter_and_quality_bit() {
+    use canodom_pipeline::pipeline::PoseFlags;
+    let readme =
+        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../README.md")).unwrap();
+    for r in Reject::ALL {
+        assert!(
+            readme.contains(&format!("| `{}` |", r.as_str())),
+            "README does not explain the counter {}",
+            r.as_str()
+        );
+    }
+    for name in [
+        "frames",
+        "used",
+        "steps",
+        "steps_without_front",
+        "yaw_over_rear",
+        "yaw_refused",
+    ] {
+        assert!(readme.contains(&format!("| `{name}` |")), "{name}");
+    }
+    let one = |k: usize| {
+        let mut f = PoseFlags::default();
+        let flag = [
+            &mut f.pose_valid,
+            &mut f.rear_stale,
+            &mut f.front_stale,
+            &mut f.steer_stale,
+            &mut f.counter_fault,
+            &mut f.checksum_fault,
+            &mut f.gate_reject,
+            &mut f.nominal_params,
+            &mut f.input_implausible,
+        ];
+        *flag.into_iter().nth(k).unwrap() = true;
+        f
+    };
+    let names = [
+        "POSE_VALID",
+        "REAR_STALE",
+        "FRONT_STALE",
+        "STEER_STALE",
+        "COUNTER_FAULT",
+        "CHECKSUM_FAULT",
+        "GATE_REJECT",
+        "NOMINAL_PARAMS",
+        "INPUT_IMPLAUSIBLE",
+    ];
+    for (k, name) in names.iter().enumerate() {
+        assert_eq!(one(k).bits(), 1 << k, "{name}");
+        let row = format!("| {k} | {} | `{name}` |", 1 << k);
+        assert!(readme.contains(&row), "README lacks {row}");
+    }
+    // Every one-bit flag of ODOM_QUALITY in canodom.dbc is among them.
+    let dbc = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../protocol/dbc/canodom.dbc"
+    ))
+    .unwrap();
+    let block = dbc.split("BO_ 1538 ODOM_QUALITY").nth(1).unwrap();
+    let block = block.split("\n\n").next().unwrap();
+    for line in block.lines().filter(|l| l.contains("|1@1+")) {
+        let name = line.split_whitespace().nth(1).unwrap();
+        assert!(names.contains(&name), "{name} is not in the quality column");
+    }
+}
