@@ -248,3 +248,29 @@ fn readme_explains_every_counter_and_quality_bit() {
         assert!(names.contains(&name), "{name} is not in the quality column");
     }
 }
+
+/// README promises toyota.toml a yaw-rate sensor (#32: it had none): the
+/// line is there, and uncommented it loads with the yaw rate configured.
+#[test]
+fn the_toyota_example_carries_the_yaw_rate_the_readme_promises() {
+    let readme = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../README.md"))
+        .unwrap()
+        .replace('\n', " ");
+    let promise = readme
+        .split("`daemon/examples/toyota.toml` (")
+        .nth(1)
+        .unwrap();
+    assert!(
+        promise
+            .split(')')
+            .next()
+            .unwrap()
+            .contains("yaw-rate sensor")
+    );
+    let path = example("toyota.toml");
+    let text = std::fs::read_to_string(&path).unwrap();
+    assert!(text.contains("# yaw_rate = \"KINEMATICS.YAW_RATE\""));
+    let on = text.replace("# yaw_rate = ", "yaw_rate = ");
+    let config = Config::from_toml(&on, &path).unwrap();
+    assert!(config.signals.yaw_rate.is_some());
+}
