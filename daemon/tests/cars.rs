@@ -274,3 +274,38 @@ fn the_toyota_example_carries_the_yaw_rate_the_readme_promises() {
     let config = Config::from_toml(&on, &path).unwrap();
     assert!(config.signals.yaw_rate.is_some());
 }
+
+/// With speed signals `vehicle.wheel_diameter_m` may be left out (#32: it
+/// was required and unused): the pose is the same, the diameter a 0.65 m
+/// reference.
+#[test]
+fn speed_sensors_need_no_wheel_diameter() {
+    let path = example("toyota.toml");
+    let text = std::fs::read_to_string(&path).unwrap();
+    let line = text
+        .lines()
+        .find(|l| l.starts_with("wheel_diameter_m"))
+        .unwrap();
+    let without = Config::from_toml(&text.replace(line, ""), &path).unwrap();
+    assert_eq!(
+        without
+            .params
+            .wheel_diameter_m(canodom_fusion::Wheel::RearLeft),
+        canodom_pipeline::config::SPEED_SENSOR_REFERENCE_DIAMETER_M
+    );
+    // Any stated diameter gives the same pose: speeds are distances already
+    // (0.80 m, not the 0.65 m reference, so the comparison can fail).
+    let with = Config::from_toml(&text.replace(line, "wheel_diameter_m = 0.80"), &path).unwrap();
+    let (log, _) = simulated_log(&with, PathKind::FullSize, 0);
+    let end = |c: &Config| {
+        let mut csv = Vec::new();
+        replay(c, &log[..], &mut csv, &mut std::io::sink()).unwrap();
+        let rows = csv_rows(&String::from_utf8(csv).unwrap());
+        let last = rows.last().unwrap().clone();
+        (last[1], last[2], last[4], last[5])
+    };
+    let (a, b) = (end(&with), end(&without));
+    for (x, y) in [(a.0, b.0), (a.1, b.1), (a.2, b.2), (a.3, b.3)] {
+        assert!((x - y).abs() < 1e-9, "{a:?} vs {b:?}");
+    }
+}
