@@ -187,4 +187,7 @@ diff_tests! {
     opendbc_tesla_model3_party => "opendbc_tesla_model3_party.dbc",
     opendbc_toyota_2017 => "opendbc_toyota_2017.dbc",
     opendbc_vw_mqb => "opendbc_vw_mqb.dbc",
+    opendbc_hyundai_canfd => "opendbc_hyundai_canfd.dbc",
+    opendbc_nissan_x_trail_2017 => "opendbc_nissan_x_trail_2017.dbc",
+    opendbc_subaru_global_2017 => "opendbc_subaru_global_2017.dbc",
 }

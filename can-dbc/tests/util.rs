@@ -21,8 +21,18 @@ pub fn all_shared_dbcs() -> Vec<String> {
 
 /// Shared DBC files cantools refuses to load, so nothing to compare with:
 /// opendbc's generated Honda file has a `CM_ SG_` comment without a signal
-/// name (cantools 40: "Invalid syntax at line 211").
-pub const CANTOOLS_CANNOT_LOAD: [&str; 1] = ["opendbc_honda_civic_touring_2016_can.dbc"];
+/// name (cantools 40: "Invalid syntax at line 211"); Chrysler CUSW 29-bit
+/// ids without the extended flag; GM VAL_ entries for signals no message
+/// has; Hyundai/Kia a `CM_ 145 "..."` without an object kind; Mazda a
+/// message name starting with a digit; PSA a signal name starting with one.
+pub const CANTOOLS_CANNOT_LOAD: [&str; 6] = [
+    "opendbc_honda_civic_touring_2016_can.dbc",
+    "opendbc_chrysler_cusw.dbc",
+    "opendbc_gm_global_a_powertrain.dbc",
+    "opendbc_hyundai_kia_generic.dbc",
+    "opendbc_mazda_2017.dbc",
+    "opendbc_psa_aee2010_r3.dbc",
+];
 
 /// FNV-1a 64 of a string: the per-message seed (same as gen_vectors.py).
 pub fn fnv1a64(text: &str) -> u64 {

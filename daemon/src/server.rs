@@ -342,6 +342,7 @@ pub async fn run<C: Connector>(
         observers,
         published: 0,
         lost: 0,
+        plausibility_logged: 0,
         link_lost: lost_tx,
         outages: Arc::clone(&outages),
         connections: Arc::clone(&connections),
@@ -750,6 +751,9 @@ struct OdometryTask<Tx> {
     observers: Observers,
     published: u64,
     lost: u64,
+    /// Plausibility warnings already logged (#32): each is logged once, at
+    /// the pose sample whose ODOM_QUALITY first says INPUT_IMPLAUSIBLE.
+    plausibility_logged: usize,
     /// Tells the link task of a link loss a send met (see [`BusError::is_link_loss`]).
     link_lost: mpsc::Sender<BusError>,
     outages: Arc<AtomicU64>,
@@ -1041,6 +1045,16 @@ impl<Tx: FrameSink + Clone> OdometryTask<Tx> {
     async fn publish(&mut self) {
         let Some(now) = self.now() else { return };
         let pose = self.pipeline.pose_output(now);
+        let warnings = self.pipeline.plausibility_warnings();
+        for w in warnings.iter().skip(self.plausibility_logged) {
+            warn!(
+                signal = w.signal,
+                suspect = %w.suspicion,
+                flag = "ODOM_QUALITY.INPUT_IMPLAUSIBLE",
+                "implausible input: {w}"
+            );
+        }
+        self.plausibility_logged = warnings.len();
         if let Some(tap) = &mut self.observers.tap {
             tap.pose(&self.pipeline, pose, self.links.phase.borrow().as_str());
         }

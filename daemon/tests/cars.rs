@@ -96,7 +96,28 @@ fn wrong_vw_configurations_are_diagnosed() {
             summary.warnings
         );
         assert!(summary.diagnosis.is_some());
+        // The pipeline `run` publishes from sets ODOM_QUALITY's
+        // INPUT_IMPLAUSIBLE (bit 8 of the quality column) from the first
+        // warning on.
+        let rows = csv_rows(&String::from_utf8(csv).unwrap());
+        let quality = |r: &Vec<f64>| *r.last().unwrap() as u16;
+        let first = rows.iter().position(|r| quality(r) & 0x100 != 0);
+        assert!(first.is_some(), "{what}: INPUT_IMPLAUSIBLE never set");
+        assert!(
+            rows[first.unwrap()..]
+                .iter()
+                .all(|r| quality(r) & 0x100 != 0),
+            "{what}: INPUT_IMPLAUSIBLE cleared"
+        );
     }
+    // The right configuration never sets it.
+    let mut csv = Vec::new();
+    replay(&right, &log[..], &mut csv, &mut std::io::sink()).unwrap();
+    let rows = csv_rows(&String::from_utf8(csv).unwrap());
+    assert!(
+        rows.iter()
+            .all(|r| (*r.last().unwrap() as u16) & 0x100 == 0)
+    );
 }
 
 /// The VW Golf 7: steering and yaw rate as magnitude + sign bit, VW
@@ -155,5 +176,136 @@ fn honda_drives_fuse_no_worse_than_rear_only() {
             fused <= 0.01 * distance_m,
             "{path:?} seed {seed}: {fused} of {distance_m}"
         );
+    }
+}
+
+/// README explains every statistics counter and every bit of the `quality`
+/// column (#32: they were explained nowhere), in the order `bits()` uses.
+#[test]
+fn readme_explains_every_counter_and_quality_bit() {
+    use canodom_pipeline::pipeline::PoseFlags;
+    let readme =
+        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../README.md")).unwrap();
+    for r in Reject::ALL {
+        assert!(
+            readme.contains(&format!("| `{}` |", r.as_str())),
+            "README does not explain the counter {}",
+            r.as_str()
+        );
+    }
+    for name in [
+        "frames",
+        "used",
+        "steps",
+        "steps_without_front",
+        "yaw_over_rear",
+        "yaw_refused",
+    ] {
+        assert!(readme.contains(&format!("| `{name}` |")), "{name}");
+    }
+    let one = |k: usize| {
+        let mut f = PoseFlags::default();
+        let flag = [
+            &mut f.pose_valid,
+            &mut f.rear_stale,
+            &mut f.front_stale,
+            &mut f.steer_stale,
+            &mut f.counter_fault,
+            &mut f.checksum_fault,
+            &mut f.gate_reject,
+            &mut f.nominal_params,
+            &mut f.input_implausible,
+        ];
+        *flag.into_iter().nth(k).unwrap() = true;
+        f
+    };
+    let names = [
+        "POSE_VALID",
+        "REAR_STALE",
+        "FRONT_STALE",
+        "STEER_STALE",
+        "COUNTER_FAULT",
+        "CHECKSUM_FAULT",
+        "GATE_REJECT",
+        "NOMINAL_PARAMS",
+        "INPUT_IMPLAUSIBLE",
+    ];
+    for (k, name) in names.iter().enumerate() {
+        assert_eq!(one(k).bits(), 1 << k, "{name}");
+        let row = format!("| {k} | {} | `{name}` |", 1 << k);
+        assert!(readme.contains(&row), "README lacks {row}");
+    }
+    // Every one-bit flag of ODOM_QUALITY in canodom.dbc is among them.
+    let dbc = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../protocol/dbc/canodom.dbc"
+    ))
+    .unwrap();
+    let block = dbc.split("BO_ 1538 ODOM_QUALITY").nth(1).unwrap();
+    let block = block.split("\n\n").next().unwrap();
+    for line in block.lines().filter(|l| l.contains("|1@1+")) {
+        let name = line.split_whitespace().nth(1).unwrap();
+        assert!(names.contains(&name), "{name} is not in the quality column");
+    }
+}
+
+/// README promises toyota.toml a yaw-rate sensor (#32: it had none): the
+/// line is there, and uncommented it loads with the yaw rate configured.
+#[test]
+fn the_toyota_example_carries_the_yaw_rate_the_readme_promises() {
+    let readme = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../README.md"))
+        .unwrap()
+        .replace('\n', " ");
+    let promise = readme
+        .split("`daemon/examples/toyota.toml` (")
+        .nth(1)
+        .unwrap();
+    assert!(
+        promise
+            .split(')')
+            .next()
+            .unwrap()
+            .contains("yaw-rate sensor")
+    );
+    let path = example("toyota.toml");
+    let text = std::fs::read_to_string(&path).unwrap();
+    assert!(text.contains("# yaw_rate = \"KINEMATICS.YAW_RATE\""));
+    let on = text.replace("# yaw_rate = ", "yaw_rate = ");
+    let config = Config::from_toml(&on, &path).unwrap();
+    assert!(config.signals.yaw_rate.is_some());
+}
+
+/// With speed signals `vehicle.wheel_diameter_m` may be left out (#32: it
+/// was required and unused): the pose is the same, the diameter a 0.65 m
+/// reference.
+#[test]
+fn speed_sensors_need_no_wheel_diameter() {
+    let path = example("toyota.toml");
+    let text = std::fs::read_to_string(&path).unwrap();
+    let line = text
+        .lines()
+        .find(|l| l.starts_with("wheel_diameter_m"))
+        .unwrap();
+    let without = Config::from_toml(&text.replace(line, ""), &path).unwrap();
+    assert_eq!(
+        without
+            .params
+            .wheel_diameter_m(canodom_fusion::Wheel::RearLeft),
+        canodom_pipeline::config::SPEED_SENSOR_REFERENCE_DIAMETER_M
+    );
+    // Any stated diameter gives the same pose: speeds are distances already
+    // (0.80 m, not the 0.65 m reference, so the comparison can fail).
+    let with = Config::from_toml(&text.replace(line, "wheel_diameter_m = 0.80"), &path).unwrap();
+    let (log, _) = simulated_log(&with, PathKind::FullSize, 0);
+    let end = |c: &Config| {
+        let mut csv = Vec::new();
+        replay(c, &log[..], &mut csv, &mut std::io::sink()).unwrap();
+        let rows = csv_rows(&String::from_utf8(csv).unwrap());
+        let last = rows.last().unwrap().clone();
+        (last[1], last[2], last[4], last[5])
+    };
+    let (a, b) = (end(&with), end(&without));
+    for (x, y) in [(a.0, b.0), (a.1, b.1), (a.2, b.2), (a.3, b.3)] {
+        assert!((x - y).abs() < 1e-9, "{a:?} vs {b:?}");
     }
 }

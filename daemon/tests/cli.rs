@@ -494,3 +494,50 @@ fn replay_strict_refuses_and_a_used_left_out_message_is_named() {
         "{err}"
     );
 }
+
+/// A replay that fails leaves no header-only file behind (#32), and never
+/// touches a device given as --out.
+#[test]
+fn a_failed_replay_leaves_no_output_file() {
+    let dir = tmp_dir("failed-replay-out");
+    let cfg = rc_car_toml();
+    let c = cfg.to_str().unwrap();
+    // Frames, but none of an id the configuration reads: the replay fails
+    // after the CSV header was written.
+    let log = dir.join("other-car.log");
+    std::fs::write(
+        &log,
+        "(1700000000.000100) can0 7FF#0102030405060708\n\
+         (1700000000.010100) can0 7FF#0102030405060708\n",
+    )
+    .unwrap();
+    let out_path = dir.join("pose.csv");
+    let out = canodom(&[
+        "replay",
+        "--config",
+        c,
+        log.to_str().unwrap(),
+        "--out",
+        out_path.to_str().unwrap(),
+    ]);
+    let se = String::from_utf8(out.stderr).unwrap();
+    assert!(!out.status.success(), "{se}");
+    assert!(se.contains("none of its 2 frames"), "{se}");
+    assert!(
+        !out_path.exists(),
+        "a failed replay left {}",
+        out_path.display()
+    );
+    assert!(se.contains("removed: the replay failed"), "{se}");
+    // /dev/null is not a regular file: left alone.
+    let out = canodom(&[
+        "replay",
+        "--config",
+        c,
+        log.to_str().unwrap(),
+        "--out",
+        "/dev/null",
+    ]);
+    assert!(!out.status.success());
+    assert!(std::path::Path::new("/dev/null").exists());
+}

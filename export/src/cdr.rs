@@ -49,7 +49,8 @@ pub fn quality_schema() -> String {
     "# ODOM_QUALITY of the pose sample at a filter step, and the pipeline's counts so far.\n\
      bool pose_valid\nbool rear_stale\nbool front_stale\nbool steer_stale\n\
      bool counter_fault\nbool checksum_fault\nbool gate_reject\nbool nominal_params\n\
-     uint8 quality # the flags as ODOM_QUALITY's bits, POSE_VALID in bit 0\n\
+     bool input_implausible\n\
+     uint16 quality # the flags as ODOM_QUALITY's bits, POSE_VALID in bit 0, INPUT_IMPLAUSIBLE in bit 8\n\
      float64 speed_mps\nfloat64 yaw_rate_radps\nfloat64 pos_std_m\nfloat64 heading_std_rad\n\
      uint64 frames\nuint64 used\nuint64 steps\nuint64 steps_without_front\n\
      uint64 gate_kept_rear\nuint64 gate_used_front\n"

@@ -379,7 +379,7 @@ fn quality_cdr(s: &StepSample, out: &mut Vec<u8>) {
     for on in f.in_order() {
         w.u8(u8::from(on));
     }
-    w.u8(f.bits());
+    w.u16(f.bits());
     w.f64s(&[
         s.output.speed_mps,
         s.output.yaw_rate_radps,

@@ -215,7 +215,7 @@ pub struct ReplayRow {
     pub sample: [f64; 3],
     /// The pose sample's flags ([`canodom_protocol::pose_frames::PoseFlags::bits`]):
     /// `quality`, its bit 0 `pose_valid`.
-    pub quality: u8,
+    pub quality: u16,
 }
 
 /// Appends `rows` to `text` as CSV lines.
@@ -234,7 +234,7 @@ fn push_rows(text: &mut Vec<u8>, rows: &[ReplayRow]) {
             push_f64(text, v);
         }
         text.push(b',');
-        text.push(b'0' + (row.quality & 1));
+        text.push(if row.quality & 1 == 1 { b'1' } else { b'0' });
         text.push(b',');
         text.extend_from_slice(itoa::Buffer::new().format(row.quality).as_bytes());
         text.push(b'\n');

@@ -147,13 +147,19 @@ struct RawCan {
     dbc: PathBuf,
 }
 
+/// The wheel diameter a configuration with speed signals and no
+/// `vehicle.wheel_diameter_m` uses, metres: a typical road car's. With
+/// speeds it only scales revolutions and is what a calibrated diameter is
+/// relative to; distances do not depend on it.
+pub const SPEED_SENSOR_REFERENCE_DIAMETER_M: f64 = 0.65;
+
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct RawVehicle {
     wheelbase_m: f64,
     rear_tread_m: f64,
     front_tread_m: f64,
-    wheel_diameter_m: f64,
+    wheel_diameter_m: Option<f64>,
     rear_left_diameter_m: Option<f64>,
     rear_right_diameter_m: Option<f64>,
     front_left_diameter_m: Option<f64>,
@@ -1122,7 +1128,20 @@ impl Validator<'_> {
         let wheelbase_m = self.positive("vehicle.wheelbase_m", v.wheelbase_m)?;
         let rear_tread_m = self.positive("vehicle.rear_tread_m", v.rear_tread_m)?;
         let front_tread_m = self.positive("vehicle.front_tread_m", v.front_tread_m)?;
-        let nominal = self.positive("vehicle.wheel_diameter_m", v.wheel_diameter_m)?;
+        let nominal = match (wheel_kind, v.wheel_diameter_m) {
+            (_, Some(d)) => self.positive("vehicle.wheel_diameter_m", d)?,
+            (WheelKind::Ticks, None) => {
+                return Err(self.err(
+                    "vehicle.wheel_diameter_m",
+                    "the wheels' diameter in metres (tick encoders count revolutions)",
+                    "nothing",
+                ));
+            }
+            // Speed signals are distances already: the diameter is only the
+            // reference the calibration's speed scale multiplies (a
+            // calibrated 0.6532 m is a 0.49 % scale on this 0.65 m).
+            (WheelKind::Speed(_), None) => SPEED_SENSOR_REFERENCE_DIAMETER_M,
+        };
         let diameter = |key: &str, o: Option<f64>| match o {
             Some(d) => self.positive(key, d),
             None => Ok(nominal),
@@ -1841,6 +1860,14 @@ algorithm = "crc8_sae_j1850"
         let s = invalid(&RC_CAR.replace("wheel_kind = \"ticks\"\n", ""));
         assert!(
             s.contains("signals.wheel_kind") && s.contains("\"speed\"") && s.contains("nothing"),
+            "{s}"
+        );
+        // Tick encoders need the diameter (speed signals do not: the daemon's
+        // config_errors test loads the Toyota example without it).
+        assert!(RC_CAR.contains("wheel_diameter_m = 0.09\n"));
+        let s = invalid(&RC_CAR.replace("wheel_diameter_m = 0.09\n", ""));
+        assert!(
+            s.contains("vehicle.wheel_diameter_m") && s.contains("tick encoders count revolutions"),
             "{s}"
         );
         let s = invalid(&RC_CAR.replace("steering_kind = \"road_wheel\"\n", ""));

@@ -11,6 +11,7 @@
 //! - [`param_set`]: the identity of the parameter set in use, and which learnt
 //!   values a new set resets.
 //! - [`signal_forms`]: a quantity's signals: magnitude and sign, sums, units, the reversing signal.
+//! - [`step`]: one filter step, what every consumer of the pipeline gets.
 //! - [`plausibility`]: run-time checks that name a confidently wrong signal (sign, unit, algorithm, kind).
 //! - [`stats`]: reject reasons and counters.
 //! - [`security`]: `[security]`: the SecOC key, freshness files and lockout, validated.
@@ -24,3 +25,4 @@ pub mod plausibility;
 pub mod security;
 pub mod signal_forms;
 pub mod stats;
+pub mod step;

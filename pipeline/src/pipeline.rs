@@ -28,6 +28,7 @@
 
 use crate::config::{Config, InputsConfig, WheelKind};
 use crate::param_set;
+use crate::plausibility::{Plausibility, Warning};
 use crate::signal_forms::{DirectionSignal, SignalForm};
 use crate::stats::{Reasons, Reject, Stats};
 use canodom_can::frame::{CanFrame, FrameKind};
@@ -47,31 +48,7 @@ use canodom_fusion::wheel::{
 };
 use canodom_fusion::{Pose, SteeringMap, VehicleParams, Wheel, WheelSet};
 
-/// One filter step: the row `replay` writes.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Step {
-    /// Seconds since the first input frame.
-    pub t_s: f64,
-    /// The same time in whole microseconds, as the timestamps count it
-    /// (`t_s` is this divided by 10⁶): exact, for writing it as text.
-    pub t_us: i64,
-    /// The fused pose (heading unwrapped: total turn).
-    pub fused: Pose,
-    /// Rear-wheel-only odometry (heading unwrapped).
-    pub odometry: Pose,
-    /// Rear (left, right) wheel revolutions of this step, with the diameters
-    /// in use: what the calibration session records.
-    pub rear_rev: (f64, f64),
-    /// The latest steering signal `u` as the vehicle reports it (before the
-    /// steering map), if any arrived yet.
-    pub steer_signal: Option<f64>,
-    /// What the filter's correction window did at this step
-    /// ([`WindowOutcome::Open`] when the step did not close one).
-    pub correction: WindowOutcome,
-    /// The yaw rate the step used (rad/s, left positive, scale corrected,
-    /// bias not removed); `None` without a fresh yaw-rate sensor.
-    pub yaw_rate_radps: Option<f64>,
-}
+pub use crate::step::Step;
 
 /// What [`Pipeline::push`] did with one frame: the caller learns from the
 /// answer what it would otherwise have to work out by comparing the
@@ -254,6 +231,9 @@ pub struct Pipeline {
     yaw_rate_radps: f64,
     latched: PoseFlags,
     stats: Stats,
+    /// The run-time plausibility checks (#32): fed every step, judged on the
+    /// statistics at every pose sample; any warning sets INPUT_IMPLAUSIBLE.
+    plausibility: Plausibility,
     /// The parameters the wheel decoders were built with (the configured
     /// nominal ones): decoded distances are in these units.
     decoder_params: VehicleParams,
@@ -424,6 +404,7 @@ impl Pipeline {
             yaw_rate_radps: 0.0,
             latched: PoseFlags::default(),
             stats: Stats::default(),
+            plausibility: Plausibility::new(params.wheelbase_m(), params.steering()),
             decoder_params: params,
             rear_scale: (1.0, 1.0),
             param_version: None,
@@ -559,6 +540,12 @@ impl Pipeline {
     /// The filter state (bit-for-bit comparisons between commands).
     pub fn state(&self) -> &State {
         &self.states[self.current]
+    }
+
+    /// Every plausibility warning so far (#32), oldest first: `run` logs
+    /// each once, and ODOM_QUALITY.INPUT_IMPLAUSIBLE is 1 from the first.
+    pub fn plausibility_warnings(&self) -> &[Warning] {
+        self.plausibility.warnings()
     }
 
     /// The last filter step, if any.
@@ -870,6 +857,7 @@ impl Pipeline {
             yaw_rate_radps: input.yaw_rate_radps,
         };
         self.last_step = Some(step);
+        self.plausibility.push(&step);
         Outcome::Step(step, reasons)
     }
 
@@ -885,6 +873,8 @@ impl Pipeline {
     pub fn pose_output(&mut self, now: Timestamp) -> PoseOutput {
         let now_us = now.as_micros();
         let rear_fresh = self.role_fresh(now_us, |i| i.rear);
+        self.plausibility
+            .judge_stats(&self.stats, self.last_step.map_or(0.0, |s| s.t_s));
         let flags = PoseFlags {
             pose_valid: rear_fresh,
             rear_stale: !rear_fresh,
@@ -894,6 +884,7 @@ impl Pipeline {
             checksum_fault: self.latched.checksum_fault,
             gate_reject: self.latched.gate_reject,
             nominal_params: self.param_version.is_none(),
+            input_implausible: !self.plausibility.warnings().is_empty(),
         };
         self.latched = PoseFlags::default();
         let state = &self.states[self.current];

@@ -9,8 +9,8 @@
 //! a sustained sign disagreement, or a magnitude far from the wheels', is a
 //! warning naming the signal and the suspicion. Pure: no clock, no I/O.
 
-use crate::pipeline::Step;
 use crate::stats::{Reject, Stats};
+use crate::step::Step;
 use canodom_fusion::SteeringMap;
 use std::fmt;
 
@@ -56,15 +56,17 @@ impl fmt::Display for Suspicion {
 }
 
 /// One warning: the signal, the suspicion, the ODOM_QUALITY flag the fault
-/// shows in (if any: the detector sets no bit of its own; ODOM_QUALITY has
-/// none spare for it yet), and the evidence in words.
+/// also shows in (if any), and the evidence in words. Every warning sets
+/// ODOM_QUALITY.INPUT_IMPLAUSIBLE (the pipeline's pose samples, from the
+/// first warning on).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Warning {
     /// The configuration key of the signal at fault (`signals.steering`).
     pub signal: &'static str,
     /// What is suspected.
     pub suspicion: Suspicion,
-    /// The ODOM_QUALITY flag that shows it, when one does.
+    /// Another ODOM_QUALITY flag that shows it, when one does (beside
+    /// INPUT_IMPLAUSIBLE, which every warning sets).
     pub flag: Option<&'static str>,
     /// The evidence and the way out.
     pub message: String,
@@ -79,10 +81,11 @@ impl fmt::Display for Warning {
             "{}: suspect the {} (at t={:.1} s): {}",
             self.signal, self.suspicion, self.t_s, self.message
         )?;
+        write!(f, " [ODOM_QUALITY.INPUT_IMPLAUSIBLE")?;
         if let Some(flag) = self.flag {
-            write!(f, " [ODOM_QUALITY.{flag}]")?;
+            write!(f, ", also {flag}")?;
         }
-        Ok(())
+        write!(f, "]")
     }
 }
 
@@ -142,6 +145,9 @@ pub struct Plausibility {
     warnings: Vec<Warning>,
     judged_steer: bool,
     judged_yaw: bool,
+    /// Checksum, counter and wheel-fault shares already warned of: judged
+    /// again at every pose sample in `run`, each warns once.
+    judged_stats: [bool; 3],
 }
 
 impl Plausibility {
@@ -156,6 +162,7 @@ impl Plausibility {
             warnings: Vec::new(),
             judged_steer: false,
             judged_yaw: false,
+            judged_stats: [false; 3],
         }
     }
 
@@ -276,8 +283,8 @@ impl Plausibility {
         }
     }
 
-    /// Judges the statistics of a whole run (or of a statistics period):
-    /// checksum, counter and wheel-fault shares.
+    /// Judges the statistics of the run so far: checksum, counter and
+    /// wheel-fault shares; each kind warns once.
     pub fn judge_stats(&mut self, stats: &Stats, t_s: f64) {
         let input_frames = stats.frames.saturating_sub(stats.get(Reject::UnknownId));
         if input_frames < 100 {
@@ -285,7 +292,8 @@ impl Plausibility {
         }
         let share = |n: u64, of: u64| n as f64 / of.max(1) as f64;
         let bad_checksum = stats.get(Reject::BadChecksum);
-        if share(bad_checksum, input_frames) > FAULT_SHARE {
+        if !self.judged_stats[0] && share(bad_checksum, input_frames) > FAULT_SHARE {
+            self.judged_stats[0] = true;
             self.warnings.push(Warning {
                 signal: "checks",
                 suspicion: Suspicion::Algorithm,
@@ -299,7 +307,8 @@ impl Plausibility {
             });
         }
         let bad_counter = stats.get(Reject::BadCounter);
-        if share(bad_counter, input_frames) > FAULT_SHARE {
+        if !self.judged_stats[1] && share(bad_counter, input_frames) > FAULT_SHARE {
+            self.judged_stats[1] = true;
             self.warnings.push(Warning {
                 signal: "checks",
                 suspicion: Suspicion::Algorithm,
@@ -313,7 +322,11 @@ impl Plausibility {
             });
         }
         let wheel_faults = stats.get(Reject::WheelFault);
-        if stats.steps >= 100 && share(wheel_faults, stats.steps) > FAULT_SHARE {
+        if !self.judged_stats[2]
+            && stats.steps >= 100
+            && share(wheel_faults, stats.steps) > FAULT_SHARE
+        {
+            self.judged_stats[2] = true;
             self.warnings.push(Warning {
                 signal: "signals.wheel_kind",
                 suspicion: Suspicion::Kind,
@@ -504,5 +517,13 @@ mod tests {
             (w.suspicion, w.flag),
             (Suspicion::Algorithm, Some("CHECKSUM_FAULT"))
         );
+        assert!(
+            w.to_string()
+                .ends_with("[ODOM_QUALITY.INPUT_IMPLAUSIBLE, also CHECKSUM_FAULT]"),
+            "{w}"
+        );
+        // Judged at every pose sample in `run`: warned once.
+        p.judge_stats(&stats, 3.0);
+        assert_eq!(p.warnings().len(), 1);
     }
 }

@@ -21,7 +21,7 @@ pub struct PoseEncoder {
     yaw_rate: SignalHandle,
     pos_std: SignalHandle,
     heading_std: SignalHandle,
-    flags: [SignalHandle; 8],
+    flags: [SignalHandle; 9],
     version: SignalHandle,
     counters: [SignalHandle; 3],
     crc: Checksum,
@@ -79,6 +79,7 @@ impl PoseEncoder {
                 s("ODOM_QUALITY.CHECKSUM_FAULT")?,
                 s("ODOM_QUALITY.GATE_REJECT")?,
                 s("ODOM_QUALITY.NOMINAL_PARAMS")?,
+                s("ODOM_QUALITY.INPUT_IMPLAUSIBLE")?,
             ],
             version: s("ODOM_QUALITY.PARAM_VERSION")?,
             counters: [
@@ -118,7 +119,9 @@ impl PoseEncoder {
             h.encode_raw(u64::from(on), &mut bufs[2]);
         }
         self.version
-            .encode_raw(u64::from(pose.param_version), &mut bufs[2]);
+            // 15 bits: the version modulo 32768 (the DBC says so), never
+            // spilling into INPUT_IMPLAUSIBLE.
+            .encode_raw(u64::from(pose.param_version) & 0x7FFF, &mut bufs[2]);
         for (h, buf) in self.counters.iter().zip(bufs.iter_mut()) {
             h.encode_raw(u64::from(self.counter), buf);
             self.crc.apply(buf)?;
@@ -162,21 +165,25 @@ pub struct PoseFlags {
     pub gate_reject: bool,
     /// The nominal parameters from the configuration are in use.
     pub nominal_params: bool,
+    /// The run-time plausibility checks found the inputs implausible (a
+    /// sign, unit, checksum algorithm or wheel kind likely wrong); stays set.
+    pub input_implausible: bool,
 }
 
 impl PoseFlags {
     /// The flags as ODOM_QUALITY orders them, POSE_VALID in bit 0 up to
-    /// NOMINAL_PARAMS in bit 7: one number for CSV columns and logs.
-    pub fn bits(self) -> u8 {
+    /// NOMINAL_PARAMS in bit 7 and INPUT_IMPLAUSIBLE in bit 8: one number
+    /// for CSV columns and logs.
+    pub fn bits(self) -> u16 {
         self.in_order()
             .iter()
             .enumerate()
-            .fold(0, |bits, (k, &on)| bits | (u8::from(on) << k))
+            .fold(0, |bits, (k, &on)| bits | (u16::from(on) << k))
     }
 
     /// The flags in ODOM_QUALITY's order, POSE_VALID first: how every
     /// encoding (frames, CSV, recordings) lists them.
-    pub fn in_order(self) -> [bool; 8] {
+    pub fn in_order(self) -> [bool; 9] {
         [
             self.pose_valid,
             self.rear_stale,
@@ -186,6 +193,7 @@ impl PoseFlags {
             self.checksum_fault,
             self.gate_reject,
             self.nominal_params,
+            self.input_implausible,
         ]
     }
 }
@@ -271,6 +279,27 @@ mod tests {
             let g = db.signal("ODOM_QUALITY.GATE_REJECT").unwrap();
             assert_eq!(g.decode(frames[2].data()), Some(1.0));
         }
+    }
+
+    #[test]
+    fn input_implausible_is_its_own_bit_beside_the_version() {
+        let mut enc = PoseEncoder::new(BaseId::DEFAULT).unwrap();
+        let flag = enc
+            .database()
+            .signal("ODOM_QUALITY.INPUT_IMPLAUSIBLE")
+            .unwrap();
+        let version = enc.database().signal("ODOM_QUALITY.PARAM_VERSION").unwrap();
+        let mut p = pose(1.0);
+        p.param_version = 32_768 + 5;
+        let f = enc.encode(&p).unwrap();
+        assert_eq!(flag.decode(f[2].data()), Some(0.0));
+        assert_eq!(version.decode(f[2].data()), Some(5.0));
+        p.flags.input_implausible = true;
+        p.param_version = 0x7FFF;
+        let f = enc.encode(&p).unwrap();
+        assert_eq!(flag.decode(f[2].data()), Some(1.0));
+        assert_eq!(version.decode(f[2].data()), Some(32_767.0));
+        assert_eq!(p.flags.bits() >> 8, 1);
     }
 
     #[test]

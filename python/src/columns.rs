@@ -8,7 +8,7 @@ use arrow_array::builder::{
 };
 use arrow_array::{
     ArrayRef, Decimal128Array, Float64Array, Int64Array, RecordBatch, StringArray, UInt8Array,
-    UInt64Array,
+    UInt16Array, UInt64Array,
 };
 use arrow_schema::{DataType, Field, Schema, SchemaRef};
 use canodom_can::candump::ReadError;
@@ -362,12 +362,15 @@ pub fn replay(
     fields.push(Field::new("pose_valid", DataType::UInt8, false));
     arrays.push(Arc::new(
         rows.iter()
-            .map(|r| Some(r.quality & 1))
+            .map(|r| Some(u8::from(r.quality & 1 == 1)))
             .collect::<UInt8Array>(),
     ));
-    fields.push(Field::new("quality", DataType::UInt8, false));
+    // ODOM_QUALITY's nine flags: INPUT_IMPLAUSIBLE is bit 8.
+    fields.push(Field::new("quality", DataType::UInt16, false));
     arrays.push(Arc::new(
-        rows.iter().map(|r| Some(r.quality)).collect::<UInt8Array>(),
+        rows.iter()
+            .map(|r| Some(r.quality))
+            .collect::<UInt16Array>(),
     ));
     let stats = &summary.stats;
     let mut rejects = serde_json::Map::new();

@@ -24,7 +24,9 @@ pub enum Maker {
     /// payload (the checksum nibble left out), plus 3 for an extended id,
     /// modulo 16; in the low nibble of the last byte.
     Honda,
-    /// Subaru (global platform): the id's bytes and bytes 1.. summed; in byte 0.
+    /// Subaru (global platform): the id's bytes and bytes 1.. summed (the
+    /// checksum's own byte left out); in the checksum signal's byte (0 on
+    /// all but `Steering`).
     Subaru,
     /// Tesla (Model 3/Y party bus): the id's two low bytes and every other
     /// byte summed; in the checksum signal's byte.
@@ -159,7 +161,17 @@ impl MakerChecksum {
                 (s & 0xF) as u64
             }
             Maker::Subaru => {
-                let s = id_bytes() + d.iter().skip(1).map(|&b| u64::from(b)).sum::<u64>();
+                // opendbc sums bytes 1.. of the frame before the checksum is
+                // written: byte 0 is left out wherever the checksum lies, and
+                // the checksum's own byte counts as zero (Steering, id 2,
+                // carries it in byte 4).
+                let s = id_bytes()
+                    + d.iter()
+                        .enumerate()
+                        .skip(1)
+                        .filter(|&(i, _)| i != self.byte)
+                        .map(|(_, &b)| u64::from(b))
+                        .sum::<u64>();
                 s & 0xFF
             }
             Maker::Tesla => {

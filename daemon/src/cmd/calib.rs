@@ -69,7 +69,10 @@ pub struct CalibArgs {
     /// With --print-frame: the rolling counter, 0..=15 (default: from the
     /// clock, as a sent command takes it). The daemon refuses a counter equal
     /// to the previous command's, so successive lines need different ones.
-    #[arg(long, global = true, requires = "print_frame",
+    // Not `requires = "print_frame"`: clap checks that inside the
+    // subcommand, where a --print-frame given before the action is not
+    // seen, so `--print-frame start --counter 3` failed; run() checks it.
+    #[arg(long, global = true,
           value_parser = clap::value_parser!(u8).range(0..=15))]
     pub counter: Option<u8>,
     /// SecOC resynchronisation: continue the freshness value above this
@@ -598,6 +601,11 @@ fn run(args: &CalibArgs) -> anyhow::Result<()> {
             "calib needs the daemon's configuration: --config FILE (before or after the action)"
         );
     };
+    if args.counter.is_some() && !args.print_frame {
+        anyhow::bail!(
+            "--counter goes with --print-frame (a sent command takes its counter from the clock)"
+        );
+    }
     let config = Config::load(config_path)?;
     if args.print_frame {
         let mut signer = operator_signer(&config, args.freshness_floor)?;
@@ -781,6 +789,26 @@ mod tests {
             let args = parse(&full).unwrap();
             assert_eq!(command_for(&args.action), want, "{argv:?}");
         }
+    }
+
+    #[test]
+    fn print_frame_and_counter_go_before_or_after_the_action() {
+        for argv in [
+            &["--print-frame", "--counter", "3", "commit"][..],
+            &["--print-frame", "commit", "--counter", "3"],
+            &["commit", "--print-frame", "--counter", "3"],
+            &["--counter", "3", "commit", "--print-frame"],
+        ] {
+            let mut full = vec!["--config", "x.toml"];
+            full.extend_from_slice(argv);
+            let args = parse(&full).unwrap_or_else(|e| panic!("{argv:?}: {e}"));
+            assert!(args.print_frame, "{argv:?}");
+            assert_eq!(args.counter, Some(3), "{argv:?}");
+        }
+        // Without --print-frame, run() refuses the counter before anything.
+        let args = parse(&["--config", "x.toml", "commit", "--counter", "3"]).unwrap();
+        let e = run(&args).unwrap_err().to_string();
+        assert!(e.contains("--counter goes with --print-frame"), "{e}");
     }
 
     #[test]

@@ -68,16 +68,16 @@ pub fn report_text(cal: &DriveCalibration, base: &ParamValues, new: &ParamValues
     );
     let line = |s: &mut String, name: &str, e: Option<&Estimate>, unit: &str, k: f64| {
         let _ = match e {
-            None => writeln!(s, "  {name:<18} no data in the log"),
+            None => writeln!(s, "  {name:<32} no data in the log"),
             Some(e) if e.observable => writeln!(
                 s,
-                "  {name:<18} {:+.6}{unit} ± {:.6}{unit}",
+                "  {name:<32} {:+.6}{unit} ± {:.6}{unit}",
                 e.value * k,
                 e.sigma * k
             ),
             Some(e) => writeln!(
                 s,
-                "  {name:<18} held: the drive does not tell it (σ {:.6}{unit}, too close to the prior)",
+                "  {name:<32} held: the drive does not tell it (σ {:.6}{unit}, too close to the prior)",
                 e.sigma * k
             ),
         };
@@ -86,8 +86,21 @@ pub fn report_text(cal: &DriveCalibration, base: &ParamValues, new: &ParamValues
     for (name, estimate, unit, k) in [
         ("speed scale", Some(&cal.speed_scale), "", 1.0),
         ("rear ratio (R/L)", Some(&cal.rear_ratio), "", 1.0),
-        ("steering offset", cal.steer_offset_rad.as_ref(), "°", deg),
-        ("steering gain", cal.steer_gain.as_ref(), "", 1.0),
+        // The offset is of the road wheels' angle (after the ratio), the
+        // gain a factor on the gain in use: the parameter file stores the
+        // absolute gain (steering_gain, road-wheel rad per signal unit).
+        (
+            "steering offset (road-wheel)",
+            cal.steer_offset_rad.as_ref(),
+            "°",
+            deg,
+        ),
+        (
+            "steering gain (× the one in use)",
+            cal.steer_gain.as_ref(),
+            "",
+            1.0,
+        ),
         ("yaw-rate bias", cal.yaw_bias_radps.as_ref(), "°/s", deg),
         ("yaw-rate scale", cal.yaw_scale.as_ref(), "", 1.0),
     ] {
@@ -95,7 +108,7 @@ pub fn report_text(cal: &DriveCalibration, base: &ParamValues, new: &ParamValues
     }
     let _ = writeln!(
         s,
-        "  rear tread         not estimated from a drive (turns both ways on a track tell it): {} m kept",
+        "  rear tread                       not estimated from a drive (turns both ways on a track tell it): {} m kept",
         base.rear_tread_m
     );
     let names = ["rear wheels", "yaw rate", "steering"];
@@ -113,7 +126,62 @@ pub fn report_text(cal: &DriveCalibration, base: &ParamValues, new: &ParamValues
         new.rear_left_diameter_m,
         new.rear_right_diameter_m
     );
+    let _ = writeln!(
+        s,
+        "  stored: steering_gain {:.6} -> {:.6} road-wheel rad per signal unit, steering_offset_rad {:.6} -> {:.6}",
+        base.steering_gain, new.steering_gain, base.steering_offset_rad, new.steering_offset_rad
+    );
     s
+}
+
+/// Residual RMS at the fixes, metres, above which a heading source's fit is
+/// a misfit: consumer GNSS fixes are 1–3 m RMS and a surveyed route better,
+/// so beyond 5 m no parameter values explain the drive and the
+/// configuration (a sign, a unit, a wheel or steering kind) is what is
+/// wrong. Committing such a fit would store parameters that only look
+/// calibrated.
+pub const MISFIT_RMS_M: f64 = 5.0;
+
+/// The heading sources whose fit leaves more than [`MISFIT_RMS_M`] at the
+/// fixes: (source, the `[signals]` keys to check, residual RMS m).
+pub fn misfits(cal: &DriveCalibration) -> Vec<(&'static str, &'static str, f64)> {
+    const SOURCES: [(&str, &str); 3] = [
+        (
+            "rear wheels",
+            "signals.rear_left / rear_right, wheel_kind, direction",
+        ),
+        ("yaw rate", "signals.yaw_rate (its sign and unit)"),
+        (
+            "steering",
+            "signals.steering (its sign and unit), steering_kind, vehicle.steering_ratio",
+        ),
+    ];
+    SOURCES
+        .iter()
+        .zip(cal.residual_rms_m)
+        .filter_map(|(&(source, keys), rms)| {
+            rms.filter(|&r| r > MISFIT_RMS_M || !r.is_finite())
+                .map(|r| (source, keys, r))
+        })
+        .collect()
+}
+
+/// The refusal of a misfit, and how it differs from a parameter the drive
+/// does not observe.
+fn misfit_refusal(found: &[(&str, &str, f64)]) -> String {
+    let each: Vec<String> = found
+        .iter()
+        .map(|(source, keys, rms)| {
+            format!("the {source} leave {rms:.1} m RMS at the fixes (check {keys})")
+        })
+        .collect();
+    format!(
+        "not committed: a misfit: {}. More than {MISFIT_RMS_M} m is beyond what the fixes' own \
+         error explains: no parameter values fit this drive, so the configuration is likely wrong \
+         (`canodom replay` names what it suspects). This is not a parameter the drive does not \
+         tell: such a parameter is held at its value (\"held\" above) and the rest is committed",
+        each.join("; ")
+    )
 }
 
 /// Runs the drive calibration: samples from `log`, fixes from `fixes`,
@@ -158,6 +226,10 @@ pub fn execute(
     );
     let (cal, values, fixes) = (fit.calibration, fit.values, fit.fixes);
     print!("{}", report_text(&cal, &base, &values));
+    let found = misfits(&cal);
+    if !found.is_empty() {
+        bail!("{}", misfit_refusal(&found));
+    }
     if let Some(why) = fit.out_of_bounds {
         bail!("the calibrated set is outside the configured bounds; not committed: {why}");
     }
@@ -244,5 +316,43 @@ mod tests {
             text.contains("rear tread") && text.contains("not estimated"),
             "{text}"
         );
+        assert!(
+            text.contains("steering offset (road-wheel)")
+                && text.contains("× the one in use")
+                && text.contains("stored: steering_gain 0.001000 -> 0.001000 road-wheel rad"),
+            "{text}"
+        );
+        assert!(misfits(&cal).is_empty(), "0.1 m at the fixes is a fit");
+    }
+
+    #[test]
+    fn a_misfit_is_refused_and_told_apart_from_a_held_parameter() {
+        // The issue's case: "yaw-rate bias held" beside a 74 m residual.
+        let cal = DriveCalibration {
+            speed_scale: estimate(1.0, true),
+            rear_ratio: estimate(1.0, true),
+            steer_offset_rad: Some(estimate(0.0, true)),
+            steer_gain: Some(estimate(1.0, true)),
+            yaw_bias_radps: Some(estimate(0.0, false)),
+            yaw_scale: Some(estimate(1.0, true)),
+            fixes_used: 30,
+            distance_m: 700.0,
+            residual_rms_m: [Some(1.2), Some(74.0), Some(MISFIT_RMS_M)],
+        };
+        let found = misfits(&cal);
+        assert_eq!(found.len(), 1, "{found:?}");
+        assert_eq!(found[0].0, "yaw rate");
+        let text = misfit_refusal(&found);
+        assert!(
+            text.starts_with("not committed: a misfit: the yaw rate leave 74.0 m RMS")
+                && text.contains("signals.yaw_rate")
+                && text.contains("is held at its value"),
+            "{text}"
+        );
+        let nan = DriveCalibration {
+            residual_rms_m: [Some(f64::NAN), None, None],
+            ..cal
+        };
+        assert_eq!(misfits(&nan)[0].0, "rear wheels");
     }
 }

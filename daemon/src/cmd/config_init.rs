@@ -44,87 +44,8 @@ pub enum ConfigAction {
     },
 }
 
-/// A platform `config init` knows.
-#[derive(Debug, Clone, Copy)]
-pub struct Platform {
-    /// The name `--car` takes.
-    pub name: &'static str,
-    /// The cars it covers.
-    pub cars: &'static str,
-    /// What the configuration reads.
-    pub provides: &'static str,
-    /// The DBC's file name, written beside the configuration.
-    pub dbc_file: &'static str,
-    dbc_text: &'static str,
-    example: &'static str,
-}
-
-/// Every platform, in `--list` order.
-pub const PLATFORMS: &[Platform] = &[
-    Platform {
-        name: "honda",
-        cars: "Honda Civic 2016-18 and other Nidec Hondas with this bus",
-        provides: "WHEEL_SPEEDS (4 kph magnitudes) signed by GEARBOX_AUTO gear, STEERING_SENSORS angle; Honda checksums and counter",
-        dbc_file: "opendbc_honda_civic_touring_2016_can.dbc",
-        dbc_text: include_str!("../../../data/dbc/opendbc_honda_civic_touring_2016_can.dbc"),
-        example: include_str!("../../examples/honda.toml"),
-    },
-    Platform {
-        name: "toyota",
-        cars: "Toyota / Lexus with the 2017 powertrain bus (RAV4, Corolla, Camry, Prius, ...)",
-        provides: "WHEEL_SPEEDS (4 signed km/h), STEER_ANGLE_SENSOR (angle + fraction); no counters or checksums on these",
-        dbc_file: "opendbc_toyota_2017.dbc",
-        dbc_text: include_str!("../../../data/dbc/opendbc_toyota_2017.dbc"),
-        example: include_str!("../../examples/toyota.toml"),
-    },
-    Platform {
-        name: "vw_mqb",
-        cars: "VW MQB (Golf 7, Passat B8, Tiguan, Audi A3, Skoda Octavia, ...)",
-        provides: "ESP_19 (4 km/h magnitudes) signed by Gateway_73 gear, LWI_01 angle + sign bit, ESP_02 yaw rate + sign bit; VW CRC and counters",
-        dbc_file: "opendbc_vw_mqb.dbc",
-        dbc_text: include_str!("../../../data/dbc/opendbc_vw_mqb.dbc"),
-        example: include_str!("../../examples/vw_mqb.toml"),
-    },
-];
-
-/// The platform named `name`.
-pub fn platform(name: &str) -> Option<&'static Platform> {
-    PLATFORMS.iter().find(|p| p.name == name)
-}
-
-impl Platform {
-    /// The configuration text: the example with the DBC beside it and the
-    /// given interface, headed by what to check.
-    pub fn config_text(&self, interface: &str) -> String {
-        use std::fmt::Write as _;
-        let mut out = format!(
-            "# Written by `canodom config init --car {}`: {}.\n\
-             # CHECK THESE before trusting the pose: the [vehicle] values are the\n\
-             # platform's typical ones (wheelbase and steering ratio from opendbc's\n\
-             # values.py; treads and wheel diameter typical) -- measure your car or\n\
-             # calibrate (`canodom calibrate`, README \"Calibrate it\").\n\n",
-            self.name, self.cars
-        );
-        for line in self.example.lines() {
-            if line.starts_with("dbc = ") {
-                let _ = writeln!(out, "dbc = \"{}\"", self.dbc_file);
-            } else if line.starts_with("interface = ") {
-                let _ = writeln!(out, "interface = {interface:?}");
-            } else if line == "[vehicle]" {
-                out.push_str("[vehicle]                        # check these\n");
-            } else {
-                out.push_str(line);
-                out.push('\n');
-            }
-        }
-        out
-    }
-
-    /// The DBC's text.
-    pub fn dbc_text(&self) -> &'static str {
-        self.dbc_text
-    }
-}
+pub use canodom_cars::{PLATFORMS, Platform, platform};
+use canodom_cars::{normalise, not_covered};
 
 /// Writes `platform`'s configuration to `out` and its DBC beside it.
 ///
@@ -181,8 +102,12 @@ pub fn execute(args: &ConfigArgs) -> anyhow::Result<()> {
         for p in PLATFORMS {
             writeln!(
                 stdout,
-                "{:<8} {}\n         reads: {}\n         DBC: {}",
-                p.name, p.cars, p.provides, p.dbc_file
+                "{:<14} {}\n               reads: {}\n               DBC: {}\n               also: {}",
+                p.name,
+                p.cars,
+                p.provides,
+                p.dbc_file,
+                p.aliases.join(", ")
             )?;
         }
         return Ok(());
@@ -192,8 +117,16 @@ pub fn execute(args: &ConfigArgs) -> anyhow::Result<()> {
     };
     let Some(p) = platform(car) else {
         let names: Vec<&str> = PLATFORMS.iter().map(|p| p.name).collect();
+        let key = normalise(car);
+        if let Some(why) = not_covered(key.strip_suffix("_generated").unwrap_or(&key)) {
+            anyhow::bail!(
+                "no configuration for `{car}`: {why}. Platforms: {} (canodom config init --list); \
+                 or write [signals] by hand (README \"Configure it\")",
+                names.join(", ")
+            );
+        }
         anyhow::bail!(
-            "unknown platform `{car}`: one of {} (canodom config init --list)",
+            "unknown platform `{car}`: one of {} or a maker name (canodom config init --list)",
             names.join(", ")
         );
     };

@@ -128,6 +128,8 @@ pub fn execute(args: &ReplayArgs) -> anyhow::Result<()> {
     let mut input = super::open_input(&args.log, "replay")?;
     let started = std::time::Instant::now();
     let (sink, mcap) = open_output(args, &config)?;
+    // A replay that fails leaves no header-only or partial file behind.
+    let mut partial = PartialOutput::of(args.out.as_deref());
     let mut w = std::io::BufWriter::with_capacity(WRITE_BYTES, sink);
     let summary = replay_log(
         &config,
@@ -169,6 +171,7 @@ pub fn execute(args: &ReplayArgs) -> anyhow::Result<()> {
             args.log.display()
         );
     }
+    partial.keep();
     let secs = started.elapsed().as_secs_f64();
     let mut malformed = format!("malformed lines {}", summary.malformed);
     for (reason, n) in summary.malformed_by_reason.nonzero() {
@@ -201,6 +204,35 @@ pub fn execute(args: &ReplayArgs) -> anyhow::Result<()> {
         compare_with_truth(args, &truth, &summary.track, summary.first_frame)?;
     }
     Ok(())
+}
+
+/// The `--out` file of a replay still running: removed when dropped before
+/// [`PartialOutput::keep`] (the replay failed), so no header-only or
+/// truncated file is taken for a result. A device or other non-regular
+/// `--out` (`/dev/null`) is never touched.
+struct PartialOutput(Option<PathBuf>);
+
+impl PartialOutput {
+    fn of(out: Option<&std::path::Path>) -> Self {
+        Self(
+            out.filter(|p| std::fs::metadata(p).is_ok_and(|m| m.is_file()))
+                .map(std::path::Path::to_path_buf),
+        )
+    }
+
+    fn keep(&mut self) {
+        self.0 = None;
+    }
+}
+
+impl Drop for PartialOutput {
+    fn drop(&mut self) {
+        if let Some(path) = self.0.take()
+            && std::fs::remove_file(&path).is_ok()
+        {
+            eprintln!("replay: {} removed: the replay failed", path.display());
+        }
+    }
 }
 
 /// The CSV output (standard output without `--out`), or the MCAP file.
