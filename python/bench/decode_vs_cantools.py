@@ -5,7 +5,8 @@
 Defaults: the RAV4 log (data/comma2k19-rav4) repeated --repeat times into one
 file (a longer log with the same content), opendbc_toyota_2017.dbc. Prints
 frames/s of each (wall and CPU time: canodom.decode runs on the calling
-thread, one core), their ratio, each --runs times and the median; then
+thread, one core), their ratio, each --runs times after --warmup uncounted
+runs of both, and the median; then
 canodom's peak memory (VmHWM of a fresh interpreter, over the same
 interpreter's after its imports) for logs of 1x, 4x and 16x the length,
 beside the size of the tables it returns: decode returns every decoded
@@ -81,6 +82,7 @@ def main():
     p.add_argument("dbc", nargs="?", default=str(REPO / "data/dbc/opendbc_toyota_2017.dbc"))
     p.add_argument("--repeat", type=int, default=3)
     p.add_argument("--runs", type=int, default=3)
+    p.add_argument("--warmup", type=int, default=1, help="runs of both first, not counted (page cache, allocator)")
     a = p.parse_args()
     text = Path(a.log).read_text()
     with tempfile.TemporaryDirectory() as d:
@@ -88,6 +90,9 @@ def main():
         log.write_text(text * a.repeat)
         frames = sum(1 for _ in open(log))
         print(f"log: {frames} frames; load: {os.getloadavg()}")
+        for _ in range(a.warmup):
+            canodom_decode(log, a.dbc)
+            cantools_decode(log, a.dbc)
         ratios, ours, theirs = [], [], []
         for run in range(a.runs):
             c_wall, c_cpu, c_rows = canodom_decode(log, a.dbc)
