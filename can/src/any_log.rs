@@ -1,7 +1,12 @@
 //! One reader for every CAN log format canodom reads (#25): `candump -L`,
-//! plain and `-t` timed candump output, Vector ASC and BLF, each also
-//! gzip- or zstd-compressed, chosen from the content (never the file name,
-//! which a pipe does not have).
+//! plain and `-t` timed candump output, Vector ASC and BLF, ASAM MDF 4
+//! (#34), each also gzip- or zstd-compressed, chosen from the content (never
+//! the file name, which a pipe does not have).
+//!
+//! MF4 links its blocks by file offset and writers put the data before the
+//! channels that describe it, so it is read from a seekable file: a file
+//! opened by [`AnyLogReader::open_file`] directly, an MF4 met in a stream
+//! (standard input, a `.mf4.gz`) through an unlinked temporary copy.
 //!
 //! Decompression is layered under the format: the compressed stream is
 //! decompressed as it is read (`flate2`, `zstd`), and the decompressed
@@ -17,9 +22,10 @@ use crate::candump::{ClassicData, LogReader, ReadError, Record};
 use crate::candump_plain::PlainReader;
 use crate::log_format::{LogFormat, sniff};
 use crate::log_lines::InterfaceList;
+use crate::mdf4::Mf4Reader;
 use crate::vector_asc::AscReader;
 use crate::vector_blf::BlfReader;
-use std::io::{self, BufRead, BufReader, Read};
+use std::io::{self, BufRead, BufReader, Read, Seek};
 
 /// Bytes looked at to judge a (decompressed) stream's format.
 const SNIFF_BYTES: usize = 8192;
@@ -77,6 +83,8 @@ pub enum AnyLogReader<'a> {
     Asc(AscReader<Source<'a>>),
     /// Vector BLF.
     Blf(BlfReader<Source<'a>>),
+    /// ASAM MDF 4, from a file (or a temporary copy of a stream).
+    Mf4(Mf4Reader<BufReader<std::fs::File>>),
 }
 
 /// The first bytes of a decompressed `input`, as many as [`SNIFF_BYTES`]
@@ -105,7 +113,29 @@ impl<'a> AnyLogReader<'a> {
     pub fn open(
         input: impl BufRead + 'a,
     ) -> Result<(Self, LogFormat, Option<LogFormat>), OpenError> {
-        let mut input: Source<'a> = Box::new(input);
+        Self::open_stream(Box::new(input))
+    }
+
+    /// [`Self::open`] of a file: an MF4 file is read in place (any other
+    /// format as from a stream).
+    ///
+    /// # Errors
+    /// As [`Self::open`].
+    pub fn open_file(
+        file: std::fs::File,
+    ) -> Result<(Self, LogFormat, Option<LogFormat>), OpenError> {
+        let mut reader = BufReader::with_capacity(1 << 16, file);
+        if crate::mdf4::is_mdf(reader.fill_buf()?) {
+            reader.rewind()?;
+            let reader = Self::Mf4(Mf4Reader::new(reader));
+            return Ok((reader, LogFormat::Mf4, None));
+        }
+        Self::open_stream(Box::new(reader))
+    }
+
+    fn open_stream(
+        mut input: Source<'a>,
+    ) -> Result<(Self, LogFormat, Option<LogFormat>), OpenError> {
         // The outer stream's buffer, not a gathered head: on a live pipe
         // (`candump -L can0 | canodom decode -`) the first frames must not
         // wait for kilobytes more.
@@ -145,6 +175,14 @@ impl<'a> AnyLogReader<'a> {
             }
             LogFormat::VectorAsc => Self::Asc(AscReader::new(input)),
             LogFormat::VectorBlf => Self::Blf(BlfReader::new(input)),
+            LogFormat::Mf4 => {
+                // Its blocks link by offset: a temporary copy to seek in
+                // (unlinked at once, gone with the reader).
+                let mut copy = tempfile::tempfile()?;
+                io::copy(&mut input, &mut copy)?;
+                copy.rewind()?;
+                Self::Mf4(Mf4Reader::new(BufReader::with_capacity(1 << 16, copy)))
+            }
             LogFormat::PythonCanCsv
             | LogFormat::PeakTrc
             | LogFormat::Empty
@@ -172,6 +210,10 @@ impl<'a> AnyLogReader<'a> {
             Self::Blf(mut r) => {
                 r.interfaces.only(name);
                 Self::Blf(r)
+            }
+            Self::Mf4(mut r) => {
+                r.interfaces.only(name);
+                Self::Mf4(r)
             }
         }
     }
@@ -220,6 +262,7 @@ impl<'a> AnyLogReader<'a> {
             Self::Plain(r) => r.next_record(),
             Self::Asc(r) => r.next_record(),
             Self::Blf(r) => r.next_record(),
+            Self::Mf4(r) => r.next_record(),
         }
     }
 }
@@ -231,6 +274,7 @@ impl InterfaceList for AnyLogReader<'_> {
             Self::Plain(r) => r.interfaces.seen(),
             Self::Asc(r) => r.interfaces.seen(),
             Self::Blf(r) => r.interfaces.seen(),
+            Self::Mf4(r) => r.interfaces.seen(),
         }
     }
 
@@ -240,6 +284,7 @@ impl InterfaceList for AnyLogReader<'_> {
             Self::Plain(r) => r.interfaces.other_lines(),
             Self::Asc(r) => r.interfaces.other_lines(),
             Self::Blf(r) => r.interfaces.other_lines(),
+            Self::Mf4(r) => r.interfaces.other_lines(),
         }
     }
 }

@@ -12,7 +12,8 @@
 //!   interfaces a log reader met and filters (shared by every reader).
 //! - [`log_format`]: which CAN log format a file is, from its first bytes.
 //! - [`any_log`]: one reader for every log format read, through gzip/zstd compression.
-//! - [`candump_plain`], [`vector_asc`], [`vector_blf`]: plain candump output, Vector ASC and BLF.
+//! - [`candump_plain`], [`vector_asc`], [`vector_blf`], [`mdf4`]: plain candump output, Vector ASC
+//!   and BLF, ASAM MDF 4 bus logging.
 //! - [`log_lines`]: what the text readers share (bounded lines) and what a reader tells of its interfaces.
 //! - [`bus`]: the transport trait, with the in-process bus and SocketCAN.
 
@@ -23,6 +24,7 @@ pub mod candump_plain;
 pub mod frame;
 pub mod log_format;
 pub mod log_lines;
+pub mod mdf4;
 pub mod time;
 pub mod vector_asc;
 pub mod vector_blf;

@@ -22,6 +22,8 @@ pub enum LogFormat {
     VectorAsc,
     /// Vector BLF binary (`LOGG` magic).
     VectorBlf,
+    /// ASAM MDF 4 bus logging (`MDF     ` or `UnFinMF ` magic).
+    Mf4,
     /// python-can's CSV (`timestamp,arbitration_id,extended,...`).
     PythonCanCsv,
     /// PEAK PCAN-View TRC (`;$FILEVERSION=...`).
@@ -45,6 +47,7 @@ impl LogFormat {
             Self::CandumpTimed => "candump output with -t timestamps (candump -ta/-td/-tz/-tA)",
             Self::VectorAsc => "a Vector ASC log",
             Self::VectorBlf => "a Vector BLF log",
+            Self::Mf4 => "an ASAM MDF 4 (MF4) log",
             Self::PythonCanCsv => "a python-can CSV log",
             Self::PeakTrc => "a PEAK TRC log",
             Self::Gzip => "a gzip-compressed file",
@@ -70,6 +73,7 @@ impl LogFormat {
             | Self::CandumpTimed
             | Self::VectorAsc
             | Self::VectorBlf
+            | Self::Mf4
             | Self::Gzip
             | Self::Zstd => return None,
             Self::PythonCanCsv | Self::PeakTrc => {
@@ -93,6 +97,9 @@ impl LogFormat {
 pub fn sniff(head: &[u8]) -> LogFormat {
     if head.starts_with(b"LOGG") {
         return LogFormat::VectorBlf;
+    }
+    if crate::mdf4::is_mdf(head) {
+        return LogFormat::Mf4;
     }
     if head.starts_with(&[0x1f, 0x8b]) {
         return LogFormat::Gzip;
@@ -228,8 +235,8 @@ impl LogSeen {
                 "no frame could be read: all {} lines are malformed; canodom reads \
                  candump -L records such as `(1700000000.000100) can0 123#11223344` \
                  (record with `candump -L can0 > drive.log`), plain candump output \
-                 (`  can0  123   [4]  11 22 33 44`), Vector ASC and BLF, each also \
-                 gzip or zstd compressed",
+                 (`  can0  123   [4]  11 22 33 44`), Vector ASC and BLF, ASAM MDF 4, \
+                 each also gzip or zstd compressed",
                 self.malformed
             ),
             _ => "holds no frame (record with `candump -L can0 > drive.log`)".to_owned(),
@@ -268,7 +275,9 @@ mod tests {
 
     #[test]
     fn other_tools_logs_are_named() {
-        let cases: [(&[u8], LogFormat); 9] = [
+        let cases: [(&[u8], LogFormat); 11] = [
+            (b"MDF     4.10    amdf8.8.", LogFormat::Mf4),
+            (b"UnFinMF 4.11    ", LogFormat::Mf4),
             (
                 b"  vcan0  123   [8]  11 22 33 44 55 66 77 88\n",
                 LogFormat::CandumpPlain,

@@ -27,7 +27,7 @@ pub fn open_file(path: &Path) -> Result<BufReader<std::fs::File>> {
 }
 
 /// A reader of whatever log `input` holds (candump -L, plain or timed
-/// candump, Vector ASC or BLF, each perhaps gzip- or zstd-compressed: judged
+/// candump, Vector ASC or BLF, MF4, each perhaps gzip- or zstd-compressed: judged
 /// from the content), keeping only interface `interface` when given. A log
 /// of a format not read (python-can CSV, PEAK TRC, an empty one) is refused
 /// by name with the way forward, and so is one without time (plain candump
@@ -41,7 +41,16 @@ pub fn log_reader<'a>(
     interface: Option<&str>,
     needs_time: bool,
 ) -> Result<AnyLogReader<'a>> {
-    let (reader, format, _) = match AnyLogReader::open(input) {
+    checked_reader(AnyLogReader::open(input), interface, needs_time)
+}
+
+/// [`log_reader`]'s checks on an opened log.
+fn checked_reader<'a>(
+    opened: std::result::Result<(AnyLogReader<'a>, LogFormat, Option<LogFormat>), OpenError>,
+    interface: Option<&str>,
+    needs_time: bool,
+) -> Result<AnyLogReader<'a>> {
+    let (reader, format, _) = match opened {
         Ok(opened) => opened,
         Err(e @ OpenError::Io(_)) => return Err(Error::Log(e.to_string())),
         Err(e) => {
@@ -71,7 +80,9 @@ pub fn open_log(
     interface: Option<&str>,
     needs_time: bool,
 ) -> Result<AnyLogReader<'static>> {
-    log_reader(open_file(path)?, interface, needs_time).map_err(|e| match e {
+    // A file, not a stream: an MF4 log is read in place (no temporary copy).
+    let file = open_file(path)?.into_inner();
+    checked_reader(AnyLogReader::open_file(file), interface, needs_time).map_err(|e| match e {
         Error::Log(why) => Error::Log(format!("{}: {why}", path.display())),
         other => other,
     })

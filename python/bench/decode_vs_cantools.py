@@ -4,13 +4,18 @@
 
 Defaults: the RAV4 log (data/comma2k19-rav4) repeated --repeat times into one
 file (a longer log with the same content), opendbc_toyota_2017.dbc. Prints
-frames/s of each on one core, their ratio, and canodom's peak memory for logs
-of 1x and 4x the length (memory flat in the log's size means the growth is
-only the output's columns).
+frames/s of each (wall and CPU time: canodom.decode runs on the calling
+thread, one core), their ratio, each --runs times after --warmup uncounted
+runs of both, and the median; then
+canodom's peak memory (VmHWM of a fresh interpreter, over the same
+interpreter's after its imports) for logs of 1x, 4x and 16x the length,
+beside the size of the tables it returns: decode returns every decoded
+value, so what can be flat is the memory beyond its output.
 """
 
 import argparse
-import resource
+import os
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -23,9 +28,10 @@ REPO = Path(__file__).resolve().parents[2]
 def canodom_decode(log, dbc):
     import canodom
 
-    start = time.perf_counter()
+    start, cpu = time.perf_counter(), time.process_time()
     tables = canodom.decode(log, dbc)
-    return time.perf_counter() - start, sum(t.num_rows for t in tables.values())
+    wall, cpu = time.perf_counter() - start, time.process_time() - cpu
+    return wall, cpu, sum(t.num_rows for t in tables.values())
 
 
 def cantools_decode(log, dbc):
@@ -33,7 +39,7 @@ def cantools_decode(log, dbc):
     import cantools
     import pandas as pd
 
-    start = time.perf_counter()
+    start, cpu = time.perf_counter(), time.process_time()
     db = cantools.database.load_file(str(dbc), strict=False)
     by_id = {m.frame_id: m for m in db.messages}
     rows = {}
@@ -51,16 +57,23 @@ def cantools_decode(log, dbc):
             values["t_unix_s"] = float(t[1:-1])
             rows.setdefault(m.name, []).append(values)
     frames = {name: pd.DataFrame(r) for name, r in rows.items()}
-    return time.perf_counter() - start, sum(len(f) for f in frames.values())
+    wall, cpu = time.perf_counter() - start, time.process_time() - cpu
+    return wall, cpu, sum(len(f) for f in frames.values())
 
 
 def peak_rss_mb(log, dbc):
-    code = (f"import canodom, resource; canodom.decode({str(log)!r}, {str(dbc)!r}); "
-            "print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)")
-    base = "import canodom, resource; print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)"
-    used = float(subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout)
-    idle = float(subprocess.run([sys.executable, "-c", base], capture_output=True, text=True, check=True).stdout)
-    return used - idle
+    """(peak RSS growth over the interpreter after its imports, size of the tables returned), MB."""
+    # VmHWM, not ru_maxrss: a child's ru_maxrss starts at its parent's peak
+    # (it survives fork and exec), this bench's own, which holds the logs' text.
+    code = ("import canodom, pyarrow\n"
+            "hwm = lambda: int(open('/proc/self/status').read().split('VmHWM:')[1].split()[0])\n"
+            "before = hwm()\n"
+            f"tables = canodom.decode({str(log)!r}, {str(dbc)!r})\n"
+            "peak = hwm()\n"
+            "print((peak - before) / 1024, sum(t.nbytes for t in tables.values()) / 2**20)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    grown, output = map(float, out.split())
+    return grown, output
 
 
 def main():
@@ -68,24 +81,38 @@ def main():
     p.add_argument("log", nargs="?", default=str(REPO / "data/comma2k19-rav4/drive.log"))
     p.add_argument("dbc", nargs="?", default=str(REPO / "data/dbc/opendbc_toyota_2017.dbc"))
     p.add_argument("--repeat", type=int, default=3)
+    p.add_argument("--runs", type=int, default=3)
+    p.add_argument("--warmup", type=int, default=1, help="runs of both first, not counted (page cache, allocator)")
     a = p.parse_args()
     text = Path(a.log).read_text()
     with tempfile.TemporaryDirectory() as d:
         log = Path(d) / "long.log"
         log.write_text(text * a.repeat)
         frames = sum(1 for _ in open(log))
-        c_s, c_rows = canodom_decode(log, a.dbc)
-        t_s, t_rows = cantools_decode(log, a.dbc)
-        assert c_rows == t_rows, (c_rows, t_rows)
-        print(f"log: {frames} frames, {c_rows} decoded")
-        print(f"canodom.decode   : {frames / c_s:12,.0f} frames/s ({c_s:.3f} s)")
-        print(f"cantools + pandas: {frames / t_s:12,.0f} frames/s ({t_s:.3f} s)")
-        print(f"ratio            : {t_s / c_s:.1f}x")
-        log4 = Path(d) / "long4.log"
-        log4.write_text(text * a.repeat * 4)
-        m1, m4 = peak_rss_mb(log, a.dbc), peak_rss_mb(log4, a.dbc)
-        print(f"peak memory over an idle interpreter: {m1:.0f} MB ({frames} frames), "
-              f"{m4:.0f} MB ({4 * frames} frames)")
+        print(f"log: {frames} frames; load: {os.getloadavg()}")
+        for _ in range(a.warmup):
+            canodom_decode(log, a.dbc)
+            cantools_decode(log, a.dbc)
+        ratios, ours, theirs = [], [], []
+        for run in range(a.runs):
+            c_wall, c_cpu, c_rows = canodom_decode(log, a.dbc)
+            t_wall, t_cpu, t_rows = cantools_decode(log, a.dbc)
+            assert c_rows == t_rows, (c_rows, t_rows)
+            ours.append(frames / c_cpu)
+            theirs.append(frames / t_cpu)
+            ratios.append(t_cpu / c_cpu)
+            print(f"run {run + 1}: canodom.decode {frames / c_wall:,.0f} frames/s wall, {frames / c_cpu:,.0f} per "
+                  f"CPU second; cantools + pandas {frames / t_wall:,.0f} wall, {frames / t_cpu:,.0f} per CPU second; "
+                  f"ratio {t_wall / c_wall:.1f}x wall, {t_cpu / c_cpu:.1f}x CPU ({c_rows} rows decoded)")
+        print(f"median: canodom.decode {statistics.median(ours):,.0f} frames per CPU second, cantools + pandas "
+              f"{statistics.median(theirs):,.0f}, ratio {statistics.median(ratios):.1f}x (goal >= 30x)")
+        for times in (1, 4, 16):
+            big = Path(d) / f"long{times}.log"
+            big.write_text(text * a.repeat * times)
+            grown, output = peak_rss_mb(big, a.dbc)
+            print(f"memory, {times * frames} frames ({big.stat().st_size / 2**20:.0f} MB log): peak grew "
+                  f"{grown:.0f} MB, tables returned {output:.0f} MB, beyond them {grown - output:.0f} MB")
+            big.unlink()
 
 
 if __name__ == "__main__":

@@ -1,24 +1,47 @@
 """The fleet job's frames/s on 1 and 2 CPUs of a local Ray, and the per-log
 overhead of a Ray task.
 
-    python python/bench/fleet_scaling.py [--logs 16] [--laps 40]
+    python python/bench/fleet_scaling.py [--logs 8] [--laps 20] [--runs 3]
 
-Makes --logs simulated drives (`canodom simulate`, target/release/canodom or
-$CANODOM_BIN), runs the fleet job on them with --num-cpus 1 and 2 (each run a
-fresh Ray), and prints frames/s of each and their ratio; then the same job on
-as many tiny logs, whose time is almost all overhead.
+Makes --logs simulated drives (`canodom simulate` of $CANODOM_BIN, else
+target/release/canodom), then runs the fleet job on them --runs times with 1
+and with 2 CPUs, each run in a fresh interpreter and a fresh local Ray. The
+job's time is taken after `ray.init` (Ray's start-up, printed apart, is the
+same for any number of logs): frames/s of each, their ratio (the scaling),
+medians over the runs. The per-log overhead of a Ray task comes from tiny
+logs (one lap of the course): the job on 4N of them against the job on N, on
+1 CPU, less the difference of the work inside the tasks, per extra log.
 """
 
 import argparse
+import json
 import os
+import statistics
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[2]
 RC_CAR = REPO / "daemon/examples/rc_car.toml"
+
+JOB = """
+import json, sys, time, contextlib, io
+import ray
+started = time.perf_counter()
+ray.init(num_cpus=int(sys.argv[3]), include_dashboard=False, log_to_driver=False)
+init_s = time.perf_counter() - started
+from canodom.fleet import run
+from pathlib import Path
+started = time.perf_counter()
+with contextlib.redirect_stdout(io.StringIO()):
+    tables = run(Path(sys.argv[1]), Path(sys.argv[2]))
+job_s = time.perf_counter() - started
+summary = tables["summary"].to_pylist()
+print(json.dumps({"init_s": init_s, "job_s": job_s, "frames": sum(r["frames"] for r in summary),
+                  "task_s": sum(r["seconds"] for r in summary),
+                  "errors": sum(1 for r in summary if r["error"])}))
+"""
 
 
 def simulate(cli, out, seed, laps):
@@ -26,46 +49,63 @@ def simulate(cli, out, seed, laps):
                     "--seed", str(seed), "--laps", str(laps)], check=True, capture_output=True)
 
 
-def fleet(manifest, out, cpus):
-    start = time.perf_counter()
-    done = subprocess.run([sys.executable, "-m", "canodom.fleet", str(manifest), "--out", str(out),
-                           "--num-cpus", str(cpus)], capture_output=True, text=True, check=True)
-    return time.perf_counter() - start, done.stdout
+def job(manifest, out, cpus):
+    done = subprocess.run([sys.executable, "-c", JOB, str(manifest), str(out), str(cpus)],
+                          capture_output=True, text=True, check=True)
+    result = json.loads(done.stdout.strip().splitlines()[-1])
+    assert result["errors"] == 0, result
+    return result
+
+
+def manifest_of(d, kind, count, laps, cli):
+    lines = ["vehicle_id,log,config"]
+    for i in range(count):
+        log = d / f"{kind}{i}.log"
+        if not log.exists():
+            simulate(cli, log, 1000 + i, laps)
+        lines.append(f"car-{i},{log},{RC_CAR}")
+    manifest = d / f"{kind}-{count}.csv"
+    manifest.write_text("\n".join(lines) + "\n")
+    return manifest
 
 
 def main():
     p = argparse.ArgumentParser()
-    p.add_argument("--logs", type=int, default=16)
-    p.add_argument("--laps", type=int, default=40)
+    p.add_argument("--logs", type=int, default=8)
+    p.add_argument("--laps", type=int, default=20)
+    p.add_argument("--runs", type=int, default=3)
     a = p.parse_args()
     cli = os.environ.get("CANODOM_BIN", str(REPO / "target/release/canodom"))
-    import pyarrow.parquet as pq
-
     with tempfile.TemporaryDirectory() as d:
         d = Path(d)
-        for kind, laps in (("long", a.laps), ("tiny", 1)):
-            lines = ["vehicle_id,log,config"]
-            for i in range(a.logs):
-                log = d / f"{kind}{i}.log"
-                simulate(cli, log, 1000 + i, laps)
-                lines.append(f"car-{i},{log},{RC_CAR}")
-            manifest = d / f"{kind}.csv"
-            manifest.write_text("\n".join(lines) + "\n")
-            results = {}
+        long = manifest_of(d, "long", a.logs, a.laps, cli)
+        rates = {1: [], 2: []}
+        ratios = []
+        for run in range(a.runs):
+            got = {}
             for cpus in (1, 2):
-                wall, _ = fleet(manifest, d / f"out-{kind}-{cpus}", cpus)
-                summary = pq.read_table(d / f"out-{kind}-{cpus}" / "summary.parquet")
-                frames = sum(summary.column("frames").to_pylist())
-                task_s = sum(summary.column("seconds").to_pylist())
-                results[cpus] = (wall, frames, task_s)
-                print(f"{kind}: {a.logs} logs, {frames} frames, {cpus} CPU(s): {wall:.1f} s wall "
-                      f"(Ray start included), {frames / wall:,.0f} frames/s; in tasks {task_s:.1f} s")
-            if kind == "long":
-                print(f"scaling 2 vs 1 CPU (wall): {results[1][0] / results[2][0]:.2f}x")
-            else:
-                wall, _, task_s = results[1]
-                print(f"per-log overhead on 1 CPU (wall - work) / logs: {(wall - task_s) / a.logs * 1000:.0f} ms "
-                      "(Ray start included; the tiny logs' replay itself is in 'in tasks')")
+                r = job(long, d / f"out-{run}-{cpus}", cpus)
+                got[cpus] = r
+                rates[cpus].append(r["frames"] / r["job_s"])
+                print(f"run {run + 1}, {cpus} CPU(s): {a.logs} logs, {r['frames']} frames in {r['job_s']:.1f} s "
+                      f"({r['frames'] / r['job_s']:,.0f} frames/s; ray.init {r['init_s']:.1f} s apart; "
+                      f"{r['task_s']:.1f} s inside the tasks); load {os.getloadavg()[0]:.1f}", flush=True)
+            ratios.append(got[1]["job_s"] / got[2]["job_s"])
+        print(f"median: 1 CPU {statistics.median(rates[1]):,.0f} frames/s, 2 CPUs {statistics.median(rates[2]):,.0f} "
+              f"frames/s, scaling {statistics.median(ratios):.2f}x (runs: {', '.join(f'{x:.2f}' for x in ratios)}; "
+              "goal >= 1.8x)")
+        few = manifest_of(d, "tiny", a.logs, 1, cli)
+        many = manifest_of(d, "tiny", 4 * a.logs, 1, cli)
+        overheads = []
+        for run in range(a.runs):
+            r1 = job(few, d / f"tiny-{run}-1", 1)
+            r4 = job(many, d / f"tiny-{run}-4", 1)
+            extra = (r4["job_s"] - r1["job_s"]) - (r4["task_s"] - r1["task_s"])
+            overheads.append(extra / (3 * a.logs))
+            print(f"run {run + 1}: {a.logs} tiny logs {r1['job_s']:.2f} s, {4 * a.logs} tiny logs "
+                  f"{r4['job_s']:.2f} s (work inside the tasks {r1['task_s']:.2f} s, {r4['task_s']:.2f} s): "
+                  f"{overheads[-1] * 1000:.0f} ms per log", flush=True)
+        print(f"median per-log overhead of a Ray task (1 CPU): {statistics.median(overheads) * 1000:.0f} ms")
 
 
 if __name__ == "__main__":
