@@ -507,6 +507,15 @@ impl Calibrator {
             .unwrap_or(Ok(()))
     }
 
+    /// The filter closed a correction window at the last step, its gate
+    /// finding a rear wheel slipping in it or not: a drive being recorded
+    /// marks the window's samples (see [`DriveRecorder::window_closed`]).
+    pub fn on_window(&mut self, rear_slipped: bool) {
+        if let Some(drive) = self.drive.as_mut() {
+            drive.window_closed(rear_slipped);
+        }
+    }
+
     /// A filter step at `t_s`: `rear_rev` wheel revolutions (left, right)
     /// since the previous step, the steering signal, and the yaw rate the
     /// filter used.

@@ -76,6 +76,8 @@ pub struct DriveRecorder {
     origin: Option<(f64, f64)>,
     /// A job is out or a result awaits commit: the recording is closed.
     closed: bool,
+    /// The first sample of the filter's open correction window.
+    window_start: usize,
 }
 
 impl DriveRecorder {
@@ -97,6 +99,7 @@ impl DriveRecorder {
                 rear_right_m: 0.0,
                 steer_angle_rad: None,
                 yaw_rate_radps: None,
+                rear_slip: false,
             },
             0.0,
             0.0,
@@ -113,6 +116,22 @@ impl DriveRecorder {
         if step.t_s - start >= DRIVE_BIN_S {
             self.flush();
         }
+    }
+
+    /// The filter closed a correction window at the last step; with
+    /// `rear_slipped` its gate found a rear wheel slipping in it, and every
+    /// sample of the window is marked so the fit reckons across none of them.
+    pub fn window_closed(&mut self, rear_slipped: bool) {
+        if rear_slipped {
+            let from = self.window_start.min(self.samples.len());
+            for s in &mut self.samples[from..] {
+                s.rear_slip = true;
+            }
+            if let Some((bin, _, _)) = self.bin.as_mut() {
+                bin.rear_slip = true;
+            }
+        }
+        self.window_start = self.samples.len() + usize::from(self.bin.is_some());
     }
 
     /// A position fix: a local x and y in metres, or (`geodetic`) latitude

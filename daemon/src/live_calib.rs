@@ -179,6 +179,17 @@ impl LiveCalibration {
         self.carry(t_s, out)
     }
 
+    /// The filter's correction window closed at the last step with `outcome`
+    /// (nothing when it is [`WindowOutcome::Open`]): a window whose gate
+    /// found a rear wheel slipping is kept out of a drive's reckoning.
+    pub fn on_window(&mut self, outcome: canodom_fusion::ekf::WindowOutcome) {
+        use canodom_fusion::ekf::WindowOutcome;
+        if outcome != WindowOutcome::Open {
+            self.calibrator
+                .on_window(outcome == WindowOutcome::RejectedUsedFront);
+        }
+    }
+
     /// A position fix from the bus: a local x and y in metres, or (`geodetic`)
     /// latitude and longitude in degrees. Recorded while a drive is.
     pub fn on_fix(&mut self, t: Timestamp, first: f64, second: f64, geodetic: bool) {

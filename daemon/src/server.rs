@@ -978,6 +978,7 @@ impl<Tx: FrameSink + Clone> OdometryTask<Tx> {
                         rear_rev: step.rear_rev,
                         steer_signal: step.steer_signal,
                         yaw_rate_radps: step.yaw_rate_radps,
+                        window: step.correction,
                     })
                     .await;
                     if let Some(w) = &self.observers.steps {

@@ -7,8 +7,10 @@
 use crate::log::LogFrames;
 use crate::{Error, Result};
 use canodom_calib::drive::{
-    DriveCalibration, DriveModel, DriveSample, Fix, calibrate_drive, calibrated_values,
+    DriveCalibration, DriveModel, DriveOptions, DriveSample, Fix, calibrate_drive_with,
+    calibrated_values,
 };
+use canodom_fusion::ekf::WindowOutcome;
 use canodom_params::persist::{ParamSet, ParamValues};
 use canodom_pipeline::config::Config;
 use canodom_pipeline::pipeline::{Outcome, Pipeline};
@@ -74,7 +76,10 @@ pub fn samples_from_frames(
             std::f64::consts::PI * p.wheel_diameter_m(canodom_fusion::Wheel::RearRight),
         )
     };
-    let mut samples = Vec::new();
+    let mut samples: Vec<DriveSample> = Vec::new();
+    // The first sample of the filter's open correction window: when its gate
+    // finds a rear wheel slipping, the whole window's samples are marked.
+    let mut window_start = 0;
     while let Some((timestamp, frame)) = frames.next_frame()? {
         let Outcome::Step(step, _) = pipeline.push(timestamp, &frame) else {
             continue;
@@ -88,7 +93,16 @@ pub fn samples_from_frames(
             rear_right_m: step.rear_rev.1 * d_right,
             steer_angle_rad: step.steer_signal.map(|u| map.angle_rad(u)),
             yaw_rate_radps: step.yaw_rate_radps,
+            rear_slip: false,
         });
+        if step.correction != WindowOutcome::Open {
+            if step.correction == WindowOutcome::RejectedUsedFront {
+                for s in &mut samples[window_start..] {
+                    s.rear_slip = true;
+                }
+            }
+            window_start = samples.len();
+        }
     }
     let mixed_buses = frames.finish(pipeline.stats().frames)?;
     if samples.len() < 2 {
@@ -125,7 +139,8 @@ pub struct DriveFit {
     pub out_of_bounds: Option<String>,
 }
 
-/// Fits `drive` to the fixes of `all_fixes` within its time.
+/// Fits `drive` to the fixes of `all_fixes` within its time with `options`
+/// (the latency estimated or given, the loss, ...).
 ///
 /// # Errors
 /// [`Error::Calibration`] when the fit fails (too few fixes in the log, ...).
@@ -135,6 +150,7 @@ pub fn fit_drive(
     drive: &DriveLog,
     all_fixes: &[Fix],
     what: &str,
+    options: &DriveOptions,
 ) -> Result<DriveFit> {
     let first = drive.samples.first().map_or(0.0, |s| s.t_s);
     let last = drive.samples.last().map_or(0.0, |s| s.t_s);
@@ -147,7 +163,7 @@ pub fn fit_drive(
         rear_tread_m: base.rear_tread_m,
         wheelbase_m: config.params.wheelbase_m(),
     };
-    let calibration = calibrate_drive(&drive.samples, &fixes, &model)
+    let calibration = calibrate_drive_with(&drive.samples, &fixes, &model, options)
         .map_err(|e| Error::Calibration(format!("calibration of {what} failed: {e}")))?;
     let values = calibrated_values(&base, &calibration);
     let out_of_bounds = config

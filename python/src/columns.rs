@@ -422,7 +422,14 @@ pub fn calibrate_fixes(
     let name = path.display().to_string();
     let drive = canodom_offline::drive::samples_from_frames(config, set.as_ref(), frames, &name)?;
     let what = format!("{name} against {}", fixes.display());
-    let fit = canodom_offline::drive::fit_drive(config, base, &drive, &all_fixes, &what)?;
+    let fit = canodom_offline::drive::fit_drive(
+        config,
+        base,
+        &drive,
+        &all_fixes,
+        &what,
+        &canodom_calib::drive::DriveOptions::default(),
+    )?;
     let cal = &fit.calibration;
     let mut estimates = serde_json::Map::new();
     let mut not_told = Vec::new();

@@ -68,6 +68,25 @@ pub struct CalibrateArgs {
     /// With --fixes: the log of the drive (candump, ASC, BLF, compressed).
     #[arg(requires = "fixes")]
     pub log: Option<PathBuf>,
+    /// With --fixes: the fixes' latency is known: a fix stamped t on the log's
+    /// clock describes the vehicle at t − SECONDS (default: estimated within
+    /// ±--fixes-latency-bound-s and reported with its σ).
+    #[arg(
+        long,
+        requires = "fixes",
+        value_name = "SECONDS",
+        allow_negative_numbers = true
+    )]
+    pub fixes_latency_s: Option<f64>,
+    /// With --fixes: the largest latency the fit may estimate, seconds.
+    #[arg(
+        long,
+        requires = "fixes",
+        conflicts_with = "fixes_latency_s",
+        value_name = "SECONDS",
+        default_value_t = 1.0
+    )]
+    pub fixes_latency_bound_s: f64,
     /// Measured real end poses per log (TOML, see below).
     #[arg(long)]
     pub end_poses: Option<PathBuf>,
@@ -363,6 +382,23 @@ pub fn execute(args: &CalibrateArgs) -> anyhow::Result<()> {
     let config = Config::load(&args.config)?;
     super::dbc_warnings(&config.db, args.strict)?;
     if let (Some(fixes), Some(log), Some(out)) = (&args.fixes, &args.log, &args.out) {
+        let latency = match args.fixes_latency_s {
+            Some(s) if s.is_finite() => canodom_calib::drive::FixesLatency::Given(s),
+            Some(s) => bail!("--fixes-latency-s {s}: not a finite number of seconds"),
+            None if args.fixes_latency_bound_s.is_finite() && args.fixes_latency_bound_s > 0.0 => {
+                canodom_calib::drive::FixesLatency::Estimate {
+                    bound_s: args.fixes_latency_bound_s,
+                }
+            }
+            None => bail!(
+                "--fixes-latency-bound-s {}: must be a positive number of seconds",
+                args.fixes_latency_bound_s
+            ),
+        };
+        let options = canodom_calib::drive::DriveOptions {
+            latency,
+            ..canodom_calib::drive::DriveOptions::default()
+        };
         return super::calibrate_drive::execute(
             &config,
             fixes,
@@ -370,6 +406,7 @@ pub fn execute(args: &CalibrateArgs) -> anyhow::Result<()> {
             out,
             args.report.as_deref(),
             args.interface.as_deref(),
+            &options,
         );
     }
     let radius = args

@@ -13,7 +13,7 @@
 //! and `run` (through `param_file`) then use.
 
 use anyhow::bail;
-use canodom_calib::drive::{DriveCalibration, Estimate};
+use canodom_calib::drive::{DriveCalibration, DriveOptions, Estimate};
 use canodom_params::persist::{ParamFile, ParamSet, ParamValues, PersistError};
 use canodom_pipeline::config::Config;
 use std::fmt::Write as _;
@@ -93,18 +93,65 @@ pub fn report_text(cal: &DriveCalibration, base: &ParamValues, new: &ParamValues
     ] {
         line(&mut s, name, estimate, unit, k);
     }
-    let _ = writeln!(
-        s,
-        "  rear tread         not estimated from a drive (turns both ways on a track tell it): {} m kept",
-        base.rear_tread_m
-    );
+    let [left, right] = cal.turns_rad.map(f64::to_degrees);
+    let _ = if cal.rear_tread.observable {
+        writeln!(
+            s,
+            "  {:<18} {:+.6} ± {:.6} (turns {left:.0}° left, {right:.0}° right): {:.4} -> {:.4} m",
+            "rear tread (rel.)",
+            cal.rear_tread.value,
+            cal.rear_tread.sigma,
+            base.rear_tread_m,
+            new.rear_tread_m
+        )
+    } else {
+        writeln!(
+            s,
+            "  {:<18} held at {} m: the drive turned {left:.0}° left and {right:.0}° right, \
+             too little both ways to tell it from the ratio (σ {:.6})",
+            "rear tread (rel.)", base.rear_tread_m, cal.rear_tread.sigma
+        )
+    };
+    let lat = cal.fixes_latency_s;
+    let _ = if cal.latency_given {
+        writeln!(s, "  {:<18} {:+.3} s given", "fixes latency", lat.value)
+    } else if lat.observable {
+        writeln!(
+            s,
+            "  {:<18} {:+.6}s ± {:.6}s (a fix stamped t holds the pose at t − latency)",
+            "fixes latency", lat.value, lat.sigma
+        )
+    } else {
+        writeln!(
+            s,
+            "  {:<18} held at 0 s: the drive does not tell it (σ {:.3} s); give --fixes-latency-s",
+            "fixes latency", lat.sigma
+        )
+    };
     let names = ["rear wheels", "yaw rate", "steering"];
     let residuals: Vec<String> = names
         .iter()
         .zip(cal.residual_rms_m)
-        .filter_map(|(n, r)| r.map(|r| format!("{n} {r:.3} m")))
+        .zip(cal.weighted_rms_m)
+        .filter_map(|((n, r), w)| Some(format!("{n} {:.3} m ({:.3} m weighted)", r?, w?)))
         .collect();
     let _ = writeln!(s, "  residual RMS at the fixes: {}", residuals.join(", "));
+    if cal.down_weighted.is_empty() {
+        let _ = writeln!(s, "  down-weighted fixes: none");
+    } else {
+        let _ = writeln!(
+            s,
+            "  down-weighted fixes ({}; they disagree with every reckoning):",
+            cal.down_weighted.len()
+        );
+        for d in &cal.down_weighted {
+            let _ = writeln!(
+                s,
+                "    t {:.3} s: residual {:.2} m, weight {:.3}",
+                d.t_s, d.residual_m, d.weight
+            );
+        }
+    }
     let _ = writeln!(
         s,
         "  rear diameters {:.6} / {:.6} m -> {:.6} / {:.6} m",
@@ -129,6 +176,7 @@ pub fn execute(
     out: &Path,
     report_dir: Option<&Path>,
     interface: Option<&str>,
+    options: &DriveOptions,
 ) -> anyhow::Result<()> {
     let all_fixes = canodom_offline::drive::read_fixes(fixes_path)?;
     let mut file = load_or_new(out, config)?;
@@ -136,7 +184,7 @@ pub fn execute(
     let base = values_in_use(config, base_set.as_ref());
     let drive = samples_from_log(config, base_set.as_ref(), log, interface)?;
     let what = format!("{} against {}", log.display(), fixes_path.display());
-    let fit = canodom_offline::drive::fit_drive(config, base, &drive, &all_fixes, &what)?;
+    let fit = canodom_offline::drive::fit_drive(config, base, &drive, &all_fixes, &what, options)?;
     let (first, last) = fit.span_s;
     if fit.fixes_outside > 0 {
         eprintln!(
