@@ -386,6 +386,7 @@ impl Calibrator {
                     steering_offset_rad: steer.offset_rad,
                     yaw_rate_bias_radps: None,
                     yaw_rate_scale: None,
+                    yaw_rate_bias_sigma_radps: None,
                 }
             },
             |s| s.values,

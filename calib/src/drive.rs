@@ -1617,6 +1617,7 @@ pub fn calibrated_values(base: &ParamValues, cal: &DriveCalibration) -> ParamVal
         }
         if bias.observable {
             v.yaw_rate_bias_radps = Some(c0 * bias.value);
+            v.yaw_rate_bias_sigma_radps = Some(c0 * bias.sigma);
         } else if scale.observable {
             v.yaw_rate_bias_radps = Some(b0);
         }

@@ -661,6 +661,7 @@ mod tests {
             steering_offset_rad: 0.0,
             yaw_rate_bias_radps: None,
             yaw_rate_scale: None,
+            yaw_rate_bias_sigma_radps: None,
         }
     }
 
@@ -1283,6 +1284,7 @@ mod tests {
                 steering_offset_rad: steer.offset_rad,
                 yaw_rate_bias_radps: None,
                 yaw_rate_scale: None,
+                yaw_rate_bias_sigma_radps: None,
             },
             "exact",
             1,

@@ -1105,6 +1105,7 @@ mod tests {
             steering_offset_rad: 0.0,
             yaw_rate_bias_radps: None,
             yaw_rate_scale: None,
+            yaw_rate_bias_sigma_radps: None,
         }
     }
 

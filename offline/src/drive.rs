@@ -29,6 +29,7 @@ pub fn values_in_use(config: &Config, set: Option<&ParamSet>) -> ParamValues {
                 steering_offset_rad: steer.offset_rad,
                 yaw_rate_bias_radps: None,
                 yaw_rate_scale: None,
+                yaw_rate_bias_sigma_radps: None,
             }
         },
         |s| s.values,

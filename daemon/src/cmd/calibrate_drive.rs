@@ -258,6 +258,7 @@ mod tests {
             steering_offset_rad: 0.0,
             yaw_rate_bias_radps: None,
             yaw_rate_scale: None,
+            yaw_rate_bias_sigma_radps: None,
         };
         let cal = DriveCalibration {
             speed_scale: estimate(1.01, true),
