@@ -184,16 +184,25 @@ pub fn fit_drive(
     })
 }
 
-/// Reads position fixes (CSV `t_unix_s,x_m,y_m[,heading_rad]`) from `path`.
+/// Reads position fixes from `path`: a CSV in local metres
+/// (`t_unix_s,x_m,y_m[,heading_rad]`), a CSV of `t_unix_s,lat_deg,lon_deg[,alt_m]`
+/// or an NMEA 0183 log (GGA/RMC), told apart by content ([`crate::fixes`]).
 ///
 /// # Errors
-/// The file cannot be read, or a line is not a fix ([`Error::Calibration`] naming it).
+/// The file cannot be read or is not text, or it is in none of the formats,
+/// or a line is not a fix ([`Error::Calibration`] naming the format seen and the line).
 pub fn read_fixes(path: &std::path::Path) -> Result<Vec<Fix>> {
-    let text = std::fs::read_to_string(path).map_err(|source| Error::File {
+    let bytes = std::fs::read(path).map_err(|source| Error::File {
         path: crate::shown(path),
         what: "read the fixes",
         source,
     })?;
-    canodom_calib::drive::parse_fixes(&text, &path.display().to_string())
-        .map_err(|e| Error::Calibration(e.to_string()))
+    let name = path.display().to_string();
+    let text = String::from_utf8(bytes).map_err(|_| {
+        Error::Calibration(format!(
+            "{name}: not text (a receiver's binary log, UBX or SBF?): give the fixes as NMEA 0183 \
+             GGA/RMC, a CSV t_unix_s,lat_deg,lon_deg or a CSV t_unix_s,x_m,y_m"
+        ))
+    })?;
+    Ok(crate::fixes::parse_fixes_any(&text, &name)?.0)
 }
