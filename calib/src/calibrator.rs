@@ -56,6 +56,9 @@ pub struct CalibratorConfig {
     pub max_history: usize,
     /// Whether position fixes are on the bus (a drive can be calibrated).
     pub fixes_available: bool,
+    /// The quality a drive's fit must show before its values are committed
+    /// (its tread limit relative to the tread in use).
+    pub drive_gate: crate::drive::DriveGate,
 }
 
 /// An operator command.
@@ -956,7 +959,7 @@ impl Calibrator {
             wheelbase_m: p.wheelbase_m(),
         };
         let drive = self.drive.as_mut()?;
-        match drive.job(model, base) {
+        match drive.job(model, base, self.config.drive_gate) {
             Ok(job) => {
                 self.pending = Some(Pending::ComputeDrive);
                 out.push(Output::Compute(Job::Drive(job)));
@@ -1079,6 +1082,7 @@ mod tests {
             max_steer_offset_std_rad: 0.5f64.to_radians(),
             max_history: 10,
             fixes_available: false,
+            drive_gate: crate::drive::DriveGate::default(),
         }
     }
 

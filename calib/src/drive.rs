@@ -236,6 +236,9 @@ pub struct DriveCalibration {
     /// The weighted RMS position residual of each source (what the fixes it
     /// kept say), metres; None for a source without data.
     pub weighted_rms_m: [Option<f64>; 3],
+    /// What the quality gate ([`apply_gate`]) refused, and why (empty
+    /// before it ran or when everything passed).
+    pub refused: Vec<GateRefusal>,
     /// Fixes used (those in segments of at least three fixes).
     pub fixes_used: usize,
     /// Distance driven over the used segments, with the fitted scale.
@@ -1351,6 +1354,7 @@ impl<'a> Problem<'a> {
             latency_given: matches!(self.options.latency, FixesLatency::Given(_)),
             down_weighted: self.down_weighted(&fit, &rows),
             weighted_rms_m,
+            refused: Vec::new(),
             speed_scale: est(SPEED),
             rear_ratio: est(RATIO),
             steer_offset_rad: self.active[STEER].then(|| est(OFFSET)),
@@ -1590,6 +1594,164 @@ fn turns(prep: &Prepared, segments: &[Segment], rear_tread_m: f64) -> [f64; 2] {
         }
     }
     out
+}
+
+/// The quality a drive's fit must show before its values are committed
+/// (issue #31): each parameter's σ below its limit, and the fit as a whole
+/// plausible. The limits state what a user needs of a committed value, not
+/// what a fit reaches.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DriveGate {
+    /// Largest σ of the speed scale (relative).
+    pub speed_scale: f64,
+    /// Largest σ of the rear ratio correction (relative).
+    pub rear_ratio: f64,
+    /// Largest σ of the steering offset, rad.
+    pub steer_offset_rad: f64,
+    /// Largest σ of the steering gain correction (relative).
+    pub steer_gain: f64,
+    /// Largest σ of the yaw-rate bias, rad/s.
+    pub yaw_bias_radps: f64,
+    /// Largest σ of the yaw-rate scale (relative).
+    pub yaw_scale: f64,
+    /// Largest σ of the rear tread correction (relative).
+    pub rear_tread: f64,
+    /// Largest weighted RMS position residual at the fixes of the best
+    /// source, metres: past it the reckoning and the fixes disagree beyond
+    /// any receiver's noise (a wrong configuration, a wrong log) and nothing
+    /// is committed.
+    pub max_residual_m: f64,
+    /// Largest share of fixes the robust loss may down-weight: past it the
+    /// "outliers" are the rule and nothing is committed.
+    pub max_down_weighted_share: f64,
+}
+
+impl Default for DriveGate {
+    /// 0.2 %, 0.2 %, 0.5°, 2 %, 0.05°/s, 1 %, 0.5 %; 2 m; a quarter of the fixes.
+    fn default() -> Self {
+        Self {
+            speed_scale: 0.002,
+            rear_ratio: 0.002,
+            steer_offset_rad: 0.5 * PI / 180.0,
+            steer_gain: 0.02,
+            yaw_bias_radps: 0.05 * PI / 180.0,
+            yaw_scale: 0.01,
+            rear_tread: 0.005,
+            max_residual_m: 2.0,
+            max_down_weighted_share: 0.25,
+        }
+    }
+}
+
+/// A parameter the gate kept at its previous value, and why.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GateRefusal {
+    /// The parameter (as the report names it).
+    pub parameter: &'static str,
+    /// Why, with the numbers.
+    pub reason: String,
+}
+
+/// Applies `gate` to `cal`: every estimate that fails it is marked not
+/// observable, so [`calibrated_values`] keeps the previous value; the
+/// refusals say which and why (empty: everything the drive told passes).
+pub fn apply_gate(cal: &mut DriveCalibration, gate: &DriveGate) -> Vec<GateRefusal> {
+    let mut refusals = Vec::new();
+    let best_rms = cal
+        .weighted_rms_m
+        .iter()
+        .flatten()
+        .copied()
+        .fold(f64::INFINITY, f64::min);
+    let share = cal.down_weighted.len() as f64 / cal.fixes_used.max(1) as f64;
+    let whole = if best_rms > gate.max_residual_m {
+        Some(format!(
+            "the fit's residual at the fixes is {best_rms:.2} m (weighted RMS of the best source), \
+             above {:.2} m: the reckoning and the fixes disagree (configuration, log or fixes wrong?)",
+            gate.max_residual_m
+        ))
+    } else if share > gate.max_down_weighted_share {
+        Some(format!(
+            "{} of {} fixes were down-weighted ({:.0} %), more than {:.0} %: the fixes are not \
+             a receiver's with a few jumps",
+            cal.down_weighted.len(),
+            cal.fixes_used,
+            100.0 * share,
+            100.0 * gate.max_down_weighted_share
+        ))
+    } else {
+        None
+    };
+    let deg = 180.0 / PI;
+    let entries: [(&'static str, Option<&mut Estimate>, f64, &str, f64); 7] = [
+        (
+            "speed scale",
+            Some(&mut cal.speed_scale),
+            gate.speed_scale,
+            "",
+            1.0,
+        ),
+        (
+            "rear ratio (R/L)",
+            Some(&mut cal.rear_ratio),
+            gate.rear_ratio,
+            "",
+            1.0,
+        ),
+        (
+            "steering offset",
+            cal.steer_offset_rad.as_mut(),
+            gate.steer_offset_rad,
+            "°",
+            deg,
+        ),
+        (
+            "steering gain",
+            cal.steer_gain.as_mut(),
+            gate.steer_gain,
+            "",
+            1.0,
+        ),
+        (
+            "yaw-rate bias",
+            cal.yaw_bias_radps.as_mut(),
+            gate.yaw_bias_radps,
+            "°/s",
+            deg,
+        ),
+        (
+            "yaw-rate scale",
+            cal.yaw_scale.as_mut(),
+            gate.yaw_scale,
+            "",
+            1.0,
+        ),
+        (
+            "rear tread (rel.)",
+            Some(&mut cal.rear_tread),
+            gate.rear_tread,
+            "",
+            1.0,
+        ),
+    ];
+    for (parameter, estimate, limit, unit, k) in entries {
+        let Some(e) = estimate.filter(|e| e.observable) else {
+            continue;
+        };
+        let reason = match &whole {
+            Some(why) => why.clone(),
+            None if !(e.sigma <= limit) => format!(
+                "σ {:.6}{unit} above the limit {:.6}{unit}",
+                e.sigma * k,
+                limit * k
+            ),
+            None => continue,
+        };
+        e.observable = false;
+        refusals.push(GateRefusal { parameter, reason });
+    }
+    cal.refused.extend(refusals.iter().cloned());
+    refusals
 }
 
 /// The parameter values after the calibration `cal` of a drive recorded
@@ -2067,6 +2229,54 @@ mod tests {
         // Told there is none, the fit is off by what 0.2 s at 5 m/s does.
         let wrong = given(0.0);
         assert!(wrong.residual_rms_m[YAW].unwrap() > 0.05, "{wrong:?}");
+    }
+
+    #[test]
+    fn the_gate_keeps_what_is_too_uncertain_and_everything_of_an_implausible_fit() {
+        let (samples, fixes) = drive(TRUTH, 130.0, winding);
+        let cal = calibrate_drive(&samples, &fixes, &MODEL).unwrap();
+        let base = ParamValues::plain(1.55, 0.7);
+        let mut passed = cal.clone();
+        assert!(apply_gate(&mut passed, &DriveGate::default()).is_empty());
+        assert_eq!(
+            calibrated_values(&base, &passed),
+            calibrated_values(&base, &cal)
+        );
+        // A bias limit below what the fit reached: the bias alone is kept.
+        let strict = DriveGate {
+            yaw_bias_radps: 0.5 * cal.yaw_bias_radps.unwrap().sigma,
+            ..DriveGate::default()
+        };
+        let mut gated = cal.clone();
+        let refused = apply_gate(&mut gated, &strict);
+        assert_eq!(refused.len(), 1, "{refused:?}");
+        assert_eq!(refused[0].parameter, "yaw-rate bias");
+        assert!(refused[0].reason.contains("above the limit"), "{refused:?}");
+        assert_eq!(gated.refused, refused);
+        let v = calibrated_values(&base, &gated);
+        // Kept as it was (none: 0 beside the new scale), without a σ.
+        assert_eq!(v.yaw_rate_bias_radps, Some(0.0));
+        assert_eq!(v.yaw_rate_bias_sigma_radps, None);
+        assert_eq!(
+            v.yaw_rate_scale,
+            calibrated_values(&base, &cal).yaw_rate_scale
+        );
+        // Residuals beyond a receiver's: nothing passes.
+        let mut off = cal.clone();
+        off.weighted_rms_m = [Some(5.0), Some(4.0), None];
+        let refused = apply_gate(&mut off, &DriveGate::default());
+        assert_eq!(refused.len(), 7, "{refused:?}");
+        assert!(refused[0].reason.contains("4.00 m"), "{refused:?}");
+        assert_eq!(calibrated_values(&base, &off), base);
+        // Too many fixes down-weighted: nothing passes either.
+        let mut jumpy = cal.clone();
+        let d = DownWeighted {
+            t_s: 0.0,
+            residual_m: 9.0,
+            weight: 0.01,
+        };
+        jumpy.down_weighted = vec![d; jumpy.fixes_used / 2];
+        assert_eq!(apply_gate(&mut jumpy, &DriveGate::default()).len(), 7);
     }
 
     #[test]

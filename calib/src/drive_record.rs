@@ -2,7 +2,9 @@
 //! (START_DRIVE): the filter's steps merged into short bins, the fixes in a
 //! local frame, and the job that fits them ([`crate::drive`]).
 
-use crate::drive::{DriveCalibration, DriveModel, DriveSample, Fix, calibrate_drive};
+use crate::drive::{
+    DriveCalibration, DriveGate, DriveModel, DriveSample, Fix, apply_gate, calibrate_drive,
+};
 use crate::error::Result;
 use crate::history::ParamValues;
 
@@ -51,6 +53,8 @@ pub struct DriveJob {
     pub model: DriveModel,
     /// The values in use while recording.
     pub base: ParamValues,
+    /// The quality a fit must show for its values to be committed.
+    pub gate: DriveGate,
 }
 
 impl DriveJob {
@@ -59,7 +63,8 @@ impl DriveJob {
     /// # Errors
     /// As [`calibrate_drive`].
     pub fn run(&self) -> Result<(DriveCalibration, ParamValues)> {
-        let cal = calibrate_drive(&self.samples, &self.fixes, &self.model)?;
+        let mut cal = calibrate_drive(&self.samples, &self.fixes, &self.model)?;
+        apply_gate(&mut cal, &self.gate);
         let values = crate::drive::calibrated_values(&self.base, &cal);
         Ok((cal, values))
     }
@@ -178,6 +183,7 @@ impl DriveRecorder {
         &mut self,
         model: DriveModel,
         base: ParamValues,
+        gate: DriveGate,
     ) -> std::result::Result<DriveJob, TooFewSamples> {
         self.flush();
         if self.fixes.len() < 3 || self.samples.len() < 3 {
@@ -199,6 +205,7 @@ impl DriveRecorder {
             fixes,
             model,
             base,
+            gate,
         })
     }
 
@@ -240,7 +247,7 @@ mod tests {
             rear_tread_m: 0.25,
             wheelbase_m: 0.3,
         };
-        let job = d.job(model, base).unwrap();
+        let job = d.job(model, base, DriveGate::default()).unwrap();
         assert!(d.is_closed());
         // 1 s of 10 ms steps in bins of at least 50 ms.
         assert!(
@@ -287,7 +294,7 @@ mod tests {
             wheelbase_m: 0.3,
         };
         let base = ParamValues::plain(0.25, 0.09);
-        assert_eq!(d.job(model, base), Err(TooFewSamples));
+        assert_eq!(d.job(model, base, DriveGate::default()), Err(TooFewSamples));
         assert!(!d.is_closed());
     }
 }

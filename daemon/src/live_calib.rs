@@ -112,6 +112,7 @@ impl LiveCalibration {
                 max_steer_offset_std_rad: config.max_steer_offset_std_rad,
                 max_history: config.max_history,
                 fixes_available: config.fixes.is_some(),
+                drive_gate: canodom_offline::drive::drive_gate(&config, nominal.rear_tread_m()),
             },
             nominal,
             file,
@@ -306,6 +307,15 @@ impl LiveCalibration {
     pub fn on_computed(&mut self, t: Timestamp, outcome: JobOutcome) -> Vec<Output> {
         if let JobOutcome::Drive(Err(e)) | JobOutcome::Rear(Err(e)) = &outcome {
             tracing::warn!(cause = %e, "calibration failed");
+        }
+        if let JobOutcome::Drive(Ok((cal, _))) = &outcome {
+            for r in &cal.refused {
+                tracing::warn!(
+                    parameter = r.parameter,
+                    reason = %r.reason,
+                    "drive calibration: not committed, the previous value kept"
+                );
+            }
         }
         let t_s = seconds(t);
         let out = self.calibrator.on_computed(outcome);

@@ -7,8 +7,8 @@
 use crate::log::LogFrames;
 use crate::{Error, Result};
 use canodom_calib::drive::{
-    DriveCalibration, DriveModel, DriveOptions, DriveSample, Fix, calibrate_drive_with,
-    calibrated_values,
+    DriveCalibration, DriveGate, DriveModel, DriveOptions, DriveSample, Fix, GateRefusal,
+    apply_gate, calibrate_drive_with, calibrated_values,
 };
 use canodom_fusion::ekf::WindowOutcome;
 use canodom_params::persist::{ParamSet, ParamValues};
@@ -121,14 +121,33 @@ pub fn samples_from_frames(
     })
 }
 
+/// The quality gate of a drive's commit from the configuration's limits
+/// (`[calibration]`), the tread's relative to `rear_tread_m`.
+pub fn drive_gate(c: &canodom_pipeline::config::CalibrationConfig, rear_tread_m: f64) -> DriveGate {
+    DriveGate {
+        speed_scale: c.max_speed_scale_std,
+        rear_ratio: c.max_ratio_std,
+        steer_offset_rad: c.max_steer_offset_std_rad,
+        steer_gain: c.max_steer_gain_std_rel,
+        yaw_bias_radps: c.max_yaw_bias_std_radps,
+        yaw_scale: c.max_yaw_scale_std,
+        rear_tread: c.max_tread_std_m / rear_tread_m,
+        max_residual_m: c.max_fix_residual_m,
+        max_down_weighted_share: c.max_down_weighted_share,
+    }
+}
+
 /// A drive calibrated against its fixes.
 pub struct DriveFit {
     /// The fit: each parameter with its σ and whether the drive told it.
     pub calibration: DriveCalibration,
     /// The values in use during the drive (the configured set without a parameter file).
     pub base: ParamValues,
-    /// The calibrated values: the fit applied to `base`, what it could not tell held.
+    /// The calibrated values: the fit applied to `base`, what it could not
+    /// tell or the quality gate refused held.
     pub values: ParamValues,
+    /// What the quality gate refused, and why (the previous value is kept).
+    pub refused: Vec<GateRefusal>,
     /// The fixes within the log's time, which the fit used.
     pub fixes: Vec<Fix>,
     /// The fixes outside the log's time, left out.
@@ -164,8 +183,12 @@ pub fn fit_drive(
         rear_tread_m: base.rear_tread_m,
         wheelbase_m: config.params.wheelbase_m(),
     };
-    let calibration = calibrate_drive_with(&drive.samples, &fixes, &model, options)
+    let mut calibration = calibrate_drive_with(&drive.samples, &fixes, &model, options)
         .map_err(|e| Error::Calibration(format!("calibration of {what} failed: {e}")))?;
+    let refused = apply_gate(
+        &mut calibration,
+        &drive_gate(&config.calibration, base.rear_tread_m),
+    );
     let values = calibrated_values(&base, &calibration);
     let out_of_bounds = config
         .calibration
@@ -177,6 +200,7 @@ pub fn fit_drive(
         calibration,
         base,
         values,
+        refused,
         fixes_outside: all_fixes.len() - fixes.len(),
         fixes,
         span_s: (first, last),

@@ -206,8 +206,20 @@ pub fn execute(
     );
     let (cal, values, fixes) = (fit.calibration, fit.values, fit.fixes);
     print!("{}", report_text(&cal, &base, &values));
+    for r in &fit.refused {
+        println!(
+            "  not committed, the previous value kept: {}: {}",
+            r.parameter, r.reason
+        );
+    }
     if let Some(why) = fit.out_of_bounds {
         bail!("the calibrated set is outside the configured bounds; not committed: {why}");
+    }
+    if values == base {
+        bail!(
+            "nothing passed the quality gate ([calibration] max_*_std, max_fix_residual_m, \
+             max_down_weighted_share); the parameter file is left as it was"
+        );
     }
     let created = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
@@ -270,6 +282,13 @@ mod tests {
             fixes_used: 30,
             distance_m: 500.0,
             residual_rms_m: [Some(0.1), Some(0.1), None],
+            rear_tread: estimate(1.0, false),
+            turns_rad: [0.5, 0.0],
+            fixes_latency_s: estimate(0.2, true),
+            latency_given: false,
+            down_weighted: Vec::new(),
+            weighted_rms_m: [Some(0.1), Some(0.1), None],
+            refused: Vec::new(),
         };
         let v = calibrated_values(&base, &cal);
         let (l, r) = (v.rear_left_diameter_m, v.rear_right_diameter_m);
@@ -290,7 +309,7 @@ mod tests {
             "{text}"
         );
         assert!(
-            text.contains("rear tread") && text.contains("not estimated"),
+            text.contains("rear tread") && text.contains("too little both ways"),
             "{text}"
         );
     }
