@@ -104,6 +104,17 @@ pub fn report_text(cal: &DriveCalibration, base: &ParamValues, new: &ParamValues
             base.rear_tread_m,
             new.rear_tread_m
         )
+    } else if cal
+        .refused
+        .iter()
+        .any(|r| r.parameter == "rear tread (rel.)")
+    {
+        writeln!(
+            s,
+            "  {:<18} held at {} m: fitted from {left:.0}° left and {right:.0}° right, \
+             refused by the quality gate (below)",
+            "rear tread (rel.)", base.rear_tread_m
+        )
     } else {
         writeln!(
             s,
