@@ -127,7 +127,7 @@ pub enum JobOutcome {
     /// Of [`Job::Rear`].
     Rear(Result<CalibrationResult>),
     /// Of [`Job::Drive`]: the calibration and the values it gives.
-    Drive(Result<(DriveCalibration, ParamValues)>),
+    Drive(Result<Box<(DriveCalibration, ParamValues)>>),
 }
 
 impl Job {
@@ -136,7 +136,7 @@ impl Job {
     pub fn run(&self) -> JobOutcome {
         match self {
             Job::Rear(job) => JobOutcome::Rear(job.run()),
-            Job::Drive(job) => JobOutcome::Drive(job.run()),
+            Job::Drive(job) => JobOutcome::Drive(job.run().map(Box::new)),
         }
     }
 }
@@ -754,7 +754,7 @@ impl Calibrator {
             (Some(Pending::ComputeDrive), JobOutcome::Drive(outcome)) => {
                 match (outcome, self.drive.as_mut()) {
                     (Ok(result), Some(_)) => {
-                        self.drive_result = Some(result);
+                        self.drive_result = Some(*result);
                         Ok(())
                     }
                     (_, drive) => {

@@ -1740,11 +1740,16 @@ pub fn apply_gate(cal: &mut DriveCalibration, gate: &DriveGate) -> Vec<GateRefus
         };
         let reason = match &whole {
             Some(why) => why.clone(),
-            None if !(e.sigma <= limit) => format!(
-                "σ {:.6}{unit} above the limit {:.6}{unit}",
-                e.sigma * k,
-                limit * k
-            ),
+            // A NaN σ fails too.
+            None if e.sigma.partial_cmp(&limit) != Some(std::cmp::Ordering::Less)
+                && e.sigma != limit =>
+            {
+                format!(
+                    "σ {:.6}{unit} above the limit {:.6}{unit}",
+                    e.sigma * k,
+                    limit * k
+                )
+            }
             None => continue,
         };
         e.observable = false;

@@ -308,8 +308,8 @@ impl LiveCalibration {
         if let JobOutcome::Drive(Err(e)) | JobOutcome::Rear(Err(e)) = &outcome {
             tracing::warn!(cause = %e, "calibration failed");
         }
-        if let JobOutcome::Drive(Ok((cal, _))) = &outcome {
-            for r in &cal.refused {
+        if let JobOutcome::Drive(Ok(result)) = &outcome {
+            for r in &result.0.refused {
                 tracing::warn!(
                     parameter = r.parameter,
                     reason = %r.reason,

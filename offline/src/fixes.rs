@@ -188,12 +188,21 @@ struct Sentence {
     alt_m: Option<f64>,
 }
 
-/// One sentence: `Ok(None)` for a sentence other than GGA/RMC,
-/// `Ok(Some(None))` for a GGA/RMC without a valid fix, else its fix (line 0).
+/// What one NMEA sentence holds.
+enum Read {
+    /// A sentence other than GGA/RMC.
+    Other,
+    /// A GGA/RMC without a valid fix.
+    NoFix,
+    /// A fix (its line still 0).
+    Fix(Sentence),
+}
+
+/// One sentence, its checksum checked.
 ///
 /// # Errors
 /// A bad checksum or a malformed field, in words.
-fn sentence_fix(line: &str) -> std::result::Result<Option<Option<Sentence>>, String> {
+fn sentence_fix(line: &str) -> std::result::Result<Read, String> {
     let body = &line[1..];
     let (data, sum) = match body.rsplit_once('*') {
         Some((data, sum)) => (data, Some(sum)),
@@ -216,14 +225,14 @@ fn sentence_fix(line: &str) -> std::result::Result<Option<Option<Sentence>>, Str
     let (time, lat, ns, lon, ew) = match kind {
         "GGA" => (field(1), field(2), field(3), field(4), field(5)),
         "RMC" => (field(1), field(3), field(4), field(5), field(6)),
-        _ => return Ok(None),
+        _ => return Ok(Read::Other),
     };
     let valid = match kind {
         "GGA" => !matches!(field(6), "" | "0"),
         _ => field(2) == "A" || field(2) == "D",
     };
     if !valid || time.is_empty() || lat.is_empty() || lon.is_empty() {
-        return Ok(Some(None));
+        return Ok(Read::NoFix);
     }
     let time = NaiveTime::parse_from_str(time, "%H%M%S%.f")
         .or_else(|_| NaiveTime::parse_from_str(time, "%H%M%S"))
@@ -264,14 +273,14 @@ fn sentence_fix(line: &str) -> std::result::Result<Option<Option<Sentence>>, Str
             },
         )
     };
-    Ok(Some(Some(Sentence {
+    Ok(Read::Fix(Sentence {
         line: 0,
         time,
         date,
         lat_deg,
         lon_deg,
         alt_m,
-    })))
+    }))
 }
 
 fn parse_nmea(text: &str, name: &str) -> Result<Vec<Fix>> {
@@ -292,12 +301,12 @@ fn parse_nmea(text: &str, name: &str) -> Result<Vec<Fix>> {
             )));
         }
         match sentence_fix(line) {
-            Ok(Some(Some(mut s))) => {
+            Ok(Read::Fix(mut s)) => {
                 s.line = i + 1;
                 sentences.push(s);
             }
-            Ok(Some(None)) => invalid += 1,
-            Ok(None) => other += 1,
+            Ok(Read::NoFix) => invalid += 1,
+            Ok(Read::Other) => other += 1,
             Err(e) => bad.push(format!("line {}: {e}", i + 1)),
         }
     }

@@ -373,6 +373,27 @@ fn write_atomic(path: &Path, text: &str) -> anyhow::Result<()> {
     })
 }
 
+/// `--fixes-latency-s` / `--fixes-latency-bound-s` as the drive fit's options.
+fn drive_options(args: &CalibrateArgs) -> anyhow::Result<canodom_calib::drive::DriveOptions> {
+    let latency = match args.fixes_latency_s {
+        Some(s) if s.is_finite() => canodom_calib::drive::FixesLatency::Given(s),
+        Some(s) => bail!("--fixes-latency-s {s}: not a finite number of seconds"),
+        None if args.fixes_latency_bound_s.is_finite() && args.fixes_latency_bound_s > 0.0 => {
+            canodom_calib::drive::FixesLatency::Estimate {
+                bound_s: args.fixes_latency_bound_s,
+            }
+        }
+        None => bail!(
+            "--fixes-latency-bound-s {}: must be a positive number of seconds",
+            args.fixes_latency_bound_s
+        ),
+    };
+    Ok(canodom_calib::drive::DriveOptions {
+        latency,
+        ..canodom_calib::drive::DriveOptions::default()
+    })
+}
+
 /// Runs `calibrate`.
 ///
 /// # Errors
@@ -382,23 +403,7 @@ pub fn execute(args: &CalibrateArgs) -> anyhow::Result<()> {
     let config = Config::load(&args.config)?;
     super::dbc_warnings(&config.db, args.strict)?;
     if let (Some(fixes), Some(log), Some(out)) = (&args.fixes, &args.log, &args.out) {
-        let latency = match args.fixes_latency_s {
-            Some(s) if s.is_finite() => canodom_calib::drive::FixesLatency::Given(s),
-            Some(s) => bail!("--fixes-latency-s {s}: not a finite number of seconds"),
-            None if args.fixes_latency_bound_s.is_finite() && args.fixes_latency_bound_s > 0.0 => {
-                canodom_calib::drive::FixesLatency::Estimate {
-                    bound_s: args.fixes_latency_bound_s,
-                }
-            }
-            None => bail!(
-                "--fixes-latency-bound-s {}: must be a positive number of seconds",
-                args.fixes_latency_bound_s
-            ),
-        };
-        let options = canodom_calib::drive::DriveOptions {
-            latency,
-            ..canodom_calib::drive::DriveOptions::default()
-        };
+        let options = drive_options(args)?;
         return super::calibrate_drive::execute(
             &config,
             fixes,

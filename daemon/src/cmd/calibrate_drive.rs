@@ -93,52 +93,7 @@ pub fn report_text(cal: &DriveCalibration, base: &ParamValues, new: &ParamValues
     ] {
         line(&mut s, name, estimate, unit, k);
     }
-    let [left, right] = cal.turns_rad.map(f64::to_degrees);
-    let _ = if cal.rear_tread.observable {
-        writeln!(
-            s,
-            "  {:<18} {:+.6} ± {:.6} (turns {left:.0}° left, {right:.0}° right): {:.4} -> {:.4} m",
-            "rear tread (rel.)",
-            cal.rear_tread.value,
-            cal.rear_tread.sigma,
-            base.rear_tread_m,
-            new.rear_tread_m
-        )
-    } else if cal
-        .refused
-        .iter()
-        .any(|r| r.parameter == "rear tread (rel.)")
-    {
-        writeln!(
-            s,
-            "  {:<18} held at {} m: fitted from {left:.0}° left and {right:.0}° right, \
-             refused by the quality gate (below)",
-            "rear tread (rel.)", base.rear_tread_m
-        )
-    } else {
-        writeln!(
-            s,
-            "  {:<18} held at {} m: the drive turned {left:.0}° left and {right:.0}° right, \
-             too little both ways to tell it from the ratio (σ {:.6})",
-            "rear tread (rel.)", base.rear_tread_m, cal.rear_tread.sigma
-        )
-    };
-    let lat = cal.fixes_latency_s;
-    let _ = if cal.latency_given {
-        writeln!(s, "  {:<18} {:+.3} s given", "fixes latency", lat.value)
-    } else if lat.observable {
-        writeln!(
-            s,
-            "  {:<18} {:+.6}s ± {:.6}s (a fix stamped t holds the pose at t − latency)",
-            "fixes latency", lat.value, lat.sigma
-        )
-    } else {
-        writeln!(
-            s,
-            "  {:<18} held at 0 s: the drive does not tell it (σ {:.3} s); give --fixes-latency-s",
-            "fixes latency", lat.sigma
-        )
-    };
+    tread_and_latency(&mut s, cal, base, new);
     let names = ["rear wheels", "yaw rate", "steering"];
     let residuals: Vec<String> = names
         .iter()
@@ -172,6 +127,61 @@ pub fn report_text(cal: &DriveCalibration, base: &ParamValues, new: &ParamValues
         new.rear_right_diameter_m
     );
     s
+}
+
+/// The report's lines of the rear tread and the fixes' latency.
+fn tread_and_latency(
+    s: &mut String,
+    cal: &DriveCalibration,
+    base: &ParamValues,
+    new: &ParamValues,
+) {
+    let [left, right] = cal.turns_rad.map(f64::to_degrees);
+    let _ = if cal.rear_tread.observable {
+        writeln!(
+            *s,
+            "  {:<18} {:+.6} ± {:.6} (turns {left:.0}° left, {right:.0}° right): {:.4} -> {:.4} m",
+            "rear tread (rel.)",
+            cal.rear_tread.value,
+            cal.rear_tread.sigma,
+            base.rear_tread_m,
+            new.rear_tread_m
+        )
+    } else if cal
+        .refused
+        .iter()
+        .any(|r| r.parameter == "rear tread (rel.)")
+    {
+        writeln!(
+            *s,
+            "  {:<18} held at {} m: fitted from {left:.0}° left and {right:.0}° right, \
+             refused by the quality gate (below)",
+            "rear tread (rel.)", base.rear_tread_m
+        )
+    } else {
+        writeln!(
+            *s,
+            "  {:<18} held at {} m: the drive turned {left:.0}° left and {right:.0}° right, \
+             too little both ways to tell it from the ratio (σ {:.6})",
+            "rear tread (rel.)", base.rear_tread_m, cal.rear_tread.sigma
+        )
+    };
+    let lat = cal.fixes_latency_s;
+    let _ = if cal.latency_given {
+        writeln!(*s, "  {:<18} {:+.3} s given", "fixes latency", lat.value)
+    } else if lat.observable {
+        writeln!(
+            *s,
+            "  {:<18} {:+.6}s ± {:.6}s (a fix stamped t holds the pose at t − latency)",
+            "fixes latency", lat.value, lat.sigma
+        )
+    } else {
+        writeln!(
+            *s,
+            "  {:<18} held at 0 s: the drive does not tell it (σ {:.3} s); give --fixes-latency-s",
+            "fixes latency", lat.sigma
+        )
+    };
 }
 
 /// Runs the drive calibration: samples from `log`, fixes from `fixes`,
