@@ -42,12 +42,18 @@ y to the left), for some or all logs; a log not listed is assumed to end exactly
 dx_m = 0.012\n  dy_m = -0.004\n  dtheta_deg = 0.8\n\n\
 Without a track: calibration from an ordinary drive with position fixes (GNSS, a surveyed route):\n  \
 canodom calibrate --config car.toml --fixes fixes.csv --out params.toml drive.log\n\
-fixes.csv has a header t_unix_s,x_m,y_m[,heading_rad] (the rear-axle centre in a local metric frame, \
-times on the log's clock; 1 Hz is plenty). The rear diameter ratio, the speed scale, the steering \
-offset and gain and the yaw-rate sensor's bias and scale are fitted by least squares over the whole \
-drive, each with its standard deviation; what the drive cannot tell (a straight road cannot tell the \
-steering gain) is held and said so. The result is committed to the parameter file --out (created if \
-missing, history kept, bounds checked), which `replay --params` and `run` (param_file) use.")]
+The fixes (the rear-axle centre, times on the log's clock; 1 Hz is plenty) are read from a CSV \
+t_unix_s,x_m,y_m[,heading_rad] in a local metric frame, a CSV t_unix_s,lat_deg,lon_deg[,alt_m] \
+(WGS-84, turned into metres around the first fix) or an NMEA 0183 log (GGA/RMC, UTC times), told \
+apart by content. The rear diameter ratio, the speed scale, the steering offset and gain, the \
+yaw-rate sensor's bias and scale, the effective rear tread (from turns both ways) and the fixes' \
+latency (within ±--fixes-latency-bound-s, or given with --fixes-latency-s) are fitted over the whole \
+drive with a robust loss: a receiver's jumps are down-weighted and listed, each estimate has its \
+standard deviation; what the drive cannot tell is held and said so. Each value is committed only if \
+its standard deviation is within [calibration]'s max_*_std and the fit is plausible \
+(max_fix_residual_m, max_down_weighted_share), else the previous value is kept and the reason \
+printed. The result goes to the parameter file --out (created if missing, history kept, bounds \
+checked), which `replay --params` and `run` (param_file) use.")]
 pub struct CalibrateArgs {
     /// The configuration file: DBC, signals and the parameters in use while recording.
     #[arg(long)]

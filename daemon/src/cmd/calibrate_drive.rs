@@ -162,8 +162,8 @@ fn tread_and_latency(
         writeln!(
             *s,
             "  {:<18} held at {} m: the drive turned {left:.0}° left and {right:.0}° right, \
-             too little both ways to tell it from the ratio (σ {:.6})",
-            "rear tread (rel.)", base.rear_tread_m, cal.rear_tread.sigma
+             too little both ways to tell it from the ratio",
+            "rear tread (rel.)", base.rear_tread_m
         )
     };
     let lat = cal.fixes_latency_s;
