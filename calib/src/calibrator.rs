@@ -58,7 +58,7 @@ pub struct CalibratorConfig {
     pub fixes_available: bool,
     /// The quality a drive's fit must show before its values are committed
     /// (its tread limit relative to the tread in use).
-    pub drive_gate: crate::drive::DriveGate,
+    pub drive_gate: crate::drive_gate::DriveGate,
 }
 
 /// An operator command.
@@ -1082,7 +1082,7 @@ mod tests {
             max_steer_offset_std_rad: 0.5f64.to_radians(),
             max_history: 10,
             fixes_available: false,
-            drive_gate: crate::drive::DriveGate::default(),
+            drive_gate: crate::drive_gate::DriveGate::default(),
         }
     }
 

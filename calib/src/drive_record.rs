@@ -2,9 +2,8 @@
 //! (START_DRIVE): the filter's steps merged into short bins, the fixes in a
 //! local frame, and the job that fits them ([`crate::drive`]).
 
-use crate::drive::{
-    DriveCalibration, DriveGate, DriveModel, DriveSample, Fix, apply_gate, calibrate_drive,
-};
+use crate::drive::{DriveCalibration, DriveModel, DriveSample, Fix, calibrate_drive};
+use crate::drive_gate::{DriveGate, apply_gate};
 use crate::error::Result;
 use crate::history::ParamValues;
 

@@ -7,9 +7,10 @@
 use crate::log::LogFrames;
 use crate::{Error, Result};
 use canodom_calib::drive::{
-    DriveCalibration, DriveGate, DriveModel, DriveOptions, DriveSample, Fix, GateRefusal,
-    apply_gate, calibrate_drive_with, calibrated_values,
+    DriveCalibration, DriveModel, DriveOptions, DriveSample, Fix, GateRefusal,
+    calibrate_drive_with, calibrated_values,
 };
+use canodom_calib::drive_gate::{DriveGate, apply_gate};
 use canodom_fusion::ekf::WindowOutcome;
 use canodom_params::persist::{ParamSet, ParamValues};
 use canodom_pipeline::config::Config;
