@@ -94,7 +94,7 @@ def held_out(pose, truth, t_split: float):
 
 
 # calibrate's report lines: "  <name>  <value><unit> ± <sigma><unit>" (or "held: ...").
-LINE = re.compile(r"^  (?P<name>[a-z][a-z ()/\-]+?)\s{2,}(?P<v>[+-]?[0-9.]+)(?P<u>[^ ±]*) ± (?P<s>[0-9.]+)")
+LINE = re.compile(r"^  (?P<name>[a-z][a-zA-Z .()/\-]+?)\s{2,}(?P<v>[+-]?[0-9.]+)(?P<u>[^ ±]*) ± (?P<s>[0-9.]+)")
 
 
 def parse_report(text: str) -> dict:
