@@ -135,7 +135,8 @@ impl DriveRecorder {
                 bin.rear_slip = true;
             }
         }
-        self.window_start = self.samples.len() + usize::from(self.bin.is_some());
+        // The open bin may hold steps of the next window too: it counts in both.
+        self.window_start = self.samples.len();
     }
 
     /// A position fix: a local x and y in metres, or (`geodetic`) latitude
@@ -227,6 +228,40 @@ mod tests {
             yaw_rate_radps: Some(0.2),
             dt_s: 0.01,
         }
+    }
+
+    #[test]
+    fn a_window_with_a_slipping_rear_wheel_marks_its_samples_only() {
+        let mut d = DriveRecorder::default();
+        // Windows of 0.5 s closing at 0.5, 1.0 (rear slipped) and 1.5 s.
+        for k in 0..=150 {
+            let t = f64::from(k) * 0.01;
+            d.step(&step(t));
+            if k > 0 && k % 50 == 0 {
+                d.window_closed(k == 100);
+            }
+        }
+        for k in 0..5 {
+            d.fix(f64::from(k) * 0.3, f64::from(k), 0.0, false);
+        }
+        let model = DriveModel {
+            rear_tread_m: 0.25,
+            wheelbase_m: 0.3,
+        };
+        let job = d
+            .job(model, ParamValues::plain(0.25, 0.09), DriveGate::default())
+            .unwrap();
+        // Marked: every bin (≥ 50 ms, stamped at its last step) holding a step
+        // of the window 0.5–1.0 s, those straddling its ends included.
+        for s in &job.samples {
+            if s.t_s > 0.5 + 1e-9 && s.t_s <= 1.0 + 1e-9 {
+                assert!(s.rear_slip, "{s:?}");
+            }
+            if s.t_s <= 0.5 + 1e-9 || s.t_s > 1.1 + 1e-9 {
+                assert!(!s.rear_slip, "{s:?}");
+            }
+        }
+        assert!(job.samples.iter().any(|s| s.rear_slip));
     }
 
     #[test]
