@@ -56,6 +56,9 @@ pub struct CalibratorConfig {
     pub max_history: usize,
     /// Whether position fixes are on the bus (a drive can be calibrated).
     pub fixes_available: bool,
+    /// The quality a drive's fit must show before its values are committed
+    /// (its tread limit relative to the tread in use).
+    pub drive_gate: crate::drive_gate::DriveGate,
 }
 
 /// An operator command.
@@ -124,7 +127,7 @@ pub enum JobOutcome {
     /// Of [`Job::Rear`].
     Rear(Result<CalibrationResult>),
     /// Of [`Job::Drive`]: the calibration and the values it gives.
-    Drive(Result<(DriveCalibration, ParamValues)>),
+    Drive(Result<Box<(DriveCalibration, ParamValues)>>),
 }
 
 impl Job {
@@ -133,7 +136,7 @@ impl Job {
     pub fn run(&self) -> JobOutcome {
         match self {
             Job::Rear(job) => JobOutcome::Rear(job.run()),
-            Job::Drive(job) => JobOutcome::Drive(job.run()),
+            Job::Drive(job) => JobOutcome::Drive(job.run().map(Box::new)),
         }
     }
 }
@@ -386,6 +389,7 @@ impl Calibrator {
                     steering_offset_rad: steer.offset_rad,
                     yaw_rate_bias_radps: None,
                     yaw_rate_scale: None,
+                    yaw_rate_bias_sigma_radps: None,
                 }
             },
             |s| s.values,
@@ -505,6 +509,15 @@ impl Calibrator {
                 _ => None,
             })
             .unwrap_or(Ok(()))
+    }
+
+    /// The filter closed a correction window at the last step, its gate
+    /// finding a rear wheel slipping in it or not: a drive being recorded
+    /// marks the window's samples (see [`DriveRecorder::window_closed`]).
+    pub fn on_window(&mut self, rear_slipped: bool) {
+        if let Some(drive) = self.drive.as_mut() {
+            drive.window_closed(rear_slipped);
+        }
     }
 
     /// A filter step at `t_s`: `rear_rev` wheel revolutions (left, right)
@@ -741,7 +754,7 @@ impl Calibrator {
             (Some(Pending::ComputeDrive), JobOutcome::Drive(outcome)) => {
                 match (outcome, self.drive.as_mut()) {
                     (Ok(result), Some(_)) => {
-                        self.drive_result = Some(result);
+                        self.drive_result = Some(*result);
                         Ok(())
                     }
                     (_, drive) => {
@@ -946,7 +959,7 @@ impl Calibrator {
             wheelbase_m: p.wheelbase_m(),
         };
         let drive = self.drive.as_mut()?;
-        match drive.job(model, base) {
+        match drive.job(model, base, self.config.drive_gate) {
             Ok(job) => {
                 self.pending = Some(Pending::ComputeDrive);
                 out.push(Output::Compute(Job::Drive(job)));
@@ -1069,6 +1082,7 @@ mod tests {
             max_steer_offset_std_rad: 0.5f64.to_radians(),
             max_history: 10,
             fixes_available: false,
+            drive_gate: crate::drive_gate::DriveGate::default(),
         }
     }
 

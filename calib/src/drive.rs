@@ -83,6 +83,11 @@ pub struct DriveSample {
     /// Yaw-rate sensor as measured (rad/s, left positive), uncorrected: the
     /// mean over the interval since the previous sample.
     pub yaw_rate_radps: Option<f64>,
+    /// A rear wheel slipped (locked under braking, spun under drive) within
+    /// this sample's interval, as the pipeline's gate judged it: its
+    /// distance is not the vehicle's, so no segment reckons across it (the
+    /// fixes after it start a new one).
+    pub rear_slip: bool,
 }
 
 /// A position fix of the rear-axle centre in a local metric frame (x
@@ -185,8 +190,29 @@ pub struct Estimate {
     pub observable: bool,
 }
 
-/// The result of [`calibrate_drive`].
+/// A parameter the gate kept at its previous value, and why.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GateRefusal {
+    /// The parameter (as the report names it).
+    pub parameter: &'static str,
+    /// Why, with the numbers.
+    pub reason: String,
+}
+
+/// A fix the robust loss down-weighted: it disagrees with every source's
+/// reckoning far beyond the others' scatter (a receiver's jump).
 #[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DownWeighted {
+    /// The fix's time (its stamp, on the log's clock).
+    pub t_s: f64,
+    /// Its position residual against the source that agrees best, metres.
+    pub residual_m: f64,
+    /// Its weight in that source (1 = in full).
+    pub weight: f64,
+}
+
+/// The result of [`calibrate_drive`].
+#[derive(Debug, Clone, PartialEq)]
 pub struct DriveCalibration {
     /// Multiplies the mean of the two rear distances (both rear diameters) — 1 = unchanged.
     pub speed_scale: Estimate,
@@ -203,6 +229,25 @@ pub struct DriveCalibration {
     pub yaw_bias_radps: Option<Estimate>,
     /// See `yaw_bias_radps`.
     pub yaw_scale: Option<Estimate>,
+    /// The effective rear tread's correction (multiplies the tread in use):
+    /// held at 1, not observable, on a drive without turns both ways.
+    pub rear_tread: Estimate,
+    /// The turning of the drive's used part (rear wheels), left and right, radians.
+    pub turns_rad: [f64; 2],
+    /// The fixes' latency on the log's clock: a fix stamped `t` describes
+    /// the vehicle at `t − latency`. Observable and with its σ when
+    /// estimated; the given value with σ 0 when given.
+    pub fixes_latency_s: Estimate,
+    /// Whether the latency was given rather than estimated.
+    pub latency_given: bool,
+    /// The fixes the robust loss down-weighted, in time order.
+    pub down_weighted: Vec<DownWeighted>,
+    /// The weighted RMS position residual of each source (what the fixes it
+    /// kept say), metres; None for a source without data.
+    pub weighted_rms_m: [Option<f64>; 3],
+    /// What the quality gate (`drive_gate`) refused, and why (empty
+    /// before it ran or when everything passed).
+    pub refused: Vec<GateRefusal>,
     /// Fixes used (those in segments of at least three fixes).
     pub fixes_used: usize,
     /// Distance driven over the used segments, with the fitted scale.
@@ -216,6 +261,8 @@ pub struct DriveCalibration {
 /// Prior standard deviations around the values in use.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PriorSigmas {
+    /// Relative effective rear tread (fitted only from a drive with turns both ways).
+    pub rear_tread: f64,
     /// Speed scale (relative).
     pub speed_scale: f64,
     /// Rear ratio correction (relative).
@@ -231,9 +278,10 @@ pub struct PriorSigmas {
 }
 
 impl Default for PriorSigmas {
-    /// 5 %, 1 %, 2°, 20 %, 1°/s, 10 %.
+    /// 5 %, 1 %, 2°, 20 %, 1°/s, 10 %, tread 5 %.
     fn default() -> Self {
         Self {
+            rear_tread: 0.05,
             speed_scale: 0.05,
             rear_ratio: 0.01,
             steer_offset_rad: 2.0 * PI / 180.0,
@@ -244,9 +292,52 @@ impl Default for PriorSigmas {
     }
 }
 
+/// The time between the log's clock and the fixes'.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum FixesLatency {
+    /// Estimated with the other parameters, within ±`bound_s` (a receiver's
+    /// solution and its transport take a few tenths of a second; a clock
+    /// more than a second off is a setup error to fix, not to fit).
+    Estimate {
+        /// The largest offset the fit may find, seconds.
+        bound_s: f64,
+    },
+    /// Known: a fix stamped `t` on the log's clock describes the vehicle at
+    /// `t − latency_s`.
+    Given(f64),
+}
+
+/// The loss the fit minimises over the fixes' residuals.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Loss {
+    /// Plain least squares: every fix counts in full (a jump of a receiver
+    /// pulls the whole fit).
+    LeastSquares,
+    /// Cauchy's loss by iteratively reweighted least squares: a fix's weight
+    /// is `1/(1 + e²/(m c² σ²))` (`e` its residual, `m` its components, `c`
+    /// 2.385, 95 % efficient on Gaussian residuals) with `σ` from the
+    /// median residual (the data's own scale, not a setting); a fix ten σ
+    /// off counts 6 %, and unlike Huber's its pull falls to zero with the
+    /// distance, so a 15 m jump moves nothing.
+    Cauchy,
+}
+
+/// Cauchy's constant (95 % asymptotic efficiency on Gaussian residuals).
+const CAUCHY_C: f64 = 2.385;
+/// A fix whose weight falls below this in every source is named as down-weighted.
+const DOWN_WEIGHTED: f64 = 0.5;
+
 /// Settings of [`calibrate_drive_with`]; [`calibrate_drive`] uses the defaults.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DriveOptions {
+    /// The time offset between the log and the fixes: estimated or given.
+    pub latency: FixesLatency,
+    /// The loss over the fixes' residuals.
+    pub loss: Loss,
+    /// The effective rear tread is fitted only when the drive turns at least
+    /// this much each way (summed over its turns), radians; otherwise it is
+    /// held (a drive turning one way only cannot tell it from the ratio).
+    pub min_turn_each_way_rad: f64,
     /// Longest segment, from its first fix to its last.
     pub max_segment_s: f64,
     /// Most fixes in one segment.
@@ -258,9 +349,14 @@ pub struct DriveOptions {
 }
 
 impl Default for DriveOptions {
-    /// Segments of at most 60 s and 60 fixes, the default priors, observable below 0.3.
+    /// Segments of at most 60 s and 60 fixes, the default priors, observable
+    /// below 0.3, the latency estimated within ±1 s, Cauchy's loss, the tread
+    /// fitted from 60° of turns each way.
     fn default() -> Self {
         Self {
+            latency: FixesLatency::Estimate { bound_s: 1.0 },
+            loss: Loss::Cauchy,
+            min_turn_each_way_rad: 60.0 * PI / 180.0,
             max_segment_s: 60.0,
             max_segment_fixes: 60,
             priors: PriorSigmas::default(),
@@ -304,16 +400,18 @@ pub fn calibrate_drive_with(
 // Parameter layout
 
 /// Global parameters: speed scale, rear ratio, steer offset, steer gain,
-/// yaw bias, yaw scale.
-const N_GLOBAL: usize = 6;
+/// yaw bias, yaw scale, the fixes' latency, the rear tread's correction.
+const N_GLOBAL: usize = 8;
 const SPEED: usize = 0;
 const RATIO: usize = 1;
 const OFFSET: usize = 2;
 const GAIN: usize = 3;
 const BIAS: usize = 4;
 const SCALE: usize = 5;
-/// Values in use (the priors' means).
-const IN_USE: [f64; N_GLOBAL] = [1.0, 1.0, 0.0, 1.0, 0.0, 1.0];
+const LATENCY: usize = 6;
+const TREAD: usize = 7;
+/// Values in use (the priors' means; the latency's is the given one, else 0).
+const IN_USE: [f64; N_GLOBAL] = [1.0, 1.0, 0.0, 1.0, 0.0, 1.0, 0.0, 1.0];
 /// Per segment: start x, start y, start heading of each source.
 const N_LOCAL: usize = 5;
 
@@ -322,12 +420,14 @@ const YAW: usize = 1;
 const STEER: usize = 2;
 /// The globals each source's reckoning depends on.
 const DEPS: [&[usize]; 3] = [
-    &[SPEED, RATIO],
-    &[SPEED, RATIO, BIAS, SCALE],
-    &[SPEED, RATIO, OFFSET, GAIN],
+    &[SPEED, RATIO, LATENCY, TREAD],
+    &[SPEED, RATIO, BIAS, SCALE, LATENCY],
+    &[SPEED, RATIO, OFFSET, GAIN, LATENCY],
 ];
-/// Central-difference steps of the globals (see `Problem::rows`).
-const FD_STEP: [f64; N_GLOBAL] = [1e-6, 1e-6, 1e-7, 1e-6, 1e-7, 1e-6];
+/// Central-difference steps of the globals (see `Problem::rows`). The
+/// latency's: 0.1 ms, within one sample interval mostly (the reckoning is
+/// interpolated linearly between samples, a kink at each).
+const FD_STEP: [f64; N_GLOBAL] = [1e-6, 1e-6, 1e-7, 1e-6, 1e-7, 1e-6, 1e-4, 1e-6];
 
 /// Residual groups: `source * 2 + kind`, kind 0 position, 1 heading.
 const N_GROUP: usize = 6;
@@ -354,6 +454,8 @@ struct Prepared {
     yaw: Option<Vec<f64>>,
     /// White noise of each input signal per value, `[unused, yaw, steer]`.
     noise: [f64; 3],
+    /// Slipping samples up to each sample (a prefix count).
+    slips: Vec<usize>,
 }
 
 /// The white noise of a signal from its values in order: the robust σ
@@ -395,10 +497,12 @@ fn held(values: impl Iterator<Item = Option<f64>>) -> Option<Vec<f64>> {
 /// the sample range its reckoning needs and each fix's interpolation.
 struct Segment {
     fixes: Vec<usize>,
-    /// First sample of the reckoning (at or before the first fix).
+    /// First sample of the reckoning (at or before the first fix, less the
+    /// largest latency).
     start: usize,
-    /// Per fix: `i`, `frac` with pose = p[i] + frac·(p[i+1] − p[i]).
-    at: Vec<(usize, f64)>,
+    /// Last sample the reckoning may need (at or after the last fix, plus
+    /// the largest latency).
+    end: usize,
 }
 
 struct Row {
@@ -422,13 +526,22 @@ struct Problem<'a> {
     segments: Vec<Segment>,
     active: [bool; 3],
     prior_sigma: [f64; N_GLOBAL],
+    /// The priors' means (the values in use; the given latency).
+    in_use: [f64; N_GLOBAL],
+    /// The latency's bound, seconds.
+    latency_bound_s: f64,
+    /// The rear wheels' turning over the used samples, left and right.
+    turns_rad: [f64; 2],
 }
 
+#[derive(Clone)]
 struct Fit {
     p: DVector<f64>,
     sigma: [f64; N_GROUP],
     /// Globals held at their value in use.
     fixed: [bool; N_GLOBAL],
+    /// Each fix's weight in each residual group (the robust loss's).
+    weights: Vec<[f64; N_GROUP]>,
 }
 
 impl<'a> Problem<'a> {
@@ -450,7 +563,25 @@ impl<'a> Problem<'a> {
             positive("priors.steer_gain", pr.steer_gain)?,
             positive("priors.yaw_bias_radps", pr.yaw_bias_radps)?,
             positive("priors.yaw_scale", pr.yaw_scale)?,
+            0.0,
+            positive("priors.rear_tread", pr.rear_tread)?,
         ];
+        let mut prior_sigma = prior_sigma;
+        let mut in_use = IN_USE;
+        let latency_bound_s = match options.latency {
+            FixesLatency::Estimate { bound_s } => {
+                // The bound as a weak prior too: it keeps the normal matrix
+                // regular on a drive that cannot tell the latency.
+                prior_sigma[LATENCY] = positive("latency.bound_s", bound_s)?;
+                bound_s
+            }
+            FixesLatency::Given(latency_s) => {
+                crate::error::finite("fixes_latency_s", latency_s)?;
+                in_use[LATENCY] = latency_s;
+                prior_sigma[LATENCY] = 1.0;
+                latency_s.abs()
+            }
+        };
         if options.max_segment_fixes < 3 {
             return Err(Error::InvalidArgument {
                 name: "max_segment_fixes",
@@ -470,12 +601,19 @@ impl<'a> Problem<'a> {
                 white_noise(samples.iter().map(|s| s.yaw_rate_radps)),
                 white_noise(samples.iter().map(|s| s.steer_angle_rad)),
             ],
+            slips: samples
+                .iter()
+                .scan(0, |n, s| {
+                    *n += usize::from(s.rear_slip);
+                    Some(*n)
+                })
+                .collect(),
         };
         let mut active = [false; 3];
         active[REAR] = true;
         active[YAW] = prep.yaw.is_some();
         active[STEER] = prep.steer.is_some();
-        let segments = split(&prep.t, fixes, options);
+        let segments = split(&prep.t, &prep.slips, fixes, options, latency_bound_s);
         let used: usize = segments.iter().map(|s| s.fixes.len()).sum();
         if used < 3 {
             return Err(Error::NotEnoughFixes {
@@ -484,6 +622,7 @@ impl<'a> Problem<'a> {
                 needed: 3,
             });
         }
+        let turns_rad = turns(&prep, &segments, model.rear_tread_m);
         Ok(Self {
             prep,
             fixes,
@@ -492,7 +631,28 @@ impl<'a> Problem<'a> {
             segments,
             active,
             prior_sigma,
+            in_use,
+            latency_bound_s,
+            turns_rad,
         })
+    }
+
+    /// Where each of the segment's fixes lies among the samples at
+    /// `latency_s`: the instant `t_fix − latency_s`, kept within the
+    /// segment's samples.
+    fn at(&self, seg: &Segment, latency_s: f64) -> Vec<(usize, f64)> {
+        let t = &self.prep.t;
+        seg.fixes
+            .iter()
+            .map(|&f| {
+                let tf = (self.fixes[f].t_s - latency_s).clamp(t[seg.start], t[seg.end]);
+                let k = t
+                    .partition_point(|&ts| ts < tf)
+                    .clamp(seg.start + 1, seg.end);
+                let i = k - 1;
+                (i, ((tf - t[i]) / (t[k] - t[i])).clamp(0.0, 1.0))
+            })
+            .collect()
     }
 
     fn n_params(&self) -> usize {
@@ -514,7 +674,7 @@ impl<'a> Problem<'a> {
                 let mean = 0.5 * (phi[k - 1] + phi[k]);
                 d * g[GAIN].mul_add(mean, g[OFFSET]).tan() / self.model.wheelbase_m
             }
-            _ => (dr - dl) / self.model.rear_tread_m,
+            _ => (dr - dl) / (self.model.rear_tread_m * g[TREAD]),
         };
         (d, dth)
     }
@@ -539,14 +699,15 @@ impl<'a> Problem<'a> {
     /// Poses of source `src` at the first `n` fixes of `seg`, relative to
     /// the pose at its first fix (that pose at the origin, heading 0).
     fn reckon(&self, seg: &Segment, src: usize, g: &[f64], n: usize) -> Vec<[f64; 3]> {
-        let poses = self.path(seg, src, g, seg.at[n - 1].0 + 1);
+        let at = self.at(seg, g[LATENCY]);
+        let poses = self.path(seg, src, g, at[n - 1].0 + 1);
         let pose_at = |&(i, frac): &(usize, f64)| {
             let (a, b) = (poses[i - seg.start], poses[i + 1 - seg.start]);
             [0, 1, 2].map(|c| a[c] + frac * (b[c] - a[c]))
         };
-        let origin = pose_at(&seg.at[0]);
+        let origin = pose_at(&at[0]);
         let (sn, cs) = (-origin[2]).sin_cos();
-        seg.at[..n]
+        at[..n]
             .iter()
             .map(|at| {
                 let p = pose_at(at);
@@ -625,11 +786,16 @@ impl<'a> Problem<'a> {
                         }
                     }
                     let fix_index = seg.fixes[j];
-                    for (component, raw, jac) in [(0, px - fix.x_m, jx), (1, py - fix.y_m, jy)] {
+                    let [wp, wh] = [0, 1].map(|k| fit.weights[fix_index][src * 2 + k].sqrt());
+                    for (component, raw, mut jac) in [(0, px - fix.x_m, jx), (1, py - fix.y_m, jy)]
+                    {
+                        for e in &mut jac {
+                            e.1 *= wp;
+                        }
                         rows.push(Row {
                             fix: fix_index,
                             group: src * 2,
-                            r: raw / sp,
+                            r: wp * raw / sp,
                             jac,
                             raw,
                             segment: si,
@@ -640,15 +806,15 @@ impl<'a> Problem<'a> {
                         let raw = wrap(th0 + rj[2] - h);
                         let mut jac = Vec::new();
                         if jacobian {
-                            jac.push((th_col, 1.0 / sh));
+                            jac.push((th_col, wh / sh));
                             for (gi, d) in &drel {
-                                jac.push((*gi, d[j][2] / sh));
+                                jac.push((*gi, wh * d[j][2] / sh));
                             }
                         }
                         rows.push(Row {
                             fix: fix_index,
                             group: src * 2 + 1,
-                            r: raw / sh,
+                            r: wh * raw / sh,
                             jac,
                             raw,
                             segment: si,
@@ -664,7 +830,7 @@ impl<'a> Problem<'a> {
     fn prior_cost(&self, fit: &Fit) -> f64 {
         (0..N_GLOBAL)
             .filter(|&i| !fit.fixed[i])
-            .map(|i| ((fit.p[i] - IN_USE[i]) / self.prior_sigma[i]).powi(2))
+            .map(|i| ((fit.p[i] - self.in_use[i]) / self.prior_sigma[i]).powi(2))
             .sum()
     }
 
@@ -696,7 +862,7 @@ impl<'a> Problem<'a> {
             } else {
                 let w = 1.0 / self.prior_sigma[i].powi(2);
                 h[(i, i)] += w;
-                grad[i] += w * (fit.p[i] - IN_USE[i]);
+                grad[i] += w * (fit.p[i] - self.in_use[i]);
             }
         }
         (h, grad)
@@ -732,10 +898,13 @@ impl<'a> Problem<'a> {
                         context: "drive calibration: normal equations",
                     })?
                     .solve(&(-&grad));
+                let mut p = &fit.p + &step;
+                p[LATENCY] = p[LATENCY].clamp(-self.latency_bound_s, self.latency_bound_s);
                 let trial = Fit {
-                    p: &fit.p + &step,
+                    p,
                     sigma: fit.sigma,
                     fixed: fit.fixed,
+                    weights: fit.weights.clone(),
                 };
                 let trial_cost = self.cost(&trial, horizon_s);
                 if trial_cost.is_finite() && trial_cost <= cost {
@@ -773,10 +942,15 @@ impl<'a> Problem<'a> {
             if !self.active[src] {
                 continue;
             }
-            let (n, ssr) = rows
-                .iter()
-                .filter(|r| r.group == group)
-                .fold((0.0, 0.0), |(n, s), r| (n + 1.0, s + r.raw * r.raw));
+            // Weighted by the robust loss's weights: a down-weighted fix
+            // does not inflate the scatter the others are judged by.
+            let (n, ssr) =
+                rows.iter()
+                    .filter(|r| r.group == group)
+                    .fold((0.0, 0.0), |(n, s), r| {
+                        let w = fit.weights[r.fix][group];
+                        (n + w, s + w * r.raw * r.raw)
+                    });
             fit.sigma[group] = if heading {
                 if n < 5.0 {
                     HEADING_SIGMA_DEFAULT_RAD
@@ -789,6 +963,41 @@ impl<'a> Problem<'a> {
                 let k = n_seg * 2.0 + DEPS[src].len() as f64;
                 (ssr / (n - k).max(0.5 * n)).sqrt().max(POS_SIGMA_FLOOR_M)
             };
+        }
+    }
+
+    /// The robust loss's weights from the residuals at `fit` (iteratively
+    /// reweighted least squares): per group, the scale from the median of the
+    /// fixes' squared residuals (`σ² = median(e²)/median(χ²_m)`, `m` the
+    /// components: robust to any share of jumps below one half), then
+    /// Cauchy's weight of each fix. With [`Loss::LeastSquares`] all stay 1.
+    fn update_weights(&self, fit: &mut Fit, horizon_s: f64) {
+        if self.options.loss == Loss::LeastSquares {
+            return;
+        }
+        let rows = self.rows(fit, horizon_s, false);
+        for group in 0..N_GROUP {
+            let mut e2: Vec<(usize, f64)> = Vec::new();
+            for r in rows.iter().filter(|r| r.group == group) {
+                match e2.last_mut() {
+                    Some((f, e)) if *f == r.fix => *e += r.raw * r.raw,
+                    _ => e2.push((r.fix, r.raw * r.raw)),
+                }
+            }
+            if e2.len() < 5 {
+                continue;
+            }
+            let (m, median_chi2, floor) = if group % 2 == 1 {
+                (1.0, 0.454_936, HEADING_SIGMA_FLOOR_RAD)
+            } else {
+                (2.0, 2.0 * std::f64::consts::LN_2, POS_SIGMA_FLOOR_M)
+            };
+            let mut sorted: Vec<f64> = e2.iter().map(|e| e.1).collect();
+            sorted.sort_by(f64::total_cmp);
+            let scale2 = (sorted[sorted.len() / 2] / median_chi2).max(floor * floor);
+            for (f, e) in e2 {
+                fit.weights[f][group] = 1.0 / (1.0 + e / (m * CAUCHY_C * CAUCHY_C * scale2));
+            }
         }
     }
 
@@ -917,9 +1126,10 @@ impl<'a> Problem<'a> {
                     }
                 }
                 // World poses of the reckoning at every sample.
-                let end = seg.at[n - 1].0 + 1;
+                let at = self.at(seg, g[LATENCY]);
+                let end = at[n - 1].0 + 1;
                 let path = self.path(seg, src, &g, end);
-                let (i0, f0) = seg.at[0];
+                let (i0, f0) = at[0];
                 let (a, b) = (path[i0 - seg.start], path[i0 + 1 - seg.start]);
                 let origin: [f64; 3] = [0, 1, 2].map(|c| a[c] + f0 * (b[c] - a[c]));
                 let turn = fit.p[base + 2 + src] - origin[2];
@@ -931,8 +1141,7 @@ impl<'a> Problem<'a> {
                         fit.p[base + 1] + sn * dx + cs * dy,
                     )
                 };
-                let fix_pos: Vec<(f64, f64)> = seg
-                    .at
+                let fix_pos: Vec<(f64, f64)> = at
                     .iter()
                     .map(|&(i, f)| {
                         let (a, b) = (path[i - seg.start], path[i + 1 - seg.start]);
@@ -944,7 +1153,7 @@ impl<'a> Problem<'a> {
                 let mut local_s = [[0.0; N_GLOBAL + N_LOCAL]; N_GLOBAL + N_LOCAL];
                 let mut j = n;
                 for k in (i0 + 1..=end).rev() {
-                    while j > 1 && seg.at[j - 1].0 >= k {
+                    while j > 1 && at[j - 1].0 >= k {
                         j -= 1;
                         let (xj, yj) = fix_pos[j];
                         for c in 0..N_GLOBAL + N_LOCAL {
@@ -1048,6 +1257,7 @@ impl<'a> Problem<'a> {
                 horizon
             };
             self.levenberg_marquardt(fit, h)?;
+            self.update_weights(fit, h);
             self.update_sigma(fit, h);
             self.levenberg_marquardt(fit, h)?;
             if h.is_infinite() {
@@ -1055,7 +1265,10 @@ impl<'a> Problem<'a> {
             }
             horizon *= 2.0;
         }
-        for _ in 0..2 {
+        // Reweighting until the weights settle (Cauchy's IRLS converges in a
+        // few rounds from a start that already down-weights the jumps).
+        for _ in 0..4 {
+            self.update_weights(fit, f64::INFINITY);
             self.update_sigma(fit, f64::INFINITY);
             self.levenberg_marquardt(fit, f64::INFINITY)?;
         }
@@ -1064,7 +1277,7 @@ impl<'a> Problem<'a> {
 
     fn solve(&self) -> Result<DriveCalibration> {
         let mut p = DVector::zeros(self.n_params());
-        for (i, v) in IN_USE.iter().enumerate() {
+        for (i, v) in self.in_use.iter().enumerate() {
             p[i] = *v;
         }
         let mut fit = Fit {
@@ -1078,10 +1291,13 @@ impl<'a> Problem<'a> {
                 HEADING_SIGMA_DEFAULT_RAD,
             ],
             fixed: [false; N_GLOBAL],
+            weights: vec![[1.0; N_GROUP]; self.fixes.len()],
         };
         for (i, fixed) in fit.fixed.iter_mut().enumerate() {
             *fixed = !self.source_uses(i);
         }
+        fit.fixed[LATENCY] |= matches!(self.options.latency, FixesLatency::Given(_));
+        fit.fixed[TREAD] |= !self.turns_both_ways();
         self.fit(&mut fit)?;
         let cov = self.covariance(&fit)?;
         let mut sigma: [f64; N_GLOBAL] = std::array::from_fn(|i| cov[(i, i)].max(0.0).sqrt());
@@ -1094,7 +1310,7 @@ impl<'a> Problem<'a> {
         if !hold.is_empty() {
             for &i in &hold {
                 fit.fixed[i] = true;
-                fit.p[i] = IN_USE[i];
+                fit.p[i] = self.in_use[i];
             }
             self.fit(&mut fit)?;
             let cov = self.covariance(&fit)?;
@@ -1121,7 +1337,33 @@ impl<'a> Problem<'a> {
                 (ssr / n.max(0.5)).sqrt()
             })
         });
+        let weighted_rms_m = std::array::from_fn(|src| {
+            self.active[src].then(|| {
+                let (n, ssr) = rows.iter().filter(|r| r.group == src * 2).fold(
+                    (0.0_f64, 0.0_f64),
+                    |(n, s), r| {
+                        let w = fit.weights[r.fix][src * 2];
+                        (n + 0.5 * w, s + w * r.raw * r.raw)
+                    },
+                );
+                (ssr / n.max(1e-9)).sqrt()
+            })
+        });
         Ok(DriveCalibration {
+            rear_tread: est(TREAD),
+            turns_rad: self.turns_rad,
+            fixes_latency_s: match self.options.latency {
+                FixesLatency::Given(latency_s) => Estimate {
+                    value: latency_s,
+                    sigma: 0.0,
+                    observable: false,
+                },
+                FixesLatency::Estimate { .. } => est(LATENCY),
+            },
+            latency_given: matches!(self.options.latency, FixesLatency::Given(_)),
+            down_weighted: self.down_weighted(&fit, &rows),
+            weighted_rms_m,
+            refused: Vec::new(),
             speed_scale: est(SPEED),
             rear_ratio: est(RATIO),
             steer_offset_rad: self.active[STEER].then(|| est(OFFSET)),
@@ -1132,6 +1374,36 @@ impl<'a> Problem<'a> {
             distance_m: self.distance_m(&fit),
             residual_rms_m,
         })
+    }
+
+    /// Whether the drive turned enough each way to tell the tread.
+    fn turns_both_ways(&self) -> bool {
+        self.turns_rad[0].min(self.turns_rad[1]) >= self.options.min_turn_each_way_rad
+    }
+
+    /// The fixes every active source down-weighted, with the residual of the
+    /// source that agrees best.
+    fn down_weighted(&self, fit: &Fit, rows: &[Row]) -> Vec<DownWeighted> {
+        let mut e2 = vec![[0.0_f64; 3]; self.fixes.len()];
+        let mut used = vec![false; self.fixes.len()];
+        for r in rows.iter().filter(|r| r.group % 2 == 0) {
+            e2[r.fix][r.group / 2] += r.raw * r.raw;
+            used[r.fix] = true;
+        }
+        (0..self.fixes.len())
+            .filter(|&f| used[f])
+            .filter_map(|f| {
+                let best = (0..3)
+                    .filter(|&src| self.active[src])
+                    .max_by(|&a, &b| fit.weights[f][a * 2].total_cmp(&fit.weights[f][b * 2]))?;
+                let weight = fit.weights[f][best * 2];
+                (weight < DOWN_WEIGHTED).then(|| DownWeighted {
+                    t_s: self.fixes[f].t_s,
+                    residual_m: e2[f][best].sqrt(),
+                    weight,
+                })
+            })
+            .collect()
     }
 
     /// Whether an active source's reckoning depends on global `i`.
@@ -1147,8 +1419,11 @@ impl<'a> Problem<'a> {
         let (Some(first), Some(last)) = (self.segments.first(), self.segments.last()) else {
             return 0.0;
         };
-        let end = last.at[last.at.len() - 1].0 + 1;
-        (first.start + 1..=end)
+        let (first_at, last_at) = (
+            self.at(first, fit.p[LATENCY])[0],
+            self.at(last, fit.p[LATENCY])[last.fixes.len() - 1],
+        );
+        (first_at.0 + 1..=last_at.0 + 1)
             .map(|k| (0.5 * (k_r * self.prep.dr[k] + k_l * self.prep.dl[k])).abs())
             .sum()
     }
@@ -1235,13 +1510,32 @@ fn check(samples: &[DriveSample], fixes: &[Fix]) -> Result<()> {
 /// Splits the fixes into segments of at most `max_segment_s` and
 /// `max_segment_fixes`; a group of fewer than three fixes joins the previous
 /// segment when the gap allows, else it is dropped.
-fn split(t: &[f64], fixes: &[Fix], options: &DriveOptions) -> Vec<Segment> {
+/// Each segment's reckoning spans its fixes widened by `margin_s` (the
+/// largest latency) where the samples allow. A slipping sample (`slips`,
+/// the prefix count of slipping samples) between two fixes ends a segment.
+fn split(
+    t: &[f64],
+    slips: &[usize],
+    fixes: &[Fix],
+    options: &DriveOptions,
+    margin_s: f64,
+) -> Vec<Segment> {
+    let slips_until = |ts: f64| {
+        let k = t.partition_point(|&s| s <= ts);
+        if k == 0 {
+            0
+        } else {
+            slips[(k - 1).min(slips.len() - 1)]
+        }
+    };
     let mut groups: Vec<Vec<usize>> = Vec::new();
     let mut current: Vec<usize> = Vec::new();
     for (i, f) in fixes.iter().enumerate() {
         let starts_new = current.first().is_some_and(|&first| {
+            let last = current[current.len() - 1];
             f.t_s - fixes[first].t_s > options.max_segment_s
                 || current.len() >= options.max_segment_fixes
+                || slips_until(f.t_s + margin_s) > slips_until(fixes[last].t_s - margin_s)
         });
         if starts_new {
             groups.push(std::mem::take(&mut current));
@@ -1255,7 +1549,10 @@ fn split(t: &[f64], fixes: &[Fix], options: &DriveOptions) -> Vec<Segment> {
     for group in groups {
         let joins = group.len() < 3
             && merged.last().is_some_and(|prev: &Vec<usize>| {
-                fixes[group[0]].t_s - fixes[prev[prev.len() - 1]].t_s <= options.max_segment_s
+                let prev_t = fixes[prev[prev.len() - 1]].t_s;
+                fixes[group[0]].t_s - prev_t <= options.max_segment_s
+                    && slips_until(fixes[group[group.len() - 1]].t_s + margin_s)
+                        == slips_until(prev_t - margin_s)
             });
         match merged.last_mut() {
             Some(prev) if joins => prev.extend(group),
@@ -1277,13 +1574,35 @@ fn split(t: &[f64], fixes: &[Fix], options: &DriveOptions) -> Vec<Segment> {
                     (i, ((tf - t[i]) / (t[k] - t[i])).clamp(0.0, 1.0))
                 })
                 .collect();
+            let first_t = fixes[fixes_idx[0]].t_s - margin_s;
+            let last_t = fixes[fixes_idx[fixes_idx.len() - 1]].t_s + margin_s;
+            let start = t.partition_point(|&ts| ts <= first_t).saturating_sub(1);
+            let end = t.partition_point(|&ts| ts < last_t).min(t.len() - 1);
             Segment {
-                start: at[0].0,
+                start: start.min(at[0].0),
+                end: end.max(at[at.len() - 1].0 + 1).max(start + 1),
                 fixes: fixes_idx,
-                at,
             }
         })
         .collect()
+}
+
+/// The rear wheels' turning over the segments' samples, left and right:
+/// the heading change of each second (with the tread in use) summed by sign,
+/// so a slalom's wiggles and the wheels' noise count little and a turn in full.
+fn turns(prep: &Prepared, segments: &[Segment], rear_tread_m: f64) -> [f64; 2] {
+    let mut out = [0.0; 2];
+    for seg in segments {
+        let (mut acc, mut t0) = (0.0, prep.t[seg.start]);
+        for k in seg.start + 1..=seg.end {
+            acc += (prep.dr[k] - prep.dl[k]) / rear_tread_m;
+            if prep.t[k] - t0 >= 1.0 || k == seg.end {
+                out[usize::from(acc < 0.0)] += acc.abs();
+                (acc, t0) = (0.0, prep.t[k]);
+            }
+        }
+    }
+    out
 }
 
 /// The parameter values after the calibration `cal` of a drive recorded
@@ -1295,6 +1614,7 @@ pub fn calibrated_values(base: &ParamValues, cal: &DriveCalibration) -> ParamVal
     let r = used(&cal.rear_ratio, 1.0);
     v.rear_left_diameter_m *= s * 2.0 / (1.0 + r);
     v.rear_right_diameter_m *= s * 2.0 * r / (1.0 + r);
+    v.rear_tread_m *= used(&cal.rear_tread, 1.0);
     // φ = g·(gain·u + offset) + o.
     let g = cal.steer_gain.map_or(1.0, |e| used(&e, 1.0));
     let o = cal.steer_offset_rad.map_or(0.0, |e| used(&e, 0.0));
@@ -1310,6 +1630,7 @@ pub fn calibrated_values(base: &ParamValues, cal: &DriveCalibration) -> ParamVal
         }
         if bias.observable {
             v.yaw_rate_bias_radps = Some(c0 * bias.value);
+            v.yaw_rate_bias_sigma_radps = Some(c0 * bias.sigma);
         } else if scale.observable {
             v.yaw_rate_bias_radps = Some(b0);
         }
@@ -1318,372 +1639,4 @@ pub fn calibrated_values(base: &ParamValues, cal: &DriveCalibration) -> ParamVal
 }
 
 #[cfg(test)]
-mod tests {
-    #![allow(clippy::unwrap_used)]
-    use super::*;
-
-    #[test]
-    fn fixes_parse_by_header_name_and_errors_name_the_line() {
-        let f = parse_fixes("x_m,t_unix_s,y_m\n1.0,100.5,2.0\n3,101.5,4\n", "f.csv").unwrap();
-        assert_eq!(f.len(), 2);
-        assert_eq!(
-            (f[1].t_s, f[1].x_m, f[1].y_m, f[1].heading_rad),
-            (101.5, 3.0, 4.0, None)
-        );
-        let f = parse_fixes("t_unix_s,x_m,y_m,heading_rad\n1,0,0,0.5\n", "f.csv").unwrap();
-        assert_eq!(f[0].heading_rad, Some(0.5));
-        let e = parse_fixes("t,x,y\n1,2,3\n", "f.csv")
-            .unwrap_err()
-            .to_string();
-        assert!(e.contains("f.csv:1") && e.contains("t_unix_s"), "{e}");
-        let e = parse_fixes("t_unix_s,x_m,y_m\n1,2,3\n2,abc,3\n", "f.csv")
-            .unwrap_err()
-            .to_string();
-        assert!(e.contains("f.csv:3") && e.contains("x_m"), "{e}");
-        let e = parse_fixes("t_unix_s,x_m,y_m\n2,0,0\n1,0,0\n", "f.csv")
-            .unwrap_err()
-            .to_string();
-        assert!(e.contains("increase"), "{e}");
-        assert!(parse_fixes("", "f.csv").is_err());
-    }
-
-    use proptest::prelude::*;
-
-    const DEG: f64 = PI / 180.0;
-    const MODEL: DriveModel = DriveModel {
-        rear_tread_m: 1.55,
-        wheelbase_m: 2.7,
-    };
-
-    /// The true vehicle against the values in use, in the estimator's terms.
-    #[derive(Debug, Clone, Copy)]
-    struct Truth {
-        g: [f64; N_GLOBAL],
-    }
-
-    const TRUTH: Truth = Truth {
-        g: [1.012, 1.0015, 0.5 * DEG, 0.95, 0.4 * DEG, 1.02],
-    };
-
-    /// A noise-free drive built directly: 2 s at rest, then speed `v` along
-    /// a smooth curvature `kappa(s)`, exact arcs at 50 Hz. The samples carry
-    /// what odometry with the values in use would read; a fix every second
-    /// from the true pose (every fifth with a heading).
-    fn drive(
-        truth: Truth,
-        duration_s: f64,
-        kappa: impl Fn(f64) -> f64,
-    ) -> (Vec<DriveSample>, Vec<Fix>) {
-        let [s, r, offset, gain, bias, scale] = truth.g;
-        let (k_r, k_l) = (s * 2.0 * r / (1.0 + r), s * 2.0 / (1.0 + r));
-        let (b, l) = (MODEL.rear_tread_m, MODEL.wheelbase_m);
-        let dt = 0.02;
-        let steps = (duration_s / dt).round() as usize;
-        let phi_meas = |dist: f64| ((kappa(dist) * l).atan() - offset) / gain;
-        let mut samples = vec![DriveSample {
-            t_s: 0.0,
-            rear_left_m: 0.0,
-            rear_right_m: 0.0,
-            steer_angle_rad: Some(phi_meas(0.0)),
-            yaw_rate_radps: Some(bias),
-        }];
-        let mut fixes = vec![Fix {
-            t_s: 0.0,
-            x_m: 3.0,
-            y_m: -2.0,
-            heading_rad: Some(0.3),
-        }];
-        let (mut x, mut y, mut th, mut dist) = (3.0, -2.0, 0.3, 0.0);
-        for k in 1..=steps {
-            let t = k as f64 * dt;
-            let v = if t < 2.0 { 0.0 } else { (t - 2.0).min(5.0) };
-            let ds = v * dt;
-            let kap = kappa(dist + 0.5 * ds);
-            let dth = kap * ds;
-            let half = 0.5 * dth;
-            let sinc = if half.abs() < 1e-9 {
-                1.0
-            } else {
-                half.sin() / half
-            };
-            x += ds * sinc * (th + half).cos();
-            y += ds * sinc * (th + half).sin();
-            th += dth;
-            dist += ds;
-            samples.push(DriveSample {
-                t_s: t,
-                rear_left_m: ds * (1.0 - kap * b / 2.0) / k_l,
-                rear_right_m: ds * (1.0 + kap * b / 2.0) / k_r,
-                steer_angle_rad: Some(phi_meas(dist)),
-                yaw_rate_radps: Some(scale * dth / dt + bias),
-            });
-            if k % 50 == 0 {
-                fixes.push(Fix {
-                    t_s: t,
-                    x_m: x,
-                    y_m: y,
-                    heading_rad: (k % 250 == 0).then_some(th),
-                });
-            }
-        }
-        (samples, fixes)
-    }
-
-    fn winding(dist: f64) -> f64 {
-        0.04 * (2.0 * PI * dist / 150.0).sin() + 0.01
-    }
-
-    fn assert_recovers(cal: &DriveCalibration, truth: Truth, tol: f64) {
-        let got = [
-            Some(cal.speed_scale),
-            Some(cal.rear_ratio),
-            cal.steer_offset_rad,
-            cal.steer_gain,
-            cal.yaw_bias_radps,
-            cal.yaw_scale,
-        ];
-        for (i, e) in got.iter().enumerate() {
-            let e = e.unwrap();
-            assert!(e.observable, "parameter {i} not observable: {e:?}");
-            assert!(
-                (e.value - truth.g[i]).abs() < tol,
-                "parameter {i}: {} vs {} ({cal:?})",
-                e.value,
-                truth.g[i]
-            );
-        }
-    }
-
-    #[test]
-    fn noise_free_drive_is_recovered_exactly() {
-        let (samples, fixes) = drive(TRUTH, 130.0, winding);
-        let cal = calibrate_drive(&samples, &fixes, &MODEL).unwrap();
-        // Not to rounding: the drive is built with exact arcs and the steering
-        // at the samples, the reckonings use mid-point headings and the mean
-        // steering of an interval (2.5e-6 in the gain here).
-        assert_recovers(&cal, TRUTH, 1e-5);
-        assert_eq!(cal.fixes_used, fixes.len());
-        for rms in cal.residual_rms_m {
-            assert!(rms.unwrap() < 1e-4, "{cal:?}");
-        }
-        // 128 s at 5 m/s after a 5 s ramp from rest.
-        let driven = 5.0 * 123.0 + 12.5;
-        assert!((cal.distance_m - driven).abs() < 0.1, "{}", cal.distance_m);
-    }
-
-    #[test]
-    fn without_steering_or_yaw_rate_those_are_none() {
-        let (mut samples, fixes) = drive(TRUTH, 70.0, winding);
-        for s in &mut samples {
-            s.steer_angle_rad = None;
-            s.yaw_rate_radps = None;
-        }
-        let cal = calibrate_drive(&samples, &fixes, &MODEL).unwrap();
-        assert!(cal.steer_gain.is_none() && cal.steer_offset_rad.is_none());
-        assert!(cal.yaw_bias_radps.is_none() && cal.yaw_scale.is_none());
-        assert_eq!(cal.residual_rms_m[1], None);
-        assert!((cal.speed_scale.value - TRUTH.g[SPEED]).abs() < 1e-6);
-        assert!((cal.rear_ratio.value - TRUTH.g[RATIO]).abs() < 1e-7);
-    }
-
-    #[test]
-    fn steering_sent_at_a_lower_rate_is_held() {
-        let (mut samples, fixes) = drive(TRUTH, 70.0, winding);
-        // Steering in every fifth sample only, as a slower CAN frame.
-        for (k, s) in samples.iter_mut().enumerate() {
-            if k % 5 != 0 {
-                s.steer_angle_rad = None;
-            }
-        }
-        let cal = calibrate_drive(&samples, &fixes, &MODEL).unwrap();
-        let gain = cal.steer_gain.unwrap();
-        assert!(gain.observable);
-        assert!((gain.value - 0.95).abs() < 3e-3, "{gain:?}");
-    }
-
-    #[test]
-    fn a_straight_drive_cannot_tell_steering_gain_or_yaw_scale() {
-        let (samples, fixes) = drive(TRUTH, 70.0, |_| 0.0);
-        let cal = calibrate_drive(&samples, &fixes, &MODEL).unwrap();
-        for e in [cal.steer_gain.unwrap(), cal.yaw_scale.unwrap()] {
-            assert!(!e.observable, "{cal:?}");
-            assert_eq!(e.value, 1.0);
-            assert!(e.sigma > 0.3 * 0.1, "{e:?}");
-        }
-        // What a straight line does tell: the speed scale, the ratio (the
-        // path stays straight), the steering offset and the yaw bias.
-        let bias = cal.yaw_bias_radps.unwrap();
-        assert!(bias.observable && (bias.value - TRUTH.g[BIAS]).abs() < 1e-6);
-        let offset = cal.steer_offset_rad.unwrap();
-        // With the gain held at 1 the offset absorbs gain·φ_meas + offset
-        // − φ_meas at φ_true = 0: offset − (1 − gain)·(−offset/gain).
-        let apparent = TRUTH.g[OFFSET] / TRUTH.g[GAIN];
-        assert!(
-            offset.observable && (offset.value - apparent).abs() < 1e-6,
-            "{offset:?} vs {apparent}"
-        );
-        assert!((cal.rear_ratio.value - TRUTH.g[RATIO]).abs() < 1e-7);
-    }
-
-    #[test]
-    fn bad_input_is_named() {
-        let (samples, fixes) = drive(TRUTH, 20.0, winding);
-        let err = |s: &[DriveSample], f: &[Fix]| calibrate_drive(s, f, &MODEL).unwrap_err();
-        assert_eq!(
-            err(&samples, &[]),
-            Error::NotEnoughFixes {
-                what: "in all",
-                got: 0,
-                needed: 3
-            }
-        );
-        assert!(matches!(
-            err(&samples, &fixes[..2]),
-            Error::NotEnoughFixes { got: 2, .. }
-        ));
-        assert_eq!(
-            err(&samples[..1], &fixes),
-            Error::NotEnoughSamples { got: 1 }
-        );
-        let mut late = fixes.clone();
-        late.push(Fix {
-            t_s: 25.0,
-            ..fixes[0]
-        });
-        let e = err(&samples, &late);
-        assert!(
-            matches!(e, Error::FixOutsideSamples { index, t_s, .. } if index == fixes.len() && t_s == 25.0),
-            "{e}"
-        );
-        assert!(e.to_string().contains("outside the samples' span"), "{e}");
-        let mut nan = samples.clone();
-        nan[7].rear_right_m = f64::NAN;
-        let e = err(&nan, &fixes);
-        assert!(matches!(
-            e,
-            Error::NotFinite {
-                what: "sample",
-                index: 7,
-                field: "rear_right_m",
-                ..
-            }
-        ));
-        assert_eq!(
-            e.to_string(),
-            "sample 7: `rear_right_m` is not finite (NaN)"
-        );
-        let mut inf = samples.clone();
-        inf[3].yaw_rate_radps = Some(f64::INFINITY);
-        assert!(matches!(
-            err(&inf, &fixes),
-            Error::NotFinite {
-                field: "yaw_rate_radps",
-                index: 3,
-                ..
-            }
-        ));
-        let mut bad_fix = fixes.clone();
-        bad_fix[2].heading_rad = Some(f64::NAN);
-        assert!(matches!(
-            err(&samples, &bad_fix),
-            Error::NotFinite {
-                what: "fix",
-                index: 2,
-                field: "heading_rad",
-                ..
-            }
-        ));
-        let mut back = samples.clone();
-        back[10].t_s = back[9].t_s;
-        assert!(matches!(
-            err(&back, &fixes),
-            Error::NotIncreasing {
-                what: "sample",
-                index: 10,
-                ..
-            }
-        ));
-        let mut swapped = fixes.clone();
-        swapped.swap(1, 2);
-        assert!(matches!(
-            err(&samples, &swapped),
-            Error::NotIncreasing {
-                what: "fix",
-                index: 2,
-                ..
-            }
-        ));
-        let bad_model = DriveModel {
-            wheelbase_m: 0.0,
-            ..MODEL
-        };
-        assert!(matches!(
-            calibrate_drive(&samples, &fixes, &bad_model),
-            Err(Error::InvalidArgument {
-                name: "wheelbase_m",
-                ..
-            })
-        ));
-    }
-
-    #[test]
-    fn segments_respect_their_limits_and_drop_what_is_too_short() {
-        let t: Vec<f64> = (0..=2000).map(|k| f64::from(k) * 0.1).collect();
-        let fix = |t_s: f64| Fix {
-            t_s,
-            x_m: 0.0,
-            y_m: 0.0,
-            heading_rad: None,
-        };
-        // 1 Hz for 130 s: 60 + 60 + 11 fixes.
-        let fixes: Vec<Fix> = (0..=130).map(|k| fix(f64::from(k))).collect();
-        let segs = split(&t, &fixes, &DriveOptions::default());
-        let sizes: Vec<usize> = segs.iter().map(|s| s.fixes.len()).collect();
-        assert_eq!(sizes, [60, 60, 11]);
-        // A remainder of two joins its neighbour; two lone fixes after a
-        // long gap are dropped.
-        let mut fixes: Vec<Fix> = (0..=61).map(|k| fix(f64::from(k))).collect();
-        fixes.extend([fix(150.0), fix(151.0)]);
-        let segs = split(&t, &fixes, &DriveOptions::default());
-        let sizes: Vec<usize> = segs.iter().map(|s| s.fixes.len()).collect();
-        assert_eq!(sizes, [62]);
-        let (i, frac) = segs[0].at[61];
-        assert_eq!(i, 609);
-        assert!((frac - 1.0).abs() < 1e-9 || frac.abs() < 1e-9);
-        // Interpolation between samples.
-        let segs = split(
-            &t,
-            &[fix(0.0), fix(0.25), fix(0.5)],
-            &DriveOptions::default(),
-        );
-        assert_eq!(segs[0].at[1].0, 2);
-        assert!((segs[0].at[1].1 - 0.5).abs() < 1e-9);
-        assert_eq!(segs[0].start, 0);
-    }
-
-    proptest! {
-        #![proptest_config(ProptestConfig { cases: 6, ..ProptestConfig::default() })]
-        /// Any truth within the priors' reach is recovered from a noise-free
-        /// drive, whatever the fixes' frame.
-        #[test]
-        fn any_truth_is_recovered(
-            s in 0.97..1.03_f64,
-            r in 0.997..1.003_f64,
-            offset_deg in -1.5..1.5_f64,
-            gain in 0.85..1.15_f64,
-            bias_deg in -0.8..0.8_f64,
-            scale in 0.93..1.07_f64,
-            turn in -PI..PI,
-        ) {
-            let truth = Truth { g: [s, r, offset_deg * DEG, gain, bias_deg * DEG, scale] };
-            let (samples, mut fixes) = drive(truth, 90.0, winding);
-            let (sn, cs) = turn.sin_cos();
-            for f in &mut fixes {
-                (f.x_m, f.y_m) = (cs * f.x_m - sn * f.y_m + 100.0, sn * f.x_m + cs * f.y_m);
-                f.heading_rad = f.heading_rad.map(|h| wrap(h + turn));
-            }
-            let cal = calibrate_drive(&samples, &fixes, &MODEL).unwrap();
-            assert_recovers(&cal, truth, 1e-5);
-        }
-    }
-}
+mod tests;

@@ -3,6 +3,7 @@
 //! local frame, and the job that fits them ([`crate::drive`]).
 
 use crate::drive::{DriveCalibration, DriveModel, DriveSample, Fix, calibrate_drive};
+use crate::drive_gate::{DriveGate, apply_gate};
 use crate::error::Result;
 use crate::history::ParamValues;
 
@@ -51,6 +52,8 @@ pub struct DriveJob {
     pub model: DriveModel,
     /// The values in use while recording.
     pub base: ParamValues,
+    /// The quality a fit must show for its values to be committed.
+    pub gate: DriveGate,
 }
 
 impl DriveJob {
@@ -59,7 +62,8 @@ impl DriveJob {
     /// # Errors
     /// As [`calibrate_drive`].
     pub fn run(&self) -> Result<(DriveCalibration, ParamValues)> {
-        let cal = calibrate_drive(&self.samples, &self.fixes, &self.model)?;
+        let mut cal = calibrate_drive(&self.samples, &self.fixes, &self.model)?;
+        apply_gate(&mut cal, &self.gate);
         let values = crate::drive::calibrated_values(&self.base, &cal);
         Ok((cal, values))
     }
@@ -76,6 +80,8 @@ pub struct DriveRecorder {
     origin: Option<(f64, f64)>,
     /// A job is out or a result awaits commit: the recording is closed.
     closed: bool,
+    /// The first sample of the filter's open correction window.
+    window_start: usize,
 }
 
 impl DriveRecorder {
@@ -97,6 +103,7 @@ impl DriveRecorder {
                 rear_right_m: 0.0,
                 steer_angle_rad: None,
                 yaw_rate_radps: None,
+                rear_slip: false,
             },
             0.0,
             0.0,
@@ -113,6 +120,23 @@ impl DriveRecorder {
         if step.t_s - start >= DRIVE_BIN_S {
             self.flush();
         }
+    }
+
+    /// The filter closed a correction window at the last step; with
+    /// `rear_slipped` its gate found a rear wheel slipping in it, and every
+    /// sample of the window is marked so the fit reckons across none of them.
+    pub fn window_closed(&mut self, rear_slipped: bool) {
+        if rear_slipped {
+            let from = self.window_start.min(self.samples.len());
+            for s in &mut self.samples[from..] {
+                s.rear_slip = true;
+            }
+            if let Some((bin, _, _)) = self.bin.as_mut() {
+                bin.rear_slip = true;
+            }
+        }
+        // The open bin may hold steps of the next window too: it counts in both.
+        self.window_start = self.samples.len();
     }
 
     /// A position fix: a local x and y in metres, or (`geodetic`) latitude
@@ -159,6 +183,7 @@ impl DriveRecorder {
         &mut self,
         model: DriveModel,
         base: ParamValues,
+        gate: DriveGate,
     ) -> std::result::Result<DriveJob, TooFewSamples> {
         self.flush();
         if self.fixes.len() < 3 || self.samples.len() < 3 {
@@ -180,6 +205,7 @@ impl DriveRecorder {
             fixes,
             model,
             base,
+            gate,
         })
     }
 
@@ -205,6 +231,40 @@ mod tests {
     }
 
     #[test]
+    fn a_window_with_a_slipping_rear_wheel_marks_its_samples_only() {
+        let mut d = DriveRecorder::default();
+        // Windows of 0.5 s closing at 0.5, 1.0 (rear slipped) and 1.5 s.
+        for k in 0..=150 {
+            let t = f64::from(k) * 0.01;
+            d.step(&step(t));
+            if k > 0 && k % 50 == 0 {
+                d.window_closed(k == 100);
+            }
+        }
+        for k in 0..5 {
+            d.fix(f64::from(k) * 0.3, f64::from(k), 0.0, false);
+        }
+        let model = DriveModel {
+            rear_tread_m: 0.25,
+            wheelbase_m: 0.3,
+        };
+        let job = d
+            .job(model, ParamValues::plain(0.25, 0.09), DriveGate::default())
+            .unwrap();
+        // Marked: every bin (≥ 50 ms, stamped at its last step) holding a step
+        // of the window 0.5–1.0 s, those straddling its ends included.
+        for s in &job.samples {
+            if s.t_s > 0.5 + 1e-9 && s.t_s <= 1.0 + 1e-9 {
+                assert!(s.rear_slip, "{s:?}");
+            }
+            if s.t_s <= 0.5 + 1e-9 || s.t_s > 1.1 + 1e-9 {
+                assert!(!s.rear_slip, "{s:?}");
+            }
+        }
+        assert!(job.samples.iter().any(|s| s.rear_slip));
+    }
+
+    #[test]
     fn steps_are_binned_and_fixes_outside_the_drive_left_out() {
         let mut d = DriveRecorder::default();
         d.fix(-1.0, 0.0, 0.0, false);
@@ -221,7 +281,7 @@ mod tests {
             rear_tread_m: 0.25,
             wheelbase_m: 0.3,
         };
-        let job = d.job(model, base).unwrap();
+        let job = d.job(model, base, DriveGate::default()).unwrap();
         assert!(d.is_closed());
         // 1 s of 10 ms steps in bins of at least 50 ms.
         assert!(
@@ -268,7 +328,7 @@ mod tests {
             wheelbase_m: 0.3,
         };
         let base = ParamValues::plain(0.25, 0.09);
-        assert_eq!(d.job(model, base), Err(TooFewSamples));
+        assert_eq!(d.job(model, base, DriveGate::default()), Err(TooFewSamples));
         assert!(!d.is_closed());
     }
 }

@@ -36,6 +36,11 @@ pub struct ParamValues {
     /// The yaw-rate sensor's scale, with the bias.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub yaw_rate_scale: Option<f64>,
+    /// The standard deviation of `yaw_rate_bias_radps` as its calibration
+    /// found it, rad/s: the filter starts from it as the prior of the bias
+    /// it learns next (absent: a fixed tenth of a degree per second).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub yaw_rate_bias_sigma_radps: Option<f64>,
 }
 
 impl ParamValues {
@@ -50,6 +55,7 @@ impl ParamValues {
             steering_offset_rad: 0.0,
             yaw_rate_bias_radps: None,
             yaw_rate_scale: None,
+            yaw_rate_bias_sigma_radps: None,
         }
     }
 
@@ -82,6 +88,7 @@ impl ParamValues {
         [
             ("yaw_rate_bias_radps", self.yaw_rate_bias_radps),
             ("yaw_rate_scale", self.yaw_rate_scale),
+            ("yaw_rate_bias_sigma_radps", self.yaw_rate_bias_sigma_radps),
         ]
         .into_iter()
         .filter_map(|(name, v)| v.map(|v| (name, v)))
@@ -174,10 +181,11 @@ impl ParamBounds {
             self.steering_offset_rad,
         ];
         let optional = values.optional_fields().map(|(field, value)| {
-            let range = if field == "yaw_rate_scale" {
-                self.yaw_rate_scale
-            } else {
-                self.yaw_rate_bias_radps
+            let range = match field {
+                "yaw_rate_scale" => self.yaw_rate_scale,
+                // A σ: positive, and no larger than the bias may be.
+                "yaw_rate_bias_sigma_radps" => (f64::MIN_POSITIVE, self.yaw_rate_bias_radps.1),
+                _ => self.yaw_rate_bias_radps,
             };
             ((field, value), range)
         });

@@ -12,11 +12,13 @@
 //! - [`methods`]: the paper's closed form, the heading law and the exact
 //!   Levenberg–Marquardt refinement, all returning a [`CalibrationResult`].
 //! - [`steering`]: the steering map φ = k·u + c from constant-command arcs (§10).
-//! - [`drive`]: rear wheels, steering map and yaw-rate sensor from an
-//!   ordinary drive with sparse position fixes (least squares over the drive).
+//! - [`drive`]: rear wheels, tread, steering map and yaw-rate sensor from an
+//!   ordinary drive with sparse position fixes (robust least squares over the
+//!   drive, the fixes' latency with them).
 //! - [`session`]: the guided-session state machine (runs on the track).
 //! - [`arcs`]: the steering calibration as driven: constant-command arcs and their fit.
 //! - [`drive_record`]: a drive recorded against position fixes, and its fitting job.
+//! - [`drive_gate`]: the quality a drive's fit must show before it is committed.
 //! - [`standstill`]: whether the vehicle stands still.
 //! - [`calibrator`]: the whole calibration state of a running vehicle (session,
 //!   arcs, drive, history, standstill), the state machine the daemon drives.
@@ -75,6 +77,7 @@
 pub mod arcs;
 pub mod calibrator;
 pub mod drive;
+pub mod drive_gate;
 pub mod drive_record;
 pub mod error;
 pub mod history;

@@ -65,6 +65,8 @@ pub enum CalibInput {
         steer_signal: Option<f64>,
         /// The yaw rate the filter used.
         yaw_rate_radps: Option<f64>,
+        /// What the filter's correction window did at this step.
+        window: canodom_fusion::ekf::WindowOutcome,
     },
 }
 
@@ -223,8 +225,10 @@ impl<Tx: FrameSink + Clone> CalibTask<Tx> {
                 rear_rev,
                 steer_signal,
                 yaw_rate_radps,
+                window,
             } => {
                 let out = self.live.on_step(t, rear_rev, steer_signal, yaw_rate_radps);
+                self.live.on_window(window);
                 self.standstill.send_replace(self.live.standstill());
                 out
             }

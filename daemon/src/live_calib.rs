@@ -112,6 +112,7 @@ impl LiveCalibration {
                 max_steer_offset_std_rad: config.max_steer_offset_std_rad,
                 max_history: config.max_history,
                 fixes_available: config.fixes.is_some(),
+                drive_gate: canodom_offline::drive::drive_gate(&config, nominal.rear_tread_m()),
             },
             nominal,
             file,
@@ -177,6 +178,17 @@ impl LiveCalibration {
             .calibrator
             .on_step(t_s, rear_rev, steer_signal, yaw_rate_radps);
         self.carry(t_s, out)
+    }
+
+    /// The filter's correction window closed at the last step with `outcome`
+    /// (nothing when it is [`WindowOutcome::Open`]): a window whose gate
+    /// found a rear wheel slipping is kept out of a drive's reckoning.
+    pub fn on_window(&mut self, outcome: canodom_fusion::ekf::WindowOutcome) {
+        use canodom_fusion::ekf::WindowOutcome;
+        if outcome != WindowOutcome::Open {
+            self.calibrator
+                .on_window(outcome == WindowOutcome::RejectedUsedFront);
+        }
     }
 
     /// A position fix from the bus: a local x and y in metres, or (`geodetic`)
@@ -295,6 +307,15 @@ impl LiveCalibration {
     pub fn on_computed(&mut self, t: Timestamp, outcome: JobOutcome) -> Vec<Output> {
         if let JobOutcome::Drive(Err(e)) | JobOutcome::Rear(Err(e)) = &outcome {
             tracing::warn!(cause = %e, "calibration failed");
+        }
+        if let JobOutcome::Drive(Ok(result)) = &outcome {
+            for r in &result.0.refused {
+                tracing::warn!(
+                    parameter = r.parameter,
+                    reason = %r.reason,
+                    "drive calibration: not committed, the previous value kept"
+                );
+            }
         }
         let t_s = seconds(t);
         let out = self.calibrator.on_computed(outcome);
@@ -650,6 +671,7 @@ mod tests {
             steering_offset_rad: 0.0,
             yaw_rate_bias_radps: None,
             yaw_rate_scale: None,
+            yaw_rate_bias_sigma_radps: None,
         }
     }
 
@@ -1272,6 +1294,7 @@ mod tests {
                 steering_offset_rad: steer.offset_rad,
                 yaw_rate_bias_radps: None,
                 yaw_rate_scale: None,
+                yaw_rate_bias_sigma_radps: None,
             },
             "exact",
             1,

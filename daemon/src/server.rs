@@ -982,6 +982,7 @@ impl<Tx: FrameSink + Clone> OdometryTask<Tx> {
                         rear_rev: step.rear_rev,
                         steer_signal: step.steer_signal,
                         yaw_rate_radps: step.yaw_rate_radps,
+                        window: step.correction,
                     })
                     .await;
                     if let Some(w) = &self.observers.steps {
@@ -1118,6 +1119,7 @@ mod tests {
             steering_offset_rad: 0.0,
             yaw_rate_bias_radps: None,
             yaw_rate_scale: None,
+            yaw_rate_bias_sigma_radps: None,
         }
     }
 

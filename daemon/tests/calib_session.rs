@@ -166,6 +166,7 @@ async fn a_driven_session_commits_the_true_parameters_and_writes_them_back() {
             steering_offset_rad: steer.offset_rad,
             yaw_rate_bias_radps: None,
             yaw_rate_scale: None,
+            yaw_rate_bias_sigma_radps: None,
         },
         "nominal",
         1,

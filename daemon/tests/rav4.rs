@@ -131,6 +131,7 @@ fn calibrated_on_the_first_half_the_second_half_stays_within_one_percent() {
         &params,
         Some(&dir.join("report")),
         None,
+        &canodom_calib::drive::DriveOptions::default(),
     )
     .unwrap();
     let set = canodom_params::persist::load(&params, &config.calibration.bounds)

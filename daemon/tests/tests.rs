@@ -17,6 +17,7 @@ mod config_errors;
 mod dbc_tools;
 mod drive_session;
 mod follow_session;
+mod gnss_drive;
 mod install;
 mod live_outputs;
 mod log_refusal;

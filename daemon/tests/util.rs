@@ -88,3 +88,9 @@ pub fn tmp_dir(name: &str) -> PathBuf {
     std::fs::create_dir_all(&dir).unwrap();
     dir
 }
+
+/// The text of a zstd-compressed log.
+pub fn zstd_text(path: &std::path::Path) -> String {
+    let raw = std::fs::read(path).unwrap();
+    String::from_utf8(zstd::stream::decode_all(raw.as_slice()).unwrap()).unwrap()
+}

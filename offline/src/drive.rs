@@ -7,8 +7,11 @@
 use crate::log::LogFrames;
 use crate::{Error, Result};
 use canodom_calib::drive::{
-    DriveCalibration, DriveModel, DriveSample, Fix, calibrate_drive, calibrated_values,
+    DriveCalibration, DriveModel, DriveOptions, DriveSample, Fix, GateRefusal,
+    calibrate_drive_with, calibrated_values,
 };
+use canodom_calib::drive_gate::{DriveGate, apply_gate};
+use canodom_fusion::ekf::WindowOutcome;
 use canodom_params::persist::{ParamSet, ParamValues};
 use canodom_pipeline::config::Config;
 use canodom_pipeline::pipeline::{Outcome, Pipeline};
@@ -27,6 +30,7 @@ pub fn values_in_use(config: &Config, set: Option<&ParamSet>) -> ParamValues {
                 steering_offset_rad: steer.offset_rad,
                 yaw_rate_bias_radps: None,
                 yaw_rate_scale: None,
+                yaw_rate_bias_sigma_radps: None,
             }
         },
         |s| s.values,
@@ -74,7 +78,10 @@ pub fn samples_from_frames(
             std::f64::consts::PI * p.wheel_diameter_m(canodom_fusion::Wheel::RearRight),
         )
     };
-    let mut samples = Vec::new();
+    let mut samples: Vec<DriveSample> = Vec::new();
+    // The first sample of the filter's open correction window: when its gate
+    // finds a rear wheel slipping, the whole window's samples are marked.
+    let mut window_start = 0;
     while let Some((timestamp, frame)) = frames.next_frame()? {
         let Outcome::Step(step, _) = pipeline.push(timestamp, &frame) else {
             continue;
@@ -88,7 +95,16 @@ pub fn samples_from_frames(
             rear_right_m: step.rear_rev.1 * d_right,
             steer_angle_rad: step.steer_signal.map(|u| map.angle_rad(u)),
             yaw_rate_radps: step.yaw_rate_radps,
+            rear_slip: false,
         });
+        if step.correction != WindowOutcome::Open {
+            if step.correction == WindowOutcome::RejectedUsedFront {
+                for s in &mut samples[window_start..] {
+                    s.rear_slip = true;
+                }
+            }
+            window_start = samples.len();
+        }
     }
     let mixed_buses = frames.finish(pipeline.stats().frames)?;
     if samples.len() < 2 {
@@ -106,14 +122,33 @@ pub fn samples_from_frames(
     })
 }
 
+/// The quality gate of a drive's commit from the configuration's limits
+/// (`[calibration]`), the tread's relative to `rear_tread_m`.
+pub fn drive_gate(c: &canodom_pipeline::config::CalibrationConfig, rear_tread_m: f64) -> DriveGate {
+    DriveGate {
+        speed_scale: c.max_speed_scale_std,
+        rear_ratio: c.max_ratio_std,
+        steer_offset_rad: c.max_steer_offset_std_rad,
+        steer_gain: c.max_steer_gain_std_rel,
+        yaw_bias_radps: c.max_yaw_bias_std_radps,
+        yaw_scale: c.max_yaw_scale_std,
+        rear_tread: c.max_tread_std_m / rear_tread_m,
+        max_residual_m: c.max_fix_residual_m,
+        max_down_weighted_share: c.max_down_weighted_share,
+    }
+}
+
 /// A drive calibrated against its fixes.
 pub struct DriveFit {
     /// The fit: each parameter with its σ and whether the drive told it.
     pub calibration: DriveCalibration,
     /// The values in use during the drive (the configured set without a parameter file).
     pub base: ParamValues,
-    /// The calibrated values: the fit applied to `base`, what it could not tell held.
+    /// The calibrated values: the fit applied to `base`, what it could not
+    /// tell or the quality gate refused held.
     pub values: ParamValues,
+    /// What the quality gate refused, and why (the previous value is kept).
+    pub refused: Vec<GateRefusal>,
     /// The fixes within the log's time, which the fit used.
     pub fixes: Vec<Fix>,
     /// The fixes outside the log's time, left out.
@@ -125,7 +160,8 @@ pub struct DriveFit {
     pub out_of_bounds: Option<String>,
 }
 
-/// Fits `drive` to the fixes of `all_fixes` within its time.
+/// Fits `drive` to the fixes of `all_fixes` within its time with `options`
+/// (the latency estimated or given, the loss, ...).
 ///
 /// # Errors
 /// [`Error::Calibration`] when the fit fails (too few fixes in the log, ...).
@@ -135,6 +171,7 @@ pub fn fit_drive(
     drive: &DriveLog,
     all_fixes: &[Fix],
     what: &str,
+    options: &DriveOptions,
 ) -> Result<DriveFit> {
     let first = drive.samples.first().map_or(0.0, |s| s.t_s);
     let last = drive.samples.last().map_or(0.0, |s| s.t_s);
@@ -147,8 +184,12 @@ pub fn fit_drive(
         rear_tread_m: base.rear_tread_m,
         wheelbase_m: config.params.wheelbase_m(),
     };
-    let calibration = calibrate_drive(&drive.samples, &fixes, &model)
+    let mut calibration = calibrate_drive_with(&drive.samples, &fixes, &model, options)
         .map_err(|e| Error::Calibration(format!("calibration of {what} failed: {e}")))?;
+    let refused = apply_gate(
+        &mut calibration,
+        &drive_gate(&config.calibration, base.rear_tread_m),
+    );
     let values = calibrated_values(&base, &calibration);
     let out_of_bounds = config
         .calibration
@@ -160,6 +201,7 @@ pub fn fit_drive(
         calibration,
         base,
         values,
+        refused,
         fixes_outside: all_fixes.len() - fixes.len(),
         fixes,
         span_s: (first, last),
@@ -167,16 +209,25 @@ pub fn fit_drive(
     })
 }
 
-/// Reads position fixes (CSV `t_unix_s,x_m,y_m[,heading_rad]`) from `path`.
+/// Reads position fixes from `path`: a CSV in local metres
+/// (`t_unix_s,x_m,y_m[,heading_rad]`), a CSV of `t_unix_s,lat_deg,lon_deg[,alt_m]`
+/// or an NMEA 0183 log (GGA/RMC), told apart by content ([`crate::fixes`]).
 ///
 /// # Errors
-/// The file cannot be read, or a line is not a fix ([`Error::Calibration`] naming it).
+/// The file cannot be read or is not text, or it is in none of the formats,
+/// or a line is not a fix ([`Error::Calibration`] naming the format seen and the line).
 pub fn read_fixes(path: &std::path::Path) -> Result<Vec<Fix>> {
-    let text = std::fs::read_to_string(path).map_err(|source| Error::File {
+    let bytes = std::fs::read(path).map_err(|source| Error::File {
         path: crate::shown(path),
         what: "read the fixes",
         source,
     })?;
-    canodom_calib::drive::parse_fixes(&text, &path.display().to_string())
-        .map_err(|e| Error::Calibration(e.to_string()))
+    let name = path.display().to_string();
+    let text = String::from_utf8(bytes).map_err(|_| {
+        Error::Calibration(format!(
+            "{name}: not text (a receiver's binary log, UBX or SBF?): give the fixes as NMEA 0183 \
+             GGA/RMC, a CSV t_unix_s,lat_deg,lon_deg or a CSV t_unix_s,x_m,y_m"
+        ))
+    })?;
+    Ok(crate::fixes::parse_fixes_any(&text, &name)?.0)
 }

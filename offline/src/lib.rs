@@ -9,6 +9,7 @@
 //! - [`drive`]: a drive's filter steps as samples, and its calibration against position fixes.
 
 pub mod drive;
+pub mod fixes;
 pub mod log;
 pub mod replay;
 

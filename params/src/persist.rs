@@ -293,6 +293,7 @@ mod tests {
             steering_offset_rad: 0.01 * (k / 3.0).cos() / 3.0,
             yaw_rate_bias_radps: None,
             yaw_rate_scale: None,
+            yaw_rate_bias_sigma_radps: None,
         }
     }
 
@@ -349,6 +350,7 @@ mod tests {
         let with_yaw = ParamValues {
             yaw_rate_bias_radps: Some(-0.007),
             yaw_rate_scale: Some(1.01),
+            yaw_rate_bias_sigma_radps: None,
             ..values(2)
         };
         assert_ne!(

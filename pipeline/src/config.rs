@@ -297,6 +297,11 @@ struct RawCalibration {
     max_ratio_std: f64,
     max_steer_gain_std_rel: f64,
     max_steer_offset_std_deg: f64,
+    max_speed_scale_std: f64,
+    max_yaw_bias_std_dps: f64,
+    max_yaw_scale_std: f64,
+    max_fix_residual_m: f64,
+    max_down_weighted_share: f64,
     ack_timeout_ms: u64,
     writeback_retries: u32,
     max_history: usize,
@@ -333,6 +338,14 @@ impl Default for RawCalibration {
             // several times that, so only a fit whose arcs disagree fails.
             max_steer_gain_std_rel: 0.02,
             max_steer_offset_std_deg: 0.5,
+            // A drive's commit (issue #31): a speed scale to 0.2 % (2 m a
+            // km), a yaw-rate bias to 0.05°/s (a degree in 20 s of driving
+            // blind), its scale to 1 %; the fit at least this plausible.
+            max_speed_scale_std: 0.002,
+            max_yaw_bias_std_dps: 0.05,
+            max_yaw_scale_std: 0.01,
+            max_fix_residual_m: 2.0,
+            max_down_weighted_share: 0.25,
             ack_timeout_ms: 500,
             writeback_retries: 3,
             max_history: canodom_params::persist::DEFAULT_MAX_HISTORY,
@@ -485,6 +498,19 @@ pub struct CalibrationConfig {
     /// Largest steering-offset standard deviation a steering commit
     /// accepts, rad (configured in degrees; default 0.5°).
     pub max_steer_offset_std_rad: f64,
+    /// Largest speed-scale standard deviation a drive's commit accepts (default 0.002).
+    pub max_speed_scale_std: f64,
+    /// Largest yaw-rate bias standard deviation a drive's commit accepts,
+    /// rad/s (configured in °/s; default 0.05°/s).
+    pub max_yaw_bias_std_radps: f64,
+    /// Largest yaw-rate scale standard deviation a drive's commit accepts (default 0.01).
+    pub max_yaw_scale_std: f64,
+    /// Largest residual at the fixes (weighted RMS) a drive's fit may have
+    /// for anything to be committed, m (default 2).
+    pub max_fix_residual_m: f64,
+    /// Largest share of a drive's fixes the fit may down-weight for anything
+    /// to be committed (default 0.25).
+    pub max_down_weighted_share: f64,
     /// How long to wait for `CALIB_ACK` after sending `CALIB_PARAMS` (default 500 ms).
     pub ack_timeout: std::time::Duration,
     /// Resends after the first without an ACK before the write-back fails (default 3).
@@ -1535,6 +1561,19 @@ impl Validator<'_> {
                     c.max_steer_offset_std_deg,
                 )?
                 .to_radians(),
+            max_speed_scale_std: self
+                .positive("calibration.max_speed_scale_std", c.max_speed_scale_std)?,
+            max_yaw_bias_std_radps: self
+                .positive("calibration.max_yaw_bias_std_dps", c.max_yaw_bias_std_dps)?
+                .to_radians(),
+            max_yaw_scale_std: self
+                .positive("calibration.max_yaw_scale_std", c.max_yaw_scale_std)?,
+            max_fix_residual_m: self
+                .positive("calibration.max_fix_residual_m", c.max_fix_residual_m)?,
+            max_down_weighted_share: self.positive(
+                "calibration.max_down_weighted_share",
+                c.max_down_weighted_share,
+            )?,
             ack_timeout: std::time::Duration::from_millis(c.ack_timeout_ms),
             writeback_retries: c.writeback_retries,
             max_history: c.max_history.max(1),

@@ -469,14 +469,21 @@ impl Pipeline {
             *state = state.with_learnt(&reset);
         }
         if let Some(bias) = self.set_yaw_rate.0.filter(|_| changes.yaw_rate) {
-            // The calibrated bias as the filter's prior, as sure as a drive
-            // calibration gets (a tenth of a degree per second); the rear
-            // diameters were calibrated with it, so their error starts at 0.
+            // The calibrated bias as the filter's prior, as sure as its
+            // calibration said (a set without its σ: a tenth of a degree per
+            // second); the rear diameters were calibrated with it, so their
+            // error starts at 0. The set's bias is the sensor's, in its raw
+            // units (measured = scale · true + bias); the filter subtracts
+            // its bias from the rate already divided by the scale, so it
+            // starts from bias / scale (issue #31: it was used raw).
+            let sigma = values
+                .and_then(|v| v.yaw_rate_bias_sigma_radps)
+                .unwrap_or(CALIBRATED_YAW_BIAS_SIGMA_RADPS);
             let state = &mut self.states[self.current];
             let learnt = Learnt {
                 yaw_bias: Some(LearntPair {
-                    yaw_bias_radps: bias,
-                    yaw_bias_sigma_radps: CALIBRATED_YAW_BIAS_SIGMA_RADPS,
+                    yaw_bias_radps: bias / self.yaw_scale,
+                    yaw_bias_sigma_radps: sigma / self.yaw_scale.abs(),
                     rear_ratio_err: 0.0,
                     rear_ratio_sigma: self.ekf.config().rear_ratio_sigma,
                     tread_err: 0.0,

@@ -503,7 +503,14 @@ pub fn calibrate_fixes(
     let name = path.display().to_string();
     let drive = canodom_offline::drive::samples_from_frames(config, set.as_ref(), frames, &name)?;
     let what = format!("{name} against {}", fixes.display());
-    let fit = canodom_offline::drive::fit_drive(config, base, &drive, &all_fixes, &what)?;
+    let fit = canodom_offline::drive::fit_drive(
+        config,
+        base,
+        &drive,
+        &all_fixes,
+        &what,
+        &canodom_calib::drive::DriveOptions::default(),
+    )?;
     let cal = &fit.calibration;
     let mut estimates = serde_json::Map::new();
     let mut not_told = Vec::new();
@@ -524,8 +531,31 @@ pub fn calibrate_fixes(
             serde_json::json!({"value": e.value, "sigma": e.sigma, "observable": e.observable}),
         );
     }
-    // The rear tread is not told by a drive (turns both ways on a track tell it).
-    not_told.push("rear_tread_m");
+    // The rear tread's correction is told only by a drive turning both ways.
+    estimates.insert(
+        "rear_tread_rel".to_owned(),
+        serde_json::json!({"value": cal.rear_tread.value, "sigma": cal.rear_tread.sigma,
+            "observable": cal.rear_tread.observable}),
+    );
+    if !cal.rear_tread.observable {
+        not_told.push("rear_tread_m");
+    }
+    let latency = cal.fixes_latency_s;
+    estimates.insert(
+        "fixes_latency_s".to_owned(),
+        serde_json::json!({"value": latency.value, "sigma": latency.sigma,
+            "observable": latency.observable, "given": cal.latency_given}),
+    );
+    let down_weighted: Vec<serde_json::Value> = cal
+        .down_weighted
+        .iter()
+        .map(|d| serde_json::json!({"t_unix_s": d.t_s, "residual_m": d.residual_m, "weight": d.weight}))
+        .collect();
+    let refused: Vec<serde_json::Value> = fit
+        .refused
+        .iter()
+        .map(|r| serde_json::json!({"parameter": r.parameter, "reason": r.reason}))
+        .collect();
     let [rear, yaw, steering] = cal.residual_rms_m;
     let json = serde_json::json!({
         "estimates": estimates,
@@ -533,6 +563,8 @@ pub fn calibrate_fixes(
         "configured": values_json(&fit.base),
         "calibrated": values_json(&fit.values),
         "out_of_bounds": fit.out_of_bounds,
+        "down_weighted": down_weighted,
+        "refused": refused,
         "fixes_used": cal.fixes_used,
         "fixes_outside": fit.fixes_outside,
         "distance_m": cal.distance_m,

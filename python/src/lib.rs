@@ -204,18 +204,24 @@ fn replay(
 ///
 /// Calibrates the vehicle from an ordinary drive with position fixes, as
 /// `canodom calibrate --config CONFIG --fixes FIXES LOG` does (nothing is
-/// written). fixes is a CSV t_unix_s,x_m,y_m[,heading_rad] on the log's
-/// clock. Returns a dict:
+/// written). fixes is a CSV t_unix_s,x_m,y_m[,heading_rad], a CSV
+/// t_unix_s,lat_deg,lon_deg[,alt_m] or an NMEA 0183 log (GGA/RMC), on the
+/// log's clock. Returns a dict:
 ///
 /// - "estimates": name -> {"value", "sigma", "observable"} for speed_scale,
 ///   rear_ratio, steering_offset_rad, steering_gain, yaw_rate_bias_radps,
-///   yaw_rate_scale (those the log has data for);
+///   yaw_rate_scale (those the log has data for), rear_tread_rel and
+///   fixes_latency_s (with "given");
 /// - "not_told": the names the drive could not tell (held at the values in use);
 /// - "configured" and "calibrated": the parameter sets (rear_tread_m,
 ///   rear_left_diameter_m, rear_right_diameter_m, steering_gain,
 ///   steering_offset_rad, yaw_rate_bias_radps, yaw_rate_scale);
 /// - "out_of_bounds": why the calibrated set is outside the configuration's
 ///   bounds, or None;
+/// - "down_weighted": the fixes the robust loss down-weighted
+///   ({"t_unix_s", "residual_m", "weight"});
+/// - "refused": what the quality gate kept at its previous value
+///   ({"parameter", "reason"});
 /// - "fixes_used", "fixes_outside", "distance_m", "residual_rms_m", "steps",
 ///   "malformed".
 ///

@@ -56,6 +56,7 @@ fn an_applied_set_drives_the_next_steps_and_is_reported() {
         steering_offset_rad: steer.offset_rad,
         yaw_rate_bias_radps: None,
         yaw_rate_scale: None,
+        yaw_rate_bias_sigma_radps: None,
     };
     calibrated.apply_params(Some((4, &set))).unwrap();
     for (t, f) in &fr {
@@ -221,4 +222,32 @@ fn consecutive_bad_frames_invalidate_the_input() {
     // Latches clear once reported.
     let o = p.pose_output(Timestamp::from_micros(7_000_000));
     assert!(!o.flags.checksum_fault);
+}
+
+/// A set's yaw-rate bias is the sensor's, in its raw units (measured =
+/// scale · true + bias); the filter subtracts its bias from the rate already
+/// divided by the scale, so it must start from bias / scale, as sure as the
+/// set's σ says (issue #31: it started from the raw bias, with a fixed σ).
+#[test]
+fn a_sets_yaw_rate_bias_is_the_filters_prior_in_its_units_with_its_sigma() {
+    let c = config();
+    let steer = c.params.steering();
+    let mut pipeline = Pipeline::new(&c).unwrap();
+    let set = canodom_params::persist::ParamValues {
+        rear_tread_m: c.params.rear_tread_m(),
+        rear_left_diameter_m: 0.09,
+        rear_right_diameter_m: 0.09,
+        steering_gain: steer.gain,
+        steering_offset_rad: steer.offset_rad,
+        yaw_rate_bias_radps: Some(0.01),
+        yaw_rate_scale: Some(1.25),
+        yaw_rate_bias_sigma_radps: Some(0.002),
+    };
+    pipeline.apply_params(Some((2, &set))).unwrap();
+    let pair = pipeline.state().learnt().yaw_bias.unwrap();
+    assert!((pair.yaw_bias_radps - 0.008).abs() < 1e-15, "{pair:?}");
+    assert!(
+        (pair.yaw_bias_sigma_radps - 0.0016).abs() < 1e-15,
+        "{pair:?}"
+    );
 }

@@ -147,6 +147,7 @@ fn record(
             rear_right_m: d(Wheel::RearRight),
             steer_angle_rad: Some(map.angle_rad(s.steer_signal)),
             yaw_rate_radps: Some(s.yaw_rate_radps),
+            rear_slip: false,
         });
         if k % 100 == 0 {
             fixes.push(Fix {

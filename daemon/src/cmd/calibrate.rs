@@ -42,12 +42,18 @@ y to the left), for some or all logs; a log not listed is assumed to end exactly
 dx_m = 0.012\n  dy_m = -0.004\n  dtheta_deg = 0.8\n\n\
 Without a track: calibration from an ordinary drive with position fixes (GNSS, a surveyed route):\n  \
 canodom calibrate --config car.toml --fixes fixes.csv --out params.toml drive.log\n\
-fixes.csv has a header t_unix_s,x_m,y_m[,heading_rad] (the rear-axle centre in a local metric frame, \
-times on the log's clock; 1 Hz is plenty). The rear diameter ratio, the speed scale, the steering \
-offset and gain and the yaw-rate sensor's bias and scale are fitted by least squares over the whole \
-drive, each with its standard deviation; what the drive cannot tell (a straight road cannot tell the \
-steering gain) is held and said so. The result is committed to the parameter file --out (created if \
-missing, history kept, bounds checked), which `replay --params` and `run` (param_file) use.")]
+The fixes (the rear-axle centre, times on the log's clock; 1 Hz is plenty) are read from a CSV \
+t_unix_s,x_m,y_m[,heading_rad] in a local metric frame, a CSV t_unix_s,lat_deg,lon_deg[,alt_m] \
+(WGS-84, turned into metres around the first fix) or an NMEA 0183 log (GGA/RMC, UTC times), told \
+apart by content. The rear diameter ratio, the speed scale, the steering offset and gain, the \
+yaw-rate sensor's bias and scale, the effective rear tread (from turns both ways) and the fixes' \
+latency (within ±--fixes-latency-bound-s, or given with --fixes-latency-s) are fitted over the whole \
+drive with a robust loss: a receiver's jumps are down-weighted and listed, each estimate has its \
+standard deviation; what the drive cannot tell is held and said so. Each value is committed only if \
+its standard deviation is within [calibration]'s max_*_std and the fit is plausible \
+(max_fix_residual_m, max_down_weighted_share), else the previous value is kept and the reason \
+printed. The result goes to the parameter file --out (created if missing, history kept, bounds \
+checked), which `replay --params` and `run` (param_file) use.")]
 pub struct CalibrateArgs {
     /// The configuration file: DBC, signals and the parameters in use while recording.
     #[arg(long)]
@@ -68,6 +74,25 @@ pub struct CalibrateArgs {
     /// With --fixes: the log of the drive (candump, ASC, BLF, compressed).
     #[arg(requires = "fixes")]
     pub log: Option<PathBuf>,
+    /// With --fixes: the fixes' latency is known: a fix stamped t on the log's
+    /// clock describes the vehicle at t − SECONDS (default: estimated within
+    /// ±--fixes-latency-bound-s and reported with its σ).
+    #[arg(
+        long,
+        requires = "fixes",
+        value_name = "SECONDS",
+        allow_negative_numbers = true
+    )]
+    pub fixes_latency_s: Option<f64>,
+    /// With --fixes: the largest latency the fit may estimate, seconds.
+    #[arg(
+        long,
+        requires = "fixes",
+        conflicts_with = "fixes_latency_s",
+        value_name = "SECONDS",
+        default_value_t = 1.0
+    )]
+    pub fixes_latency_bound_s: f64,
     /// Measured real end poses per log (TOML, see below).
     #[arg(long)]
     pub end_poses: Option<PathBuf>,
@@ -354,6 +379,27 @@ fn write_atomic(path: &Path, text: &str) -> anyhow::Result<()> {
     })
 }
 
+/// `--fixes-latency-s` / `--fixes-latency-bound-s` as the drive fit's options.
+fn drive_options(args: &CalibrateArgs) -> anyhow::Result<canodom_calib::drive::DriveOptions> {
+    let latency = match args.fixes_latency_s {
+        Some(s) if s.is_finite() => canodom_calib::drive::FixesLatency::Given(s),
+        Some(s) => bail!("--fixes-latency-s {s}: not a finite number of seconds"),
+        None if args.fixes_latency_bound_s.is_finite() && args.fixes_latency_bound_s > 0.0 => {
+            canodom_calib::drive::FixesLatency::Estimate {
+                bound_s: args.fixes_latency_bound_s,
+            }
+        }
+        None => bail!(
+            "--fixes-latency-bound-s {}: must be a positive number of seconds",
+            args.fixes_latency_bound_s
+        ),
+    };
+    Ok(canodom_calib::drive::DriveOptions {
+        latency,
+        ..canodom_calib::drive::DriveOptions::default()
+    })
+}
+
 /// Runs `calibrate`.
 ///
 /// # Errors
@@ -363,6 +409,7 @@ pub fn execute(args: &CalibrateArgs) -> anyhow::Result<()> {
     let config = Config::load(&args.config)?;
     super::dbc_warnings(&config.db, args.strict)?;
     if let (Some(fixes), Some(log), Some(out)) = (&args.fixes, &args.log, &args.out) {
+        let options = drive_options(args)?;
         return super::calibrate_drive::execute(
             &config,
             fixes,
@@ -370,6 +417,7 @@ pub fn execute(args: &CalibrateArgs) -> anyhow::Result<()> {
             out,
             args.report.as_deref(),
             args.interface.as_deref(),
+            &options,
         );
     }
     let radius = args

@@ -13,7 +13,7 @@
 //! and `run` (through `param_file`) then use.
 
 use anyhow::bail;
-use canodom_calib::drive::{DriveCalibration, Estimate};
+use canodom_calib::drive::{DriveCalibration, DriveOptions, Estimate};
 use canodom_params::persist::{ParamFile, ParamSet, ParamValues, PersistError};
 use canodom_pipeline::config::Config;
 use std::fmt::Write as _;
@@ -106,18 +106,31 @@ pub fn report_text(cal: &DriveCalibration, base: &ParamValues, new: &ParamValues
     ] {
         line(&mut s, name, estimate, unit, k);
     }
-    let _ = writeln!(
-        s,
-        "  rear tread                       not estimated from a drive (turns both ways on a track tell it): {} m kept",
-        base.rear_tread_m
-    );
+    tread_and_latency(&mut s, cal, base, new);
     let names = ["rear wheels", "yaw rate", "steering"];
     let residuals: Vec<String> = names
         .iter()
         .zip(cal.residual_rms_m)
-        .filter_map(|(n, r)| r.map(|r| format!("{n} {r:.3} m")))
+        .zip(cal.weighted_rms_m)
+        .filter_map(|((n, r), w)| Some(format!("{n} {:.3} m ({:.3} m weighted)", r?, w?)))
         .collect();
     let _ = writeln!(s, "  residual RMS at the fixes: {}", residuals.join(", "));
+    if cal.down_weighted.is_empty() {
+        let _ = writeln!(s, "  down-weighted fixes: none");
+    } else {
+        let _ = writeln!(
+            s,
+            "  down-weighted fixes ({}; they disagree with every reckoning):",
+            cal.down_weighted.len()
+        );
+        for d in &cal.down_weighted {
+            let _ = writeln!(
+                s,
+                "    t {:.3} s: residual {:.2} m, weight {:.3}",
+                d.t_s, d.residual_m, d.weight
+            );
+        }
+    }
     let _ = writeln!(
         s,
         "  rear diameters {:.6} / {:.6} m -> {:.6} / {:.6} m",
@@ -184,6 +197,61 @@ fn misfit_refusal(found: &[(&str, &str, f64)]) -> String {
     )
 }
 
+/// The report's lines of the rear tread and the fixes' latency.
+fn tread_and_latency(
+    s: &mut String,
+    cal: &DriveCalibration,
+    base: &ParamValues,
+    new: &ParamValues,
+) {
+    let [left, right] = cal.turns_rad.map(f64::to_degrees);
+    let _ = if cal.rear_tread.observable {
+        writeln!(
+            *s,
+            "  {:<18} {:+.6} ± {:.6} (turns {left:.0}° left, {right:.0}° right): {:.4} -> {:.4} m",
+            "rear tread (rel.)",
+            cal.rear_tread.value,
+            cal.rear_tread.sigma,
+            base.rear_tread_m,
+            new.rear_tread_m
+        )
+    } else if cal
+        .refused
+        .iter()
+        .any(|r| r.parameter == "rear tread (rel.)")
+    {
+        writeln!(
+            *s,
+            "  {:<18} held at {} m: fitted from {left:.0}° left and {right:.0}° right, \
+             refused by the quality gate (below)",
+            "rear tread (rel.)", base.rear_tread_m
+        )
+    } else {
+        writeln!(
+            *s,
+            "  {:<18} held at {} m: the drive turned {left:.0}° left and {right:.0}° right, \
+             too little both ways to tell it from the ratio",
+            "rear tread (rel.)", base.rear_tread_m
+        )
+    };
+    let lat = cal.fixes_latency_s;
+    let _ = if cal.latency_given {
+        writeln!(*s, "  {:<18} {:+.3} s given", "fixes latency", lat.value)
+    } else if lat.observable {
+        writeln!(
+            *s,
+            "  {:<18} {:+.6}s ± {:.6}s (a fix stamped t holds the pose at t − latency)",
+            "fixes latency", lat.value, lat.sigma
+        )
+    } else {
+        writeln!(
+            *s,
+            "  {:<18} held at 0 s: the drive does not tell it (σ {:.3} s); give --fixes-latency-s",
+            "fixes latency", lat.sigma
+        )
+    };
+}
+
 /// Runs the drive calibration: samples from `log`, fixes from `fixes`,
 /// committed to the parameter file `out`.
 ///
@@ -197,6 +265,7 @@ pub fn execute(
     out: &Path,
     report_dir: Option<&Path>,
     interface: Option<&str>,
+    options: &DriveOptions,
 ) -> anyhow::Result<()> {
     let all_fixes = canodom_offline::drive::read_fixes(fixes_path)?;
     let mut file = load_or_new(out, config)?;
@@ -204,7 +273,7 @@ pub fn execute(
     let base = values_in_use(config, base_set.as_ref());
     let drive = samples_from_log(config, base_set.as_ref(), log, interface)?;
     let what = format!("{} against {}", log.display(), fixes_path.display());
-    let fit = canodom_offline::drive::fit_drive(config, base, &drive, &all_fixes, &what)?;
+    let fit = canodom_offline::drive::fit_drive(config, base, &drive, &all_fixes, &what, options)?;
     let (first, last) = fit.span_s;
     if fit.fixes_outside > 0 {
         eprintln!(
@@ -226,12 +295,24 @@ pub fn execute(
     );
     let (cal, values, fixes) = (fit.calibration, fit.values, fit.fixes);
     print!("{}", report_text(&cal, &base, &values));
+    for r in &fit.refused {
+        println!(
+            "  not committed, the previous value kept: {}: {}",
+            r.parameter, r.reason
+        );
+    }
     let found = misfits(&cal);
     if !found.is_empty() {
         bail!("{}", misfit_refusal(&found));
     }
     if let Some(why) = fit.out_of_bounds {
         bail!("the calibrated set is outside the configured bounds; not committed: {why}");
+    }
+    if values == base {
+        bail!(
+            "nothing passed the quality gate ([calibration] max_*_std, max_fix_residual_m, \
+             max_down_weighted_share); the parameter file is left as it was"
+        );
     }
     let created = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
@@ -282,6 +363,7 @@ mod tests {
             steering_offset_rad: 0.0,
             yaw_rate_bias_radps: None,
             yaw_rate_scale: None,
+            yaw_rate_bias_sigma_radps: None,
         };
         let cal = DriveCalibration {
             speed_scale: estimate(1.01, true),
@@ -293,6 +375,13 @@ mod tests {
             fixes_used: 30,
             distance_m: 500.0,
             residual_rms_m: [Some(0.1), Some(0.1), None],
+            rear_tread: estimate(1.0, false),
+            turns_rad: [0.5, 0.0],
+            fixes_latency_s: estimate(0.2, true),
+            latency_given: false,
+            down_weighted: Vec::new(),
+            weighted_rms_m: [Some(0.1), Some(0.1), None],
+            refused: Vec::new(),
         };
         let v = calibrated_values(&base, &cal);
         let (l, r) = (v.rear_left_diameter_m, v.rear_right_diameter_m);
@@ -313,7 +402,7 @@ mod tests {
             "{text}"
         );
         assert!(
-            text.contains("rear tread") && text.contains("not estimated"),
+            text.contains("rear tread") && text.contains("too little both ways"),
             "{text}"
         );
         assert!(

@@ -1,0 +1,159 @@
+//! The quality gate before a drive's calibration is committed (issue #31):
+//! each estimate only with its σ below its limit, and only from a plausible fit.
+
+use crate::drive::{DriveCalibration, Estimate, GateRefusal};
+use std::f64::consts::PI;
+
+/// The quality a drive's fit must show before its values are committed
+/// (issue #31): each parameter's σ below its limit, and the fit as a whole
+/// plausible. The limits state what a user needs of a committed value, not
+/// what a fit reaches.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DriveGate {
+    /// Largest σ of the speed scale (relative).
+    pub speed_scale: f64,
+    /// Largest σ of the rear ratio correction (relative).
+    pub rear_ratio: f64,
+    /// Largest σ of the steering offset, rad.
+    pub steer_offset_rad: f64,
+    /// Largest σ of the steering gain correction (relative).
+    pub steer_gain: f64,
+    /// Largest σ of the yaw-rate bias, rad/s.
+    pub yaw_bias_radps: f64,
+    /// Largest σ of the yaw-rate scale (relative).
+    pub yaw_scale: f64,
+    /// Largest σ of the rear tread correction (relative).
+    pub rear_tread: f64,
+    /// Largest weighted RMS position residual at the fixes of the best
+    /// source, metres: past it the reckoning and the fixes disagree beyond
+    /// any receiver's noise (a wrong configuration, a wrong log) and nothing
+    /// is committed.
+    pub max_residual_m: f64,
+    /// Largest share of fixes the robust loss may down-weight: past it the
+    /// "outliers" are the rule and nothing is committed.
+    pub max_down_weighted_share: f64,
+}
+
+impl Default for DriveGate {
+    /// 0.2 %, 0.2 %, 0.5°, 2 %, 0.05°/s, 1 %, 0.5 %; 2 m; a quarter of the fixes.
+    fn default() -> Self {
+        Self {
+            speed_scale: 0.002,
+            rear_ratio: 0.002,
+            steer_offset_rad: 0.5 * PI / 180.0,
+            steer_gain: 0.02,
+            yaw_bias_radps: 0.05 * PI / 180.0,
+            yaw_scale: 0.01,
+            rear_tread: 0.005,
+            max_residual_m: 2.0,
+            max_down_weighted_share: 0.25,
+        }
+    }
+}
+
+/// Applies `gate` to `cal`: every estimate that fails it is marked not
+/// observable, so [`calibrated_values`] keeps the previous value; the
+/// refusals say which and why (empty: everything the drive told passes).
+pub fn apply_gate(cal: &mut DriveCalibration, gate: &DriveGate) -> Vec<GateRefusal> {
+    let mut refusals = Vec::new();
+    let best_rms = cal
+        .weighted_rms_m
+        .iter()
+        .flatten()
+        .copied()
+        .fold(f64::INFINITY, f64::min);
+    let share = cal.down_weighted.len() as f64 / cal.fixes_used.max(1) as f64;
+    let whole = if best_rms > gate.max_residual_m {
+        Some(format!(
+            "the fit's residual at the fixes is {best_rms:.2} m (weighted RMS of the best source), \
+             above {:.2} m: the reckoning and the fixes disagree (configuration, log or fixes wrong?)",
+            gate.max_residual_m
+        ))
+    } else if share > gate.max_down_weighted_share {
+        Some(format!(
+            "{} of {} fixes were down-weighted ({:.0} %), more than {:.0} %: the fixes are not \
+             a receiver's with a few jumps",
+            cal.down_weighted.len(),
+            cal.fixes_used,
+            100.0 * share,
+            100.0 * gate.max_down_weighted_share
+        ))
+    } else {
+        None
+    };
+    let deg = 180.0 / PI;
+    let entries: [(&'static str, Option<&mut Estimate>, f64, &str, f64); 7] = [
+        (
+            "speed scale",
+            Some(&mut cal.speed_scale),
+            gate.speed_scale,
+            "",
+            1.0,
+        ),
+        (
+            "rear ratio (R/L)",
+            Some(&mut cal.rear_ratio),
+            gate.rear_ratio,
+            "",
+            1.0,
+        ),
+        (
+            "steering offset",
+            cal.steer_offset_rad.as_mut(),
+            gate.steer_offset_rad,
+            "°",
+            deg,
+        ),
+        (
+            "steering gain",
+            cal.steer_gain.as_mut(),
+            gate.steer_gain,
+            "",
+            1.0,
+        ),
+        (
+            "yaw-rate bias",
+            cal.yaw_bias_radps.as_mut(),
+            gate.yaw_bias_radps,
+            "°/s",
+            deg,
+        ),
+        (
+            "yaw-rate scale",
+            cal.yaw_scale.as_mut(),
+            gate.yaw_scale,
+            "",
+            1.0,
+        ),
+        (
+            "rear tread (rel.)",
+            Some(&mut cal.rear_tread),
+            gate.rear_tread,
+            "",
+            1.0,
+        ),
+    ];
+    for (parameter, estimate, limit, unit, k) in entries {
+        let Some(e) = estimate.filter(|e| e.observable) else {
+            continue;
+        };
+        let reason = match &whole {
+            Some(why) => why.clone(),
+            // A NaN σ fails too.
+            None if e.sigma.partial_cmp(&limit) != Some(std::cmp::Ordering::Less)
+                && e.sigma != limit =>
+            {
+                format!(
+                    "σ {:.6}{unit} above the limit {:.6}{unit}",
+                    e.sigma * k,
+                    limit * k
+                )
+            }
+            None => continue,
+        };
+        e.observable = false;
+        refusals.push(GateRefusal { parameter, reason });
+    }
+    cal.refused.extend(refusals.iter().cloned());
+    refusals
+}

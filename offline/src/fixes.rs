@@ -1,0 +1,443 @@
+//! Position fixes in the formats receivers and users write (issue #31),
+//! told apart by their content, not their file name:
+//!
+//! - a CSV in local metres, `t_unix_s,x_m,y_m[,heading_rad]`
+//!   ([`canodom_calib::drive::parse_fixes`]);
+//! - a CSV of geodetic positions, `t_unix_s,lat_deg,lon_deg[,alt_m]`
+//!   (WGS-84), turned into a local east/north frame at the first fix;
+//! - an NMEA 0183 log (lines starting with `$`): GGA and RMC sentences,
+//!   checksums checked, their UTC times (RMC's date) on the Unix clock the
+//!   logs use; a sentence with an invalid fix is left out, other sentences
+//!   (GSV, VTG, ...) are counted and skipped.
+//!
+//! The two sentences are read here by hand, and why: the `nmea` crate (0.7
+//! and 0.8) declares `serde_with ~3.9`/`~3.11` as an optional dependency,
+//! which Cargo's resolver counts even unused and which conflicts with
+//! foxglove's `serde_with ^3.14` (no lock file resolves); `nmea-parser`
+//! (0.10) drops GGA's fractions of a second and dates GGA with today's date,
+//! while a receiver's 0.2 s latency is what this reader must keep.
+//!
+//! The geodetic-to-local conversion is `map_3d`'s `geodetic2enu` on WGS-84
+//! (exact ECEF differences rotated into the tangent plane), not a flat-earth
+//! scale: over a 1 km drive the two differ by centimetres, but the crate
+//! costs nothing and is right anywhere.
+
+use crate::{Error, Result};
+use canodom_calib::drive::Fix;
+use chrono::{NaiveDate, NaiveTime, Timelike as _};
+
+/// What a fixes file held.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FixesFormat {
+    /// CSV in local metres.
+    LocalCsv,
+    /// CSV of latitude and longitude, converted to metres around the first fix.
+    GeodeticCsv,
+    /// NMEA 0183 GGA/RMC, converted to metres around the first fix.
+    Nmea,
+}
+
+impl FixesFormat {
+    /// The format's name for messages.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::LocalCsv => "CSV in local metres (t_unix_s,x_m,y_m)",
+            Self::GeodeticCsv => "CSV of latitude/longitude (t_unix_s,lat_deg,lon_deg)",
+            Self::Nmea => "NMEA 0183 (GGA/RMC)",
+        }
+    }
+}
+
+/// Reads the fixes in `text` (`name` names the file in errors), telling the
+/// format from the content.
+///
+/// # Errors
+/// [`Error::Calibration`] naming the file, the format it saw and the line
+/// at fault; a text in none of the formats is refused naming what it looked like.
+pub fn parse_fixes_any(text: &str, name: &str) -> Result<(Vec<Fix>, FixesFormat)> {
+    let err = |m: String| Error::Calibration(format!("{name}: {m}"));
+    let Some(first) = text.lines().map(str::trim).find(|l| !l.is_empty()) else {
+        return Err(err("empty: no fixes".to_owned()));
+    };
+    if first.starts_with('$') || first.starts_with('!') {
+        return Ok((parse_nmea(text, name)?, FixesFormat::Nmea));
+    }
+    let columns: Vec<&str> = first.split(',').map(str::trim).collect();
+    let has = |c: &str| columns.contains(&c);
+    if has("lat_deg") || has("lon_deg") {
+        return Ok((parse_geodetic_csv(text, name)?, FixesFormat::GeodeticCsv));
+    }
+    if has("x_m") || has("y_m") || has("t_unix_s") {
+        let fixes = canodom_calib::drive::parse_fixes(text, name).map_err(|e| {
+            Error::Calibration(format!("{e} (read as {})", FixesFormat::LocalCsv.name()))
+        })?;
+        return Ok((fixes, FixesFormat::LocalCsv));
+    }
+    let shown: String = first.chars().take(60).collect();
+    Err(err(format!(
+        "not a fixes file: its first line {shown:?} is neither a CSV header naming \
+         t_unix_s,x_m,y_m or t_unix_s,lat_deg,lon_deg nor an NMEA sentence ($GPGGA, $GNRMC, ...)"
+    )))
+}
+
+/// One geodetic fix before the local frame.
+struct Geodetic {
+    t_s: f64,
+    lat_deg: f64,
+    lon_deg: f64,
+    alt_m: f64,
+}
+
+/// East/north metres around the first fix (its altitude as the plane's).
+fn to_local(geo: &[Geodetic]) -> Vec<Fix> {
+    let Some(origin) = geo.first() else {
+        return Vec::new();
+    };
+    let (lat0, lon0, alt0) = (
+        origin.lat_deg.to_radians(),
+        origin.lon_deg.to_radians(),
+        origin.alt_m,
+    );
+    geo.iter()
+        .map(|g| {
+            let (e, n, _) = map_3d::geodetic2enu(
+                g.lat_deg.to_radians(),
+                g.lon_deg.to_radians(),
+                g.alt_m,
+                lat0,
+                lon0,
+                alt0,
+                map_3d::Ellipsoid::WGS84,
+            );
+            Fix {
+                t_s: g.t_s,
+                x_m: e,
+                y_m: n,
+                heading_rad: None,
+            }
+        })
+        .collect()
+}
+
+fn parse_geodetic_csv(text: &str, name: &str) -> Result<Vec<Fix>> {
+    let format = FixesFormat::GeodeticCsv.name();
+    let err = |line: usize, m: String| {
+        Error::Calibration(format!("{name}:{line}: {m} (read as {format})"))
+    };
+    let mut lines = text
+        .lines()
+        .enumerate()
+        .filter(|(_, l)| !l.trim().is_empty());
+    let Some((h, header)) = lines.next() else {
+        return Err(err(0, "empty".to_owned()));
+    };
+    let columns: Vec<&str> = header.split(',').map(str::trim).collect();
+    let column = |want: &str| columns.iter().position(|c| *c == want);
+    let (Some(t), Some(lat), Some(lon)) =
+        (column("t_unix_s"), column("lat_deg"), column("lon_deg"))
+    else {
+        return Err(err(
+            h + 1,
+            format!("the header {header:?} lacks t_unix_s, lat_deg or lon_deg"),
+        ));
+    };
+    let alt = column("alt_m");
+    let mut geo: Vec<Geodetic> = Vec::new();
+    for (i, line) in lines {
+        let fields: Vec<&str> = line.split(',').map(str::trim).collect();
+        let number = |k: usize, what: &str| -> Result<f64> {
+            let text = fields
+                .get(k)
+                .ok_or_else(|| err(i + 1, format!("no {what} column")))?;
+            text.parse::<f64>()
+                .ok()
+                .filter(|v| v.is_finite())
+                .ok_or_else(|| err(i + 1, format!("{what} {text:?} is not a finite number")))
+        };
+        let g = Geodetic {
+            t_s: number(t, "t_unix_s")?,
+            lat_deg: number(lat, "lat_deg")?,
+            lon_deg: number(lon, "lon_deg")?,
+            alt_m: alt.map(|a| number(a, "alt_m")).transpose()?.unwrap_or(0.0),
+        };
+        if g.lat_deg.abs() > 90.0 || g.lon_deg.abs() > 180.0 {
+            return Err(err(
+                i + 1,
+                format!(
+                    "latitude {} / longitude {} outside ±90° / ±180°",
+                    g.lat_deg, g.lon_deg
+                ),
+            ));
+        }
+        if geo.last().is_some_and(|p| g.t_s <= p.t_s) {
+            return Err(err(i + 1, "the fixes' times must increase".to_owned()));
+        }
+        geo.push(g);
+    }
+    Ok(to_local(&geo))
+}
+
+/// One NMEA sentence's fix before dates are known.
+struct Sentence {
+    line: usize,
+    time: NaiveTime,
+    /// RMC's date.
+    date: Option<NaiveDate>,
+    lat_deg: f64,
+    lon_deg: f64,
+    alt_m: Option<f64>,
+}
+
+/// What one NMEA sentence holds.
+enum Read {
+    /// A sentence other than GGA/RMC.
+    Other,
+    /// A GGA/RMC without a valid fix.
+    NoFix,
+    /// A fix (its line still 0).
+    Fix(Sentence),
+}
+
+/// One sentence, its checksum checked.
+///
+/// # Errors
+/// A bad checksum or a malformed field, in words.
+fn sentence_fix(line: &str) -> std::result::Result<Read, String> {
+    let body = &line[1..];
+    let (data, sum) = match body.rsplit_once('*') {
+        Some((data, sum)) => (data, Some(sum)),
+        None => (body, None),
+    };
+    let Some(sum) = sum else {
+        return Err("no checksum (*hh)".to_owned());
+    };
+    let want =
+        u8::from_str_radix(sum.trim(), 16).map_err(|_| format!("checksum {sum:?} is not hex"))?;
+    let got = data.bytes().fold(0_u8, |a, b| a ^ b);
+    if got != want {
+        return Err(format!(
+            "checksum {want:02X} but the sentence sums to {got:02X}"
+        ));
+    }
+    let fields: Vec<&str> = data.split(',').collect();
+    let kind = fields[0].get(2..).unwrap_or("");
+    let field = |k: usize| fields.get(k).copied().unwrap_or("");
+    let (time, lat, ns, lon, ew) = match kind {
+        "GGA" => (field(1), field(2), field(3), field(4), field(5)),
+        "RMC" => (field(1), field(3), field(4), field(5), field(6)),
+        _ => return Ok(Read::Other),
+    };
+    let valid = match kind {
+        "GGA" => !matches!(field(6), "" | "0"),
+        _ => field(2) == "A" || field(2) == "D",
+    };
+    if !valid || time.is_empty() || lat.is_empty() || lon.is_empty() {
+        return Ok(Read::NoFix);
+    }
+    let time = NaiveTime::parse_from_str(time, "%H%M%S%.f")
+        .or_else(|_| NaiveTime::parse_from_str(time, "%H%M%S"))
+        .map_err(|_| format!("time {time:?} is not hhmmss.ss"))?;
+    let angle =
+        |text: &str, degree_digits: usize, hemisphere: &str, positive: &str, negative: &str| {
+            let bad = || format!("{text:?} {hemisphere:?} is not a d..dmm.mmm angle");
+            let (deg, min) = (
+                text.get(..degree_digits).ok_or_else(bad)?,
+                text.get(degree_digits..).ok_or_else(bad)?,
+            );
+            let value = deg.parse::<f64>().map_err(|_| bad())?
+                + min.parse::<f64>().map_err(|_| bad())? / 60.0;
+            match hemisphere {
+                h if h == positive => Ok(value),
+                h if h == negative => Ok(-value),
+                _ => Err(bad()),
+            }
+        };
+    let lat_deg = angle(lat, 2, ns, "N", "S")?;
+    let lon_deg = angle(lon, 3, ew, "E", "W")?;
+    let (date, alt_m) = if kind == "RMC" {
+        let d = field(9);
+        let date = NaiveDate::parse_from_str(d, "%d%m%y")
+            .map_err(|_| format!("date {d:?} is not ddmmyy"))?;
+        (Some(date), None)
+    } else {
+        let a = field(9);
+        (
+            None,
+            if a.is_empty() {
+                None
+            } else {
+                Some(
+                    a.parse::<f64>()
+                        .map_err(|_| format!("altitude {a:?} is not a number"))?,
+                )
+            },
+        )
+    };
+    Ok(Read::Fix(Sentence {
+        line: 0,
+        time,
+        date,
+        lat_deg,
+        lon_deg,
+        alt_m,
+    }))
+}
+
+fn parse_nmea(text: &str, name: &str) -> Result<Vec<Fix>> {
+    let format = FixesFormat::Nmea.name();
+    let err = |m: String| Error::Calibration(format!("{name}: {m} (read as {format})"));
+    let mut sentences: Vec<Sentence> = Vec::new();
+    let (mut other, mut invalid, mut bad) = (0_usize, 0_usize, Vec::<String>::new());
+    for (i, raw) in text.lines().enumerate() {
+        let line = raw.trim();
+        if line.is_empty() {
+            continue;
+        }
+        if !line.starts_with('$') && !line.starts_with('!') {
+            return Err(err(format!(
+                "line {} is not an NMEA sentence: {:?}",
+                i + 1,
+                line.chars().take(60).collect::<String>()
+            )));
+        }
+        match sentence_fix(line) {
+            Ok(Read::Fix(mut s)) => {
+                s.line = i + 1;
+                sentences.push(s);
+            }
+            Ok(Read::NoFix) => invalid += 1,
+            Ok(Read::Other) => other += 1,
+            Err(e) => bad.push(format!("line {}: {e}", i + 1)),
+        }
+    }
+    if !bad.is_empty() {
+        return Err(err(format!(
+            "{} sentence(s) cannot be parsed (a damaged log?), first {}",
+            bad.len(),
+            bad[0]
+        )));
+    }
+    let Some(first_date) = sentences.iter().find_map(|s| s.date) else {
+        return Err(err(format!(
+            "no RMC sentence with a date and a valid fix ({} GGA/RMC with a fix, {invalid} without, \
+             {other} other sentences): GGA carries the time of day only",
+            sentences.len()
+        )));
+    };
+    // Each sentence's UTC date: the last RMC's (the first's before it), a
+    // day later when the time of day wraps past midnight.
+    let mut date = first_date;
+    let mut previous: Option<NaiveTime> = None;
+    let mut geo: Vec<Geodetic> = Vec::new();
+    let mut altitude: Option<f64> = None;
+    for s in &sentences {
+        if let Some(d) = s.date {
+            date = d;
+        } else if previous.is_some_and(|p| {
+            s.time.num_seconds_from_midnight() + 43_200 < p.num_seconds_from_midnight()
+        }) {
+            date = date.succ_opt().unwrap_or(date);
+        }
+        previous = Some(s.time);
+        let when = date.and_time(s.time).and_utc();
+        let t_s = when.timestamp() as f64 + f64::from(s.time.nanosecond() % 1_000_000_000) * 1e-9;
+        altitude = s.alt_m.or(altitude);
+        // One fix an epoch: GGA and RMC of the same instant are one.
+        match geo.last_mut() {
+            Some(last) if (last.t_s - t_s).abs() < 1e-6 => {
+                if s.alt_m.is_some() {
+                    (last.lat_deg, last.lon_deg, last.alt_m) =
+                        (s.lat_deg, s.lon_deg, altitude.unwrap_or(0.0));
+                }
+            }
+            Some(last) if t_s < last.t_s => {
+                return Err(err(format!(
+                    "line {}: the time {} goes back before the previous fix's",
+                    s.line, s.time
+                )));
+            }
+            _ => geo.push(Geodetic {
+                t_s,
+                lat_deg: s.lat_deg,
+                lon_deg: s.lon_deg,
+                alt_m: altitude.unwrap_or(0.0),
+            }),
+        }
+    }
+    Ok(to_local(&geo))
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+    use super::*;
+
+    /// A sentence with its checksum.
+    fn sentence(body: &str) -> String {
+        let sum = body.bytes().fold(0_u8, |a, b| a ^ b);
+        format!("${body}*{sum:02X}")
+    }
+
+    #[test]
+    fn nmea_gga_and_rmc_become_local_metres_on_the_unix_clock() {
+        // 15 Nov 2023 12:06:40.20 UTC = 1700050000.2; then one second later,
+        // 0.001' of latitude (1.853 m) north.
+        let text = [
+            sentence("GPGGA,120640.20,4809.0000000,N,01134.8000000,E,1,09,0.6,520.0,M,47.0,M,,"),
+            sentence("GPRMC,120640.20,A,4809.0000000,N,01134.8000000,E,20.0,90.0,151123,,,A"),
+            sentence("GPGSV,1,1,01,05,45,120,40"),
+            sentence("GPGGA,120641.20,4809.0010000,N,01134.8000000,E,1,09,0.6,520.0,M,47.0,M,,"),
+            sentence("GPRMC,120641.20,A,4809.0010000,N,01134.8000000,E,20.0,90.0,151123,,,A"),
+            sentence("GPGGA,120642.20,4809.0010000,N,01134.8000000,E,0,00,,,M,,M,,"),
+        ]
+        .join("\r\n");
+        let (fixes, format) = parse_fixes_any(&text, "f.nmea").unwrap();
+        assert_eq!(format, FixesFormat::Nmea);
+        assert_eq!(fixes.len(), 2, "{fixes:?}");
+        assert!(
+            (fixes[0].t_s - 1_700_050_000.2).abs() < 1e-6,
+            "{}",
+            fixes[0].t_s
+        );
+        assert!((fixes[1].t_s - fixes[0].t_s - 1.0).abs() < 1e-6);
+        assert_eq!((fixes[0].x_m, fixes[0].y_m), (0.0, 0.0));
+        assert!(fixes[1].x_m.abs() < 1e-6, "{:?}", fixes[1]);
+        // 0.001' of latitude at 48.15° on WGS-84: 1.8532 m.
+        assert!((fixes[1].y_m - 1.8532).abs() < 1e-3, "{:?}", fixes[1]);
+    }
+
+    #[test]
+    fn geodetic_csv_turns_around_the_first_fix_and_the_west_is_negative() {
+        let text = "t_unix_s,lat_deg,lon_deg,alt_m\n10,-33.9,-70.6,500\n11,-33.9,-70.59999,500\n";
+        let (fixes, format) = parse_fixes_any(text, "g.csv").unwrap();
+        assert_eq!(format, FixesFormat::GeodeticCsv);
+        // 1e-5° of longitude at 33.9° S: 0.9249 m east.
+        assert!((fixes[1].x_m - 0.9249).abs() < 1e-3, "{:?}", fixes[1]);
+        assert!(fixes[1].y_m.abs() < 1e-3);
+        let e = parse_fixes_any("t_unix_s,lat_deg,lon_deg\n1,95,0\n", "g.csv")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("g.csv:2") && e.contains("latitude"), "{e}");
+    }
+
+    #[test]
+    fn what_cannot_be_read_is_refused_naming_the_format_seen() {
+        let e = |t: &str| parse_fixes_any(t, "f").unwrap_err().to_string();
+        let gga_only = sentence("GPGGA,120640.20,4809.0,N,01134.8,E,1,09,0.6,520.0,M,47.0,M,,");
+        assert!(
+            e(&gga_only).contains("no RMC") && e(&gga_only).contains("NMEA"),
+            "{}",
+            e(&gga_only)
+        );
+        let damaged = "$GPRMC,120640.20,A,4809.0,N,01134.8,E,20.0,90.0,151123,,,A*00";
+        assert!(
+            e(damaged).contains("cannot be parsed") && e(damaged).contains("line 1"),
+            "{}",
+            e(damaged)
+        );
+        assert!(e("time,east,north\n1,2,3\n").contains("not a fixes file"));
+        assert!(e("t_unix_s,lat_deg\n1,2\n").contains("lon_deg"));
+        assert!(e("t_unix_s,x_m\n1,2\n").contains("local metres"));
+        assert!(e("").contains("empty"));
+    }
+}
