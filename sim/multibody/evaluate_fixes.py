@@ -149,15 +149,22 @@ def evaluate(d: Path, canodom: str, work: Path, split_s: float, seed: int, fmt: 
         fixes = fx_dir / {"csv": "fixes.csv", "geo": "fixes_geo.csv", "nmea": "fixes.nmea"}[fmt]
         params = w / f"params-{kind}.toml"
         params.unlink(missing_ok=True)
-        r = run([canodom, "calibrate", "--config", str(config), "--fixes", str(fixes), "--out", str(params),
-                 str(first)])
+        r = subprocess.run([canodom, "calibrate", "--config", str(config), "--fixes", str(fixes), "--out",
+                            str(params), str(first)], capture_output=True, text=True)
         (w / f"calibrate-{kind}.txt").write_text(r.stdout + r.stderr)
+        refused = "nothing passed the quality gate" in r.stderr
+        if r.returncode != 0 and not refused:
+            raise RuntimeError(f"calibrate failed ({r.returncode}):\n{r.stdout}\n{r.stderr}")
         pose = w / f"pose-{kind}.csv"
-        run([canodom, "replay", "--config", str(config), "--params", str(params), str(log), "--out", str(pose)])
+        # A refused fit leaves the parameters as they were: the rest is then
+        # the uncalibrated replay, which is what the user would drive on.
+        with_params = [] if refused else ["--params", str(params)]
+        run([canodom, "replay", "--config", str(config), *with_params, str(log), "--out", str(pose)])
         err, _ = held_out(read_pose(pose), truth, t0 + split_s)
         rear, _ = held_out(read_pose(pose, "odo_"), truth, t0 + split_s)
         res[kind] = {"held_out_pct": 100 * err / dist, "rear_only_pct": 100 * rear / dist,
-                     "fit": parse_report(r.stdout), "report": r.stdout, "jumps": record["jumps"]}
+                     "fit": parse_report(r.stdout), "report": r.stdout, "jumps": record["jumps"],
+                     "refused": refused}
     return res
 
 
@@ -184,7 +191,7 @@ def main(argv=None) -> int:
     for r in results:
         g, c = r["gnss"], r["clean"]
         print(f"| {r['drive']} | {r['distance_m'] / 1000:.2f} | {r['uncalibrated_pct']:.2f} % "
-              f"| {g['held_out_pct']:.2f} % / {g['rear_only_pct']:.2f} % "
+              f"| {g['held_out_pct']:.2f} % / {g['rear_only_pct']:.2f} %{' (refused)' if g['refused'] else ''} "
               f"| {c['held_out_pct']:.2f} % / {c['rear_only_pct']:.2f} % |")
     print()
     names = list(results[0]["truth"]) if results else []

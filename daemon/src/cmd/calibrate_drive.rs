@@ -14,6 +14,7 @@
 
 use anyhow::bail;
 use canodom_calib::drive::{DriveCalibration, DriveOptions, Estimate};
+use canodom_calib::drive_gate::{misfit_refusal, misfits};
 use canodom_params::persist::{ParamFile, ParamSet, ParamValues, PersistError};
 use canodom_pipeline::config::Config;
 use std::fmt::Write as _;
@@ -145,56 +146,6 @@ pub fn report_text(cal: &DriveCalibration, base: &ParamValues, new: &ParamValues
         base.steering_gain, new.steering_gain, base.steering_offset_rad, new.steering_offset_rad
     );
     s
-}
-
-/// Residual RMS at the fixes, metres, above which a heading source's fit is
-/// a misfit: consumer GNSS fixes are 1–3 m RMS and a surveyed route better,
-/// so beyond 5 m no parameter values explain the drive and the
-/// configuration (a sign, a unit, a wheel or steering kind) is what is
-/// wrong. Committing such a fit would store parameters that only look
-/// calibrated.
-pub const MISFIT_RMS_M: f64 = 5.0;
-
-/// The heading sources whose fit leaves more than [`MISFIT_RMS_M`] at the
-/// fixes: (source, the `[signals]` keys to check, residual RMS m).
-pub fn misfits(cal: &DriveCalibration) -> Vec<(&'static str, &'static str, f64)> {
-    const SOURCES: [(&str, &str); 3] = [
-        (
-            "rear wheels",
-            "signals.rear_left / rear_right, wheel_kind, direction",
-        ),
-        ("yaw rate", "signals.yaw_rate (its sign and unit)"),
-        (
-            "steering",
-            "signals.steering (its sign and unit), steering_kind, vehicle.steering_ratio",
-        ),
-    ];
-    SOURCES
-        .iter()
-        .zip(cal.residual_rms_m)
-        .filter_map(|(&(source, keys), rms)| {
-            rms.filter(|&r| r > MISFIT_RMS_M || !r.is_finite())
-                .map(|r| (source, keys, r))
-        })
-        .collect()
-}
-
-/// The refusal of a misfit, and how it differs from a parameter the drive
-/// does not observe.
-fn misfit_refusal(found: &[(&str, &str, f64)]) -> String {
-    let each: Vec<String> = found
-        .iter()
-        .map(|(source, keys, rms)| {
-            format!("the {source} leave {rms:.1} m RMS at the fixes (check {keys})")
-        })
-        .collect();
-    format!(
-        "not committed: a misfit: {}. More than {MISFIT_RMS_M} m is beyond what the fixes' own \
-         error explains: no parameter values fit this drive, so the configuration is likely wrong \
-         (`canodom replay` names what it suspects). This is not a parameter the drive does not \
-         tell: such a parameter is held at its value (\"held\" above) and the rest is committed",
-        each.join("; ")
-    )
 }
 
 /// The report's lines of the rear tread and the fixes' latency.
@@ -412,36 +363,5 @@ mod tests {
             "{text}"
         );
         assert!(misfits(&cal).is_empty(), "0.1 m at the fixes is a fit");
-    }
-
-    #[test]
-    fn a_misfit_is_refused_and_told_apart_from_a_held_parameter() {
-        // The issue's case: "yaw-rate bias held" beside a 74 m residual.
-        let cal = DriveCalibration {
-            speed_scale: estimate(1.0, true),
-            rear_ratio: estimate(1.0, true),
-            steer_offset_rad: Some(estimate(0.0, true)),
-            steer_gain: Some(estimate(1.0, true)),
-            yaw_bias_radps: Some(estimate(0.0, false)),
-            yaw_scale: Some(estimate(1.0, true)),
-            fixes_used: 30,
-            distance_m: 700.0,
-            residual_rms_m: [Some(1.2), Some(74.0), Some(MISFIT_RMS_M)],
-        };
-        let found = misfits(&cal);
-        assert_eq!(found.len(), 1, "{found:?}");
-        assert_eq!(found[0].0, "yaw rate");
-        let text = misfit_refusal(&found);
-        assert!(
-            text.starts_with("not committed: a misfit: the yaw rate leave 74.0 m RMS")
-                && text.contains("signals.yaw_rate")
-                && text.contains("is held at its value"),
-            "{text}"
-        );
-        let nan = DriveCalibration {
-            residual_rms_m: [Some(f64::NAN), None, None],
-            ..cal
-        };
-        assert_eq!(misfits(&nan)[0].0, "rear wheels");
     }
 }
