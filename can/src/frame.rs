@@ -406,6 +406,22 @@ impl ErrorFrame {
     }
 }
 
+/// The payload length a CAN FD DLC stands for (ISO 11898-1: 0–8, then
+/// 12, 16, 20, 24, 32, 48, 64), as the binary log formats store the DLC.
+#[must_use]
+pub fn fd_dlc_len(dlc: u8) -> usize {
+    match dlc {
+        0..=8 => usize::from(dlc),
+        9 => 12,
+        10 => 16,
+        11 => 20,
+        12 => 24,
+        13 => 32,
+        14 => 48,
+        _ => 64,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

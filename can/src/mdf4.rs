@@ -880,7 +880,7 @@ fn can_frame(kind: Kind, f: &CanFields, record: &[u8]) -> Option<(CanFrame, u64,
     let dlc = u8::try_from(get(f.dlc).unwrap_or(0)).ok()?;
     let len = match get(f.data_length) {
         Some(n) => usize::try_from(n).ok()?,
-        None => dlc_len(dlc),
+        None => crate::frame::fd_dlc_len(dlc),
     };
     if kind == Kind::Remote {
         let len8 = (dlc > 8).then_some(dlc);
@@ -904,18 +904,4 @@ fn can_frame(kind: Kind, f: &CanFields, record: &[u8]) -> Option<(CanFrame, u64,
         CanFrame::new_data_with_dlc(id, data, len8).ok()?
     };
     Some((frame, channel, direction))
-}
-
-/// Length of a CAN FD DLC.
-fn dlc_len(dlc: u8) -> usize {
-    match dlc {
-        0..=8 => usize::from(dlc),
-        9 => 12,
-        10 => 16,
-        11 => 20,
-        12 => 24,
-        13 => 32,
-        14 => 48,
-        _ => 64,
-    }
 }

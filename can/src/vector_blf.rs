@@ -338,20 +338,6 @@ fn fd_flags(brs: bool, esi: bool) -> u8 {
     u8::from(brs) | (u8::from(esi) << 1)
 }
 
-/// Length of a CAN FD DLC.
-fn dlc_len(dlc: u8) -> usize {
-    match dlc {
-        0..=8 => usize::from(dlc),
-        9 => 12,
-        10 => 16,
-        11 => 20,
-        12 => 24,
-        13 => 32,
-        14 => 48,
-        _ => 64,
-    }
-}
-
 fn classic(id: FrameId, remote: bool, dlc: u8, data: &[u8]) -> Option<CanFrame> {
     let len = usize::from(dlc).min(CLASSIC_MAX_LEN);
     let len8 = (dlc > 8).then_some(dlc);
@@ -410,7 +396,7 @@ fn parse_can(kind: u32, b: &[u8]) -> Option<(u16, CanFrame, Direction)> {
                     id,
                     flags & 0x0010 != 0,
                     dlc,
-                    &data[..dlc_len(dlc).min(CLASSIC_MAX_LEN)],
+                    &data[..crate::frame::fd_dlc_len(dlc).min(CLASSIC_MAX_LEN)],
                 )?
             };
             Some((u16::from(channel), frame, dir(direction != 0)))
