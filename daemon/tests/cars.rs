@@ -1,7 +1,7 @@
 //! Production cars' signal forms end to end (#32): a simulated drive encoded
 //! with the car's own DBC and conventions, replayed from its configuration.
 
-use crate::util::{csv_rows, simulated_log};
+use crate::util::{csv_rows, replayed_end_errors, simulated_log};
 use canodom::cmd::replay::replay;
 use canodom_pipeline::config::Config;
 use canodom_pipeline::stats::Reject;
@@ -14,18 +14,7 @@ fn example(name: &str) -> PathBuf {
 
 /// (distance, fused end error, rear-only end error) of `path` with `seed`.
 pub fn drive(config: &Config, path: PathKind, seed: u64) -> (f64, f64, f64) {
-    let (log, truth_csv) = simulated_log(config, path, seed);
-    let mut csv = Vec::new();
-    let summary = replay(config, &log[..], &mut csv, &mut std::io::sink()).unwrap();
-    let rows = csv_rows(&String::from_utf8(csv).unwrap());
-    let truth = csv_rows(&truth_csv);
-    let distance_m: f64 = truth
-        .windows(2)
-        .map(|w| (w[1][1] - w[0][1]).hypot(w[1][2] - w[0][2]))
-        .sum();
-    let (last, t) = (rows.last().unwrap(), truth.last().unwrap());
-    let fused = (last[1] - t[1]).hypot(last[2] - t[2]);
-    let rear = (last[4] - t[1]).hypot(last[5] - t[2]);
+    let (distance_m, fused, rear, summary) = replayed_end_errors(config, path, seed);
     println!(
         "{path:?} seed {seed}: {distance_m:.0} m, rear-only {rear:.3} m, fused {fused:.3} m; {}",
         summary.stats

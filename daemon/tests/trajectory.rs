@@ -1,6 +1,6 @@
 //! Replay of simulated logs reproduces the simulator's true trajectory.
 
-use crate::util::{csv_rows, rc_car, simulated_log};
+use crate::util::{csv_rows, rc_car, replayed_end_errors, simulated_log};
 use canodom::cmd::replay::{CSV_HEADER, replay};
 use canodom_pipeline::config::Config;
 use canodom_sim::vehicle::PathKind;
@@ -74,18 +74,8 @@ fn toyota_road_drive_replay_follows_the_truth() {
 fn toyota_full_size_family_fused_never_worse_than_rear_only() {
     let config = Config::load(&crate::util::toyota_toml()).unwrap();
     for seed in 0..4 {
-        let (log, truth_csv) = simulated_log(&config, PathKind::FullSize, seed);
-        let mut csv = Vec::new();
-        let summary = replay(&config, &log[..], &mut csv, &mut std::io::sink()).unwrap();
-        let rows = csv_rows(&String::from_utf8(csv).unwrap());
-        let truth = csv_rows(&truth_csv);
-        let distance_m: f64 = truth
-            .windows(2)
-            .map(|w| (w[1][1] - w[0][1]).hypot(w[1][2] - w[0][2]))
-            .sum();
-        let (last, t) = (rows.last().unwrap(), truth.last().unwrap());
-        let fused = (last[1] - t[1]).hypot(last[2] - t[2]);
-        let rear = (last[4] - t[1]).hypot(last[5] - t[2]);
+        let (distance_m, fused, rear, summary) =
+            replayed_end_errors(&config, PathKind::FullSize, seed);
         println!(
             "full-size seed {seed}: {distance_m:.0} m, rear-only {rear:.2} m, fused {fused:.2} m; {}",
             summary.stats

@@ -41,6 +41,30 @@ pub fn simulated_log(config: &Config, path: PathKind, seed: u64) -> (Vec<u8>, St
     (log, String::from_utf8(truth).unwrap())
 }
 
+/// A simulated drive of `path` with `seed` replayed from `config`: the
+/// truth's distance, the fused and the rear-only end errors (m), and the
+/// replay's summary.
+pub fn replayed_end_errors(
+    config: &Config,
+    path: PathKind,
+    seed: u64,
+) -> (f64, f64, f64, canodom::cmd::replay::ReplaySummary) {
+    let (log, truth_csv) = simulated_log(config, path, seed);
+    let mut csv = Vec::new();
+    let summary =
+        canodom::cmd::replay::replay(config, &log[..], &mut csv, &mut std::io::sink()).unwrap();
+    let rows = csv_rows(&String::from_utf8(csv).unwrap());
+    let truth = csv_rows(&truth_csv);
+    let distance_m: f64 = truth
+        .windows(2)
+        .map(|w| (w[1][1] - w[0][1]).hypot(w[1][2] - w[0][2]))
+        .sum();
+    let (last, t) = (rows.last().unwrap(), truth.last().unwrap());
+    let fused = (last[1] - t[1]).hypot(last[2] - t[2]);
+    let rear = (last[4] - t[1]).hypot(last[5] - t[2]);
+    (distance_m, fused, rear, summary)
+}
+
 /// The records of a log as (timestamp, frame).
 pub fn frames_of(log: &[u8]) -> Vec<(Timestamp, CanFrame)> {
     let mut r = LogReader::new(log);
