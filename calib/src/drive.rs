@@ -118,55 +118,138 @@ pub fn parse_fixes(text: &str, name: &str) -> Result<Vec<Fix>> {
         line,
         reason,
     };
+    let rows = fix_rows(text, ["t_unix_s", "x_m", "y_m"], "heading_rad", |_| Ok(())).map_err(
+        |e| match e {
+            FixRowsError::Empty => err(
+                0,
+                "empty; expected a header t_unix_s,x_m,y_m[,heading_rad]".to_owned(),
+            ),
+            FixRowsError::Header { header, .. } => err(
+                1,
+                format!(
+                    "the header {header:?} lacks t_unix_s, x_m or y_m \
+                     (expected t_unix_s,x_m,y_m[,heading_rad])"
+                ),
+            ),
+            FixRowsError::Line { line, reason } => err(line, reason),
+        },
+    )?;
+    Ok(rows
+        .into_iter()
+        .map(|r| Fix {
+            t_s: r.values[0],
+            x_m: r.values[1],
+            y_m: r.values[2],
+            heading_rad: r.optional,
+        })
+        .collect())
+}
+
+/// One line of a fixes CSV read by [`fix_rows`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FixRow {
+    /// The line's number, from 1.
+    pub line: usize,
+    /// The required columns' values, in the order they were asked for (the
+    /// first is the time).
+    pub values: [f64; 3],
+    /// The optional column's value, when the header has it.
+    pub optional: Option<f64>,
+}
+
+/// Why [`fix_rows`] refused a text.
+#[derive(Debug, Clone, PartialEq)]
+pub enum FixRowsError {
+    /// No line but blank ones.
+    Empty,
+    /// The header lacks a required column.
+    Header {
+        /// The header's line number, from 1.
+        line: usize,
+        /// The header as written.
+        header: String,
+    },
+    /// A line is not numbers, its time does not increase, or `check` refused it.
+    Line {
+        /// The line's number, from 1.
+        line: usize,
+        /// What is wrong, naming the column.
+        reason: String,
+    },
+}
+
+/// The rows of a CSV of fixes whose header names its columns (any order,
+/// others ignored): three `required` columns, the first the time, and one
+/// `optional`; every value a finite number, the times increasing, and each
+/// row passed to `check` (its refusal is that line's error). The one reader
+/// of the local-metre and the latitude/longitude CSVs.
+///
+/// # Errors
+/// [`FixRowsError`], naming the line.
+pub fn fix_rows(
+    text: &str,
+    required: [&str; 3],
+    optional: &str,
+    mut check: impl FnMut(&FixRow) -> std::result::Result<(), String>,
+) -> std::result::Result<Vec<FixRow>, FixRowsError> {
     let mut lines = text
         .lines()
         .enumerate()
         .filter(|(_, l)| !l.trim().is_empty());
-    let Some((_, header)) = lines.next() else {
-        return Err(err(
-            0,
-            "empty; expected a header t_unix_s,x_m,y_m[,heading_rad]".to_owned(),
-        ));
+    let Some((h, header)) = lines.next() else {
+        return Err(FixRowsError::Empty);
     };
     let columns: Vec<&str> = header.split(',').map(str::trim).collect();
     let column = |want: &str| columns.iter().position(|c| *c == want);
-    let (Some(t), Some(x), Some(y)) = (column("t_unix_s"), column("x_m"), column("y_m")) else {
-        return Err(err(
-            1,
-            format!(
-                "the header {header:?} lacks t_unix_s, x_m or y_m \
-                 (expected t_unix_s,x_m,y_m[,heading_rad])"
-            ),
-        ));
+    let (Some(a), Some(b), Some(c)) = (
+        column(required[0]),
+        column(required[1]),
+        column(required[2]),
+    ) else {
+        return Err(FixRowsError::Header {
+            line: h + 1,
+            header: header.to_owned(),
+        });
     };
-    let heading = column("heading_rad");
-    let mut fixes: Vec<Fix> = Vec::new();
+    let extra = column(optional);
+    let mut rows: Vec<FixRow> = Vec::new();
     for (i, line) in lines {
+        let bad = |reason: String| FixRowsError::Line {
+            line: i + 1,
+            reason,
+        };
         let fields: Vec<&str> = line.split(',').map(str::trim).collect();
-        let number = |k: usize, what: &str| -> Result<f64> {
+        let number = |k: usize, what: &str| -> std::result::Result<f64, FixRowsError> {
             let text = fields
                 .get(k)
-                .ok_or_else(|| err(i + 1, format!("no {what} column")))?;
+                .ok_or_else(|| bad(format!("no {what} column")))?;
             let v: f64 = text
                 .parse()
-                .map_err(|_| err(i + 1, format!("{what} {text:?} is not a number")))?;
+                .map_err(|_| bad(format!("{what} {text:?} is not a number")))?;
             if !v.is_finite() {
-                return Err(err(i + 1, format!("{what} {text:?} is not finite")));
+                return Err(bad(format!("{what} {text:?} is not finite")));
             }
             Ok(v)
         };
-        let fix = Fix {
-            t_s: number(t, "t_unix_s")?,
-            x_m: number(x, "x_m")?,
-            y_m: number(y, "y_m")?,
-            heading_rad: heading.map(|h| number(h, "heading_rad")).transpose()?,
+        let row = FixRow {
+            line: i + 1,
+            values: [
+                number(a, required[0])?,
+                number(b, required[1])?,
+                number(c, required[2])?,
+            ],
+            optional: extra.map(|e| number(e, optional)).transpose()?,
         };
-        if fixes.last().is_some_and(|prev| fix.t_s <= prev.t_s) {
-            return Err(err(i + 1, "the fixes' times must increase".to_owned()));
+        check(&row).map_err(bad)?;
+        if rows
+            .last()
+            .is_some_and(|prev| row.values[0] <= prev.values[0])
+        {
+            return Err(bad("the fixes' times must increase".to_owned()));
         }
-        fixes.push(fix);
+        rows.push(row);
     }
-    Ok(fixes)
+    Ok(rows)
 }
 
 /// The geometry in use.

@@ -23,7 +23,7 @@
 //! costs nothing and is right anywhere.
 
 use crate::{Error, Result};
-use canodom_calib::drive::Fix;
+use canodom_calib::drive::{Fix, FixRow, FixRowsError, fix_rows};
 use chrono::{NaiveDate, NaiveTime, Timelike as _};
 
 /// What a fixes file held.
@@ -124,56 +124,35 @@ fn parse_geodetic_csv(text: &str, name: &str) -> Result<Vec<Fix>> {
     let err = |line: usize, m: String| {
         Error::Calibration(format!("{name}:{line}: {m} (read as {format})"))
     };
-    let mut lines = text
-        .lines()
-        .enumerate()
-        .filter(|(_, l)| !l.trim().is_empty());
-    let Some((h, header)) = lines.next() else {
-        return Err(err(0, "empty".to_owned()));
-    };
-    let columns: Vec<&str> = header.split(',').map(str::trim).collect();
-    let column = |want: &str| columns.iter().position(|c| *c == want);
-    let (Some(t), Some(lat), Some(lon)) =
-        (column("t_unix_s"), column("lat_deg"), column("lon_deg"))
-    else {
-        return Err(err(
-            h + 1,
-            format!("the header {header:?} lacks t_unix_s, lat_deg or lon_deg"),
-        ));
-    };
-    let alt = column("alt_m");
-    let mut geo: Vec<Geodetic> = Vec::new();
-    for (i, line) in lines {
-        let fields: Vec<&str> = line.split(',').map(str::trim).collect();
-        let number = |k: usize, what: &str| -> Result<f64> {
-            let text = fields
-                .get(k)
-                .ok_or_else(|| err(i + 1, format!("no {what} column")))?;
-            text.parse::<f64>()
-                .ok()
-                .filter(|v| v.is_finite())
-                .ok_or_else(|| err(i + 1, format!("{what} {text:?} is not a finite number")))
-        };
-        let g = Geodetic {
-            t_s: number(t, "t_unix_s")?,
-            lat_deg: number(lat, "lat_deg")?,
-            lon_deg: number(lon, "lon_deg")?,
-            alt_m: alt.map(|a| number(a, "alt_m")).transpose()?.unwrap_or(0.0),
-        };
-        if g.lat_deg.abs() > 90.0 || g.lon_deg.abs() > 180.0 {
-            return Err(err(
-                i + 1,
-                format!(
-                    "latitude {} / longitude {} outside ±90° / ±180°",
-                    g.lat_deg, g.lon_deg
-                ),
-            ));
+    let in_range = |r: &FixRow| {
+        let [_, lat_deg, lon_deg] = r.values;
+        if lat_deg.abs() > 90.0 || lon_deg.abs() > 180.0 {
+            Err(format!(
+                "latitude {lat_deg} / longitude {lon_deg} outside ±90° / ±180°"
+            ))
+        } else {
+            Ok(())
         }
-        if geo.last().is_some_and(|p| g.t_s <= p.t_s) {
-            return Err(err(i + 1, "the fixes' times must increase".to_owned()));
-        }
-        geo.push(g);
-    }
+    };
+    let rows = fix_rows(text, ["t_unix_s", "lat_deg", "lon_deg"], "alt_m", in_range).map_err(
+        |e| match e {
+            FixRowsError::Empty => err(0, "empty".to_owned()),
+            FixRowsError::Header { line, header } => err(
+                line,
+                format!("the header {header:?} lacks t_unix_s, lat_deg or lon_deg"),
+            ),
+            FixRowsError::Line { line, reason } => err(line, reason),
+        },
+    )?;
+    let geo: Vec<Geodetic> = rows
+        .iter()
+        .map(|r| Geodetic {
+            t_s: r.values[0],
+            lat_deg: r.values[1],
+            lon_deg: r.values[2],
+            alt_m: r.optional.unwrap_or(0.0),
+        })
+        .collect();
     Ok(to_local(&geo))
 }
 
