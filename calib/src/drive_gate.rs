@@ -35,7 +35,9 @@ pub struct DriveGate {
 }
 
 impl Default for DriveGate {
-    /// 0.2 %, 0.2 %, 0.5°, 2 %, 0.05°/s, 1 %, 0.5 %; 2 m; a quarter of the fixes.
+    /// 0.2 %, 0.2 %, 0.5°, 2 %, 0.05°/s, 0.25 %, 0.5 %; 2 m; a quarter of the
+    /// fixes: `[calibration]`'s defaults (pipeline::config), which a live or
+    /// offline commit uses.
     fn default() -> Self {
         Self {
             speed_scale: 0.002,
@@ -43,7 +45,7 @@ impl Default for DriveGate {
             steer_offset_rad: 0.5 * PI / 180.0,
             steer_gain: 0.02,
             yaw_bias_radps: 0.05 * PI / 180.0,
-            yaw_scale: 0.01,
+            yaw_scale: 0.0025,
             rear_tread: 0.005,
             max_residual_m: 2.0,
             max_down_weighted_share: 0.25,
