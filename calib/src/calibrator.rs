@@ -378,22 +378,10 @@ impl Calibrator {
 
     /// The values in use: the file's current set, or the nominal ones.
     pub fn current_values(&self) -> ParamValues {
-        self.file.current.as_ref().map_or_else(
-            || {
-                let steer = self.nominal.steering();
-                ParamValues {
-                    rear_tread_m: self.nominal.rear_tread_m(),
-                    rear_left_diameter_m: self.nominal.wheel_diameter_m(Wheel::RearLeft),
-                    rear_right_diameter_m: self.nominal.wheel_diameter_m(Wheel::RearRight),
-                    steering_gain: steer.gain,
-                    steering_offset_rad: steer.offset_rad,
-                    yaw_rate_bias_radps: None,
-                    yaw_rate_scale: None,
-                    yaw_rate_bias_sigma_radps: None,
-                }
-            },
-            |s| s.values,
-        )
+        self.file
+            .current
+            .as_ref()
+            .map_or_else(|| ParamValues::nominal(&self.nominal), |s| s.values)
     }
 
     /// The values a rear result gives, the rest as in use.

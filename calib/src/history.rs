@@ -59,6 +59,23 @@ impl ParamValues {
         }
     }
 
+    /// The set a vehicle's nominal parameters describe: their tread, rear
+    /// diameters and steering map, no yaw-rate correction (what is in use
+    /// before any calibration is committed).
+    pub fn nominal(p: &canodom_fusion::VehicleParams) -> Self {
+        let steer = p.steering();
+        Self {
+            rear_tread_m: p.rear_tread_m(),
+            rear_left_diameter_m: p.wheel_diameter_m(canodom_fusion::Wheel::RearLeft),
+            rear_right_diameter_m: p.wheel_diameter_m(canodom_fusion::Wheel::RearRight),
+            steering_gain: steer.gain,
+            steering_offset_rad: steer.offset_rad,
+            yaw_rate_bias_radps: None,
+            yaw_rate_scale: None,
+            yaw_rate_bias_sigma_radps: None,
+        }
+    }
+
     /// Rear wheel diameter ratio, right over left.
     pub fn diameter_ratio(&self) -> f64 {
         self.rear_right_diameter_m / self.rear_left_diameter_m

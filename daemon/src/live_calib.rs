@@ -1283,23 +1283,8 @@ mod tests {
 
     /// A file whose current set (version 1) holds the nominal rear values.
     fn calibrated(nominal: &VehicleParams) -> ParamFile {
-        let steer = nominal.steering();
         let mut file = ParamFile::default();
-        file.commit(
-            ParamValues {
-                rear_tread_m: nominal.rear_tread_m(),
-                rear_left_diameter_m: nominal.wheel_diameter_m(Wheel::RearLeft),
-                rear_right_diameter_m: nominal.wheel_diameter_m(Wheel::RearRight),
-                steering_gain: steer.gain,
-                steering_offset_rad: steer.offset_rad,
-                yaw_rate_bias_radps: None,
-                yaw_rate_scale: None,
-                yaw_rate_bias_sigma_radps: None,
-            },
-            "exact",
-            1,
-            10,
-        );
+        file.commit(ParamValues::nominal(nominal), "exact", 1, 10);
         file
     }
 

@@ -18,23 +18,7 @@ use canodom_pipeline::pipeline::{Outcome, Pipeline};
 
 /// The values a set describes when `set` is absent: the configuration's nominal parameters.
 pub fn values_in_use(config: &Config, set: Option<&ParamSet>) -> ParamValues {
-    set.map_or_else(
-        || {
-            let p = &config.params;
-            let steer = p.steering();
-            ParamValues {
-                rear_tread_m: p.rear_tread_m(),
-                rear_left_diameter_m: p.wheel_diameter_m(canodom_fusion::Wheel::RearLeft),
-                rear_right_diameter_m: p.wheel_diameter_m(canodom_fusion::Wheel::RearRight),
-                steering_gain: steer.gain,
-                steering_offset_rad: steer.offset_rad,
-                yaw_rate_bias_radps: None,
-                yaw_rate_scale: None,
-                yaw_rate_bias_sigma_radps: None,
-            }
-        },
-        |s| s.values,
-    )
+    set.map_or_else(|| ParamValues::nominal(&config.params), |s| s.values)
 }
 
 /// What one log gave: the samples and how the pipeline judged its frames.
