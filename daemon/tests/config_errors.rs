@@ -233,6 +233,7 @@ fn the_examples_ekf_blocks_state_the_defaults() {
             "straight_max_deg_s",
             "straight_max_steer_deg",
             "straight_min_s",
+            "straight_min_speed_mps",
         ] {
             assert!(
                 keys.contains(&key),

@@ -261,6 +261,7 @@ struct RawEkf {
     straight_max_deg_s: Option<f64>,
     straight_max_steer_deg: Option<f64>,
     straight_min_s: Option<f64>,
+    straight_min_speed_mps: Option<f64>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -710,7 +711,7 @@ impl Validator<'_> {
     fn ekf_choices(&self, e: &RawEkf, ekf: &mut EkfConfig) -> Result<(), ConfigError> {
         let deg = |d: f64| d.to_radians();
         // (key, value, field, must be > 0 rather than >= 0, to radians)
-        let numbers: [(&str, Option<f64>, &mut f64, bool, bool); 19] = [
+        let numbers: [(&str, Option<f64>, &mut f64, bool, bool); 20] = [
             (
                 "front_scale_sigma",
                 e.front_scale_sigma,
@@ -841,6 +842,13 @@ impl Validator<'_> {
                 "straight_min_s",
                 e.straight_min_s,
                 &mut ekf.straight_min_s,
+                false,
+                false,
+            ),
+            (
+                "straight_min_speed_mps",
+                e.straight_min_speed_mps,
+                &mut ekf.straight_min_speed_mps,
                 false,
                 false,
             ),

@@ -661,7 +661,8 @@ fn close_window(cfg: &EkfConfig, ib: f64, st: &mut State) {
 }
 
 /// Driving straight: when the wheels (less their learnt ratio error) and
-/// the steering have agreed the car goes straight for `straight_min_s`, the
+/// the steering have agreed the car goes straight for `straight_min_s` at
+/// `straight_min_speed_mps` or more, the
 /// window's true turn is taken as 0 within `straight_yaw_sigma` — what a
 /// straight road is, and what a gyro's bias shows against most clearly
 /// (the wheels alone tell it only as their ratio error allows). A window
@@ -670,9 +671,14 @@ fn straight_prior(cfg: &EkfConfig, ib: f64, a: &mut Aided) {
     if cfg.straight_yaw_sigma_radps <= 0.0 || a.win_t_s <= 0.0 || a.win_all_still {
         return;
     }
+    let speed_mps = a.win_distance_m / a.win_t_s;
     let wheel_rate = (a.win_wheel_turn_rad + a.x[RATIO] * a.win_distance_m * ib) / a.win_t_s;
-    let straight = wheel_rate.abs() <= cfg.straight_max_radps
-        && a.win_steer_max <= cfg.straight_max_steer_rad.tan();
+    // The learnt ratio's own uncertainty turns the wheels by up to
+    // 2σ_e·v/b_t: a straight may read that much (see `straight_max_radps`).
+    let ratio_rate = 2.0 * a.p[RATIO][RATIO].max(0.0).sqrt() * speed_mps * ib;
+    let straight = wheel_rate.abs() <= cfg.straight_max_radps + ratio_rate
+        && a.win_steer_max <= cfg.straight_max_steer_rad.tan()
+        && speed_mps >= cfg.straight_min_speed_mps;
     if !straight {
         a.straight_s = 0.0;
         return;
@@ -685,4 +691,99 @@ fn straight_prior(cfg: &EkfConfig, ib: f64, a: &mut Aided) {
     let r = (cfg.straight_yaw_sigma_radps * a.win_t_s).powi(2);
     // A gate at 3σ: a long bend slower than the thresholds is not a straight.
     let _ = a.update(-turn, &[(TH, 1.0), (CLONE, -1.0)], r, 3.0);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::params::{SteeringMap, VehicleParams};
+
+    /// A road car: 2.5 m wheelbase, 1.5 m treads (least straight speed 5 m/s).
+    fn road_car() -> EkfConfig {
+        let params = VehicleParams::new(
+            2.5,
+            1.5,
+            1.5,
+            WheelSet::splat(0.65),
+            100,
+            SteeringMap::IDENTITY,
+        )
+        .unwrap();
+        EkfConfig::new(params)
+    }
+
+    /// An estimator whose bias is known to 0.01°/s, that has driven straight
+    /// for 5 s and closes a 0.5 s window at `speed_mps` in which the gyro
+    /// turned `gyro_rate_dps` and the rear wheels `wheel_rate_dps`.
+    fn after_window(
+        cfg: &EkfConfig,
+        speed_mps: f64,
+        gyro_rate_dps: f64,
+        wheel_rate_dps: f64,
+        ratio_sigma: f64,
+    ) -> Aided {
+        let mut a = Aided::new(cfg);
+        a.set_learnt(Learnable::Bias, 0.0, 0.01f64.to_radians());
+        a.set_learnt(Learnable::Ratio, 0.0, ratio_sigma);
+        a.straight_s = 5.0;
+        a.win_t_s = 0.5;
+        a.win_all_still = false;
+        a.win_distance_m = speed_mps * a.win_t_s;
+        a.win_wheel_turn_rad = wheel_rate_dps.to_radians() * a.win_t_s;
+        a.x[TH] = gyro_rate_dps.to_radians() * a.win_t_s;
+        // The window's heading came from the gyro less the bias: θ − θ_c
+        // carries −T times the bias's error.
+        let var_b = a.p[BIAS][BIAS];
+        a.p[TH][BIAS] = -a.win_t_s * var_b;
+        a.p[BIAS][TH] = a.p[TH][BIAS];
+        a.p[TH][TH] = a.win_t_s * a.win_t_s * var_b;
+        a
+    }
+
+    #[test]
+    fn a_slow_gentle_curve_is_not_taken_for_a_straight() {
+        // A 1.75 km-radius curve at 2 m/s turns −0.065°/s: under the rate
+        // threshold, so only the least speed keeps it from the bias.
+        let cfg = road_car();
+        assert!((cfg.straight_min_speed_mps - 5.0).abs() < 1e-12);
+        let ib = 1.0 / 1.5;
+        let mut slow = after_window(&cfg, 2.0, -0.065, -0.06, 1e-5);
+        let before = slow.x[BIAS];
+        straight_prior(&cfg, ib, &mut slow);
+        assert_eq!(slow.x[BIAS], before, "the prior moved the bias");
+        assert_eq!(slow.straight_s, 0.0, "a slow window must restart the count");
+
+        // The same small turn at 10 m/s is a straight's lane keeping: the
+        // prior takes it, and the bias moves towards the gyro's reading.
+        let mut fast = after_window(&cfg, 10.0, -0.02, -0.02, 1e-5);
+        straight_prior(&cfg, ib, &mut fast);
+        assert!(fast.straight_s > 5.0);
+        assert!(
+            fast.x[BIAS] < before,
+            "bias {} °/s",
+            fast.x[BIAS].to_degrees()
+        );
+
+        // 0 turns the least speed off.
+        let mut anywhere = road_car();
+        anywhere.straight_min_speed_mps = 0.0;
+        let mut slow = after_window(&anywhere, 2.0, -0.065, -0.06, 1e-5);
+        straight_prior(&anywhere, ib, &mut slow);
+        assert!(slow.x[BIAS] < before);
+    }
+
+    #[test]
+    fn a_straight_read_through_an_unlearnt_ratio_still_counts() {
+        // Rear tyres that roll 0.09 % apart read −0.35°/s at 10.6 m/s on a
+        // straight: a straight while the ratio is unknown (its prior 0.5 %
+        // turns the wheels by up to 4°/s here), a turn once it is learnt.
+        let cfg = road_car();
+        let ib = 1.0 / 1.5;
+        let mut unknown = after_window(&cfg, 10.6, 0.0, -0.35, cfg.rear_ratio_sigma);
+        straight_prior(&cfg, ib, &mut unknown);
+        assert!(unknown.straight_s > 5.0);
+        let mut learnt = after_window(&cfg, 10.6, 0.0, -0.35, 1e-5);
+        straight_prior(&cfg, ib, &mut learnt);
+        assert_eq!(learnt.straight_s, 0.0);
+    }
 }

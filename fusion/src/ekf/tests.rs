@@ -1,0 +1,520 @@
+use super::*;
+use crate::odometry::rear_increment;
+use crate::params::SteeringMap;
+use crate::params::VehicleParams;
+use nalgebra::Matrix3x2;
+use proptest::prelude::*;
+
+fn car() -> VehicleParams {
+    VehicleParams::new(
+        0.25,
+        0.30,
+        0.30,
+        WheelSet::splat(0.09),
+        1000,
+        SteeringMap::IDENTITY,
+    )
+    .unwrap()
+}
+
+/// Wheel distances of an exact arc step of the rear-axle centre.
+fn arc_input(p: &VehicleParams, ds: f64, phi: f64) -> OdometryInput {
+    let [g_rl, g_rr, g_fl, g_fr] = wheel_distance_factors(p, phi);
+    OdometryInput {
+        wheel_m: WheelSet {
+            rear_left: ds * g_rl,
+            rear_right: ds * g_rr,
+            front_left: ds * g_fl,
+            front_right: ds * g_fr,
+        },
+        front_valid: true,
+        steer_angle_rad: phi,
+        zero_is_floor: false,
+        yaw_rate_radps: None,
+        dt_s: 0.0,
+    }
+}
+
+#[test]
+fn rebased_state_starts_at_the_origin_and_keeps_what_was_learnt() {
+    let p = car();
+    // The default configuration learns the steering offset.
+    let ekf = Ekf::new(EkfConfig::new(p)).unwrap();
+    // A left arc with a 0.02 rad steering error, so an offset is learnt.
+    let drive = |from: State| {
+        (0..400).fold(from, |s, _| {
+            let mut input = arc_input(&p, 0.01, 0.05);
+            input.steer_angle_rad += 0.02;
+            ekf.step(&s, &input).unwrap()
+        })
+    };
+    let driven = drive(State::origin());
+    assert!(driven.pose().x_m > 3.0, "{:?}", driven.pose());
+    assert!(driven.covariance().norm() > 0.0);
+    assert!(driven.steer_offset_rad().abs() > 1e-3, "{driven:?}");
+    let rebased = driven.rebased_at_origin();
+    assert_eq!(rebased.pose(), Pose::default());
+    assert_eq!(rebased.covariance(), Mat3::zeros());
+    assert_eq!(rebased.steer_offset_rad(), driven.steer_offset_rad());
+    assert_eq!(rebased.front_scale(), driven.front_scale());
+    assert_eq!(rebased.stats, driven.stats);
+    assert_eq!(rebased.slip_counts, driven.slip_counts);
+    // From the new origin the same drive ends where a filter that had
+    // learnt the same would: nearer the first end than an untaught one.
+    let again = drive(rebased).pose();
+    let first = driven.pose();
+    let error = |q: Pose| (q.x_m - first.x_m).hypot(q.y_m - first.y_m);
+    assert!(error(again) < 0.05, "{again:?} vs {first:?}");
+}
+
+#[test]
+fn inlined_front_conversion_matches_odometry_module() {
+    use crate::odometry::{front_increment_differential, front_increment_exact};
+    let p = VehicleParams::new(
+        0.25,
+        0.30,
+        0.27,
+        WheelSet::splat(0.09),
+        1000,
+        SteeringMap::IDENTITY,
+    )
+    .unwrap();
+    for phi in [-0.5f64, -0.1, 0.0, 0.3] {
+        let terms = SteerTerms::at(&Derived::new(&EkfConfig::new(p)), phi);
+        assert_eq!(terms.tan_phi, phi.tan());
+        assert!((terms.cos_phi - phi.cos()).abs() < 1e-15);
+        assert!((terms.sin_phi - phi.sin()).abs() < 1e-15);
+        let g = terms.g;
+        let r = wheel_distance_factors(&p, phi);
+        for k in 0..4 {
+            assert!((g[k] - r[k]).abs() < 1e-14);
+        }
+        for (heading, reference) in [
+            (
+                FrontHeading::Steering,
+                front_increment_exact(&p, 0.011, 0.012, phi).unwrap(),
+            ),
+            (
+                FrontHeading::WheelDifference,
+                front_increment_differential(&p, 0.011, 0.012, phi).unwrap(),
+            ),
+        ] {
+            let ekf = Ekf::new(EkfConfig {
+                front_heading: heading,
+                ..EkfConfig::new(p)
+            })
+            .unwrap();
+            let (inc, _, _) = ekf.front(0.011, 0.012, &terms);
+            assert!((inc.distance_m - reference.distance_m).abs() < 1e-15);
+            assert!((inc.dtheta_rad - reference.dtheta_rad).abs() < 1e-14);
+        }
+    }
+}
+
+#[test]
+fn rotated_anchor_heading_tracks_the_heading() {
+    // Every window's turn is small here, so the anchor's (cos, sin) is
+    // only ever rotated: after 20,000 windows it must still match.
+    let p = car();
+    let ekf = Ekf::new(EkfConfig {
+        correct_every: 1,
+        ..EkfConfig::new(p)
+    })
+    .unwrap();
+    let mut st = State::origin();
+    for k in 0..20_000 {
+        let phi = 0.4 * (f64::from(k) * 1e-3).sin();
+        st = ekf.step(&st, &arc_input(&p, 0.002, phi)).unwrap();
+    }
+    assert!(st.pose_unwrapped().heading_rad.abs() > 1.0);
+    let (c, s) = st.anchor_cos_sin;
+    assert!((c - st.anchor.z.cos()).abs() < 1e-12 && (s - st.anchor.z.sin()).abs() < 1e-12);
+}
+
+proptest! {
+    #[test]
+    fn structured_composition_equals_the_general_form(
+        la in prop::collection::vec(-1.0f64..1.0, 6), lw in prop::collection::vec(-1.0f64..1.0, 6),
+        h in -3.0f64..3.0, wx in -2.0f64..2.0, wy in -2.0f64..2.0,
+    ) {
+        let tri = |l: &[f64]| nalgebra::Matrix3::new(l[0], 0.0, 0.0, l[1], l[2], 0.0, l[3], l[4], l[5]);
+        let (La, Lw) = (tri(&la), tri(&lw));
+        let (Pa, Pw) = (La * La.transpose(), Lw * Lw.transpose());
+        let w = Vec3::new(wx, wy, 0.1);
+        let (s, c) = h.sin_cos();
+        let fast = compose_covariance(&Pa, (c, s), &w, &Pw);
+        let (dx, dy) = (c * wx - s * wy, s * wx + c * wy);
+        let Ja = Mat3::new(1.0, 0.0, -dy, 0.0, 1.0, dx, 0.0, 0.0, 1.0);
+        let R = Mat3::new(c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0);
+        let general = Ja * Pa * Ja.transpose() + R * Pw * R.transpose();
+        prop_assert!((fast - general).abs().max() < 1e-12, "{fast} vs {general}");
+    }
+
+    #[test]
+    fn structured_propagation_equals_the_general_form(
+        d in -0.1f64..0.1, dth in -0.2f64..0.2, h in -3.0f64..3.0,
+        l in prop::collection::vec(-1.0f64..1.0, 6), q in prop::collection::vec(0.0f64..1.0, 3),
+    ) {
+        let L = nalgebra::Matrix3::new(l[0], 0.0, 0.0, l[1], l[2], 0.0, l[3], l[4], l[5]);
+        let P = L * L.transpose();
+        let Q = Matrix2::new(q[0], 0.1 * q[1], 0.1 * q[1], q[2]);
+        let w = Vec3::new(0.3, -0.2, h);
+        let inc = Increment { distance_m: d, dtheta_rad: dth };
+        let (w1, p1) = propagate(&w, &P, inc, &Q);
+        let (s, c) = (h + 0.5 * dth).sin_cos();
+        let A = Mat3::new(1.0, 0.0, -d * s, 0.0, 1.0, d * c, 0.0, 0.0, 1.0);
+        let B = Matrix3x2::new(c, -0.5 * d * s, s, 0.5 * d * c, 0.0, 1.0);
+        let p2 = A * P * A.transpose() + B * Q * B.transpose();
+        prop_assert!((p1 - p2).abs().max() < 1e-12, "{p1} vs {p2}");
+        prop_assert!((w1 - Vec3::new(0.3 + d * c, -0.2 + d * s, h + dth)).abs().max() < 1e-15);
+    }
+}
+
+#[test]
+fn learns_a_steering_offset_from_the_rear_wheels() {
+    let p = car();
+    // Blending, so that the offset shows in the pose; the default learns
+    // it the same way (it then matters in windows the gate gives the front).
+    let blending = EkfConfig {
+        blend_accepted: true,
+        ..EkfConfig::new(p)
+    };
+    let ekf = Ekf::new(blending).unwrap();
+    let no_learning = Ekf::new(EkfConfig {
+        steer_offset_drift_rad: None,
+        ..blending
+    })
+    .unwrap();
+    let default = Ekf::new(EkfConfig::new(p)).unwrap();
+    let mut d = State::origin();
+    let bias = 1f64.to_radians();
+    let (mut a, mut b) = (State::origin(), State::origin());
+    for k in 0..20_000 {
+        let phi = 0.3 * (f64::from(k) * 2e-4).sin();
+        let mut inp = arc_input(&p, 0.001, phi);
+        inp.steer_angle_rad += bias;
+        a = ekf.step(&a, &inp).unwrap();
+        b = no_learning.step(&b, &inp).unwrap();
+        d = default.step(&d, &inp).unwrap();
+    }
+    for learnt in [a.steer_offset_rad(), d.steer_offset_rad()] {
+        assert!((learnt - bias).abs() < 0.05 * bias, "{learnt}");
+    }
+    assert_eq!(b.steer_offset_rad(), 0.0);
+    // The truth is the rear odometry here (exact arcs): learning keeps the
+    // fused pose on it, the bias without learning pulls it away.
+    let rear = Ekf::new(EkfConfig::rear_only(p)).unwrap();
+    let mut r = State::origin();
+    for k in 0..20_000 {
+        let phi = 0.3 * (f64::from(k) * 2e-4).sin();
+        r = rear.step(&r, &arc_input(&p, 0.001, phi)).unwrap();
+    }
+    let err = |s: &State| (s.pose().x_m - r.pose().x_m).hypot(s.pose().y_m - r.pose().y_m);
+    assert!(err(&a) < err(&b), "{} vs {}", err(&a), err(&b));
+}
+
+#[test]
+fn a_wheel_at_the_speed_sensors_floor_is_filled_from_the_others() {
+    let p = car();
+    let ekf = Ekf::new(EkfConfig::rear_only(p)).unwrap();
+    let start = State::origin();
+    let exact = arc_input(&p, 0.003, 0.2);
+    let mut inner_zero = exact;
+    inner_zero.wheel_m.rear_left = 0.0;
+    let heading = |inp: &OdometryInput| ekf.step(&start, inp).unwrap().pose().heading_rad;
+    let want = heading(&exact);
+    // A speed sensor below its floor: filled through the geometry, exactly.
+    let floor = OdometryInput {
+        zero_is_floor: true,
+        ..inner_zero
+    };
+    assert!((heading(&floor) - want).abs() < 1e-12);
+    // An encoder's zero step is quantisation: left as it is.
+    assert!((heading(&inner_zero) - want).abs() > 1e-3);
+    // Standing still, or wheels moving both ways: nothing to fill.
+    let still = OdometryInput {
+        wheel_m: WheelSet::splat(0.0),
+        ..floor
+    };
+    assert_eq!(ekf.step(&start, &still).unwrap().pose(), start.pose());
+    let mut both_ways = floor;
+    both_ways.wheel_m.rear_right = -both_ways.wheel_m.rear_right;
+    let unfilled = OdometryInput {
+        zero_is_floor: false,
+        ..both_ways
+    };
+    assert_eq!(heading(&both_ways), heading(&unfilled));
+}
+
+#[test]
+fn learns_the_front_distance_scale() {
+    let p = car();
+    let ekf = Ekf::new(EkfConfig {
+        front_scale_drift: Some(1e-5),
+        ..EkfConfig::new(p)
+    })
+    .unwrap();
+    let mut st = State::origin();
+    for k in 0..20_000 {
+        let mut inp = arc_input(&p, 0.001, 0.2 * (f64::from(k) * 3e-4).sin());
+        inp.wheel_m.front_left *= 1.01;
+        inp.wheel_m.front_right *= 1.01;
+        st = ekf.step(&st, &inp).unwrap();
+    }
+    assert!(
+        (st.front_scale() * 1.01 - 1.0).abs() < 1e-3,
+        "{}",
+        st.front_scale()
+    );
+    assert_eq!(State::origin().front_scale(), 1.0);
+}
+
+#[test]
+fn rear_only_is_plain_rear_odometry() {
+    let p = car();
+    let ekf = Ekf::new(EkfConfig::rear_only(p)).unwrap();
+    let mut st = State::origin();
+    let mut pose = Pose::default();
+    for k in 0..1000 {
+        let phi = 0.3 * (f64::from(k) * 0.01).sin();
+        let mut inp = arc_input(&p, 0.001, phi);
+        inp.wheel_m.rear_left *= 1.01;
+        st = ekf.step(&st, &inp).unwrap();
+        pose = pose
+            .advanced(rear_increment(&p, inp.wheel_m.rear_left, inp.wheel_m.rear_right).unwrap());
+    }
+    let e = st.pose_unwrapped();
+    assert!((e.x_m - pose.x_m).abs() < 1e-12 && (e.y_m - pose.y_m).abs() < 1e-12);
+    assert!((e.heading_rad - pose.heading_rad).abs() < 1e-12);
+    assert_eq!(st.stats.corrections, 0);
+}
+
+#[test]
+fn consensus_blames_the_slipping_wheel() {
+    let p = car();
+    let ekf = Ekf::new(EkfConfig::new(p)).unwrap();
+    for (slipping, expect_front) in [(Wheel::RearLeft, true), (Wheel::FrontRight, false)] {
+        let mut st = State::origin();
+        for _ in 0..50 {
+            let mut inp = arc_input(&p, 0.001, 0.2);
+            inp.wheel_m[slipping] *= 1.5;
+            st = ekf.step(&st, &inp).unwrap();
+        }
+        assert!(st.slip_flags[slipping], "{slipping:?}: {:?}", st.stats);
+        assert_eq!(st.slip_counts[slipping], 1);
+        assert_eq!(st.stats.rejected_used_front, u64::from(expect_front));
+        assert_eq!(st.stats.rejected_kept_rear, u64::from(!expect_front));
+        // The clean axle's increment was kept: the pose is the true arc.
+        let kappa = 0.2f64.tan() / 0.25;
+        let theta = kappa * 0.05;
+        assert!(
+            (st.pose().heading_rad - theta).abs() < 1e-8,
+            "{:?}",
+            st.pose()
+        );
+        assert!((st.pose().x_m - theta.sin() / kappa).abs() < 1e-8);
+    }
+}
+
+#[test]
+fn agreeing_axles_are_accepted_and_shrink_the_covariance() {
+    let p = car();
+    let blending = Ekf::new(EkfConfig {
+        blend_accepted: true,
+        ..EkfConfig::new(p)
+    })
+    .unwrap();
+    let default = Ekf::new(EkfConfig::new(p)).unwrap();
+    let rear = Ekf::new(EkfConfig::rear_only(p)).unwrap();
+    let (mut a, mut b, mut d) = (State::origin(), State::origin(), State::origin());
+    for _ in 0..500 {
+        let inp = arc_input(&p, 0.001, 0.1);
+        a = blending.step(&a, &inp).unwrap();
+        b = rear.step(&b, &inp).unwrap();
+        d = default.step(&d, &inp).unwrap();
+    }
+    assert_eq!((a.stats.corrections, a.stats.accepted), (10, 10));
+    assert!(a.covariance().trace() < b.covariance().trace());
+    assert!((a.pose().x_m - b.pose().x_m).abs() < 1e-9);
+    // The default checks agreeing windows and keeps the rear increment.
+    assert_eq!((d.stats.corrections, d.stats.accepted), (10, 10));
+    assert_eq!(d.pose(), b.pose());
+    assert_eq!(d.covariance(), b.covariance());
+}
+
+#[test]
+fn step_into_is_step_bit_for_bit() {
+    // Two buffers flipped on success, as the daemon's pipeline keeps them,
+    // against states returned by value; errors in between leave `prev`.
+    let p = car();
+    let ekf = Ekf::new(EkfConfig::new(p)).unwrap();
+    let mut by_value = State::origin();
+    let mut buffers = [State::origin(), State::origin()];
+    let mut current = 0;
+    for k in 0..3_000 {
+        let phi = 0.5 * (f64::from(k) * 3e-3).sin();
+        let mut input = arc_input(&p, 0.003, phi);
+        if k % 97 == 5 {
+            input.wheel_m.rear_left = f64::NAN;
+        }
+        let expected = ekf.step(&by_value, &input);
+        let (prev, next) = if current == 0 {
+            let [a, b] = &mut buffers;
+            (&*a, b)
+        } else {
+            let [a, b] = &mut buffers;
+            (&*b, a)
+        };
+        let got = ekf.step_into(prev, next, &input);
+        assert_eq!(got.is_ok(), expected.is_ok(), "step {k}");
+        if let Ok(state) = expected {
+            by_value = state;
+            current ^= 1;
+        }
+        assert_eq!(
+            format!("{:?}", buffers[current]),
+            format!("{by_value:?}"),
+            "step {k}"
+        );
+    }
+    assert!(by_value.stats.corrections > 10);
+}
+
+proptest! {
+    /// The steering terms kept from the last step are exactly what the
+    /// step would compute afresh: a filter that forgets them before
+    /// every step ends bit for bit where the one reusing them does.
+    #[test]
+    fn reused_steering_terms_change_nothing(
+        steps in prop::collection::vec((0usize..4, 0.0f64..0.004, prop::bool::weighted(0.995)), 1..400)
+    ) {
+        let p = car();
+        let ekf = Ekf::new(EkfConfig::new(p)).unwrap();
+        // Few distinct angles, so most steps repeat the one before; the
+        // steering signal reads 0.02 rad high, so the learnt offset (and
+        // with it the angle the terms are for) moves at every correction
+        // (a window with a front sample missing is not corrected: rare here).
+        let angles = [0.0, 0.2, -0.35, 0.2 + 1e-12];
+        let (mut reusing, mut fresh) = (State::origin(), State::origin());
+        for (i, ds, front_valid) in steps {
+            let input = OdometryInput {
+                front_valid,
+                steer_angle_rad: angles[i] + 0.02,
+                ..arc_input(&p, ds, angles[i])
+            };
+            fresh.steer_terms = SteerTerms::NONE;
+            reusing = ekf.step(&reusing, &input).unwrap();
+            fresh = ekf.step(&fresh, &input).unwrap();
+            prop_assert_eq!(reusing, fresh);
+        }
+    }
+}
+
+#[test]
+fn non_finite_inputs_are_errors_and_leave_the_state() {
+    let p = car();
+    let ekf = Ekf::new(EkfConfig::new(p)).unwrap();
+    let st = State::origin();
+    let mut inp = arc_input(&p, 0.001, 0.1);
+    inp.wheel_m.front_left = f64::NAN;
+    assert!(matches!(
+        ekf.step(&st, &inp),
+        Err(Error::NonFiniteInput {
+            name: "front_left_m",
+            ..
+        })
+    ));
+    inp.front_valid = false;
+    assert!(
+        ekf.step(&st, &inp).is_ok(),
+        "a stale front sample is not read"
+    );
+    // The sum test's slow path names the culprit, and finite inputs whose
+    // sum overflows are not reported as non-finite.
+    let mut rear = inp;
+    rear.wheel_m.rear_right = f64::NAN;
+    assert!(matches!(
+        ekf.step(&st, &rear),
+        Err(Error::NonFiniteInput {
+            name: "rear_right_m",
+            ..
+        })
+    ));
+    rear.wheel_m.rear_right = f64::MAX;
+    rear.wheel_m.rear_left = f64::MAX;
+    assert!(!matches!(
+        ekf.step(&st, &rear),
+        Err(Error::NonFiniteInput { .. })
+    ));
+    inp.steer_angle_rad = f64::INFINITY;
+    assert!(ekf.step(&st, &inp).is_err());
+    inp.steer_angle_rad = 1.6;
+    assert!(matches!(
+        ekf.step(&st, &inp),
+        Err(Error::SteeringOutOfRange { .. })
+    ));
+    assert!(
+        Ekf::new(EkfConfig {
+            correct_every: 0,
+            ..EkfConfig::new(p)
+        })
+        .is_err()
+    );
+    assert!(
+        Ekf::new(EkfConfig {
+            k_rear_m: f64::NAN,
+            ..EkfConfig::new(p)
+        })
+        .is_err()
+    );
+    assert!(
+        State::new(
+            Pose {
+                x_m: f64::NAN,
+                ..Pose::default()
+            },
+            Mat3::zeros()
+        )
+        .is_err()
+    );
+}
+
+#[test]
+fn heading_stays_wrapped_and_unwrapped_counts_turns() {
+    let p = car();
+    let ekf = Ekf::new(EkfConfig::new(p)).unwrap();
+    let mut st = State::origin();
+    let kappa = 0.3f64.tan() / 0.25;
+    let n = (3.0 * std::f64::consts::TAU / kappa / 0.002).round() as usize;
+    for _ in 0..n {
+        st = ekf.step(&st, &arc_input(&p, 0.002, 0.3)).unwrap();
+        let h = st.pose().heading_rad;
+        assert!(h > -std::f64::consts::PI && h <= std::f64::consts::PI);
+    }
+    assert!((st.pose_unwrapped().heading_rad - 3.0 * std::f64::consts::TAU).abs() < 0.01);
+}
+
+proptest! {
+    #[test]
+    fn covariance_stays_symmetric_psd_and_finite(
+        steps in prop::collection::vec((-0.01f64..0.02, -0.5f64..0.5, -0.5f64..0.5, any::<bool>()), 1..300),
+        literal in any::<bool>(),
+    ) {
+        let p = car();
+        let cfg = if literal { EkfConfig::paper_literal(p) } else { EkfConfig::new(p) };
+        let ekf = Ekf::new(cfg).unwrap();
+        let mut st = State::origin();
+        for (ds, phi, slip, front) in steps {
+            let mut inp = arc_input(&p, ds, phi);
+            inp.wheel_m.rear_left *= 1.0 + slip;
+            inp.front_valid = front;
+            st = ekf.step(&st, &inp).unwrap();
+            let P = st.covariance();
+            prop_assert!(P.iter().all(|v| v.is_finite()));
+            prop_assert!((P - P.transpose()).abs().max() < 1e-15);
+            let eig = P.symmetric_eigenvalues();
+            prop_assert!(eig.min() > -1e-12, "{eig:?}");
+            prop_assert!(st.pose().x_m.is_finite() && st.pose().heading_rad.is_finite());
+        }
+    }
+}
