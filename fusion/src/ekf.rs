@@ -123,6 +123,13 @@ pub type Mat3 = Matrix3<f64>;
 /// speed sensors' floor (about 2 km/h, 0.6 m/s) rather than a lock, m/s.
 const MAX_FLOOR_FILL_MPS: f64 = 1.5;
 
+/// The gentlest launch assumed, m/s²: a car that left a standstill unseen
+/// by wheel-speed sensors (they read 0 below their floor) and is first seen
+/// at `v` has crept at most `v²/(2a)` (0.28 m at 0.75 m/s). The multi-body
+/// Escort (seed 3) crept 0.10 m before its first reading, 0.75 m/s,
+/// 1.9 m/s² later.
+const LAUNCH_ACCEL_MPS2: f64 = 1.0;
+
 /// χ²₃(0.99), the default gate.
 pub const CHI2_3_99: f64 = 11.34;
 
@@ -265,6 +272,9 @@ pub struct State {
     /// What the last step derived from its steering angle, reused while the
     /// angle (less the learnt offset) stays the same to the bit.
     steer_terms: SteerTerms,
+    /// Every wheel read 0 in the last step (a launch is the first step
+    /// after such a one that does not).
+    wheels_were_zero: bool,
 }
 
 /// The quantities a step derives from `φ − offset` alone: a tangent, three
@@ -371,6 +381,7 @@ impl State {
             window_rear_m: 0.0,
             window_front_m: 0.0,
             steer_terms: SteerTerms::NONE,
+            wheels_were_zero: false,
         })
     }
 
@@ -618,6 +629,30 @@ impl Derived {
             front_scale_var: cfg.front_scale_sigma * cfg.front_scale_sigma,
         }
     }
+}
+
+/// The along-track variance, m², of what a car crept unseen before this
+/// step: non-zero only on wheel-speed sensors ([`OdometryInput::zero_is_floor`])
+/// in the first step that moves after one in which every wheel read 0.
+/// The creep is taken as anywhere between 0 and `v²/(2a)` (second moment
+/// of that range; its mean is not added to the pose, which would move a
+/// car that truly stood until the sensors woke).
+fn launch_variance(st: &mut State, input: &OdometryInput, w: &WheelSet<f64>) -> f64 {
+    let zero = w.rear_left == 0.0
+        && w.rear_right == 0.0
+        && (!input.front_valid || (w.front_left == 0.0 && w.front_right == 0.0));
+    let launched = input.zero_is_floor && st.wheels_were_zero && !zero;
+    st.wheels_were_zero = zero;
+    if !launched || input.dt_s.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
+        return 0.0;
+    }
+    let speed_mps = 0.5 * (w.rear_left.abs() + w.rear_right.abs()) / input.dt_s;
+    if speed_mps > MAX_FLOOR_FILL_MPS {
+        // Not a floor's exit: the log's first step, or a gap in the wheels.
+        return 0.0;
+    }
+    let creep_max_m = speed_mps * speed_mps / (2.0 * LAUNCH_ACCEL_MPS2);
+    creep_max_m * creep_max_m / 3.0
 }
 
 fn finite(name: &'static str, value: f64) -> Result<f64> {
@@ -986,8 +1021,9 @@ impl Ekf {
         } else {
             w
         };
+        let launch_var_m2 = launch_variance(st, input, w);
         if st.aided_on || input.yaw_rate_radps.is_some_and(f64::is_finite) {
-            return self.aided_advance(st, input, w, phi);
+            return self.aided_advance(st, input, w, phi, launch_var_m2);
         }
         // As odometry::rear_increment, with 1/b precomputed (inputs checked above).
         let rear = Increment {
@@ -998,6 +1034,13 @@ impl Ekf {
         let (sin_m, cos_m);
         ((sin_m, cos_m), st.rear_cs) = advance_heading(st.rear_cs, rear.dtheta_rad);
         (st.rear_w, st.p_rear_w) = propagate_with(&st.rear_w, &st.p_rear_w, rear, &q, sin_m, cos_m);
+        if launch_var_m2 > 0.0 {
+            let (c, s) = st.rear_cs;
+            st.p_rear_w[(0, 0)] += launch_var_m2 * c * c;
+            st.p_rear_w[(0, 1)] += launch_var_m2 * c * s;
+            st.p_rear_w[(1, 0)] += launch_var_m2 * c * s;
+            st.p_rear_w[(1, 1)] += launch_var_m2 * s * s;
+        }
         let angle_rad = phi - st.steer_offset_rad;
         if st.steer_terms.angle_bits != angle_rad.to_bits() {
             st.steer_terms = SteerTerms::at(&self.k, angle_rad);
@@ -1060,6 +1103,7 @@ impl Ekf {
         input: &OdometryInput,
         w: &WheelSet<f64>,
         phi: f64,
+        launch_var_m2: f64,
     ) -> Result<()> {
         if !st.aided_on {
             let pose = st.pose_unwrapped();
@@ -1091,6 +1135,7 @@ impl Ekf {
             w,
             terms.g[2] + terms.g[3],
             terms.tan_phi,
+            launch_var_m2,
         );
         if !st.aided.is_finite() {
             return Err(Error::Numerical {

@@ -449,9 +449,11 @@ fn centre_distance(
 }
 
 /// One sample of the aided estimator; `w` is floor-filled, `g_front_sum`
-/// the front distance factors' sum at the sample's steering angle, and
-/// `tan_phi` its tangent (for the turn when the gyro is missing).
-#[allow(clippy::too_many_lines)]
+/// the front distance factors' sum at the sample's steering angle,
+/// `tan_phi` its tangent (for the turn when the gyro is missing) and
+/// `launch_var_m2` the along-track variance of a creep below the wheel
+/// sensors' floor that this sample ends.
+#[allow(clippy::too_many_lines, clippy::too_many_arguments)]
 pub(crate) fn step(
     cfg: &EkfConfig,
     k: &Derived,
@@ -460,6 +462,7 @@ pub(crate) fn step(
     w: &WheelSet<f64>,
     g_front_sum: f64,
     tan_phi: f64,
+    launch_var_m2: f64,
 ) {
     let a = &mut st.aided;
     let dt = input.dt_s.max(0.0);
@@ -547,7 +550,7 @@ pub(crate) fn step(
     // Process noise: the wheels' distance noise along the track (more when
     // a wheel slipped), the heading's, the bias's random walk and the
     // effective tread's drift with the load.
-    let var_along = cfg.k_rear_m * d.abs() * if rear_slipped { 100.0 } else { 0.5 };
+    let var_along = cfg.k_rear_m * d.abs() * if rear_slipped { 100.0 } else { 0.5 } + launch_var_m2;
     let p = &mut a.p;
     p[X][X] += var_along * c_m * c_m;
     p[X][Y] += var_along * c_m * s_m;

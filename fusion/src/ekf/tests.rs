@@ -518,3 +518,41 @@ proptest! {
         }
     }
 }
+
+#[test]
+fn a_launch_from_below_the_wheel_sensors_floor_widens_the_position_only_then() {
+    let input = |speed_mps: f64, zero_is_floor: bool| OdometryInput {
+        wheel_m: WheelSet::splat(speed_mps * 0.01),
+        front_valid: true,
+        zero_is_floor,
+        dt_s: 0.01,
+        ..OdometryInput::default()
+    };
+    let mut st = State::origin();
+    // Standing, then first seen at 0.75 m/s: crept anywhere in 0..v²/2a.
+    assert_eq!(
+        launch_variance(&mut st, &input(0.0, true), &input(0.0, true).wheel_m),
+        0.0
+    );
+    let moving = input(0.75, true);
+    let var = launch_variance(&mut st, &moving, &moving.wheel_m);
+    let creep_max_m = 0.75 * 0.75 / (2.0 * LAUNCH_ACCEL_MPS2);
+    assert!(
+        (var - creep_max_m * creep_max_m / 3.0).abs() < 1e-12,
+        "{var}"
+    );
+    // Moving on: no launch.
+    assert_eq!(launch_variance(&mut st, &moving, &moving.wheel_m), 0.0);
+
+    // The log's first step at speed after a zero is not a floor's exit.
+    let mut st = State::origin();
+    let _ = launch_variance(&mut st, &input(0.0, true), &input(0.0, true).wheel_m);
+    let fast = input(11.5, true);
+    assert_eq!(launch_variance(&mut st, &fast, &fast.wheel_m), 0.0);
+
+    // Encoders read every crawl: no floor, no creep.
+    let mut st = State::origin();
+    let _ = launch_variance(&mut st, &input(0.0, false), &input(0.0, false).wheel_m);
+    let ticks = input(0.75, false);
+    assert_eq!(launch_variance(&mut st, &ticks, &ticks.wheel_m), 0.0);
+}
