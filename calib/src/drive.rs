@@ -312,6 +312,14 @@ pub struct DriveCalibration {
     pub yaw_bias_radps: Option<Estimate>,
     /// See `yaw_bias_radps`.
     pub yaw_scale: Option<Estimate>,
+    /// The yaw-rate bias's σ from the fixes' and the inputs' noise alone
+    /// (the sandwich), rad/s: the live filter's prior on the bias it learns
+    /// next. `yaw_bias_radps`'s σ is at least the jackknife's as well, what
+    /// the bias's effective value varies along the drive; the filter
+    /// follows that variation with its own random walk, and starting it
+    /// that unsure sent the RAV4's calibrated rest after 45 s 0.80 % off
+    /// instead of 0.65 % (calibration-math §14). None without yaw rate.
+    pub yaw_bias_noise_sigma_radps: Option<f64>,
     /// The effective rear tread's correction (multiplies the tread in use):
     /// held at 1, not observable, on a drive without turns both ways.
     pub rear_tread: Estimate,
@@ -1416,6 +1424,7 @@ impl<'a> Problem<'a> {
                 sigma[i] = cov[(i, i)].max(0.0).sqrt();
             }
         }
+        let noise_sigma = sigma;
         let jackknife = self.jackknife_sigma(&fit)?;
         for i in (0..N_GLOBAL).filter(|&i| observable[i]) {
             sigma[i] = sigma[i].max(jackknife[i]);
@@ -1472,6 +1481,7 @@ impl<'a> Problem<'a> {
             steer_gain: self.active[STEER].then(|| est(GAIN)),
             yaw_bias_radps: self.active[YAW].then(|| est(BIAS)),
             yaw_scale: self.active[YAW].then(|| est(SCALE)),
+            yaw_bias_noise_sigma_radps: self.active[YAW].then_some(noise_sigma[BIAS]),
             fixes_used: self.segments.iter().map(|s| s.fixes.len()).sum(),
             distance_m: self.distance_m(&fit),
             residual_rms_m,
@@ -1780,7 +1790,10 @@ pub fn calibrated_values(base: &ParamValues, cal: &DriveCalibration) -> ParamVal
         }
         if bias.observable {
             v.yaw_rate_bias_radps = Some(c0 * bias.value);
-            v.yaw_rate_bias_sigma_radps = Some(c0 * bias.sigma);
+            // The filter's prior: the noise's σ (see
+            // `DriveCalibration::yaw_bias_noise_sigma_radps`).
+            let sigma = cal.yaw_bias_noise_sigma_radps.unwrap_or(bias.sigma);
+            v.yaw_rate_bias_sigma_radps = Some(c0 * sigma);
         } else if scale.observable {
             v.yaw_rate_bias_radps = Some(b0);
         }

@@ -509,9 +509,17 @@ fn a_parameter_that_changes_along_the_drive_has_a_sigma_that_says_so() {
         s.rear_left_m *= change;
         s.rear_right_m *= change;
     }
-    let e = calibrate_drive(&samples, &fixes, &MODEL)
-        .unwrap()
-        .speed_scale;
+    let cal = calibrate_drive(&samples, &fixes, &MODEL).unwrap();
+    // The filter's prior on the bias is the noise's σ, the reported σ at
+    // least that.
+    let (bias, noise) = (
+        cal.yaw_bias_radps.unwrap(),
+        cal.yaw_bias_noise_sigma_radps.unwrap(),
+    );
+    assert!(noise > 0.0 && noise <= bias.sigma, "{noise} vs {bias:?}");
+    let v = calibrated_values(&ParamValues::plain(1.55, 0.7), &cal);
+    assert_eq!(v.yaw_rate_bias_sigma_radps, Some(noise));
+    let e = cal.speed_scale;
     assert!(e.observable, "{e:?}");
     let (first, second) = (TRUTH.g[SPEED], TRUTH.g[SPEED] / change);
     assert!(

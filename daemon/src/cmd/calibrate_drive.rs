@@ -331,6 +331,7 @@ mod tests {
             steer_gain: Some(estimate(0.9, false)),
             yaw_bias_radps: Some(estimate(-0.007, true)),
             yaw_scale: Some(estimate(1.05, false)),
+            yaw_bias_noise_sigma_radps: None,
             fixes_used: 30,
             distance_m: 500.0,
             residual_rms_m: [Some(0.1), Some(0.1), None],
