@@ -58,6 +58,15 @@
 //! positive; the number of effectively independent fixes is `n/τ`), and by
 //! `N/(N − p)` for the parameters fitted.
 //!
+//! The sandwich counts noise; it does not count the model's own error where
+//! that changes along the drive (an effective tread that depends on the
+//! turn, a tyre's slip on its load, a gyro reading in a roll), which makes
+//! the fitted values depend on the stretch of road the fit saw. So each
+//! reported σ is at least the delete-a-block jackknife's: the used fixes cut
+//! in up to six blocks of at least ten, the fit repeated without each
+//! (`Problem::jackknife_sigma`). The filter's prior on the bias keeps the
+//! sandwich's σ ([`DriveCalibration::yaw_bias_noise_sigma_radps`]).
+//!
 //! A parameter is observable when its posterior σ is below
 //! [`DriveOptions::observable_ratio`] of its prior σ; one that is not is
 //! reported at its value in use, and the others are refitted with it held
@@ -1405,26 +1414,8 @@ impl<'a> Problem<'a> {
         fit.fixed[LATENCY] |= matches!(self.options.latency, FixesLatency::Given(_));
         fit.fixed[TREAD] |= !self.turns_both_ways();
         self.fit(&mut fit)?;
-        let cov = self.covariance(&fit)?;
-        let mut sigma: [f64; N_GLOBAL] = std::array::from_fn(|i| cov[(i, i)].max(0.0).sqrt());
-        let observable: [bool; N_GLOBAL] = std::array::from_fn(|i| {
-            !fit.fixed[i] && sigma[i] < self.options.observable_ratio * self.prior_sigma[i]
-        });
-        let hold: Vec<usize> = (0..N_GLOBAL)
-            .filter(|&i| !fit.fixed[i] && !observable[i])
-            .collect();
-        if !hold.is_empty() {
-            for &i in &hold {
-                fit.fixed[i] = true;
-                fit.p[i] = self.in_use[i];
-            }
-            self.fit(&mut fit)?;
-            let cov = self.covariance(&fit)?;
-            for i in (0..N_GLOBAL).filter(|i| observable[*i]) {
-                sigma[i] = cov[(i, i)].max(0.0).sqrt();
-            }
-        }
-        let noise_sigma = sigma;
+        let (observable, noise_sigma) = self.hold_what_is_not_told(&mut fit)?;
+        let mut sigma = noise_sigma;
         let jackknife = self.jackknife_sigma(&fit)?;
         for i in (0..N_GLOBAL).filter(|&i| observable[i]) {
             sigma[i] = sigma[i].max(jackknife[i]);
@@ -1486,6 +1477,33 @@ impl<'a> Problem<'a> {
             distance_m: self.distance_m(&fit),
             residual_rms_m,
         })
+    }
+
+    /// Which globals the drive tells (sandwich σ below
+    /// [`DriveOptions::observable_ratio`] of the prior's); the others are
+    /// held at their value in use and the rest refitted. Returns that and
+    /// the sandwich σ of the final fit.
+    fn hold_what_is_not_told(&self, fit: &mut Fit) -> Result<([bool; N_GLOBAL], [f64; N_GLOBAL])> {
+        let cov = self.covariance(fit)?;
+        let mut sigma: [f64; N_GLOBAL] = std::array::from_fn(|i| cov[(i, i)].max(0.0).sqrt());
+        let observable: [bool; N_GLOBAL] = std::array::from_fn(|i| {
+            !fit.fixed[i] && sigma[i] < self.options.observable_ratio * self.prior_sigma[i]
+        });
+        let hold: Vec<usize> = (0..N_GLOBAL)
+            .filter(|&i| !fit.fixed[i] && !observable[i])
+            .collect();
+        if !hold.is_empty() {
+            for &i in &hold {
+                fit.fixed[i] = true;
+                fit.p[i] = self.in_use[i];
+            }
+            self.fit(fit)?;
+            let cov = self.covariance(fit)?;
+            for i in (0..N_GLOBAL).filter(|i| observable[*i]) {
+                sigma[i] = cov[(i, i)].max(0.0).sqrt();
+            }
+        }
+        Ok((observable, sigma))
     }
 
     /// Each global's delete-a-block jackknife σ (0 for a held one, and for
