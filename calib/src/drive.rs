@@ -58,6 +58,15 @@
 //! positive; the number of effectively independent fixes is `n/τ`), and by
 //! `N/(N − p)` for the parameters fitted.
 //!
+//! The sandwich counts noise; it does not count the model's own error where
+//! that changes along the drive (an effective tread that depends on the
+//! turn, a tyre's slip on its load, a gyro reading in a roll), which makes
+//! the fitted values depend on the stretch of road the fit saw. So each
+//! reported σ is at least the delete-a-block jackknife's: the used fixes cut
+//! in up to six blocks of at least ten, the fit repeated without each
+//! (`Problem::jackknife_sigma`). The filter's prior on the bias keeps the
+//! sandwich's σ ([`DriveCalibration::yaw_bias_noise_sigma_radps`]).
+//!
 //! A parameter is observable when its posterior σ is below
 //! [`DriveOptions::observable_ratio`] of its prior σ; one that is not is
 //! reported at its value in use, and the others are refitted with it held
@@ -312,6 +321,14 @@ pub struct DriveCalibration {
     pub yaw_bias_radps: Option<Estimate>,
     /// See `yaw_bias_radps`.
     pub yaw_scale: Option<Estimate>,
+    /// The yaw-rate bias's σ from the fixes' and the inputs' noise alone
+    /// (the sandwich), rad/s: the live filter's prior on the bias it learns
+    /// next. `yaw_bias_radps`'s σ is at least the jackknife's as well, what
+    /// the bias's effective value varies along the drive; the filter
+    /// follows that variation with its own random walk, and starting it
+    /// that unsure sent the RAV4's calibrated rest after 45 s 0.80 % off
+    /// instead of 0.65 % (calibration-math §14). None without yaw rate.
+    pub yaw_bias_noise_sigma_radps: Option<f64>,
     /// The effective rear tread's correction (multiplies the tread in use):
     /// held at 1, not observable, on a drive without turns both ways.
     pub rear_tread: Estimate,
@@ -520,6 +537,18 @@ const HEADING_SIGMA_DEFAULT_RAD: f64 = 0.02;
 /// A ridge on the nuisance headings, so a segment that never moved (or a
 /// source without data) keeps a regular normal matrix: 1/(10 rad)².
 const HEADING_RIDGE: f64 = 1e-2;
+/// The same for the segments' start positions, 1/(1 km)²: only a
+/// jackknife refit that leaves a whole segment out needs it (its start
+/// position then has no fix), and next to a fix's information (1/σ², σ
+/// metres at most) it moves nothing.
+const POSITION_RIDGE: f64 = 1e-6;
+/// Blocks of the delete-a-block jackknife (see `Problem::jackknife_sigma`):
+/// at most this many, each of at least [`JACKKNIFE_MIN_FIXES`] fixes.
+const JACKKNIFE_BLOCKS: usize = 6;
+/// Fewest fixes in a jackknife block: a block must be longer than the turn
+/// or the slip whose model error it is to reveal (ten fixes: ten seconds of
+/// a 1 Hz receiver, about one turn of a road car).
+const JACKKNIFE_MIN_FIXES: usize = 10;
 
 fn wrap(a: f64) -> f64 {
     let w = a.rem_euclid(2.0 * PI);
@@ -957,6 +986,9 @@ impl<'a> Problem<'a> {
                 let c = N_GLOBAL + N_LOCAL * si + 2 + src;
                 h[(c, c)] += HEADING_RIDGE;
             }
+            for c in 0..2 {
+                h[(N_GLOBAL + N_LOCAL * si + c, N_GLOBAL + N_LOCAL * si + c)] += POSITION_RIDGE;
+            }
         }
         h
     }
@@ -1382,24 +1414,11 @@ impl<'a> Problem<'a> {
         fit.fixed[LATENCY] |= matches!(self.options.latency, FixesLatency::Given(_));
         fit.fixed[TREAD] |= !self.turns_both_ways();
         self.fit(&mut fit)?;
-        let cov = self.covariance(&fit)?;
-        let mut sigma: [f64; N_GLOBAL] = std::array::from_fn(|i| cov[(i, i)].max(0.0).sqrt());
-        let observable: [bool; N_GLOBAL] = std::array::from_fn(|i| {
-            !fit.fixed[i] && sigma[i] < self.options.observable_ratio * self.prior_sigma[i]
-        });
-        let hold: Vec<usize> = (0..N_GLOBAL)
-            .filter(|&i| !fit.fixed[i] && !observable[i])
-            .collect();
-        if !hold.is_empty() {
-            for &i in &hold {
-                fit.fixed[i] = true;
-                fit.p[i] = self.in_use[i];
-            }
-            self.fit(&mut fit)?;
-            let cov = self.covariance(&fit)?;
-            for i in (0..N_GLOBAL).filter(|i| observable[*i]) {
-                sigma[i] = cov[(i, i)].max(0.0).sqrt();
-            }
+        let (observable, noise_sigma) = self.hold_what_is_not_told(&mut fit)?;
+        let mut sigma = noise_sigma;
+        let jackknife = self.jackknife_sigma(&fit)?;
+        for i in (0..N_GLOBAL).filter(|&i| observable[i]) {
+            sigma[i] = sigma[i].max(jackknife[i]);
         }
         for (i, s) in sigma.iter().enumerate() {
             crate::error::finite("drive calibration: σ", *s)?;
@@ -1453,10 +1472,86 @@ impl<'a> Problem<'a> {
             steer_gain: self.active[STEER].then(|| est(GAIN)),
             yaw_bias_radps: self.active[YAW].then(|| est(BIAS)),
             yaw_scale: self.active[YAW].then(|| est(SCALE)),
+            yaw_bias_noise_sigma_radps: self.active[YAW].then_some(noise_sigma[BIAS]),
             fixes_used: self.segments.iter().map(|s| s.fixes.len()).sum(),
             distance_m: self.distance_m(&fit),
             residual_rms_m,
         })
+    }
+
+    /// Which globals the drive tells (sandwich σ below
+    /// [`DriveOptions::observable_ratio`] of the prior's); the others are
+    /// held at their value in use and the rest refitted. Returns that and
+    /// the sandwich σ of the final fit.
+    fn hold_what_is_not_told(&self, fit: &mut Fit) -> Result<([bool; N_GLOBAL], [f64; N_GLOBAL])> {
+        let cov = self.covariance(fit)?;
+        let mut sigma: [f64; N_GLOBAL] = std::array::from_fn(|i| cov[(i, i)].max(0.0).sqrt());
+        let observable: [bool; N_GLOBAL] = std::array::from_fn(|i| {
+            !fit.fixed[i] && sigma[i] < self.options.observable_ratio * self.prior_sigma[i]
+        });
+        let hold: Vec<usize> = (0..N_GLOBAL)
+            .filter(|&i| !fit.fixed[i] && !observable[i])
+            .collect();
+        if !hold.is_empty() {
+            for &i in &hold {
+                fit.fixed[i] = true;
+                fit.p[i] = self.in_use[i];
+            }
+            self.fit(fit)?;
+            let cov = self.covariance(fit)?;
+            for i in (0..N_GLOBAL).filter(|i| observable[*i]) {
+                sigma[i] = cov[(i, i)].max(0.0).sqrt();
+            }
+        }
+        Ok((observable, sigma))
+    }
+
+    /// Each global's delete-a-block jackknife σ (0 for a held one, and for
+    /// all on a drive of fewer than three blocks' fixes). The used fixes
+    /// are cut, in time order, into `k` blocks; the fit is repeated `k`
+    /// times, each time without one block (its fixes' weights 0, the
+    /// others' robust weights and the groups' σ as the full fit left them,
+    /// from the full fit's values), and `σ² = (k−1)/k Σ (θ₋ᵦ − θ̄)²`.
+    ///
+    /// The sandwich counts the noise of the fixes and of the inputs; what
+    /// it cannot count is the model's own error where it changes along the
+    /// drive: an effective tread that depends on the turn, a tyre's slip
+    /// that depends on the load, a gyro reading in a roll. Each makes the
+    /// parameters the fit finds depend on which stretch of road it saw,
+    /// and the jackknife measures exactly that. The reported σ is the
+    /// larger of the two (issue #31: on the multi-body drives the sandwich
+    /// σ alone put the truth 3–17σ away).
+    fn jackknife_sigma(&self, fit: &Fit) -> Result<[f64; N_GLOBAL]> {
+        let mut used: Vec<usize> = self
+            .segments
+            .iter()
+            .flat_map(|s| s.fixes.iter().copied())
+            .collect();
+        used.sort_unstable();
+        let k = JACKKNIFE_BLOCKS.min(used.len() / JACKKNIFE_MIN_FIXES);
+        let mut sigma = [0.0; N_GLOBAL];
+        if k < 3 {
+            return Ok(sigma);
+        }
+        let mut estimates: Vec<[f64; N_GLOBAL]> = Vec::with_capacity(k);
+        for b in 0..k {
+            let mut trial = fit.clone();
+            for &f in &used[b * used.len() / k..(b + 1) * used.len() / k] {
+                trial.weights[f] = [0.0; N_GROUP];
+            }
+            self.levenberg_marquardt(&mut trial, f64::INFINITY)?;
+            estimates.push(std::array::from_fn(|i| trial.p[i]));
+        }
+        let kf = k as f64;
+        for (i, s) in sigma.iter_mut().enumerate() {
+            if fit.fixed[i] {
+                continue;
+            }
+            let mean = estimates.iter().map(|e| e[i]).sum::<f64>() / kf;
+            let ss: f64 = estimates.iter().map(|e| (e[i] - mean).powi(2)).sum();
+            *s = ((kf - 1.0) / kf * ss).sqrt();
+        }
+        Ok(sigma)
     }
 
     /// Whether the drive turned enough each way to tell the tread.
@@ -1713,7 +1808,10 @@ pub fn calibrated_values(base: &ParamValues, cal: &DriveCalibration) -> ParamVal
         }
         if bias.observable {
             v.yaw_rate_bias_radps = Some(c0 * bias.value);
-            v.yaw_rate_bias_sigma_radps = Some(c0 * bias.sigma);
+            // The filter's prior: the noise's σ (see
+            // `DriveCalibration::yaw_bias_noise_sigma_radps`).
+            let sigma = cal.yaw_bias_noise_sigma_radps.unwrap_or(bias.sigma);
+            v.yaw_rate_bias_sigma_radps = Some(c0 * sigma);
         } else if scale.observable {
             v.yaw_rate_bias_radps = Some(b0);
         }

@@ -234,6 +234,7 @@ mod misfit_tests {
             steer_gain: Some(estimate(1.0, true)),
             yaw_bias_radps: Some(estimate(0.0, false)),
             yaw_scale: Some(estimate(1.0, true)),
+            yaw_bias_noise_sigma_radps: None,
             fixes_used: 30,
             distance_m: 700.0,
             residual_rms_m: [Some(1.2), Some(74.0), Some(MISFIT_RMS_M)],

@@ -181,13 +181,14 @@ impl LiveCalibration {
     }
 
     /// The filter's correction window closed at the last step with `outcome`
-    /// (nothing when it is [`WindowOutcome::Open`]): a window whose gate
-    /// found a rear wheel slipping is kept out of a drive's reckoning.
+    /// (nothing when it is [`WindowOutcome::Open`]): a window the gate
+    /// rejected is kept out of a drive's reckoning, as offline
+    /// ([`canodom_offline::drive::gate_rejected`]).
     pub fn on_window(&mut self, outcome: canodom_fusion::ekf::WindowOutcome) {
         use canodom_fusion::ekf::WindowOutcome;
         if outcome != WindowOutcome::Open {
             self.calibrator
-                .on_window(outcome == WindowOutcome::RejectedUsedFront);
+                .on_window(canodom_offline::drive::gate_rejected(outcome));
         }
     }
 

@@ -64,7 +64,8 @@ pub fn samples_from_frames(
     };
     let mut samples: Vec<DriveSample> = Vec::new();
     // The first sample of the filter's open correction window: when its gate
-    // finds a rear wheel slipping, the whole window's samples are marked.
+    // rejects the window, the whole window's samples are marked (see
+    // `gate_rejected`).
     let mut window_start = 0;
     while let Some((timestamp, frame)) = frames.next_frame()? {
         let Outcome::Step(step, _) = pipeline.push(timestamp, &frame) else {
@@ -82,7 +83,7 @@ pub fn samples_from_frames(
             rear_slip: false,
         });
         if step.correction != WindowOutcome::Open {
-            if step.correction == WindowOutcome::RejectedUsedFront {
+            if gate_rejected(step.correction) {
                 for s in &mut samples[window_start..] {
                     s.rear_slip = true;
                 }
@@ -104,6 +105,22 @@ pub fn samples_from_frames(
         malformed: frames.malformed(),
         mixed_buses,
     })
+}
+
+/// Whether a closed correction window's rear wheel distances must stay out
+/// of a drive's reckoning: whenever the filter's gate found the axles
+/// disagreeing, whichever it then blamed. A gate that blames the front
+/// axle may be wrong: both rear wheels locking together under braking look
+/// to it like two front wheels turning too far (the multi-body drives of
+/// seed 108 lock both rears for 1.1 s at 30 s; the gate kept the rear, the
+/// fit reckoned across the 8 m they did not read and its residual of
+/// 2.7 m refused the whole calibration). A wrongly marked window costs the
+/// fit only a new segment's start.
+pub fn gate_rejected(outcome: WindowOutcome) -> bool {
+    matches!(
+        outcome,
+        WindowOutcome::RejectedUsedFront | WindowOutcome::RejectedKeptRear
+    )
 }
 
 /// The quality gate of a drive's commit from the configuration's limits

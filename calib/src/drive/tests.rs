@@ -491,6 +491,52 @@ fn the_gate_keeps_what_is_too_uncertain_and_everything_of_an_implausible_fit() {
     assert_eq!(apply_gate(&mut jumpy, &DriveGate::default()).len(), 7);
 }
 
+/// A model error that changes along the drive: the rear wheels read 0.3 %
+/// more from half-way on (as a tyre's slip under another load would). No
+/// speed scale fits both halves; the fit lands between them, and its σ
+/// must say it is that unsure though the fixes are exact: each half's own
+/// scale within 3σ, where a consistent drive's σ is a hundred times
+/// smaller. (The sandwich alone passes this too: its σ puts the first
+/// half's scale 2.8σ away, the jackknife's 2.1σ. Its effect on the multi-body
+/// drives, where the sandwich put the truth up to 13σ away, is measured
+/// by `sim/multibody/evaluate_fixes.py`, calibration-math §14.)
+#[test]
+fn a_parameter_that_changes_along_the_drive_has_a_sigma_that_says_so() {
+    let (consistent, fixes) = drive(TRUTH, 130.0, winding);
+    let change = 1.003;
+    let mut samples = consistent.clone();
+    for s in samples.iter_mut().filter(|s| s.t_s > 65.0) {
+        s.rear_left_m *= change;
+        s.rear_right_m *= change;
+    }
+    let cal = calibrate_drive(&samples, &fixes, &MODEL).unwrap();
+    // The filter's prior on the bias is the noise's σ, the reported σ at
+    // least that.
+    let (bias, noise) = (
+        cal.yaw_bias_radps.unwrap(),
+        cal.yaw_bias_noise_sigma_radps.unwrap(),
+    );
+    assert!(noise > 0.0 && noise <= bias.sigma, "{noise} vs {bias:?}");
+    let v = calibrated_values(&ParamValues::plain(1.55, 0.7), &cal);
+    assert_eq!(v.yaw_rate_bias_sigma_radps, Some(noise));
+    let e = cal.speed_scale;
+    assert!(e.observable, "{e:?}");
+    let (first, second) = (TRUTH.g[SPEED], TRUTH.g[SPEED] / change);
+    assert!(
+        e.value < first && e.value > second,
+        "between the halves' scales: {e:?}"
+    );
+    for truth in [first, second] {
+        assert!((e.value - truth).abs() < 3.0 * e.sigma, "{truth} vs {e:?}");
+    }
+    let exact = calibrate_drive(&consistent, &fixes, &MODEL)
+        .unwrap()
+        .speed_scale;
+    assert!(exact.sigma < 0.01 * e.sigma, "{exact:?} vs {e:?}");
+    // Still a measurement: far below the prior's 5 %.
+    assert!(e.sigma < 0.005, "{e:?}");
+}
+
 #[test]
 fn a_drive_turning_one_way_holds_the_tread_and_says_why() {
     let (samples, fixes) = drive(TRUTH, 90.0, |_| 0.01);

@@ -76,6 +76,14 @@ pub fn report_text(cal: &DriveCalibration, base: &ParamValues, new: &ParamValues
                 e.value * k,
                 e.sigma * k
             ),
+            // Refused by the quality gate: the fit is shown, so a user sees
+            // how far from the limit it was (the reason is listed below).
+            Some(e) if cal.refused.iter().any(|r| name.starts_with(r.parameter)) => writeln!(
+                s,
+                "  {name:<32} held: refused by the quality gate (fitted {:+.6}{unit} ± {:.6}{unit}; below)",
+                e.value * k,
+                e.sigma * k
+            ),
             Some(e) => writeln!(
                 s,
                 "  {name:<32} held: the drive does not tell it (σ {:.6}{unit}, too close to the prior)",
@@ -323,6 +331,7 @@ mod tests {
             steer_gain: Some(estimate(0.9, false)),
             yaw_bias_radps: Some(estimate(-0.007, true)),
             yaw_scale: Some(estimate(1.05, false)),
+            yaw_bias_noise_sigma_radps: None,
             fixes_used: 30,
             distance_m: 500.0,
             residual_rms_m: [Some(0.1), Some(0.1), None],
