@@ -1,7 +1,7 @@
 """The fleet job's frames/s on 1 and 2 CPUs of a local Ray, and the per-log
 overhead of a Ray task.
 
-    python python/bench/fleet_scaling.py [--logs 8] [--laps 20] [--runs 3]
+    python python/bench/fleet_scaling.py [--logs 4] [--laps 400] [--runs 3]
 
 Makes --logs simulated drives (`canodom simulate` of $CANODOM_BIN, else
 target/release/canodom), then runs the fleet job on them --runs times with 1
@@ -16,6 +16,7 @@ logs (one lap of the course): the job on 4N of them against the job on N, on
 import argparse
 import json
 import os
+import shutil
 import statistics
 import subprocess
 import sys
@@ -42,6 +43,11 @@ print(json.dumps({"init_s": init_s, "job_s": job_s, "frames": sum(r["frames"] fo
                   "task_s": sum(r["seconds"] for r in summary),
                   "errors": sum(1 for r in summary if r["error"])}))
 """
+
+
+def uptime():
+    """`uptime`'s load averages (1, 5, 15 min): the other work on the machine."""
+    return " ".join(f"{x:.2f}" for x in os.getloadavg())
 
 
 def simulate(cli, out, seed, laps):
@@ -71,8 +77,8 @@ def manifest_of(d, kind, count, laps, cli):
 
 def main():
     p = argparse.ArgumentParser()
-    p.add_argument("--logs", type=int, default=8)
-    p.add_argument("--laps", type=int, default=20)
+    p.add_argument("--logs", type=int, default=4)
+    p.add_argument("--laps", type=int, default=400, help="work per log; Ray Data's ~5 s start must be small beside it")
     p.add_argument("--runs", type=int, default=3)
     a = p.parse_args()
     cli = os.environ.get("CANODOM_BIN", str(REPO / "target/release/canodom"))
@@ -84,12 +90,14 @@ def main():
         for run in range(a.runs):
             got = {}
             for cpus in (1, 2):
+                before = uptime()
                 r = job(long, d / f"out-{run}-{cpus}", cpus)
+                shutil.rmtree(d / f"out-{run}-{cpus}")  # 400 laps: ~0.5 GB of poses per log
                 got[cpus] = r
                 rates[cpus].append(r["frames"] / r["job_s"])
                 print(f"run {run + 1}, {cpus} CPU(s): {a.logs} logs, {r['frames']} frames in {r['job_s']:.1f} s "
                       f"({r['frames'] / r['job_s']:,.0f} frames/s; ray.init {r['init_s']:.1f} s apart; "
-                      f"{r['task_s']:.1f} s inside the tasks); load {os.getloadavg()[0]:.1f}", flush=True)
+                      f"{r['task_s']:.1f} s inside the tasks); load before: {before}; after: {uptime()}", flush=True)
             ratios.append(got[1]["job_s"] / got[2]["job_s"])
         print(f"median: 1 CPU {statistics.median(rates[1]):,.0f} frames/s, 2 CPUs {statistics.median(rates[2]):,.0f} "
               f"frames/s, scaling {statistics.median(ratios):.2f}x (runs: {', '.join(f'{x:.2f}' for x in ratios)}; "
