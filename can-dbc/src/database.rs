@@ -220,11 +220,20 @@ impl Database {
     /// The message with this frame ID, in O(1); `None` for an ID the DBC does not define.
     #[inline]
     pub fn message_by_id(&self, id: FrameId) -> Option<&Message> {
+        self.messages.get(self.message_index(id)?)
+    }
+
+    /// The place in [`Self::messages`] of the message with this frame ID, in O(1); `None`
+    /// for an ID the DBC does not define. For a caller keeping its own state per message
+    /// in a `Vec` beside the database (no hashing per frame).
+    #[inline]
+    pub fn message_index(&self, id: FrameId) -> Option<usize> {
         let i = match id {
             FrameId::Standard(s) => *self.standard.get(usize::from(s))?,
             FrameId::Extended(e) => *self.extended.get(&e)?,
         };
-        self.messages.get(i as usize)
+        let i = i as usize;
+        (i < self.messages.len()).then_some(i)
     }
 
     /// The message with this name: its long name (`SystemMessageLongSymbol`) or its

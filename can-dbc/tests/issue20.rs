@@ -162,3 +162,95 @@ BO_ 1 M: 8 ECU
         .unwrap();
     assert_eq!(values, [Value::Float(1.5), Value::Integer(-5)]);
 }
+
+/// `integer_range` is what a column type is chosen from before any frame: every value
+/// [`canodom_dbc::Signal::value`] gives must lie in it, at its ends too.
+#[test]
+fn integer_range_holds_every_value_the_signal_can_give() {
+    let text = r#"VERSION ""
+BO_ 1 M: 8 ECU
+ SG_ HALF : 0|8@1+ (0.5,0) [0|0] "" ECU
+ SG_ NEG : 8|8@1- (-3,10) [0|0] "" ECU
+ SG_ U16 : 16|16@1+ (1,0) [0|0] "" ECU
+ SG_ FLT : 32|32@1- (1,0) [0|0] "" ECU
+BO_ 2 WIDE: 8 ECU
+ SG_ U64 : 0|64@1+ (1,0) [0|0] "" ECU
+BO_ 3 WIDER: 8 ECU
+ SG_ S64X : 0|64@1- (4,-7) [0|0] "" ECU
+SIG_VALTYPE_ 1 FLT : 1;
+"#;
+    let db = Database::parse(text, "t.dbc").unwrap();
+    let signal = |m: &str, s: &str| {
+        db.message_by_name(m)
+            .and_then(|m| m.signal(s))
+            .unwrap()
+            .clone()
+    };
+    assert_eq!(signal("M", "HALF").integer_range(), None);
+    assert_eq!(signal("M", "FLT").integer_range(), None);
+    assert_eq!(signal("M", "NEG").integer_range(), Some((-371, 394)));
+    assert_eq!(signal("M", "U16").integer_range(), Some((0, 65_535)));
+    assert_eq!(
+        signal("WIDE", "U64").integer_range(),
+        Some((0, i128::from(u64::MAX)))
+    );
+    let s64 = signal("WIDER", "S64X");
+    let (lo, hi) = s64.integer_range().unwrap();
+    assert_eq!(
+        (lo, hi),
+        (i128::from(i64::MIN) * 4 - 7, i128::from(i64::MAX) * 4 - 7)
+    );
+    // The ends are reached, and nothing lies beyond them.
+    for s in [
+        signal("M", "NEG"),
+        signal("M", "U16"),
+        signal("WIDE", "U64"),
+        s64,
+    ] {
+        let (lo, hi) = s.integer_range().unwrap();
+        let mut seen = Vec::new();
+        for raw in [
+            0u64,
+            1,
+            u64::MAX,
+            u64::MAX >> 1,
+            1 << 63,
+            0x7F,
+            0x80,
+            0xFF,
+            0xFFFF,
+        ] {
+            let raw = raw & (u64::MAX >> (64 - s.size()));
+            let Value::Integer(v) = s.value(raw) else {
+                panic!("{}: not an integer", s.name())
+            };
+            assert!(lo <= v && v <= hi, "{}: {v} outside {lo}..={hi}", s.name());
+            seen.push(v);
+        }
+        assert!(
+            seen.contains(&lo) && seen.contains(&hi),
+            "{}: {seen:?}",
+            s.name()
+        );
+    }
+}
+
+#[test]
+fn message_index_is_the_place_in_messages_of_the_id_and_none_for_others() {
+    let text = r#"VERSION ""
+BO_ 5 A: 8 ECU
+ SG_ X : 0|8@1+ (1,0) [0|0] "" ECU
+BO_ 2147483905 B: 8 ECU
+ SG_ Y : 0|8@1+ (1,0) [0|0] "" ECU
+"#;
+    let db = Database::parse(text, "t.dbc").unwrap();
+    for (i, m) in db.messages().iter().enumerate() {
+        assert_eq!(db.message_index(m.id()), Some(i), "{}", m.name());
+    }
+    assert_eq!(db.message_index(canodom_dbc::FrameId::Standard(6)), None);
+    assert_eq!(db.message_index(canodom_dbc::FrameId::Extended(5)), None);
+    assert_eq!(
+        db.message_index(canodom_dbc::FrameId::Extended(0x101)),
+        Some(1)
+    );
+}

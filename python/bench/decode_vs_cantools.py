@@ -8,9 +8,11 @@ frames/s of each (wall and CPU time: canodom.decode runs on the calling
 thread, one core), their ratio, each --runs times after --warmup uncounted
 runs of both, and the median; then
 canodom's peak memory (VmHWM of a fresh interpreter, over the same
-interpreter's after its imports) for logs of 1x, 4x and 16x the length,
+interpreter's after its imports) for logs of 1x, 4x, 16x and 64x the length,
 beside the size of the tables it returns: decode returns every decoded
-value, so what can be flat is the memory beyond its output.
+value, so what can be flat is the memory beyond its output; and the same
+for decode_batches, the stream, whose batches are dropped as they come:
+its peak is what a consumer of a log larger than memory needs.
 """
 
 import argparse
@@ -61,16 +63,22 @@ def cantools_decode(log, dbc):
     return wall, cpu, sum(len(f) for f in frames.values())
 
 
-def peak_rss_mb(log, dbc):
-    """(peak RSS growth over the interpreter after its imports, size of the tables returned), MB."""
+def peak_rss_mb(log, dbc, stream=False):
+    """(peak RSS growth over the interpreter after its imports, size of the
+    output), MB: decode's tables, or (stream) decode_batches' batches, each
+    dropped once counted, as a consumer writing them on would."""
     # VmHWM, not ru_maxrss: a child's ru_maxrss starts at its parent's peak
     # (it survives fork and exec), this bench's own, which holds the logs' text.
+    work = (f"size = 0\nfor _, b in canodom.decode_batches({str(log)!r}, {str(dbc)!r}):\n    size += b.nbytes\n"
+            if stream else
+            f"tables = canodom.decode({str(log)!r}, {str(dbc)!r})\n"
+            "size = sum(t.nbytes for t in tables.values())\n")
     code = ("import canodom, pyarrow\n"
             "hwm = lambda: int(open('/proc/self/status').read().split('VmHWM:')[1].split()[0])\n"
             "before = hwm()\n"
-            f"tables = canodom.decode({str(log)!r}, {str(dbc)!r})\n"
+            + work +
             "peak = hwm()\n"
-            "print((peak - before) / 1024, sum(t.nbytes for t in tables.values()) / 2**20)")
+            "print((peak - before) / 1024, size / 2**20)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     grown, output = map(float, out.split())
     return grown, output
@@ -89,7 +97,7 @@ def main():
         log = Path(d) / "long.log"
         log.write_text(text * a.repeat)
         frames = sum(1 for _ in open(log))
-        print(f"log: {frames} frames; load: {os.getloadavg()}")
+        print(f"log: {frames} frames; load (uptime): {os.getloadavg()}")
         for _ in range(a.warmup):
             canodom_decode(log, a.dbc)
             cantools_decode(log, a.dbc)
@@ -103,15 +111,19 @@ def main():
             ratios.append(t_cpu / c_cpu)
             print(f"run {run + 1}: canodom.decode {frames / c_wall:,.0f} frames/s wall, {frames / c_cpu:,.0f} per "
                   f"CPU second; cantools + pandas {frames / t_wall:,.0f} wall, {frames / t_cpu:,.0f} per CPU second; "
-                  f"ratio {t_wall / c_wall:.1f}x wall, {t_cpu / c_cpu:.1f}x CPU ({c_rows} rows decoded)")
+                  f"ratio {t_wall / c_wall:.1f}x wall, {t_cpu / c_cpu:.1f}x CPU ({c_rows} rows decoded); load {os.getloadavg()[0]:.2f}", flush=True)
         print(f"median: canodom.decode {statistics.median(ours):,.0f} frames per CPU second, cantools + pandas "
-              f"{statistics.median(theirs):,.0f}, ratio {statistics.median(ratios):.1f}x (goal >= 30x)")
-        for times in (1, 4, 16):
+              f"{statistics.median(theirs):,.0f}, ratio {statistics.median(ratios):.1f}x (goal >= 30x); "
+              f"load (uptime) now {os.getloadavg()}", flush=True)
+        for times in (1, 4, 16, 64):
             big = Path(d) / f"long{times}.log"
             big.write_text(text * a.repeat * times)
             grown, output = peak_rss_mb(big, a.dbc)
-            print(f"memory, {times * frames} frames ({big.stat().st_size / 2**20:.0f} MB log): peak grew "
+            print(f"memory, {times * frames} frames ({big.stat().st_size / 2**20:.0f} MB log): decode's peak grew "
                   f"{grown:.0f} MB, tables returned {output:.0f} MB, beyond them {grown - output:.0f} MB")
+            grown, output = peak_rss_mb(big, a.dbc, stream=True)
+            print(f"  decode_batches, each batch dropped once counted: peak grew {grown:.0f} MB "
+                  f"({output:.0f} MB of batches went through)", flush=True)
             big.unlink()
 
 

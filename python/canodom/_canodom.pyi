@@ -1,7 +1,7 @@
 """Type stubs of canodom's native module (see the docstrings of each function)."""
 
 from os import PathLike
-from typing import Any, Dict, Optional, Union
+from typing import Any, Dict, Iterator, Optional, Tuple, Union
 
 import pyarrow
 
@@ -29,6 +29,29 @@ def read_log(path: _Path) -> pyarrow.Table:
 
 def decode(path: _Path, dbc: _Path, *, strict: bool = False) -> Dict[str, pyarrow.Table]:
     """One table per message: t_unix_s and a column per signal, `canodom decode`'s values."""
+
+class FrameBatches(Iterator[pyarrow.RecordBatch]):
+    """A log's frames as record batches, read on a thread of its own."""
+
+    @property
+    def schema(self) -> pyarrow.Schema:
+        """The schema of every batch: t_unix_s, channel, id, extended, fd, data."""
+    def __iter__(self) -> "FrameBatches": ...
+    def __next__(self) -> pyarrow.RecordBatch: ...
+
+class DecodeBatches(Iterator[Tuple[str, pyarrow.RecordBatch]]):
+    """(message name, record batch) pairs of a log decoded with a DBC, on a thread of its own."""
+
+    def __iter__(self) -> "DecodeBatches": ...
+    def __next__(self) -> Tuple[str, pyarrow.RecordBatch]: ...
+
+def read_log_batches(path: _Path, *, batch_rows: int = 65536) -> FrameBatches:
+    """read_log's frames as batches of at most batch_rows rows (canodom.read_log_batches wraps it)."""
+
+def decode_batches(
+    path: _Path, dbc: _Path, *, strict: bool = False, batch_rows: int = 16384
+) -> DecodeBatches:
+    """decode() as a stream of (message name, RecordBatch): at most batch_rows rows per message in memory."""
 
 def replay(path: _Path, config: _Path, *, params: Optional[_Path] = None) -> pyarrow.Table:
     """The daemon's pipeline over a log: the replay CSV's columns, one row per filter step."""

@@ -1,27 +1,24 @@
-//! The native side's work, with the GIL released: logs, decoded messages,
-//! replay steps and a drive's calibration as Arrow columns (or JSON for the
-//! calibration's small result).
+//! The native side's work, with the GIL released: logs, replay steps and a
+//! drive's calibration as Arrow columns (or JSON for the calibration's small
+//! result); decoding is [`crate::messages`]'s.
 
+use crate::messages::seconds;
 use crate::{Work, WorkError};
 use arrow_array::builder::{
-    ArrayBuilder, BinaryBuilder, BooleanBuilder, Float64Builder, Int64Builder, StringBuilder,
-    UInt32Builder,
+    ArrayBuilder, BinaryBuilder, BooleanBuilder, Float64Builder, StringBuilder, UInt32Builder,
 };
-use arrow_array::{
-    ArrayRef, Decimal128Array, Float64Array, Int64Array, RecordBatch, StringArray, UInt8Array,
-    UInt16Array, UInt64Array,
-};
+use arrow_array::{ArrayRef, Float64Array, RecordBatch, StringArray, UInt8Array, UInt16Array};
 use arrow_schema::{DataType, Field, Schema, SchemaRef};
-use canodom_can::candump::ReadError;
+use canodom_can::any_log::AnyLogReader;
+use canodom_can::candump::{ReadError, Record};
 use canodom_can::frame::FrameKind;
-use canodom_dbc::{Database, Value};
 use canodom_offline::Error as OfflineError;
 use canodom_offline::log::open_log;
 use canodom_offline::replay::{ReplayOptions, replay_rows};
 use canodom_pipeline::config::Config;
 use canodom_pipeline::stats::Reject;
-use std::collections::{BTreeMap, HashMap};
-use std::path::Path;
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 /// A log's read error as the library names it.
@@ -32,39 +29,63 @@ fn read_error(path: &Path, e: ReadError) -> WorkError {
     })
 }
 
-/// Seconds from a timestamp, exactly as the CLI prints them (`secs.micros`
-/// read back as a float: the micros' quotient is correctly rounded too).
-fn seconds(t: canodom_can::time::Timestamp) -> f64 {
-    t.as_micros() as f64 / 1e6
+/// The frames' columns as they come (`read_log`'s table, or one batch of
+/// `read_log_batches`).
+struct FrameColumns {
+    timed: bool,
+    t: Float64Builder,
+    channel: StringBuilder,
+    id: UInt32Builder,
+    extended: BooleanBuilder,
+    fd: BooleanBuilder,
+    data: BinaryBuilder,
 }
 
-/// Every frame of the log at `path` as one record batch.
-pub fn read_frames(path: &Path) -> Work<(Vec<RecordBatch>, SchemaRef)> {
-    let mut reader = open_log(path, None, false)?;
-    let timed = reader.has_time();
-    let mut t = Float64Builder::new();
-    let mut channel = StringBuilder::new();
-    let mut id = UInt32Builder::new();
-    let mut extended = BooleanBuilder::new();
-    let mut fd = BooleanBuilder::new();
-    let mut data = BinaryBuilder::new();
-    let mut malformed = 0u64;
-    loop {
-        match reader.next_record() {
-            Ok(Some(r)) => {
-                t.append_option(timed.then(|| seconds(r.timestamp)));
-                channel.append_value(r.iface);
-                id.append_value(r.frame.id().raw());
-                extended.append_value(r.frame.id().is_extended());
-                fd.append_value(matches!(r.frame.kind(), FrameKind::Fd { .. }));
-                data.append_value(r.frame.data());
-            }
-            Ok(None) => break,
-            Err(ReadError::Malformed(_)) => malformed += 1,
-            Err(e) => return Err(read_error(path, e)),
+impl FrameColumns {
+    fn new(timed: bool) -> Self {
+        Self {
+            timed,
+            t: Float64Builder::new(),
+            channel: StringBuilder::new(),
+            id: UInt32Builder::new(),
+            extended: BooleanBuilder::new(),
+            fd: BooleanBuilder::new(),
+            data: BinaryBuilder::new(),
         }
     }
-    let schema = Arc::new(Schema::new_with_metadata(
+
+    fn rows(&self) -> usize {
+        self.id.len()
+    }
+
+    fn push(&mut self, r: &Record<'_>) {
+        self.t
+            .append_option(self.timed.then(|| seconds(r.timestamp)));
+        self.channel.append_value(r.iface);
+        self.id.append_value(r.frame.id().raw());
+        self.extended.append_value(r.frame.id().is_extended());
+        self.fd
+            .append_value(matches!(r.frame.kind(), FrameKind::Fd { .. }));
+        self.data.append_value(r.frame.data());
+    }
+
+    /// The rows so far as a record batch of `schema` (the builders start again).
+    fn finish(&mut self, schema: SchemaRef) -> Work<RecordBatch> {
+        let columns: Vec<ArrayRef> = vec![
+            Arc::new(self.t.finish()),
+            Arc::new(self.channel.finish()),
+            Arc::new(self.id.finish()),
+            Arc::new(self.extended.finish()),
+            Arc::new(self.fd.finish()),
+            Arc::new(self.data.finish()),
+        ];
+        Ok(RecordBatch::try_new(schema, columns)?)
+    }
+}
+
+/// The frames' schema, with `metadata`.
+fn frame_schema(metadata: HashMap<String, String>) -> SchemaRef {
+    Arc::new(Schema::new_with_metadata(
         vec![
             Field::new("t_unix_s", DataType::Float64, true),
             Field::new("channel", DataType::Utf8, false),
@@ -73,283 +94,94 @@ pub fn read_frames(path: &Path) -> Work<(Vec<RecordBatch>, SchemaRef)> {
             Field::new("fd", DataType::Boolean, false),
             Field::new("data", DataType::Binary, false),
         ],
-        HashMap::from([("canodom.malformed".to_owned(), malformed.to_string())]),
-    ));
-    let columns: Vec<ArrayRef> = vec![
-        Arc::new(t.finish()),
-        Arc::new(channel.finish()),
-        Arc::new(id.finish()),
-        Arc::new(extended.finish()),
-        Arc::new(fd.finish()),
-        Arc::new(data.finish()),
-    ];
-    let batch = RecordBatch::try_new(schema.clone(), columns)?;
+        metadata,
+    ))
+}
+
+/// A log's frames as record batches of at most `batch_rows` rows each:
+/// memory is one batch, whatever the log's length. Malformed lines are
+/// skipped and counted.
+pub struct FrameStream {
+    reader: AnyLogReader<'static>,
+    path: PathBuf,
+    batch_rows: usize,
+    columns: FrameColumns,
+    malformed: u64,
+    ended: bool,
+}
+
+impl FrameStream {
+    /// Opens the log at `path`.
+    ///
+    /// # Errors
+    /// The log cannot be opened, or its format is not read.
+    pub fn open(path: &Path, batch_rows: usize) -> Work<Self> {
+        if batch_rows == 0 {
+            return Err(WorkError::Value("batch_rows must be at least 1".to_owned()));
+        }
+        let reader = open_log(path, None, false)?;
+        let timed = reader.has_time();
+        Ok(Self {
+            reader,
+            path: path.to_owned(),
+            batch_rows,
+            columns: FrameColumns::new(timed),
+            malformed: 0,
+            ended: false,
+        })
+    }
+
+    /// The schema of every batch (no metadata: the malformed lines are
+    /// known only at the end, [`Self::malformed`]).
+    pub fn schema() -> SchemaRef {
+        frame_schema(HashMap::new())
+    }
+
+    /// Malformed lines skipped so far.
+    pub fn malformed(&self) -> u64 {
+        self.malformed
+    }
+
+    /// The next batch of frames; `None` at the end.
+    ///
+    /// # Errors
+    /// A read error, naming the file.
+    pub fn next_batch(&mut self, schema: &SchemaRef) -> Work<Option<RecordBatch>> {
+        if self.ended {
+            return Ok(None);
+        }
+        while self.columns.rows() < self.batch_rows {
+            match self.reader.next_record() {
+                Ok(Some(r)) => self.columns.push(&r),
+                Ok(None) => {
+                    self.ended = true;
+                    break;
+                }
+                Err(ReadError::Malformed(_)) => self.malformed += 1,
+                Err(e) => return Err(read_error(&self.path, e)),
+            }
+        }
+        if self.ended && self.columns.rows() == 0 {
+            return Ok(None);
+        }
+        self.columns.finish(schema.clone()).map(Some)
+    }
+}
+
+/// Every frame of the log at `path` as one record batch.
+pub fn read_frames(path: &Path) -> Work<(Vec<RecordBatch>, SchemaRef)> {
+    let mut stream = FrameStream::open(path, usize::MAX)?;
+    let plain = FrameStream::schema();
+    let batch = stream.next_batch(&plain)?;
+    let schema = frame_schema(HashMap::from([(
+        "canodom.malformed".to_owned(),
+        stream.malformed().to_string(),
+    )]));
+    let batch = match batch {
+        Some(b) => b.with_schema(schema.clone())?,
+        None => RecordBatch::new_empty(schema.clone()),
+    };
     Ok((vec![batch], schema))
-}
-
-/// One signal's values as decoded, absent (null) where a multiplexer did
-/// not select it.
-struct SignalColumn {
-    name: String,
-    values: Values,
-}
-
-/// A signal's values kept as compact as their kind allows while they come:
-/// int64 while every integer fits, float64 from the first float (integers
-/// then read as floats: the column's type is float64 either way), the exact
-/// values only once an integer leaves int64. A `Value` is 32 bytes (an
-/// i128 in an option), an int64 or float64 8: decode's peak memory over its
-/// output was 2.8x the output's size on the RAV4 log with the exact values
-/// kept for every signal (python/bench/decode_vs_cantools.py).
-enum Values {
-    Int(Int64Builder),
-    Float(Float64Builder),
-    Exact(Vec<Option<Value>>),
-}
-
-impl Values {
-    fn len(&self) -> usize {
-        match self {
-            Self::Int(b) => b.len(),
-            Self::Float(b) => b.len(),
-            Self::Exact(v) => v.len(),
-        }
-    }
-
-    /// Nulls up to `rows` values.
-    fn pad(&mut self, rows: usize) {
-        let missing = rows.saturating_sub(self.len());
-        match self {
-            Self::Int(b) => b.append_nulls(missing),
-            Self::Float(b) => b.append_nulls(missing),
-            Self::Exact(v) => v.resize(rows, None),
-        }
-    }
-
-    fn push(&mut self, value: Value) {
-        match (&mut *self, value) {
-            (Self::Int(b), Value::Integer(i)) => {
-                if let Ok(i) = i64::try_from(i) {
-                    b.append_value(i);
-                } else {
-                    let mut exact: Vec<Option<Value>> = b
-                        .finish()
-                        .iter()
-                        .map(|v| v.map(|i| Value::Integer(i128::from(i))))
-                        .collect();
-                    exact.push(Some(value));
-                    *self = Self::Exact(exact);
-                }
-            }
-            (Self::Int(b), Value::Float(f)) => {
-                let mut floats = Float64Builder::with_capacity(b.len() + 1);
-                floats.extend(b.finish().iter().map(|v| v.map(|i| i as f64)));
-                floats.append_value(f);
-                *self = Self::Float(floats);
-            }
-            (Self::Float(b), Value::Integer(i)) => b.append_value(i as f64),
-            (Self::Float(b), Value::Float(f)) => b.append_value(f),
-            (Self::Exact(v), value) => v.push(Some(value)),
-        }
-    }
-}
-
-impl SignalColumn {
-    /// The column as Arrow: exact integers as int64, else uint64, else
-    /// decimal128(38, 0); any float makes it float64 (as the CLI prints it).
-    fn finish(self) -> Work<(Field, ArrayRef)> {
-        let exact = match self.values {
-            Values::Int(mut b) => {
-                return Ok((
-                    Field::new(self.name, DataType::Int64, true),
-                    Arc::new(b.finish()),
-                ));
-            }
-            Values::Float(mut b) => {
-                return Ok((
-                    Field::new(self.name, DataType::Float64, true),
-                    Arc::new(b.finish()),
-                ));
-            }
-            Values::Exact(v) => v,
-        };
-        let all_int = exact
-            .iter()
-            .flatten()
-            .all(|v| matches!(v, Value::Integer(_)));
-        let ints = || {
-            exact.iter().map(|v| match v {
-                Some(Value::Integer(i)) => Some(*i),
-                _ => None,
-            })
-        };
-        let (data_type, array): (DataType, ArrayRef) = if !all_int {
-            let a: Float64Array = exact
-                .iter()
-                .map(|v| {
-                    v.map(|v| match v {
-                        Value::Integer(i) => i as f64,
-                        Value::Float(f) => f,
-                    })
-                })
-                .collect();
-            (DataType::Float64, Arc::new(a))
-        } else if ints().flatten().all(|i| i64::try_from(i).is_ok()) {
-            let a: Int64Array = ints()
-                .map(|i| i.and_then(|i| i64::try_from(i).ok()))
-                .collect();
-            (DataType::Int64, Arc::new(a))
-        } else if ints().flatten().all(|i| u64::try_from(i).is_ok()) {
-            let a: UInt64Array = ints()
-                .map(|i| i.and_then(|i| u64::try_from(i).ok()))
-                .collect();
-            (DataType::UInt64, Arc::new(a))
-        } else {
-            let a = ints()
-                .collect::<Decimal128Array>()
-                .with_precision_and_scale(38, 0)?;
-            (DataType::Decimal128(38, 0), Arc::new(a))
-        };
-        Ok((Field::new(self.name, data_type, true), array))
-    }
-}
-
-/// One message's frames decoded: times and a column per signal.
-struct MessageColumns {
-    t_unix_s: Vec<Option<f64>>,
-    signals: Vec<SignalColumn>,
-}
-
-/// Decodes the log at `path` with the DBC at `dbc`, as `canodom decode` does.
-pub fn decode(
-    path: &Path,
-    dbc: &Path,
-    strict: bool,
-) -> Work<BTreeMap<String, (RecordBatch, SchemaRef)>> {
-    let db = Database::from_file(dbc).map_err(|e| WorkError::Dbc(e.to_string()))?;
-    let warnings = db.warnings();
-    if strict && !warnings.is_empty() {
-        let list: Vec<String> = warnings.iter().map(ToString::to_string).collect();
-        return Err(WorkError::Dbc(format!(
-            "strict: {} message(s) of {} cannot be decoded:\n  {}",
-            warnings.len(),
-            db.source_name(),
-            list.join("\n  ")
-        )));
-    }
-    let mut reader = open_log(path, None, false)?;
-    let timed = reader.has_time();
-    // By the message's index in the database: one lookup a frame.
-    let mut messages: HashMap<*const canodom_dbc::Message, MessageColumns> = HashMap::new();
-    let mut frames = 0u64;
-    let mut known = 0u64;
-    let mut scratch: Vec<(usize, Value)> = Vec::new();
-    loop {
-        let record = match reader.next_record() {
-            Ok(Some(r)) => r,
-            Ok(None) => break,
-            Err(ReadError::Malformed(m)) => {
-                if strict {
-                    return Err(WorkError::Offline(OfflineError::Log(format!(
-                        "{}: {m}",
-                        path.display()
-                    ))));
-                }
-                continue;
-            }
-            Err(e) => return Err(read_error(path, e)),
-        };
-        frames += 1;
-        let frame = record.frame;
-        let Some(message) = db.message_by_id(frame.id()) else {
-            continue;
-        };
-        known += 1;
-        if !matches!(frame.kind(), FrameKind::Data { .. } | FrameKind::Fd { .. }) {
-            continue;
-        }
-        let columns = messages
-            .entry(std::ptr::from_ref(message))
-            .or_insert_with(|| MessageColumns {
-                t_unix_s: Vec::new(),
-                signals: message
-                    .signals()
-                    .iter()
-                    .map(|s| SignalColumn {
-                        name: s.name().to_owned(),
-                        values: Values::Int(Int64Builder::new()),
-                    })
-                    .collect(),
-            });
-        let row = columns.t_unix_s.len();
-        let first = message.signals().as_ptr() as usize;
-        let size = std::mem::size_of::<canodom_dbc::Signal>().max(1);
-        // A frame's values are kept only once it decoded whole.
-        scratch.clear();
-        let decoded = message.decode_each_value(frame.data(), |s, v| {
-            // The signal's place in the message: its address in the slice
-            // `signals()` hands out (decode_each_value walks that slice).
-            scratch.push((
-                (std::ptr::from_ref(s) as usize).wrapping_sub(first) / size,
-                v,
-            ));
-        });
-        if decoded.is_err() {
-            // Too short for its message: skipped, as `canodom decode` does.
-            continue;
-        }
-        for &(index, v) in &scratch {
-            if let Some(column) = columns.signals.get_mut(index) {
-                column.values.pad(row);
-                column.values.push(v);
-            }
-        }
-        columns
-            .t_unix_s
-            .push(timed.then(|| seconds(record.timestamp)));
-    }
-    if frames > 0 && known == 0 {
-        return Err(WorkError::Value(format!(
-            "{}: none of its {frames} frames has an id of {}: is this the vehicle's DBC?",
-            path.display(),
-            db.source_name()
-        )));
-    }
-    if frames == 0 {
-        return Err(WorkError::Offline(OfflineError::Log(format!(
-            "{}: no frame read",
-            path.display()
-        ))));
-    }
-    message_tables(&db, messages)
-}
-
-/// Each decoded message's columns as a record batch, by name.
-fn message_tables(
-    db: &Database,
-    mut messages: HashMap<*const canodom_dbc::Message, MessageColumns>,
-) -> Work<BTreeMap<String, (RecordBatch, SchemaRef)>> {
-    let mut out = BTreeMap::new();
-    for message in db.messages() {
-        let Some(columns) = messages.remove(&std::ptr::from_ref(message)) else {
-            continue;
-        };
-        let rows = columns.t_unix_s.len();
-        let mut fields = vec![Field::new("t_unix_s", DataType::Float64, true)];
-        let mut arrays: Vec<ArrayRef> = vec![Arc::new(
-            columns.t_unix_s.into_iter().collect::<Float64Array>(),
-        )];
-        for mut signal in columns.signals {
-            signal.values.pad(rows);
-            let (field, array) = signal.finish()?;
-            fields.push(field);
-            arrays.push(array);
-        }
-        let schema = Arc::new(Schema::new(fields));
-        let batch = RecordBatch::try_new(schema.clone(), arrays)?;
-        out.insert(message.name().to_owned(), (batch, schema));
-    }
-    Ok(out)
 }
 
 /// The parameter file's current set, as `replay --params` loads it.

@@ -9,6 +9,8 @@
 //! Every failure is a Python exception naming the file, line, key or signal.
 
 mod columns;
+mod messages;
+mod stream;
 
 use arrow_array::RecordBatch;
 use arrow_pyarrow::{IntoPyArrow, Table};
@@ -147,26 +149,80 @@ fn read_log(py: Python<'_>, path: PathBuf) -> PyResult<Py<PyAny>> {
 ///
 /// Decodes a CAN log with a DBC file: a dict from message name to a
 /// pyarrow.Table with t_unix_s and a column per signal, the values `canodom
-/// decode` prints. A signal whose values are exact integers (integer raw
-/// value, whole factor and offset) is int64, or uint64 when it does not fit
-/// int64 but fits uint64 (decimal128 beyond both); others float64. A
-/// multiplexed signal is null in the frames whose multiplexer does not
+/// decode` prints. Each column's type follows from its signal's DBC
+/// definition, so a message has the same schema in every log: a signal
+/// whose values are exact integers (integer raw value, whole factor and
+/// offset) is int64 when every value its bits can give fits int64, else
+/// uint64 when they all fit that, else decimal128(38, 0); others float64.
+/// A multiplexed signal is null in the frames whose multiplexer does not
 /// select it. Frames of ids the DBC does not know, and frames too short for
 /// their message, are skipped as in `canodom decode`.
 ///
 /// strict=True refuses a DBC with a message that cannot be decoded (instead
 /// of leaving the message out) and ends at the first malformed log line.
 ///
+/// For a log larger than memory, decode_batches gives the same tables as
+/// a stream of record batches.
+///
 /// Raises FileNotFoundError, canodom.LogError, canodom.DbcError.
 #[pyfunction]
 #[pyo3(signature = (path, dbc, *, strict = false))]
 fn decode(py: Python<'_>, path: PathBuf, dbc: PathBuf, strict: bool) -> PyResult<Py<PyAny>> {
-    let messages = py.detach(|| columns::decode(&path, &dbc, strict))?;
+    let messages = py.detach(|| messages::decode(&path, &dbc, strict))?;
     let out = PyDict::new(py);
     for (name, (batch, schema)) in messages {
         out.set_item(name, table(py, vec![batch], schema)?)?;
     }
     Ok(out.into_any().unbind())
+}
+
+/// read_log_batches(path, *, batch_rows=65536)
+/// --
+///
+/// The frames of a CAN log as read_log gives them, as an iterator of
+/// pyarrow.RecordBatch of at most batch_rows rows each, read on a thread of
+/// its own with the GIL released: memory is a few batches, whatever the
+/// log's length. Its `schema` attribute is every batch's schema (without
+/// read_log's malformed-line count: malformed lines are skipped).
+/// canodom.read_log_batches wraps it in a pyarrow.RecordBatchReader.
+///
+/// Raises FileNotFoundError and canodom.LogError (a format not read) at
+/// the call, canodom.LogError (a corrupt file, naming it) while iterating.
+#[pyfunction]
+#[pyo3(signature = (path, *, batch_rows = 65536))]
+fn read_log_batches(
+    py: Python<'_>,
+    path: PathBuf,
+    batch_rows: usize,
+) -> PyResult<stream::FrameBatches> {
+    Ok(py.detach(|| stream::FrameBatches::open(path, batch_rows))?)
+}
+
+/// decode_batches(path, dbc, *, strict=False, batch_rows=16384)
+/// --
+///
+/// decode() as a stream, for logs larger than memory: an iterator of
+/// (message name, pyarrow.RecordBatch) pairs, decoded on a thread of its
+/// own with the GIL released. A message's batches come in the log's order,
+/// each of batch_rows rows, but the last of each message, which come when
+/// the log ends (in DBC order). Each message's batches concatenated are
+/// decode()'s table of it, value for value and of the same schema. Memory:
+/// at most batch_rows rows per message, whatever the log's length.
+///
+/// Raises FileNotFoundError, canodom.LogError (a format not read) and
+/// canodom.DbcError at the call; canodom.LogError (a corrupt file, under
+/// strict a malformed line, naming it) and ValueError (no frame has an id
+/// of the DBC) while iterating.
+#[pyfunction]
+#[pyo3(signature = (path, dbc, *, strict = false, batch_rows = 16384))]
+fn decode_batches(
+    py: Python<'_>,
+    path: PathBuf,
+    dbc: PathBuf,
+    strict: bool,
+    batch_rows: usize,
+) -> PyResult<stream::DecodeBatches> {
+    Ok(py.detach(|| stream::DecodeBatches::open(path, dbc, strict, batch_rows))?)
 }
 
 /// replay(path, config, *, params=None)
@@ -256,6 +312,10 @@ fn _canodom(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(read_log, m)?)?;
     m.add_function(wrap_pyfunction!(decode, m)?)?;
     m.add_function(wrap_pyfunction!(replay, m)?)?;
+    m.add_function(wrap_pyfunction!(read_log_batches, m)?)?;
+    m.add_function(wrap_pyfunction!(decode_batches, m)?)?;
+    m.add_class::<stream::FrameBatches>()?;
+    m.add_class::<stream::DecodeBatches>()?;
     m.add_function(wrap_pyfunction!(calibrate_fixes, m)?)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())
