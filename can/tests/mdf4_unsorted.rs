@@ -10,8 +10,9 @@
 // Test helpers outside #[test] functions unwrap too: a failure is a test failure.
 #![allow(clippy::unwrap_used)]
 
+mod common;
+
 use canodom_can::any_log::AnyLogReader;
-use canodom_can::candump::{ReadError, format_frame};
 use canodom_can::log_format::LogFormat;
 use std::io::Write;
 
@@ -297,21 +298,6 @@ fn unsorted_mf4(records: &[Written], cuts: &[usize]) -> Vec<u8> {
     f.bytes
 }
 
-/// (µs, channel, candump text) of every frame `reader` reads.
-fn read_all(mut reader: AnyLogReader<'_>) -> Result<Vec<(u64, String, String)>, ReadError> {
-    let mut out = Vec::new();
-    while let Some(r) = reader.next_record()? {
-        let mut text = Vec::new();
-        format_frame(&mut text, &r.frame);
-        out.push((
-            r.timestamp.as_micros(),
-            r.iface.to_owned(),
-            String::from_utf8(text).unwrap(),
-        ));
-    }
-    Ok(out)
-}
-
 fn written(bytes: &[u8]) -> tempfile::NamedTempFile {
     let mut file = tempfile::NamedTempFile::new().unwrap();
     file.write_all(bytes).unwrap();
@@ -335,12 +321,12 @@ fn an_unsorted_mf4_reads_every_can_record_in_its_order_skipping_the_others() {
         let (reader, format, _) =
             AnyLogReader::open_file(std::fs::File::open(file.path()).unwrap()).unwrap();
         assert_eq!(format, LogFormat::Mf4);
-        let got = read_all(reader).unwrap();
+        let got = common::records(reader).unwrap();
         assert_eq!(got.len(), expected.len(), "cuts {cuts:?}");
         assert_eq!(got, expected, "cuts {cuts:?}");
         // The same through a stream (a temporary copy).
         let (reader, _, _) = AnyLogReader::open(std::io::Cursor::new(bytes)).unwrap();
-        assert_eq!(read_all(reader).unwrap(), expected);
+        assert_eq!(common::records(reader).unwrap(), expected);
     }
     assert!(expected.iter().any(|(_, _, t)| t.contains("#R")));
     assert!(expected.iter().any(|(_, c, _)| c == "2"));
@@ -358,7 +344,7 @@ fn an_unknown_record_id_or_a_record_cut_short_is_an_error_naming_the_block() {
     );
     let bytes = unsorted_mf4(&records, &[]);
     let (reader, _, _) = AnyLogReader::open(std::io::Cursor::new(bytes)).unwrap();
-    let e = read_all(reader).unwrap_err().to_string();
+    let e = common::records(reader).unwrap_err().to_string();
     assert!(
         e.contains("##DT at byte offset") && e.contains("a record of id 9"),
         "{e}"
@@ -370,6 +356,6 @@ fn an_unknown_record_id_or_a_record_cut_short_is_an_error_naming_the_block() {
     records[last].bytes.truncate(cut);
     let bytes = unsorted_mf4(&records, &[]);
     let (reader, _, _) = AnyLogReader::open(std::io::Cursor::new(bytes)).unwrap();
-    let e = read_all(reader).unwrap_err().to_string();
+    let e = common::records(reader).unwrap_err().to_string();
     assert!(e.contains("the data ends inside a record"), "{e}");
 }

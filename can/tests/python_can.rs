@@ -9,6 +9,8 @@
 // Test helpers outside #[test] functions unwrap too: a failure is a test failure.
 #![allow(clippy::unwrap_used)]
 
+mod common;
+
 use canodom_can::any_log::AnyLogReader;
 use canodom_can::candump::{LogReader, ReadError, format_frame};
 use canodom_can::log_format::LogFormat;
@@ -116,23 +118,13 @@ fn candump_without_l_reads_the_same_frames() {
 /// opened as a file (MF4 read in place) or as a stream (a temporary copy).
 fn ours_with_channels(name: &str, as_file: bool) -> Vec<(u64, String, String)> {
     let file = std::fs::File::open(fixture(name)).unwrap();
-    let (mut reader, format, _) = if as_file {
+    let (reader, format, _) = if as_file {
         AnyLogReader::open_file(file).unwrap()
     } else {
         AnyLogReader::open(std::io::BufReader::new(file)).unwrap()
     };
     assert_eq!(format, LogFormat::Mf4, "{name}");
-    let mut out = Vec::new();
-    while let Some(r) = reader.next_record().unwrap() {
-        let mut text = Vec::new();
-        format_frame(&mut text, &r.frame);
-        out.push((
-            r.timestamp.as_micros(),
-            r.iface.to_owned(),
-            String::from_utf8(text).unwrap(),
-        ));
-    }
-    out
+    common::records(reader).unwrap()
 }
 
 #[test]
