@@ -241,7 +241,7 @@ fn the_examples_ekf_blocks_state_the_defaults() {
                 path.display()
             );
         }
-        assert_eq!(keys.len(), 32, "{}: {keys:?}", path.display());
+        assert_eq!(keys.len(), 33, "{}: {keys:?}", path.display());
     }
 }
 

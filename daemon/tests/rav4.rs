@@ -147,19 +147,28 @@ fn calibrated_on_the_first_half_the_second_half_stays_within_one_percent() {
     assert!((-0.45..-0.35).contains(&bias_dps), "{bias_dps}");
     assert!(dir.join("report/calibration.svg").exists());
 
-    let before = second_half_error(&replay_rows(&config, None, &log), t0, &truth, 30.0);
+    let uncalibrated = replay_rows(&config, None, &log);
+    let before = second_half_error(&uncalibrated, t0, &truth, 30.0);
+    let rear_of = |rows: &[Vec<f64>]| -> Vec<Vec<f64>> {
+        rows.iter().map(|r| vec![r[0], r[4], r[5], r[6]]).collect()
+    };
+    let rear_before = second_half_error(&rear_of(&uncalibrated), t0, &truth, 30.0);
     let rows = replay_rows(&config, Some(&params), &log);
     let fused = second_half_error(&rows, t0, &truth, 30.0);
-    let rear: Vec<Vec<f64>> = rows.iter().map(|r| vec![r[0], r[4], r[5], r[6]]).collect();
-    let rear = second_half_error(&rear, t0, &truth, 30.0);
+    let rear = second_half_error(&rear_of(&rows), t0, &truth, 30.0);
     println!(
-        "second half dead-reckoned from the truth at 30 s: uncalibrated {:.2} %, calibrated fused {:.2} %, \
-         calibrated rear-only {:.2} %",
+        "second half dead-reckoned from the truth at 30 s: uncalibrated fused {:.2} %, rear-only {:.2} %; \
+         calibrated fused {:.2} %, rear-only {:.2} %",
         100.0 * before,
+        100.0 * rear_before,
         100.0 * fused,
         100.0 * rear
     );
-    assert!(before > 0.04, "{before}");
+    // The drive needs its calibration: the rear wheels alone are 5 % off
+    // before. (The fused pose learns the gyro's bias on this highway's
+    // straights by itself since #30's straight-road rule: 0.8 % before.)
+    assert!(rear_before > 0.04, "{rear_before}");
+    assert!(before <= 0.010, "{before}");
     assert!(fused <= 0.010, "{fused}");
     assert!(rear <= 0.010, "{rear}");
 
