@@ -631,6 +631,14 @@ impl Derived {
     }
 }
 
+/// Every wheel (the front pair only when valid) reads 0 in `w`: a car that
+/// stands, or crawls below its wheel sensors' floor.
+fn every_wheel_reads_zero(input: &OdometryInput, w: &WheelSet<f64>) -> bool {
+    w.rear_left == 0.0
+        && w.rear_right == 0.0
+        && (!input.front_valid || (w.front_left == 0.0 && w.front_right == 0.0))
+}
+
 /// The along-track variance, m², of what a car crept unseen before this
 /// step: non-zero only on wheel-speed sensors ([`OdometryInput::zero_is_floor`])
 /// in the first step that moves after one in which every wheel read 0.
@@ -638,9 +646,7 @@ impl Derived {
 /// of that range; its mean is not added to the pose, which would move a
 /// car that truly stood until the sensors woke).
 fn launch_variance(st: &mut State, input: &OdometryInput, w: &WheelSet<f64>) -> f64 {
-    let zero = w.rear_left == 0.0
-        && w.rear_right == 0.0
-        && (!input.front_valid || (w.front_left == 0.0 && w.front_right == 0.0));
+    let zero = every_wheel_reads_zero(input, w);
     let launched = input.zero_is_floor && st.wheels_were_zero && !zero;
     st.wheels_were_zero = zero;
     if !launched || input.dt_s.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {

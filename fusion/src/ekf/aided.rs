@@ -47,7 +47,9 @@
 //! the front one while each agrees within itself hands the distance to the
 //! axle whose speed continues the last one.
 
-use super::{Derived, EkfConfig, LearntPair, OdometryInput, State, WindowOutcome};
+use super::{
+    Derived, EkfConfig, LearntPair, OdometryInput, State, WindowOutcome, every_wheel_reads_zero,
+};
 use crate::rotation::advance_heading;
 use crate::{Wheel, WheelSet};
 
@@ -471,9 +473,7 @@ pub(crate) fn step(
     let gyro = input
         .yaw_rate_radps
         .filter(|g| g.is_finite() && dt > 0.0 && dt.is_finite());
-    let still = w.rear_left == 0.0
-        && w.rear_right == 0.0
-        && (!input.front_valid || (w.front_left == 0.0 && w.front_right == 0.0));
+    let still = every_wheel_reads_zero(input, w);
     let wheel_turn = (w.rear_right - w.rear_left) * ib;
     // The body's turn this sample, for the slip test and the prediction.
     let turn_gyro = gyro.map(|g| (g - a.x[BIAS]) * (1.0 + a.x[GSCALE]) * dt);
