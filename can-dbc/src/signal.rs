@@ -102,16 +102,12 @@ const TWO_POW_53: f64 = 9_007_199_254_740_992.0;
 impl Codec {
     pub(crate) fn new(layout: BitLayout, value_type: ValueType, factor: f64, offset: f64) -> Self {
         let is_int = |x: f64| x.is_finite() && x.fract() == 0.0 && x.abs() < 9.2e18;
-        let whole = |x: f64| x.fract() == 0.0 && x.abs() < 9.2e18;
         let integer_valued = matches!(value_type, ValueType::Unsigned | ValueType::Signed)
-            && whole(factor)
-            && whole(offset);
+            && is_int(factor)
+            && is_int(offset);
         let scaling = if factor == 1.0 && offset == 0.0 {
             Scaling::Identity
-        } else if matches!(value_type, ValueType::Unsigned | ValueType::Signed)
-            && is_int(factor)
-            && is_int(offset)
-        {
+        } else if integer_valued {
             // Largest |raw| the signal can hold, as f64 (exact: a power of two).
             let raw_max = 2f64.powi(layout.size() as i32);
             if raw_max * factor.abs() + offset.abs() < TWO_POW_53 {
