@@ -22,7 +22,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 /// A log's read error as the library names it.
-fn read_error(path: &Path, e: ReadError) -> WorkError {
+pub(crate) fn read_error(path: &Path, e: ReadError) -> WorkError {
     WorkError::Offline(OfflineError::Read {
         path: path.display().to_string(),
         source: e,

@@ -6,6 +6,7 @@
 //! columns. Whole tables (`decode`) and batches of a bounded size
 //! (`decode_batches`) come from the same [`DecodeStream`].
 
+use crate::columns::read_error;
 use crate::{Work, WorkError};
 use arrow_array::builder::{
     ArrayBuilder, Decimal128Builder, Float64Builder, Int64Builder, UInt64Builder,
@@ -299,12 +300,7 @@ impl DecodeStream {
                     }
                     continue;
                 }
-                Err(e) => {
-                    return Err(WorkError::Offline(OfflineError::Read {
-                        path: self.path.display().to_string(),
-                        source: e,
-                    }));
-                }
+                Err(e) => return Err(read_error(&self.path, e)),
             };
             self.decoder.frames += 1;
             let (t, frame) = (record.timestamp, record.frame);
