@@ -21,14 +21,6 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-/// A log's read error as the library names it.
-pub(crate) fn read_error(path: &Path, e: ReadError) -> WorkError {
-    WorkError::Offline(OfflineError::Read {
-        path: path.display().to_string(),
-        source: e,
-    })
-}
-
 /// The frames' columns as they come (`read_log`'s table, or one batch of
 /// `read_log_batches`).
 struct FrameColumns {
@@ -158,7 +150,7 @@ impl FrameStream {
                     break;
                 }
                 Err(ReadError::Malformed(_)) => self.malformed += 1,
-                Err(e) => return Err(read_error(&self.path, e)),
+                Err(e) => return Err(WorkError::read(&self.path, e)),
             }
         }
         if self.ended && self.columns.rows() == 0 {

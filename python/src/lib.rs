@@ -84,6 +84,16 @@ enum WorkError {
     Arrow(arrow_schema::ArrowError),
 }
 
+impl WorkError {
+    /// A log's read error as the library names it (with the file).
+    fn read(path: &std::path::Path, e: canodom_can::candump::ReadError) -> Self {
+        Self::Offline(OfflineError::Read {
+            path: path.display().to_string(),
+            source: e,
+        })
+    }
+}
+
 impl From<OfflineError> for WorkError {
     fn from(e: OfflineError) -> Self {
         Self::Offline(e)

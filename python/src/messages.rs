@@ -6,7 +6,6 @@
 //! columns. Whole tables (`decode`) and batches of a bounded size
 //! (`decode_batches`) come from the same [`DecodeStream`].
 
-use crate::columns::read_error;
 use crate::{Work, WorkError};
 use arrow_array::builder::{
     ArrayBuilder, Decimal128Builder, Float64Builder, Int64Builder, UInt64Builder,
@@ -300,7 +299,7 @@ impl DecodeStream {
                     }
                     continue;
                 }
-                Err(e) => return Err(read_error(&self.path, e)),
+                Err(e) => return Err(WorkError::read(&self.path, e)),
             };
             self.decoder.frames += 1;
             let (t, frame) = (record.timestamp, record.frame);
