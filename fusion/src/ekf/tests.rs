@@ -556,3 +556,15 @@ fn a_launch_from_below_the_wheel_sensors_floor_widens_the_position_only_then() {
     let ticks = input(0.75, false);
     assert_eq!(launch_variance(&mut st, &ticks, &ticks.wheel_m), 0.0);
 }
+
+#[test]
+fn a_locked_axle_is_blamed_not_a_rolling_wheel_beside_it() {
+    // Both rear wheels locked for most of a window: the median of the four
+    // lies between the axles, and the farthest wheel was a rolling front.
+    assert!(blamed_wheel([0.4, 0.5, 4.6, 4.7]).is_rear());
+    // Both fronts locked: a front is blamed and the rear kept.
+    assert!(!blamed_wheel([4.6, 4.7, 0.3, 0.2]).is_rear());
+    // One wheel off: the farthest from the median, as before.
+    assert_eq!(blamed_wheel([4.6, 6.0, 4.7, 4.65]), Wheel::RearRight);
+    assert_eq!(blamed_wheel([4.6, 4.6, 4.7, 2.0]), Wheel::FrontRight);
+}
