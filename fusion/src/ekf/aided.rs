@@ -50,6 +50,7 @@
 use super::{
     Derived, EkfConfig, LearntPair, OdometryInput, State, WindowOutcome, every_wheel_reads_zero,
 };
+use super::slide::MAX_ACCEL_MPS2;
 use crate::rotation::advance_heading;
 use crate::{Wheel, WheelSet};
 
@@ -501,7 +502,12 @@ pub(crate) fn step(
     let d = centre.distance_m;
     let rear_slipped = centre.slipped.rear_left || centre.slipped.rear_right;
     if dt > 0.0 {
-        a.last_speed_mps = d / dt;
+        // The reference for the next sample's axles follows the chosen
+        // centre only as fast as a car's speed can change: it followed a
+        // locked rear axle to 0, after which the rolling front never won
+        // again (the multi-body Escort, seed 104, lost 4.2 m in one window).
+        let limit = MAX_ACCEL_MPS2 * dt;
+        a.last_speed_mps = (d / dt).clamp(a.last_speed_mps - limit, a.last_speed_mps + limit);
     }
     st.slip_flags = centre.slipped;
     if rear_slipped {
