@@ -47,10 +47,10 @@
 //! the front one while each agrees within itself hands the distance to the
 //! axle whose speed continues the last one.
 
+use super::slide::MAX_ACCEL_MPS2;
 use super::{
     Derived, EkfConfig, LearntPair, OdometryInput, State, WindowOutcome, every_wheel_reads_zero,
 };
-use super::slide::MAX_ACCEL_MPS2;
 use crate::rotation::advance_heading;
 use crate::{Wheel, WheelSet};
 
