@@ -578,7 +578,7 @@ fn after_a_locked_slide(yaw_rate_radps: Option<f64>) -> f64 {
     let dt = 0.02;
     let mut truth = 0.0;
     let mut v: f64 = 11.0;
-    let mut step = |st: &mut State, wheel_mps: f64, car_mps: f64| {
+    let step = |st: &mut State, wheel_mps: f64, car_mps: f64| {
         let input = OdometryInput {
             wheel_m: WheelSet::splat(wheel_mps * dt),
             front_valid: true,
