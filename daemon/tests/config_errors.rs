@@ -234,6 +234,9 @@ fn the_examples_ekf_blocks_state_the_defaults() {
             "straight_max_steer_deg",
             "straight_min_s",
             "straight_min_speed_mps",
+            "max_accel_mps2",
+            "slide_decel_mps2",
+            "slide_decel_sigma_mps2",
         ] {
             assert!(
                 keys.contains(&key),
@@ -241,7 +244,7 @@ fn the_examples_ekf_blocks_state_the_defaults() {
                 path.display()
             );
         }
-        assert_eq!(keys.len(), 33, "{}: {keys:?}", path.display());
+        assert_eq!(keys.len(), 36, "{}: {keys:?}", path.display());
     }
 }
 

@@ -1065,7 +1065,7 @@ impl Ekf {
         // Every wheel locked while the car slides on: the distance the
         // wheels cannot read is bridged (wheel-speed sensors, four wheels).
         let bridged = (input.zero_is_floor && input.front_valid)
-            .then(|| st.slide.step(w, input.dt_s, MAX_FLOOR_FILL_MPS))
+            .then(|| st.slide.step(&self.cfg, w, input.dt_s, MAX_FLOOR_FILL_MPS))
             .flatten();
         let (w, slide_var_m2) = bridged
             .as_ref()

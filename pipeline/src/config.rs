@@ -262,6 +262,10 @@ struct RawEkf {
     straight_max_steer_deg: Option<f64>,
     straight_min_s: Option<f64>,
     straight_min_speed_mps: Option<f64>,
+    // A slide on locked wheels (wheel-speed sensors).
+    max_accel_mps2: Option<f64>,
+    slide_decel_mps2: Option<f64>,
+    slide_decel_sigma_mps2: Option<f64>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -711,7 +715,7 @@ impl Validator<'_> {
     fn ekf_choices(&self, e: &RawEkf, ekf: &mut EkfConfig) -> Result<(), ConfigError> {
         let deg = |d: f64| d.to_radians();
         // (key, value, field, must be > 0 rather than >= 0, to radians)
-        let numbers: [(&str, Option<f64>, &mut f64, bool, bool); 20] = [
+        let numbers: [(&str, Option<f64>, &mut f64, bool, bool); 23] = [
             (
                 "front_scale_sigma",
                 e.front_scale_sigma,
@@ -849,6 +853,27 @@ impl Validator<'_> {
                 "straight_min_speed_mps",
                 e.straight_min_speed_mps,
                 &mut ekf.straight_min_speed_mps,
+                false,
+                false,
+            ),
+            (
+                "max_accel_mps2",
+                e.max_accel_mps2,
+                &mut ekf.max_accel_mps2,
+                true,
+                false,
+            ),
+            (
+                "slide_decel_mps2",
+                e.slide_decel_mps2,
+                &mut ekf.slide_decel_mps2,
+                true,
+                false,
+            ),
+            (
+                "slide_decel_sigma_mps2",
+                e.slide_decel_sigma_mps2,
+                &mut ekf.slide_decel_sigma_mps2,
                 false,
                 false,
             ),
@@ -1755,6 +1780,32 @@ algorithm = "crc8_sae_j1850"
         };
         assert_eq!(c.ekf, want);
         assert_eq!(rav4_yaw("").unwrap().ekf, want);
+    }
+
+    #[test]
+    fn the_slide_keys_reach_their_fields_and_a_zero_deceleration_is_refused() {
+        let c = rav4_yaw(
+            "[ekf]\nmax_accel_mps2 = 10.0\nslide_decel_mps2 = 5.0\nslide_decel_sigma_mps2 = 1.5\n",
+        )
+        .unwrap();
+        assert_eq!(c.ekf.max_accel_mps2, 10.0);
+        assert_eq!(c.ekf.slide_decel_mps2, 5.0);
+        assert_eq!(c.ekf.slide_decel_sigma_mps2, 1.5);
+        let d = EkfConfig::new(c.params);
+        assert_ne!(d.max_accel_mps2, 10.0);
+        assert_ne!(d.slide_decel_mps2, 5.0);
+        assert_ne!(d.slide_decel_sigma_mps2, 1.5);
+        for bad in [
+            "slide_decel_mps2 = 0.0",
+            "max_accel_mps2 = -1.0",
+            "slide_decel_sigma_mps2 = -0.5",
+        ] {
+            let e = rav4_yaw(&format!("[ekf]\n{bad}\n"))
+                .unwrap_err()
+                .to_string();
+            let key = bad.split(' ').next().unwrap();
+            assert!(e.contains(&format!("ekf.{key}")), "{bad}: {e}");
+        }
     }
 
     #[test]

@@ -47,7 +47,6 @@
 //! the front one while each agrees within itself hands the distance to the
 //! axle whose speed continues the last one.
 
-use super::slide::MAX_ACCEL_MPS2;
 use super::{
     Derived, EkfConfig, LearntPair, OdometryInput, State, WindowOutcome, every_wheel_reads_zero,
 };
@@ -506,7 +505,7 @@ pub(crate) fn step(
         // centre only as fast as a car's speed can change: it followed a
         // locked rear axle to 0, after which the rolling front never won
         // again (the multi-body Escort, seed 104, lost 4.2 m in one window).
-        let limit = MAX_ACCEL_MPS2 * dt;
+        let limit = cfg.max_accel_mps2 * dt;
         a.last_speed_mps = (d / dt).clamp(a.last_speed_mps - limit, a.last_speed_mps + limit);
     }
     st.slip_flags = centre.slipped;

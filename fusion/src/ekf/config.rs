@@ -161,6 +161,22 @@ pub struct EkfConfig {
     /// average removes unless noise dithers it: a standstill then tells the
     /// bias only to within the step's uniform spread (`q/√12`).
     pub yaw_quantum_radps: f64,
+    /// The fastest a car's speed changes on its tyres, m/s² (default 12,
+    /// 1.2 g: a road car's hardest braking on dry asphalt is 1.0–1.1 g). A
+    /// wheel-speed sensor whose wheel falls faster is not rolling with the
+    /// car: three or four such wheels are a slide on locked wheels, and the
+    /// gyro filter's axle reference follows the wheels no faster than this.
+    pub max_accel_mps2: f64,
+    /// The deceleration of a car sliding on locked wheels, m/s² (default
+    /// 7.5: locked tyres on dry asphalt slide at 0.7–0.8 g; the multi-body
+    /// Escort slid at 8.0). The slide is bridged with it until the wheels
+    /// roll again, and then corrected to the speed they roll at; it alone
+    /// decides a slide that ends at a standstill.
+    pub slide_decel_mps2: f64,
+    /// The σ of [`EkfConfig::slide_decel_mps2`], m/s² (default 2.5, which
+    /// covers a wet road's 0.4 g): the along-track variance `(σ t²/2)²` a
+    /// slide of `t` seconds adds.
+    pub slide_decel_sigma_mps2: f64,
     /// A window whose wheels disagree with the gyro by more than this many
     /// standard deviations is not used (a slip the wheel test missed, a bump).
     pub yaw_gate_sigma: f64,
@@ -259,6 +275,9 @@ impl EkfConfig {
             aided_window_s: 0.5,
             yaw_gate_sigma: 5.0,
             yaw_quantum_radps: 0.0,
+            max_accel_mps2: 12.0,
+            slide_decel_mps2: 7.5,
+            slide_decel_sigma_mps2: 2.5,
             slip_accel_sigma: 1e-3,
             straight_yaw_sigma_radps: 0.025f64.to_radians(),
             straight_max_radps: 0.3f64.to_radians(),
@@ -334,6 +353,9 @@ impl EkfConfig {
         require_non_negative("straight_min_s", self.straight_min_s)?;
         require_non_negative("straight_min_speed_mps", self.straight_min_speed_mps)?;
         require_non_negative("min_slip_ratio", self.min_slip_ratio)?;
+        require_positive("max_accel_mps2", self.max_accel_mps2)?;
+        require_positive("slide_decel_mps2", self.slide_decel_mps2)?;
+        require_non_negative("slide_decel_sigma_mps2", self.slide_decel_sigma_mps2)?;
         if self.correct_every == 0 {
             return Err(Error::InvalidConfig {
                 name: "correct_every",

@@ -12,11 +12,12 @@
 //!
 //! **What this does.** The car's speed is followed as the wheels tell it,
 //! changing no faster than a car can brake or accelerate
-//! ([`MAX_ACCEL_MPS2`]). When every wheel falls below that envelope in one
-//! sample, the car is sliding: its speed is taken to fall at a locked
-//! tyre's friction ([`SLIDE_DECEL_MPS2`]) and each wheel is given the
-//! distance the car covers, with the along-track variance of that prior.
-//! When the wheels roll together again, their speed is the car's: the slide
+//! ([`EkfConfig::max_accel_mps2`]). When three or four wheels fall below
+//! half that speed or out of that envelope, the car is sliding: its speed
+//! is taken to fall at a locked tyre's friction
+//! ([`EkfConfig::slide_decel_mps2`]) and each wheel is given the distance
+//! the car covers, with the along-track variance of that prior. When two
+//! wheels roll together again, their speed is the car's: the slide
 //! is taken as a constant deceleration from its start to that speed, and
 //! the distance the prior got wrong is added in that sample. A slide that
 //! ends in a stop (the wheels never roll again) ends when the prior's speed
@@ -26,19 +27,8 @@
 //! count per sample jumps by its quantum, and two wheels alone cannot tell
 //! a lock from a stop.
 
+use super::EkfConfig;
 use crate::WheelSet;
-
-/// The fastest a car's speed changes on its tyres, m/s² (1.2 g: a road
-/// car's hardest braking on dry asphalt is 1.0–1.1 g). A wheel whose speed
-/// falls faster is not rolling with the car.
-pub(crate) const MAX_ACCEL_MPS2: f64 = 12.0;
-
-/// A car sliding on locked wheels slows at the tyres' sliding friction:
-/// 0.7–0.8 g on dry asphalt (the multi-body Escort slid at 8.0 m/s²), half
-/// that on a wet road; the σ covers both.
-pub(crate) const SLIDE_DECEL_MPS2: f64 = 7.5;
-/// The σ of [`SLIDE_DECEL_MPS2`], m/s².
-pub(crate) const SLIDE_DECEL_SIGMA_MPS2: f64 = 2.5;
 
 /// Every wheel below this share of the car's speed is locked: a lock
 /// drops a wheel to 0 within a tenth of a second.
@@ -72,11 +62,11 @@ const SETTLE_S: f64 = 0.1;
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub(crate) struct Slide {
     /// The car's speed, m/s (magnitude), as the wheels tell it within
-    /// [`MAX_ACCEL_MPS2`]; during a slide, the prior's.
+    /// [`EkfConfig::max_accel_mps2`]; during a slide, the prior's.
     speed_mps: f64,
     /// The direction of travel: +1 forwards, −1 backwards.
     sign: f64,
-    /// The last speed the wheels told within [`MAX_ACCEL_MPS2`] of the one
+    /// The last speed the wheels told within [`EkfConfig::max_accel_mps2`] of the one
     /// before, m/s; the time since, s; and the distance the wheels gave
     /// since, m.
     anchor_mps: f64,
@@ -124,7 +114,13 @@ impl Slide {
     /// seconds. `None` when the wheels are used as they are (nearly
     /// always); `floor_mps` is the speed below which a wheel-speed sensor
     /// may read 0 with the wheel turning, where a drop to 0 is a stop.
-    pub(crate) fn step(&mut self, w: &WheelSet<f64>, dt_s: f64, floor_mps: f64) -> Option<Bridged> {
+    pub(crate) fn step(
+        &mut self,
+        cfg: &EkfConfig,
+        w: &WheelSet<f64>,
+        dt_s: f64,
+        floor_mps: f64,
+    ) -> Option<Bridged> {
         if !(dt_s > 0.0 && dt_s.is_finite()) {
             return None;
         }
@@ -136,8 +132,8 @@ impl Slide {
             // how far it may have changed since: the wheels' frames come
             // slower than the steps, so a change lands in one short step.
             let since_s = self.anchor_s + dt_s;
-            let lo = (self.anchor_mps - MAX_ACCEL_MPS2 * since_s).max(0.0);
-            let hi = self.anchor_mps + MAX_ACCEL_MPS2 * since_s;
+            let lo = (self.anchor_mps - cfg.max_accel_mps2 * since_s).max(0.0);
+            let hi = self.anchor_mps + cfg.max_accel_mps2 * since_s;
             let car_mps = if self.seen { told.clamp(lo, hi) } else { told };
             // A wheel below half the car's speed is locked, and so is one
             // that fell out of the car's envelope: the lock shows there
@@ -173,12 +169,12 @@ impl Slide {
             self.elapsed_s = self.anchor_s;
             self.bridged_m = self.anchor_m;
             self.rolling_s = 0.0;
-            self.speed_mps = (self.anchor_mps - SLIDE_DECEL_MPS2 * self.anchor_s).max(0.0);
+            self.speed_mps = (self.anchor_mps - cfg.slide_decel_mps2 * self.anchor_s).max(0.0);
         }
         let fastest = speeds.iter().fold(0.0f64, |m, v| m.max(*v));
         let told = second_largest(speeds);
         // The wheels roll again at a speed the car can have reached by now.
-        let reachable = self.entry_mps - MAX_ACCEL_MPS2 * (self.elapsed_s + dt_s);
+        let reachable = self.entry_mps - cfg.max_accel_mps2 * (self.elapsed_s + dt_s);
         // Two wheels rolling together at a speed the car can have now carry
         // the distance again (the slip logic has them); a slide of three
         // locked wheels or four goes on.
@@ -212,18 +208,18 @@ impl Slide {
             });
         }
         let before = self.speed_mps;
-        let after = (before - SLIDE_DECEL_MPS2 * dt_s).max(0.0);
+        let after = (before - cfg.slide_decel_mps2 * dt_s).max(0.0);
         // The prior's distance error grows as σ_a·t²/2: this sample's share
         // of its variance.
         let t0 = self.elapsed_s;
         let t1 = t0 + dt_s;
-        let sd = |t: f64| 0.5 * SLIDE_DECEL_SIGMA_MPS2 * t * t;
+        let sd = |t: f64| 0.5 * cfg.slide_decel_sigma_mps2 * t * t;
         let var_m2 = sd(t1).powi(2) - sd(t0).powi(2);
         let step_m = if after > 0.0 {
             0.5 * (before + after) * dt_s
         } else {
             // Stopped within the sample.
-            0.5 * before * before / SLIDE_DECEL_MPS2
+            0.5 * before * before / cfg.slide_decel_mps2
         };
         self.speed_mps = after;
         self.elapsed_s = t1;
@@ -245,8 +241,23 @@ impl Slide {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::params::{SteeringMap, VehicleParams};
 
     const DT: f64 = 0.02;
+
+    /// A road car's defaults.
+    fn cfg() -> EkfConfig {
+        let params = VehicleParams::new(
+            2.6,
+            1.5,
+            1.5,
+            WheelSet::splat(0.65),
+            100,
+            SteeringMap::IDENTITY,
+        )
+        .unwrap();
+        EkfConfig::new(params)
+    }
 
     /// Feeds `speeds` (m/s, each wheel) for `n` samples and collects the
     /// centre distance the filter would use.
@@ -259,7 +270,7 @@ mod tests {
                 front_right: speeds[3] * DT,
             };
             let used = s
-                .step(&w, DT, 1.5)
+                .step(&cfg(), &w, DT, 1.5)
                 .map_or((w, 0.0), |b| (b.wheel_m, b.var_m2));
             *total += 0.5 * (used.0.rear_left + used.0.rear_right);
             *var += used.1;
@@ -298,7 +309,7 @@ mod tests {
         run(&mut s, [0.0; 4], 200, &mut total, &mut var);
         assert!(!s.sliding());
         let slid = total - before;
-        let prior = 100.0 / (2.0 * SLIDE_DECEL_MPS2);
+        let prior = 100.0 / (2.0 * cfg().slide_decel_mps2);
         assert!((slid - prior).abs() < 0.2, "slid {slid} m, prior {prior} m");
         // σ at the stop (1.33 s): 2.2 m, which covers 0.5–1 g.
         assert!(var.sqrt() > 1.5 && var.sqrt() < 3.0, "σ {} m", var.sqrt());
