@@ -937,6 +937,22 @@ fn outlier_excess(centre_m: [f64; 4], wheel: Wheel) -> f64 {
     }
 }
 
+/// A road car for the filter's unit tests: 2.5 m wheelbase, 1.5 m treads
+/// (least straight speed 5 m/s), the default settings.
+#[cfg(test)]
+fn road_car() -> EkfConfig {
+    let params = crate::params::VehicleParams::new(
+        2.5,
+        1.5,
+        1.5,
+        WheelSet::splat(0.65),
+        100,
+        crate::params::SteeringMap::IDENTITY,
+    )
+    .unwrap_or_else(|e| unreachable!("a valid road car: {e}"));
+    EkfConfig::new(params)
+}
+
 /// The order of `State::centre_m`: as [`crate::odometry::wheel_distance_factors`] returns them.
 const WHEEL_ORDER: [Wheel; 4] = [
     Wheel::RearLeft,

@@ -721,22 +721,8 @@ fn straight_prior(cfg: &EkfConfig, ib: f64, a: &mut Aided) {
 
 #[cfg(test)]
 mod tests {
+    use super::super::road_car;
     use super::*;
-    use crate::params::{SteeringMap, VehicleParams};
-
-    /// A road car: 2.5 m wheelbase, 1.5 m treads (least straight speed 5 m/s).
-    fn road_car() -> EkfConfig {
-        let params = VehicleParams::new(
-            2.5,
-            1.5,
-            1.5,
-            WheelSet::splat(0.65),
-            100,
-            SteeringMap::IDENTITY,
-        )
-        .unwrap();
-        EkfConfig::new(params)
-    }
 
     /// An estimator whose bias is known to 0.01°/s, that has driven straight
     /// for 5 s and closes a 0.5 s window at `speed_mps` in which the gyro

@@ -240,24 +240,10 @@ impl Slide {
 
 #[cfg(test)]
 mod tests {
+    use super::super::road_car as cfg;
     use super::*;
-    use crate::params::{SteeringMap, VehicleParams};
 
     const DT: f64 = 0.02;
-
-    /// A road car's defaults.
-    fn cfg() -> EkfConfig {
-        let params = VehicleParams::new(
-            2.6,
-            1.5,
-            1.5,
-            WheelSet::splat(0.65),
-            100,
-            SteeringMap::IDENTITY,
-        )
-        .unwrap();
-        EkfConfig::new(params)
-    }
 
     /// Feeds `speeds` (m/s, each wheel) for `n` samples and collects the
     /// centre distance the filter would use.
