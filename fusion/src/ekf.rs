@@ -112,25 +112,18 @@ use nalgebra::{Matrix2, Matrix3, Vector3};
 mod aided;
 mod config;
 mod slide;
+mod wheels;
 use aided::Aided;
 pub use config::{CorrectionForm, EkfConfig, FrontHeading, GateAction};
 use slide::Slide;
+use wheels::{
+    MAX_FLOOR_FILL_MPS, blamed_wheel, every_wheel_reads_zero, launch_variance, outlier_excess,
+};
 
 /// 3-vector of the state `[x, y, θ]`.
 pub type Vec3 = Vector3<f64>;
 /// 3×3 covariance.
 pub type Mat3 = Matrix3<f64>;
-
-/// The fastest a wheel beside one reading 0 may go for that 0 to be the
-/// speed sensors' floor (about 2 km/h, 0.6 m/s) rather than a lock, m/s.
-const MAX_FLOOR_FILL_MPS: f64 = 1.5;
-
-/// The gentlest launch assumed, m/s²: a car that left a standstill unseen
-/// by wheel-speed sensors (they read 0 below their floor) and is first seen
-/// at `v` has crept at most `v²/(2a)` (0.28 m at 0.75 m/s). The multi-body
-/// Escort (seed 3) crept 0.10 m before its first reading, 0.75 m/s,
-/// 1.9 m/s² later.
-const LAUNCH_ACCEL_MPS2: f64 = 1.0;
 
 /// χ²₃(0.99), the default gate.
 pub const CHI2_3_99: f64 = 11.34;
@@ -637,36 +630,6 @@ impl Derived {
     }
 }
 
-/// Every wheel (the front pair only when valid) reads 0 in `w`: a car that
-/// stands, or crawls below its wheel sensors' floor.
-fn every_wheel_reads_zero(input: &OdometryInput, w: &WheelSet<f64>) -> bool {
-    w.rear_left == 0.0
-        && w.rear_right == 0.0
-        && (!input.front_valid || (w.front_left == 0.0 && w.front_right == 0.0))
-}
-
-/// The along-track variance, m², of what a car crept unseen before this
-/// step: non-zero only on wheel-speed sensors ([`OdometryInput::zero_is_floor`])
-/// in the first step that moves after one in which every wheel read 0.
-/// The creep is taken as anywhere between 0 and `v²/(2a)` (second moment
-/// of that range; its mean is not added to the pose, which would move a
-/// car that truly stood until the sensors woke).
-fn launch_variance(st: &mut State, input: &OdometryInput, w: &WheelSet<f64>) -> f64 {
-    let zero = every_wheel_reads_zero(input, w);
-    let launched = input.zero_is_floor && st.wheels_were_zero && !zero;
-    st.wheels_were_zero = zero;
-    if !launched || input.dt_s.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
-        return 0.0;
-    }
-    let speed_mps = 0.5 * (w.rear_left.abs() + w.rear_right.abs()) / input.dt_s;
-    if speed_mps > MAX_FLOOR_FILL_MPS {
-        // Not a floor's exit: the log's first step, or a gap in the wheels.
-        return 0.0;
-    }
-    let creep_max_m = speed_mps * speed_mps / (2.0 * LAUNCH_ACCEL_MPS2);
-    creep_max_m * creep_max_m / 3.0
-}
-
 /// An input's values are finite and its steering angle short of ±90°.
 fn check_input(input: &OdometryInput) -> Result<()> {
     let w = &input.wheel_m;
@@ -876,67 +839,6 @@ fn symmetric_inverse(S: &Mat3) -> Option<Mat3> {
     Some(Mat3::new(i00, i01, i02, i01, i11, i12, i02, i12, i22))
 }
 
-/// The median of four values: the mean of the middle two.
-fn median4(v: [f64; 4]) -> f64 {
-    let mut s = v;
-    s.sort_by(f64::total_cmp);
-    0.5 * (s[1] + s[2])
-}
-
-/// Which wheel's implied centre distance is farthest from the median of the four.
-fn consensus_outlier(centre_m: [f64; 4]) -> Wheel {
-    let med = median4(centre_m);
-    let mut worst = 0;
-    for k in 1..4 {
-        if (centre_m[k] - med).abs() > (centre_m[worst] - med).abs() {
-            worst = k;
-        }
-    }
-    WHEEL_ORDER[worst]
-}
-
-/// The wheel to blame: both wheels of an axle below half the other axle's
-/// mean are that axle locked (two wheels at 0 leave the median of four
-/// between the axles, where it blamed a rolling front wheel and kept the
-/// locked rear: the multi-body BMW 320i, seed 5, lost 4.7 m and 3.5° in one
-/// window); otherwise the wheel farthest from the median of the four.
-fn blamed_wheel(centre_m: [f64; 4]) -> Wheel {
-    let [rl, rr, fl, fr] = centre_m.map(f64::abs);
-    let (rear, front) = (0.5 * (rl + rr), 0.5 * (fl + fr));
-    if rl.max(rr) < LOCKED_AXLE_SHARE * front {
-        Wheel::RearLeft
-    } else if fl.max(fr) < LOCKED_AXLE_SHARE * rear {
-        Wheel::FrontLeft
-    } else {
-        consensus_outlier(centre_m)
-    }
-}
-
-/// An axle whose wheels both read below this share of the other axle's is
-/// locked: a spinning axle reads above the car, and a locked one 0.
-const LOCKED_AXLE_SHARE: f64 = 0.5;
-
-/// How far `wheel`'s implied centre distance lies from the median of the
-/// other three, relative to that median.
-fn outlier_excess(centre_m: [f64; 4], wheel: Wheel) -> f64 {
-    let k = WHEEL_ORDER.iter().position(|w| *w == wheel).unwrap_or(0);
-    let mut others = [0.0; 3];
-    let mut n = 0;
-    for (i, c) in centre_m.iter().enumerate() {
-        if i != k {
-            others[n] = *c;
-            n += 1;
-        }
-    }
-    others.sort_by(f64::total_cmp);
-    let median = others[1];
-    if median.abs() > 1e-12 {
-        ((centre_m[k] - median) / median).abs()
-    } else {
-        f64::INFINITY
-    }
-}
-
 /// A road car for the filter's unit tests: 2.5 m wheelbase, 1.5 m treads
 /// (least straight speed 5 m/s), the default settings.
 #[cfg(test)]
@@ -952,14 +854,6 @@ fn road_car() -> EkfConfig {
     .unwrap_or_else(|e| unreachable!("a valid road car: {e}"));
     EkfConfig::new(params)
 }
-
-/// The order of `State::centre_m`: as [`crate::odometry::wheel_distance_factors`] returns them.
-const WHEEL_ORDER: [Wheel; 4] = [
-    Wheel::RearLeft,
-    Wheel::RearRight,
-    Wheel::FrontLeft,
-    Wheel::FrontRight,
-];
 
 impl Ekf {
     /// A filter with a validated configuration.

@@ -1,3 +1,4 @@
+use super::wheels::LAUNCH_ACCEL_MPS2;
 use super::*;
 use crate::odometry::rear_increment;
 use crate::params::SteeringMap;
