@@ -12,7 +12,7 @@
 //! wheels tell whenever the car stands or its speed and turn vary. So the
 //! gyro integrates the heading, and the wheels observe the gyro.
 //!
-//! **State** (9): the rear-axle pose `x, y, θ`; the gyro bias `b` (rad/s);
+//! **State** (10): the rear-axle pose `x, y, θ`; the gyro bias `b` (rad/s);
 //! the gyro scale error `k` (`ω = (g − b)(1 + k)`), a *considered* state:
 //! its uncertainty is carried into the heading's but nothing updates it,
 //! because against the wheels it is indistinguishable from the effective
@@ -20,8 +20,13 @@
 //! ratio error `e` (the rear wheels' heading is short by `e·d/b_t`); the
 //! effective-tread error `τ` (the wheels' turn is `(1 + τ)` times the
 //! body's); the distance scale error `s` (true distance `= d (1 + s)`,
-//! unobservable without fixes: it keeps the position σ honest); and a clone
-//! `θ_c` of the heading at the start of the current comparison window.
+//! unobservable without fixes: it keeps the position σ honest); a clone
+//! `θ_c` of the heading at the start of the current comparison window; and
+//! the gyro's rounding offset at zero rate `r`: at a standstill or on a
+//! straight the rate holds still and the sensor's rounding does not
+//! average out, so those read `b + r`, while a turn, whose rate sweeps the
+//! steps, reads `b` (its prior is set from the readings' spread at the
+//! first standstill or straight; see `rounding_bound_radps`).
 //!
 //! **Prediction** per sample: `θ += (g − b)(1 + k) Δt` (or, in a sample
 //! without a fresh gyro, the rear wheels' turn corrected by `e` and `τ`),
@@ -54,7 +59,7 @@ use crate::rotation::advance_heading;
 use crate::{Wheel, WheelSet};
 
 /// Number of states.
-pub(crate) const N: usize = 9;
+pub(crate) const N: usize = 10;
 /// Indices into the state vector.
 const X: usize = 0;
 const Y: usize = 1;
@@ -65,6 +70,10 @@ const RATIO: usize = 5;
 const TREAD: usize = 6;
 const DSCALE: usize = 7;
 const CLONE: usize = 8;
+/// The gyro's rounding offset at zero rate: what a standstill or a
+/// straight reads beyond the bias, where no change of rate dithers the
+/// sensor's steps.
+const ROUND: usize = 9;
 
 /// The least speed difference, m/s, that counts as a slip: below it the
 /// wheel-speed quantum and the front tyres' slip angles make the axles
@@ -210,8 +219,11 @@ impl Aided {
     /// (bias, σ), (ratio error, σ), (tread error, σ).
     pub(crate) fn learnt(&self) -> [(f64, f64); 3] {
         let sd = |i: usize| self.p[i][i].max(0.0).sqrt();
+        // The bias a standstill and a straight see: what a restart or a
+        // calibration should start from.
+        let zero_rate_var = self.p[BIAS][BIAS] + 2.0 * self.p[BIAS][ROUND] + self.p[ROUND][ROUND];
         [
-            (self.x[BIAS], sd(BIAS)),
+            (self.x[BIAS] + self.x[ROUND], zero_rate_var.max(0.0).sqrt()),
             (self.x[RATIO], sd(RATIO)),
             (self.x[TREAD], sd(TREAD)),
         ]
@@ -265,7 +277,7 @@ impl Aided {
     /// for each `(i, coefs)` in order: `P ← F P Fᵀ` for `F = I + E` whose
     /// non-zero rows are given. Rows named later must not be read by
     /// earlier ones (x and y read θ before θ changes).
-    fn transform(&mut self, ops: &[(usize, [(usize, f64); 2])]) {
+    fn transform(&mut self, ops: &[(usize, [(usize, f64); 3])]) {
         let p = &mut self.p;
         // Rows: (F P). Each row op reads rows that no earlier op changed.
         let mut new_rows = [[0.0; N]; 3];
@@ -476,7 +488,16 @@ pub(crate) fn step(
     let still = every_wheel_reads_zero(input, w);
     let wheel_turn = (w.rear_right - w.rear_left) * ib;
     // The body's turn this sample, for the slip test and the prediction.
-    let turn_gyro = gyro.map(|g| (g - a.x[BIAS]) * (1.0 + a.x[GSCALE]) * dt);
+    // Near zero rate the readings carry the rounding offset too.
+    let zero_rate = |g: f64| {
+        if (g - a.x[BIAS] - a.x[ROUND]).abs() <= cfg.straight_max_radps {
+            1.0
+        } else {
+            0.0
+        }
+    };
+    let turn_gyro =
+        gyro.map(|g| (g - a.x[BIAS] - zero_rate(g) * a.x[ROUND]) * (1.0 + a.x[GSCALE]) * dt);
     let reference_m = a.last_speed_mps * dt;
     let centre = if still {
         Centre {
@@ -526,7 +547,8 @@ pub(crate) fn step(
             turn,
             [
                 (BIAS, -(1.0 + a.x[GSCALE]) * dt),
-                (GSCALE, (g - a.x[BIAS]) * dt),
+                (GSCALE, (g - a.x[BIAS] - zero_rate(g) * a.x[ROUND]) * dt),
+                (ROUND, -zero_rate(g) * (1.0 + a.x[GSCALE]) * dt),
             ],
             var,
         )
@@ -537,7 +559,11 @@ pub(crate) fn step(
         let var = 2.0 * cfg.k_rear_m * d.abs() * ib * ib;
         (
             corrected * (1.0 - a.x[TREAD]),
-            [(RATIO, d * ib * (1.0 - a.x[TREAD])), (TREAD, -corrected)],
+            [
+                (RATIO, d * ib * (1.0 - a.x[TREAD])),
+                (TREAD, -corrected),
+                (ROUND, 0.0),
+            ],
             var,
         )
     };
@@ -548,8 +574,8 @@ pub(crate) fn step(
     a.x[Y] += distance * s_m;
     a.x[TH] += dtheta;
     a.transform(&[
-        (X, [(TH, -distance * s_m), (DSCALE, d * c_m)]),
-        (Y, [(TH, distance * c_m), (DSCALE, d * s_m)]),
+        (X, [(TH, -distance * s_m), (DSCALE, d * c_m), (ROUND, 0.0)]),
+        (Y, [(TH, distance * c_m), (DSCALE, d * s_m), (ROUND, 0.0)]),
         (TH, theta_ops),
     ]);
     // Process noise: the wheels' distance noise along the track (more when
@@ -614,11 +640,11 @@ fn close_window(cfg: &EkfConfig, ib: f64, st: &mut State) {
         // mean of rounded readings of a value with Gaussian noise σ is off
         // by at most (q/π)·exp(−2π²σ²/q²) (its first harmonic); the readings'
         // own spread stands in for σ.
-        let rounding = if a.win_all_still {
-            rounding_bound_radps(cfg, a) * a.win_t_s
-        } else {
-            0.0
-        };
+        // A standing car's readings share one rounding offset: the state
+        // `r` carries it, not `R`.
+        if a.win_all_still {
+            seed_rounding(cfg, a);
+        }
         // Drive and brake torque make the rear wheels slip unequally (the
         // inner one carries less load): a share of the distance per m/s²
         // of the window's acceleration.
@@ -631,7 +657,6 @@ fn close_window(cfg: &EkfConfig, ib: f64, st: &mut State) {
         let r = cfg.wheel_turn_sigma_rad * cfg.wheel_turn_sigma_rad
             + unexplained_turn * unexplained_turn
             + unexplained_distance * unexplained_distance
-            + rounding * rounding
             + slip * slip;
         let h = [
             (TH, 1.0 + a.x[TREAD]),
@@ -679,6 +704,18 @@ fn rounding_bound_radps(cfg: &EkfConfig, a: &Aided) -> f64 {
     q / std::f64::consts::PI * (-2.0 * std::f64::consts::PI.powi(2) * noise_sq / (q * q)).exp()
 }
 
+/// The rounding offset's prior, set once, at the first standstill or
+/// straight whose readings tell how far noise dithers the steps.
+fn seed_rounding(cfg: &EkfConfig, a: &mut Aided) {
+    if a.p[ROUND][ROUND] > 0.0 {
+        return;
+    }
+    let bound = rounding_bound_radps(cfg, a);
+    if bound > 0.0 {
+        a.p[ROUND][ROUND] = bound * bound;
+    }
+}
+
 /// Driving straight: when the wheels (less their learnt ratio error) and
 /// the steering have agreed the car goes straight for `straight_min_s` at
 /// `straight_min_speed_mps` or more, the
@@ -706,14 +743,13 @@ fn straight_prior(cfg: &EkfConfig, ib: f64, a: &mut Aided) {
     if a.straight_s < cfg.straight_min_s {
         return;
     }
+    seed_rounding(cfg, a);
     let turn = a.x[TH] - a.x[CLONE];
-    // The gyro's rounding error at the straight's nearly constant rate does
-    // not average out either, and the bias learnt here carries it: that is
-    // the bias a straight needs. Widening R by the rounding bound (as at a
-    // standstill) made the heading σ cover the multi-body drives (Escort
-    // seed 105: 66 % → 100 % inside 3σ) but weakened the prior on the real
-    // RAV4's highway, whose readings sit on one step: held out after 40 s,
-    // 0.63 % → 0.84 %. It is not done.
+    // The straight's readings carry the rounding offset `r` (its rate holds
+    // still): the prior tells `b + r`, and a turn tells `b`. Widening `R`
+    // by the rounding bound instead made the heading σ cover the
+    // multi-body drives but weakened the prior on the real RAV4's highway
+    // (held out after 40 s, 0.63 % → 0.84 %); the state does both.
     let r = (cfg.straight_yaw_sigma_radps * a.win_t_s).powi(2);
     // A gate at 3σ: a long bend slower than the thresholds is not a straight.
     let _ = a.update(-turn, &[(TH, 1.0), (CLONE, -1.0)], r, 3.0);
