@@ -28,8 +28,10 @@
 //! steps, reads `b` (its prior is set from the readings' spread at the
 //! first standstill or straight; see `rounding_bound_radps`).
 //!
-//! **Prediction** per sample: `θ += (g − b)(1 + k) Δt` (or, in a sample
-//! without a fresh gyro, the rear wheels' turn corrected by `e` and `τ`),
+//! **Prediction** per sample: `θ += (g − b − z·r)(1 + k) Δt`, `z` 1 where
+//! the gyro reads within `straight_max_radps` of `b + r` and 0 elsewhere
+//! (or, in a sample without a fresh gyro, the rear wheels' turn corrected
+//! by `e` and `τ`),
 //! `x, y += d (1 + s)` along the mid heading, `d` the rear axle centre's
 //! distance from the wheels that did not slip. `P = F P Fᵀ + Q` with `F`'s
 //! few non-zero entries applied as row and column operations.
@@ -39,7 +41,7 @@
 //! `Θ_w = (θ − θ_c)(1 + τ) − e·D/b_t`. The clone makes it exact: the gyro's
 //! noise that moved `θ` is in `P`, not counted twice in `R`. A standing car
 //! (all wheels at 0 for `still_min_s`) is the same measurement with
-//! `Θ_w = 0, D = 0`: it tells the bias alone. `R` holds what the model
+//! `Θ_w = 0, D = 0`: it tells `b + r` alone. `R` holds what the model
 //! lacks: a share of the turn (`tread_turn_sigma`: load transfer changes
 //! the effective tread within a curve) and of the distance. A window whose
 //! innovation is beyond `yaw_gate_sigma` standard deviations, or in which a
@@ -487,17 +489,18 @@ pub(crate) fn step(
         .filter(|g| g.is_finite() && dt > 0.0 && dt.is_finite());
     let still = every_wheel_reads_zero(input, w);
     let wheel_turn = (w.rear_right - w.rear_left) * ib;
-    // The body's turn this sample, for the slip test and the prediction.
-    // Near zero rate the readings carry the rounding offset too.
-    let zero_rate = |g: f64| {
-        if (g - a.x[BIAS] - a.x[ROUND]).abs() <= cfg.straight_max_radps {
+    // The gyro's rate less the bias and, near zero rate, the rounding
+    // offset too; with that zero-rate flag (1 or 0).
+    let rate = gyro.map(|g| {
+        let zero = if (g - a.x[BIAS] - a.x[ROUND]).abs() <= cfg.straight_max_radps {
             1.0
         } else {
             0.0
-        }
-    };
-    let turn_gyro =
-        gyro.map(|g| (g - a.x[BIAS] - zero_rate(g) * a.x[ROUND]) * (1.0 + a.x[GSCALE]) * dt);
+        };
+        (g - a.x[BIAS] - zero * a.x[ROUND], zero)
+    });
+    // The body's turn this sample, for the slip test and the prediction.
+    let turn_gyro = rate.map(|(r, _)| r * (1.0 + a.x[GSCALE]) * dt);
     let reference_m = a.last_speed_mps * dt;
     let centre = if still {
         Centre {
@@ -540,15 +543,14 @@ pub(crate) fn step(
     }
 
     // The heading increment and its Jacobian row.
-    let (dtheta, theta_ops, q_theta) = if let Some(turn) = turn_gyro {
-        let g = gyro.unwrap_or(0.0);
+    let (dtheta, theta_ops, q_theta) = if let (Some(turn), Some((r, zero))) = (turn_gyro, rate) {
         let var = cfg.yaw_sigma_radps * cfg.yaw_sigma_radps * dt * dt;
         (
             turn,
             [
                 (BIAS, -(1.0 + a.x[GSCALE]) * dt),
-                (GSCALE, (g - a.x[BIAS] - zero_rate(g) * a.x[ROUND]) * dt),
-                (ROUND, -zero_rate(g) * (1.0 + a.x[GSCALE]) * dt),
+                (GSCALE, r * dt),
+                (ROUND, -zero * (1.0 + a.x[GSCALE]) * dt),
             ],
             var,
         )
@@ -635,13 +637,8 @@ fn close_window(cfg: &EkfConfig, ib: f64, st: &mut State) {
         let nu = a.win_wheel_turn_rad - predicted;
         let unexplained_turn = cfg.tread_turn_sigma * turn;
         let unexplained_distance = cfg.ratio_walk * dist * ib;
-        // A standing car's gyro repeats one rounded value: its error over
-        // the window does not average out unless noise dithers it. The
-        // mean of rounded readings of a value with Gaussian noise σ is off
-        // by at most (q/π)·exp(−2π²σ²/q²) (its first harmonic); the readings'
-        // own spread stands in for σ.
         // A standing car's readings share one rounding offset: the state
-        // `r` carries it, not `R`.
+        // `r` carries it, not `R` (`rounding_bound_radps` sets its prior).
         if a.win_all_still {
             seed_rounding(cfg, a);
         }

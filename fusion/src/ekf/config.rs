@@ -157,9 +157,10 @@ pub struct EkfConfig {
     /// Seconds of straight driving before it counts.
     pub straight_min_s: f64,
     /// The yaw-rate signal's step (its DBC factor), rad/s; 0 when unknown.
-    /// A standing car's readings repeat one rounded value whose error no
-    /// average removes unless noise dithers it: a standstill then tells the
-    /// bias only to within the step's uniform spread (`q/√12`).
+    /// A standing car's or a straight's readings repeat one rounded value
+    /// whose error no average removes unless noise dithers it: the aided
+    /// estimator carries that offset as a state whose prior is bounded by
+    /// `q/π` (less as noise dithers the steps).
     pub yaw_quantum_radps: f64,
     /// The fastest a car's speed changes on its tyres, m/s² (default 12,
     /// 1.2 g: a road car's hardest braking on dry asphalt is 1.0–1.1 g). A
