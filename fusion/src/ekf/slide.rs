@@ -126,8 +126,9 @@ impl Slide {
         }
         let d = [w.rear_left, w.rear_right, w.front_left, w.front_right];
         let speeds = d.map(|x| x.abs() / dt_s);
+        // The speed the wheels tell.
+        let told = second_largest(speeds);
         if !self.sliding {
-            let told = second_largest(speeds);
             // The speed the wheels last told within what a car can do, and
             // how far it may have changed since: the wheels' frames come
             // slower than the steps, so a change lands in one short step.
@@ -172,7 +173,6 @@ impl Slide {
             self.speed_mps = (self.anchor_mps - cfg.slide_decel_mps2 * self.anchor_s).max(0.0);
         }
         let fastest = speeds.iter().fold(0.0f64, |m, v| m.max(*v));
-        let told = second_largest(speeds);
         // The wheels roll again at a speed the car can have reached by now.
         let reachable = self.entry_mps - cfg.max_accel_mps2 * (self.elapsed_s + dt_s);
         // Two wheels rolling together at a speed the car can have now carry
