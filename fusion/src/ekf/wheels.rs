@@ -47,14 +47,14 @@ pub(super) fn launch_variance(st: &mut State, input: &OdometryInput, w: &WheelSe
 }
 
 /// The median of four values: the mean of the middle two.
-pub(super) fn median4(v: [f64; 4]) -> f64 {
+fn median4(v: [f64; 4]) -> f64 {
     let mut s = v;
     s.sort_by(f64::total_cmp);
     0.5 * (s[1] + s[2])
 }
 
 /// Which wheel's implied centre distance is farthest from the median of the four.
-pub(super) fn consensus_outlier(centre_m: [f64; 4]) -> Wheel {
+fn consensus_outlier(centre_m: [f64; 4]) -> Wheel {
     let med = median4(centre_m);
     let mut worst = 0;
     for k in 1..4 {
@@ -84,7 +84,7 @@ pub(super) fn blamed_wheel(centre_m: [f64; 4]) -> Wheel {
 
 /// An axle whose wheels both read below this share of the other axle's is
 /// locked: a spinning axle reads above the car, and a locked one 0.
-pub(super) const LOCKED_AXLE_SHARE: f64 = 0.5;
+const LOCKED_AXLE_SHARE: f64 = 0.5;
 
 /// How far `wheel`'s implied centre distance lies from the median of the
 /// other three, relative to that median.
@@ -108,7 +108,7 @@ pub(super) fn outlier_excess(centre_m: [f64; 4], wheel: Wheel) -> f64 {
 }
 
 /// The order of `State::centre_m`: as [`crate::odometry::wheel_distance_factors`] returns them.
-pub(super) const WHEEL_ORDER: [Wheel; 4] = [
+const WHEEL_ORDER: [Wheel; 4] = [
     Wheel::RearLeft,
     Wheel::RearRight,
     Wheel::FrontLeft,
