@@ -45,6 +45,12 @@ from vehiclemodels.parameters_vehicle2 import parameters_vehicle2
 from vehiclemodels.parameters_vehicle3 import parameters_vehicle3
 from vehiclemodels.vehicle_dynamics_mb import vehicle_dynamics_mb
 
+# How hard the events are. `--harsh` (issue #30's "a wheel slips hard": drives the
+# estimator has not been tuned on) locks for longer, lets a spinning wheel run to 2.5 times
+# the car's speed, and gives nearly every drive both kinds.
+EVENTS = {"p_lock": 0.5, "p_spin": 0.45, "lock_s": (0.8, 1.6), "spin_ratio": 1.35}
+HARSH_EVENTS = {"p_lock": 0.9, "p_spin": 0.9, "lock_s": (1.5, 3.0), "spin_ratio": 2.5}
+
 HERE = Path(__file__).resolve().parent
 REPO = HERE.parent.parent
 DBC = REPO / "data" / "dbc" / "opendbc_toyota_2017.dbc"
@@ -139,8 +145,8 @@ def make_plan(rng: np.random.Generator, veh: Vehicle):
     # Events: the kinds this drive has, drawn by seed.
     events: list[Event] = []
     has_stop = start_standing or rng.random() < 0.5
-    has_lock = rng.random() < 0.5
-    has_spin = rng.random() < 0.45
+    has_lock = rng.random() < EVENTS["p_lock"]
+    has_spin = rng.random() < EVENTS["p_spin"]
     starts = np.cumsum([0.0] + [s.length_m + s.ramp_m for s in segs])
     straights = [
         (starts[i] + segs[i].ramp_m, starts[i + 1])
@@ -178,7 +184,7 @@ def make_plan(rng: np.random.Generator, veh: Vehicle):
             for j in rng.permutation(len(cands)) if cands else []:
                 s, _ = cands[j]
                 if free(s - 20, s + 60):
-                    events.append(Event("brake_lock", s, float(rng.uniform(0.8, 1.6)), -float(rng.uniform(9.0, 11.5))))
+                    events.append(Event("brake_lock", s, float(rng.uniform(*EVENTS["lock_s"])), -float(rng.uniform(9.0, 11.5))))
                     used.append((s - 20, s + 60))
                     break
     if has_spin:
@@ -300,11 +306,11 @@ class Driver:
                 )
                 if going and ev.kind == "spin":
                     # The model's drive torque does not fall with wheel speed (no engine
-                    # curve): a driver feels the wheels spin and eases off past ~35 % slip,
+                    # curve): a driver feels the wheels spin and eases off past ~35 % slip (150 % with --harsh),
                     # as the wheel speed would otherwise run away.
                     driven = (23, 24) if self.p.T_se > 0.5 else (25, 26)
                     wheel = max(x[i] for i in driven) * self.p.R_w
-                    if wheel > 1.35 * v + 1.0:
+                    if wheel > EVENTS["spin_ratio"] * v + 1.0:
                         return u_steer, 0.5, ev.kind
                     return u_steer, ev.accel_mps2, ev.kind
                 if going:
@@ -644,6 +650,7 @@ def write_drive(veh: Vehicle, seed: int, out_dir: Path, compress: bool = True) -
         "vehicle_name": veh.name,
         "seed": seed,
         "generator": "sim/multibody/generate.py",
+        "events_setting": dict(EVENTS),
         "model": "commonroad-vehicle-models 3.0.2 vehicle_dynamics_mb",
         "sensor_errors": dataclasses.asdict(err),
         "plan": sim["plan"],
@@ -710,7 +717,11 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", required=True, type=int, action="append", help="seed (repeat for several)")
     ap.add_argument("--out", required=True, type=Path, help="root folder: <out>/<vehicle>/seed-<seed>/")
     ap.add_argument("--plain", action="store_true", help="write drive.log instead of drive.log.zst")
+    ap.add_argument("--harsh", action="store_true",
+                    help="harder events: locks of 1.5-3 s, spins to 2.5x the car's speed, both on most drives")
     args = ap.parse_args(argv)
+    if args.harsh:
+        EVENTS.update(HARSH_EVENTS)
     vs = vehicles()
     for key in args.vehicle:
         veh = vs[key]
