@@ -117,7 +117,8 @@ use aided::Aided;
 pub use config::{CorrectionForm, EkfConfig, FrontHeading, GateAction};
 use slide::Slide;
 use wheels::{
-    MAX_FLOOR_FILL_MPS, blamed_wheel, every_wheel_reads_zero, launch_variance, outlier_excess,
+    AxleWatch, MAX_FLOOR_FILL_MPS, blamed_wheel, every_wheel_reads_zero, launch_variance,
+    outlier_excess,
 };
 
 /// 3-vector of the state `[x, y, θ]`.
@@ -273,6 +274,8 @@ pub struct State {
     /// The car's speed as the wheels tell it, and a slide on locked wheels
     /// being bridged ([`slide`]).
     slide: Slide,
+    /// Which axle changed speed faster than the car can ([`AxleWatch`]).
+    axle_watch: AxleWatch,
 }
 
 /// The quantities a step derives from `φ − offset` alone: a tangent, three
@@ -381,6 +384,7 @@ impl State {
             steer_terms: SteerTerms::NONE,
             wheels_were_zero: false,
             slide: Slide::default(),
+            axle_watch: AxleWatch::default(),
         })
     }
 
@@ -972,10 +976,23 @@ impl Ekf {
         } else {
             w
         };
+        if input.front_valid {
+            // What the wheels read, before a slide's bridge replaces it.
+            let axle_m = [w.rear_left + w.rear_right, w.front_left + w.front_right];
+            st.axle_watch.step(
+                axle_m.map(|d| 0.5 * d.abs() / input.dt_s),
+                input.dt_s,
+                self.cfg.max_accel_mps2,
+            );
+        }
         // Every wheel locked while the car slides on: the distance the
         // wheels cannot read is bridged (wheel-speed sensors, four wheels).
         let bridged = (input.zero_is_floor && input.front_valid)
-            .then(|| st.slide.step(&self.cfg, w, input.dt_s, MAX_FLOOR_FILL_MPS))
+            .then(|| {
+                let spinning = st.axle_watch.spinning();
+                st.slide
+                    .step(&self.cfg, w, input.dt_s, MAX_FLOOR_FILL_MPS, spinning)
+            })
             .flatten();
         let (w, slide_var_m2) = bridged
             .as_ref()
@@ -1234,6 +1251,7 @@ impl Ekf {
         st.rear_cs = (1.0, 0.0);
         st.front_cs = (1.0, 0.0);
         st.wheel_sum_m = [0.0; 4];
+        st.axle_watch.new_window();
         st.steer_turn_sum_m = 0.0;
         st.window_rear_m = 0.0;
         st.window_front_m = 0.0;
@@ -1304,7 +1322,7 @@ impl Ekf {
         // yaw lagging the steering).
         let blamed = (beyond_gate && self.cfg.gate_action == GateAction::Consensus).then(|| {
             let centre = self.window_centres(st);
-            let wheel = blamed_wheel(centre);
+            let wheel = blamed_wheel(centre, st.axle_watch.window_suspect());
             (
                 wheel,
                 outlier_excess(centre, wheel) >= self.cfg.min_slip_ratio,

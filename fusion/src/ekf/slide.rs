@@ -28,6 +28,7 @@
 //! a lock from a stop.
 
 use super::EkfConfig;
+use super::wheels::Axle;
 use crate::WheelSet;
 
 /// Every wheel below this share of the car's speed is locked: a lock
@@ -114,12 +115,19 @@ impl Slide {
     /// seconds. `None` when the wheels are used as they are (nearly
     /// always); `floor_mps` is the speed below which a wheel-speed sensor
     /// may read 0 with the wheel turning, where a drop to 0 is a stop.
+    /// `spinning` is an axle spinning under drive torque
+    /// ([`super::wheels::AxleWatch::spinning`]): the other axle then tells the car's speed,
+    /// and no slide begins (two spinning wheels are the two fastest, and a
+    /// car speed taken from them left the rolling pair below the envelope:
+    /// the multi-body Escort, seed 204 of `generate.py --harsh`, bridged a
+    /// spin as a slide at 7.5 m/s² while it accelerated).
     pub(crate) fn step(
         &mut self,
         cfg: &EkfConfig,
         w: &WheelSet<f64>,
         dt_s: f64,
         floor_mps: f64,
+        spinning: Option<Axle>,
     ) -> Option<Bridged> {
         if !(dt_s > 0.0 && dt_s.is_finite()) {
             return None;
@@ -127,7 +135,11 @@ impl Slide {
         let d = [w.rear_left, w.rear_right, w.front_left, w.front_right];
         let speeds = d.map(|x| x.abs() / dt_s);
         // The speed the wheels tell.
-        let told = second_largest(speeds);
+        let told = match spinning {
+            Some(Axle::Rear) => speeds[2].max(speeds[3]),
+            Some(Axle::Front) => speeds[0].max(speeds[1]),
+            None => second_largest(speeds),
+        };
         if !self.sliding {
             // The speed the wheels last told within what a car can do, and
             // how far it may have changed since: the wheels' frames come
@@ -145,7 +157,8 @@ impl Slide {
                 .iter()
                 .filter(|v| **v < LOCKED_SHARE * car_mps || **v < floor_of_envelope)
                 .count();
-            let all_locked = self.seen && car_mps > floor_mps && locked >= MIN_LOCKED;
+            let all_locked =
+                spinning.is_none() && self.seen && car_mps > floor_mps && locked >= MIN_LOCKED;
             if !all_locked {
                 if !self.seen || (lo..=hi).contains(&told) {
                     self.anchor_mps = told;
@@ -256,7 +269,7 @@ mod tests {
                 front_right: speeds[3] * DT,
             };
             let used = s
-                .step(&cfg(), &w, DT, 1.5)
+                .step(&cfg(), &w, DT, 1.5, None)
                 .map_or((w, 0.0), |b| (b.wheel_m, b.var_m2));
             *total += 0.5 * (used.0.rear_left + used.0.rear_right);
             *var += used.1;

@@ -1,4 +1,4 @@
-use super::wheels::LAUNCH_ACCEL_MPS2;
+use super::wheels::{Axle, LAUNCH_ACCEL_MPS2};
 use super::*;
 use crate::odometry::rear_increment;
 use crate::params::SteeringMap;
@@ -562,12 +562,97 @@ fn a_launch_from_below_the_wheel_sensors_floor_widens_the_position_only_then() {
 fn a_locked_axle_is_blamed_not_a_rolling_wheel_beside_it() {
     // Both rear wheels locked for most of a window: the median of the four
     // lies between the axles, and the farthest wheel was a rolling front.
-    assert!(blamed_wheel([0.4, 0.5, 4.6, 4.7]).is_rear());
+    assert!(blamed_wheel([0.4, 0.5, 4.6, 4.7], None).is_rear());
     // Both fronts locked: a front is blamed and the rear kept.
-    assert!(!blamed_wheel([4.6, 4.7, 0.3, 0.2]).is_rear());
+    assert!(!blamed_wheel([4.6, 4.7, 0.3, 0.2], None).is_rear());
     // One wheel off: the farthest from the median, as before.
-    assert_eq!(blamed_wheel([4.6, 6.0, 4.7, 4.65]), Wheel::RearRight);
-    assert_eq!(blamed_wheel([4.6, 4.6, 4.7, 2.0]), Wheel::FrontRight);
+    assert_eq!(blamed_wheel([4.6, 6.0, 4.7, 4.65], None), Wheel::RearRight);
+    assert_eq!(blamed_wheel([4.6, 4.6, 4.7, 2.0], None), Wheel::FrontRight);
+}
+
+#[test]
+fn an_axle_that_changed_speed_faster_than_a_car_is_blamed() {
+    // Both rear wheels spinning at 2.5 times the car: by the distances alone
+    // the rolling front reads below half the rear, like a locked front.
+    let spinning = [11.0, 12.5, 4.7, 4.6];
+    assert!(!blamed_wheel(spinning, None).is_rear());
+    assert_eq!(blamed_wheel(spinning, Some(Axle::Rear)), Wheel::RearRight);
+    // The same with the roles swapped: a front axle that jumped.
+    assert_eq!(
+        blamed_wheel([4.6, 4.7, 9.0, 12.0], Some(Axle::Front)),
+        Wheel::FrontRight
+    );
+}
+
+/// An [`AxleWatch`] fed `rear` and `front` speeds (m/s) at 12 ms steps.
+fn watched(speeds: impl IntoIterator<Item = (f64, f64)>) -> AxleWatch {
+    let mut watch = AxleWatch::default();
+    for (rear, front) in speeds {
+        watch.step([rear, front], 0.012, 12.0);
+    }
+    watch
+}
+
+#[test]
+fn the_axle_watch_tells_a_spin_and_a_lock_from_the_car_braking() {
+    let steady = std::iter::repeat_n((8.0, 8.0), 20);
+    // The driven axle spins up from 8 to 20 m/s within 0.1 s.
+    let spin = (1..=8).map(|k| (8.0 + 1.5 * f64::from(k), 8.0));
+    assert_eq!(
+        watched(steady.chain(spin)).window_suspect(),
+        Some(Axle::Rear)
+    );
+    // A front axle locking, 11 m/s to 0 in a quarter second, while the rear
+    // brakes at 8 m/s².
+    let lock = (1..=20).map(|k| {
+        (
+            11.0 - 0.25 * f64::from(k),
+            (11.0 - 0.55 * f64::from(k)).max(0.0),
+        )
+    });
+    assert_eq!(
+        watched(std::iter::once((11.0, 11.0)).chain(lock)).window_suspect(),
+        Some(Axle::Front)
+    );
+    // The car braking at 10 m/s² on both axles, with 0.05 m/s of noise on
+    // one: nothing is suspect.
+    let braking = (0..100).map(|k| {
+        let v = 20.0 - 10.0 * 0.012 * f64::from(k);
+        (v, v + if k % 2 == 0 { 0.05 } else { -0.05 })
+    });
+    assert_eq!(watched(braking).window_suspect(), None);
+    // Both axles at once (all four wheels locking): no single axle.
+    let all = (1..=10).map(|k| {
+        (
+            (11.0 - 1.1 * f64::from(k)).max(0.0),
+            (11.0 - 1.1 * f64::from(k)).max(0.0),
+        )
+    });
+    assert_eq!(
+        watched(std::iter::once((11.0, 11.0)).chain(all)).window_suspect(),
+        None
+    );
+}
+
+#[test]
+fn a_suspect_axle_stays_suspect_until_the_axles_agree() {
+    let mut watch = watched(
+        std::iter::repeat_n((8.0, 8.0), 5).chain((1..=8).map(|k| (8.0 + 1.5 * f64::from(k), 8.0))),
+    );
+    // Still spinning in the next window, without a new jump.
+    watch.new_window();
+    for _ in 0..50 {
+        watch.step([20.0, 8.2], 0.012, 12.0);
+    }
+    assert_eq!(watch.window_suspect(), Some(Axle::Rear));
+    // The spin ends (the axle falls back faster than a car brakes, which
+    // does not move the suspicion to the front) and the axles agree.
+    watch.step([8.3, 8.25], 0.012, 12.0);
+    watch.new_window();
+    for _ in 0..50 {
+        watch.step([8.3, 8.3], 0.012, 12.0);
+    }
+    assert_eq!(watch.window_suspect(), None);
 }
 
 /// Straight at 11 m/s, every wheel locked for 0.9 s while the car slides at
@@ -612,5 +697,59 @@ fn a_slide_on_four_locked_wheels_is_bridged_in_both_filters() {
     for yaw in [None, Some(0.0)] {
         let off = after_a_locked_slide(yaw);
         assert!(off.abs() < 0.3, "gyro {yaw:?}: {off:+.2} m");
+    }
+}
+
+/// Straight at 8 m/s with wheel-speed sensors, then the rear axle spinning
+/// for 0.8 s (the right wheel at three times the car's speed, the left at
+/// twice), then rolling again: the pose at the end, against the truth.
+fn after_a_spin(yaw_rate_radps: Option<f64>) -> Pose {
+    let ekf = Ekf::new(EkfConfig::new(car())).unwrap();
+    let mut st = State::origin();
+    let dt = 0.012;
+    let v = 8.0;
+    let mut step = |rear_left: f64, rear_right: f64| {
+        let input = OdometryInput {
+            wheel_m: WheelSet {
+                rear_left: rear_left * dt,
+                rear_right: rear_right * dt,
+                front_left: v * dt,
+                front_right: v * dt,
+            },
+            front_valid: true,
+            steer_angle_rad: 0.0,
+            zero_is_floor: true,
+            yaw_rate_radps,
+            dt_s: dt,
+        };
+        st = ekf.step(&st, &input).unwrap();
+    };
+    for _ in 0..100 {
+        step(v, v);
+    }
+    for k in 1..=67 {
+        // The spin builds up over 0.1 s, as a driven wheel's does.
+        let share = (f64::from(k) / 8.0).min(1.0);
+        step(v * (1.0 + share), v * (1.0 + 2.0 * share));
+    }
+    for _ in 0..100 {
+        step(v, v);
+    }
+    st.pose()
+}
+
+#[test]
+fn a_spinning_driven_axle_is_not_taken_for_a_locked_front() {
+    // The rolling front reads below half the spinning rear: by the
+    // distances alone that was a locked front, and the rear's turn
+    // (1.3 rad a second here) was kept.
+    let truth_m = 267.0 * 0.012 * 8.0;
+    for yaw in [None, Some(0.0)] {
+        let pose = after_a_spin(yaw);
+        assert!(
+            (pose.x_m - truth_m).abs() < 0.3 && pose.y_m.abs() < 0.3,
+            "gyro {yaw:?}: {pose:?}, truth x {truth_m:.2} m"
+        );
+        assert!(pose.heading_rad.abs() < 0.02, "gyro {yaw:?}: {pose:?}");
     }
 }

@@ -65,14 +65,34 @@ fn consensus_outlier(centre_m: [f64; 4]) -> Wheel {
     WHEEL_ORDER[worst]
 }
 
-/// The wheel to blame: both wheels of an axle below half the other axle's
-/// mean are that axle locked (two wheels at 0 leave the median of four
-/// between the axles, where it blamed a rolling front wheel and kept the
-/// locked rear: the multi-body BMW 320i, seed 5, lost 4.7 m and 3.5° in one
-/// window); otherwise the wheel farthest from the median of the four.
-pub(super) fn blamed_wheel(centre_m: [f64; 4]) -> Wheel {
+/// The wheel to blame. An axle that changed speed faster than a car can
+/// while the other did not ([`AxleWatch`]) is the one slipping: its wheel
+/// farther from the other axle is blamed. Otherwise both wheels of an axle
+/// below half the other axle's mean are that axle locked (two wheels at 0
+/// leave the median of four between the axles, where it blamed a rolling
+/// front wheel and kept the locked rear: the multi-body BMW 320i, seed 5,
+/// lost 4.7 m and 3.5° in one window); otherwise the wheel farthest from
+/// the median of the four.
+pub(super) fn blamed_wheel(centre_m: [f64; 4], suspect: Option<Axle>) -> Wheel {
     let [rl, rr, fl, fr] = centre_m.map(f64::abs);
     let (rear, front) = (0.5 * (rl + rr), 0.5 * (fl + fr));
+    match suspect {
+        Some(Axle::Rear) => {
+            return if (rl - front).abs() >= (rr - front).abs() {
+                Wheel::RearLeft
+            } else {
+                Wheel::RearRight
+            };
+        }
+        Some(Axle::Front) => {
+            return if (fl - rear).abs() >= (fr - rear).abs() {
+                Wheel::FrontLeft
+            } else {
+                Wheel::FrontRight
+            };
+        }
+        None => {}
+    }
     if rl.max(rr) < LOCKED_AXLE_SHARE * front {
         Wheel::RearLeft
     } else if fl.max(fr) < LOCKED_AXLE_SHARE * rear {
@@ -85,6 +105,121 @@ pub(super) fn blamed_wheel(centre_m: [f64; 4]) -> Wheel {
 /// An axle whose wheels both read below this share of the other axle's is
 /// locked: a spinning axle reads above the car, and a locked one 0.
 const LOCKED_AXLE_SHARE: f64 = 0.5;
+
+/// An axle of the car.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum Axle {
+    /// The rear axle.
+    Rear,
+    /// The front axle.
+    Front,
+}
+
+/// How far an axle's speed may run from where the car's acceleration could
+/// have taken it before it counts as slipping, m/s: the wheel-speed
+/// signals' noise and a bump stay well within it, a lock (11 m/s to 0 in a
+/// quarter second) or a spin (8 to 20 m/s in a tenth) far outside.
+const AXLE_JUMP_MARGIN_MPS: f64 = 0.5;
+
+/// The axles agree again when their speeds are this share apart, or
+/// [`AXLE_AGREE_MPS`]: a turn's longer front arc and the tyres' slip
+/// angles stay within it.
+const AXLE_AGREE_SHARE: f64 = 0.1;
+const AXLE_AGREE_MPS: f64 = 0.3;
+
+/// Which axle slips, from how each axle's speed changes: the car's speed
+/// cannot change faster than [`super::EkfConfig::max_accel_mps2`], so an
+/// axle whose speed runs away from a tracker limited to that rate, while
+/// the other's does not, is spinning or locking, and stays suspect until
+/// the axles agree again.
+///
+/// Why the windowed filter needs it: a rejected window blames one wheel and
+/// takes the other pair. With both driven wheels spinning at two to four
+/// times the car's speed, the rolling front axle reads below half the rear,
+/// which looks like a locked front: the multi-body Vanagon (seed 202 of
+/// `generate.py --harsh`) kept its spinning rear for one window and turned
+/// 79° in 0.6 s. A lock and a spin look alike in one window's distances;
+/// how they began does not.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub(super) struct AxleWatch {
+    /// Each axle's speed (rear, front) as a car could have followed it:
+    /// changing by at most the car's acceleration per step, m/s.
+    tracked_mps: [f64; 2],
+    /// What each axle read last, m/s.
+    last_mps: [f64; 2],
+    /// A step has set `tracked_mps`.
+    seen: bool,
+    /// An axle under suspicion now.
+    suspect: [bool; 2],
+    /// An axle under suspicion at any step of the current window.
+    in_window: [bool; 2],
+}
+
+impl AxleWatch {
+    /// One step's rear and front axle speeds (m/s, magnitudes) over `dt_s`.
+    pub(super) fn step(&mut self, speeds_mps: [f64; 2], dt_s: f64, max_accel_mps2: f64) {
+        if !(dt_s > 0.0 && speeds_mps.iter().all(|v| v.is_finite())) {
+            return;
+        }
+        self.last_mps = speeds_mps;
+        if !self.seen {
+            self.tracked_mps = speeds_mps;
+            self.seen = true;
+            return;
+        }
+        let step_mps = max_accel_mps2 * dt_s;
+        let mut jumped = [false; 2];
+        for k in 0..2 {
+            let gap = speeds_mps[k] - self.tracked_mps[k];
+            self.tracked_mps[k] += gap.clamp(-step_mps, step_mps);
+            jumped[k] = (speeds_mps[k] - self.tracked_mps[k]).abs() > AXLE_JUMP_MARGIN_MPS;
+        }
+        // Both axles at once is the car (or a four-wheel lock, which the
+        // slide tracker bridges): no single axle to suspect.
+        if jumped[0] != jumped[1] {
+            let k = usize::from(jumped[1]);
+            self.suspect[k] = true;
+            self.suspect[1 - k] = false;
+        }
+        self.in_window[0] |= self.suspect[0];
+        self.in_window[1] |= self.suspect[1];
+        // The axles agree again: the slip is over, and the trackers start
+        // afresh from what the wheels read (the slipping axle's had been
+        // left behind at the car's rate).
+        let [rear, front] = speeds_mps;
+        if self.suspect != [false; 2]
+            && (rear - front).abs() <= AXLE_AGREE_SHARE * rear.max(front) + AXLE_AGREE_MPS
+        {
+            self.suspect = [false; 2];
+            self.tracked_mps = speeds_mps;
+        }
+    }
+
+    /// The one axle suspect at some step of the window, if exactly one was.
+    pub(super) fn window_suspect(&self) -> Option<Axle> {
+        match self.in_window {
+            [true, false] => Some(Axle::Rear),
+            [false, true] => Some(Axle::Front),
+            _ => None,
+        }
+    }
+
+    /// The axle suspect now and reading faster than the other: it spins,
+    /// and the other tells the car's speed.
+    pub(super) fn spinning(&self) -> Option<Axle> {
+        let [rear, front] = self.last_mps;
+        match self.suspect {
+            [true, false] if rear > front => Some(Axle::Rear),
+            [false, true] if front > rear => Some(Axle::Front),
+            _ => None,
+        }
+    }
+
+    /// A new window begins: it inherits only what is suspect now.
+    pub(super) fn new_window(&mut self) {
+        self.in_window = self.suspect;
+    }
+}
 
 /// How far `wheel`'s implied centre distance lies from the median of the
 /// other three, relative to that median.
