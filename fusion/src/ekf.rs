@@ -117,7 +117,7 @@ use aided::Aided;
 pub use config::{CorrectionForm, EkfConfig, FrontHeading, GateAction};
 use slide::Slide;
 use wheels::{
-    AxleWatch, MAX_FLOOR_FILL_MPS, blamed_wheel, every_wheel_reads_zero, launch_variance,
+    Axle, AxleWatch, MAX_FLOOR_FILL_MPS, blamed_wheel, every_wheel_reads_zero, launch_variance,
     outlier_excess,
 };
 
@@ -1403,7 +1403,7 @@ impl Ekf {
     /// turned −0.76° in a quarter second; the front pair said −0.90°). The
     /// chord keeps its length and points half the turn.
     fn front_pair_turn(&self, st: &State) -> Vec3 {
-        if !self.cfg.rejected_front_from_pair {
+        if !self.cfg.rejected_front_from_pair || st.axle_watch.slipped_in_window(Axle::Front) {
             return st.front_w;
         }
         let [rl, rr, fl, fr] = st.wheel_sum_m;

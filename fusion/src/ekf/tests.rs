@@ -753,3 +753,24 @@ fn a_spinning_driven_axle_is_not_taken_for_a_locked_front() {
         assert!(pose.heading_rad.abs() < 0.02, "gyro {yaw:?}: {pose:?}");
     }
 }
+
+#[test]
+fn a_brake_onset_on_the_front_does_not_outweigh_a_rear_locking() {
+    // The multi-body Escort (seed 104): the front dips 2 m/s in one sample
+    // as the brakes bite and recovers; then the rear falls from 14 m/s to 0
+    // in a quarter second. Both ran from the car's envelope; the rear by far
+    // more, and a locked axle is never taken for a spinning one.
+    let mut speeds = vec![(14.5, 14.6); 10];
+    speeds.push((14.0, 12.7));
+    speeds.push((13.7, 12.4));
+    speeds.extend((1..=20).map(|k| {
+        (
+            (13.5 - 0.7 * f64::from(k)).max(0.0),
+            12.4 - 0.12 * f64::from(k),
+        )
+    }));
+    let watch = watched(speeds);
+    assert_eq!(watch.window_suspect(), Some(Axle::Rear));
+    assert!(watch.slipped_in_window(Axle::Front));
+    assert_eq!(watch.spinning(), None);
+}

@@ -147,12 +147,17 @@ pub(super) struct AxleWatch {
     tracked_mps: [f64; 2],
     /// What each axle read last, m/s.
     last_mps: [f64; 2],
+    /// How far each axle read from its tracker at the last step, m/s
+    /// (positive: faster than the car could have become).
+    gap_mps: [f64; 2],
     /// A step has set `tracked_mps`.
     seen: bool,
     /// An axle under suspicion now.
     suspect: [bool; 2],
     /// An axle under suspicion at any step of the current window.
     in_window: [bool; 2],
+    /// Each axle's largest distance from its tracker in the window, m/s.
+    window_gap_mps: [f64; 2],
 }
 
 impl AxleWatch {
@@ -168,21 +173,31 @@ impl AxleWatch {
             return;
         }
         let step_mps = max_accel_mps2 * dt_s;
-        let mut jumped = [false; 2];
+        for ((tracked, gap), speed) in self
+            .tracked_mps
+            .iter_mut()
+            .zip(self.gap_mps.iter_mut())
+            .zip(speeds_mps)
+        {
+            *tracked += (speed - *tracked).clamp(-step_mps, step_mps);
+            *gap = speed - *tracked;
+        }
+        // An axle running from where the car could have gone is slipping;
+        // of two, the one at least twice as far (a lock often begins with
+        // the front braking a little harder than the car can, and then the
+        // rear falls to 0), or both (a four-wheel lock).
+        let [rear_gap, front_gap] = self.gap_mps.map(f64::abs);
+        let jumped = [rear_gap, front_gap].map(|g| g > AXLE_JUMP_MARGIN_MPS);
+        self.suspect = match jumped {
+            [false, false] => self.suspect,
+            [true, true] if rear_gap >= 2.0 * front_gap => [true, false],
+            [true, true] if front_gap >= 2.0 * rear_gap => [false, true],
+            jumped => jumped,
+        };
         for k in 0..2 {
-            let gap = speeds_mps[k] - self.tracked_mps[k];
-            self.tracked_mps[k] += gap.clamp(-step_mps, step_mps);
-            jumped[k] = (speeds_mps[k] - self.tracked_mps[k]).abs() > AXLE_JUMP_MARGIN_MPS;
+            self.in_window[k] |= self.suspect[k];
+            self.window_gap_mps[k] = self.window_gap_mps[k].max(self.gap_mps[k].abs());
         }
-        // Both axles at once is the car (or a four-wheel lock, which the
-        // slide tracker bridges): no single axle to suspect.
-        if jumped[0] != jumped[1] {
-            let k = usize::from(jumped[1]);
-            self.suspect[k] = true;
-            self.suspect[1 - k] = false;
-        }
-        self.in_window[0] |= self.suspect[0];
-        self.in_window[1] |= self.suspect[1];
         // The axles agree again: the slip is over, and the trackers start
         // afresh from what the wheels read (the slipping axle's had been
         // left behind at the car's rate).
@@ -192,32 +207,52 @@ impl AxleWatch {
         {
             self.suspect = [false; 2];
             self.tracked_mps = speeds_mps;
+            self.gap_mps = [0.0; 2];
         }
     }
 
-    /// The one axle suspect at some step of the window, if exactly one was.
+    /// The axle suspect in the window: the one that was, or of two the one
+    /// that ran at least twice as far from where the car could go (a
+    /// brake's onset dips the front by 2 m/s in a sample before the rear
+    /// locks from 14 m/s to 0).
     pub(super) fn window_suspect(&self) -> Option<Axle> {
+        let [rear_gap, front_gap] = self.window_gap_mps;
         match self.in_window {
             [true, false] => Some(Axle::Rear),
             [false, true] => Some(Axle::Front),
+            [true, true] if rear_gap >= 2.0 * front_gap => Some(Axle::Rear),
+            [true, true] if front_gap >= 2.0 * rear_gap => Some(Axle::Front),
             _ => None,
         }
     }
 
-    /// The axle suspect now and reading faster than the other: it spins,
-    /// and the other tells the car's speed.
+    /// The axle suspect now, reading faster than the other and faster than
+    /// the car could have become: it spins, and the other tells the car's
+    /// speed. (A locked axle reads below its tracker: never spinning.)
     pub(super) fn spinning(&self) -> Option<Axle> {
         let [rear, front] = self.last_mps;
+        let [rear_gap, front_gap] = self.gap_mps;
         match self.suspect {
-            [true, false] if rear > front => Some(Axle::Rear),
-            [false, true] if front > rear => Some(Axle::Front),
+            [true, false] if rear > front && rear_gap > AXLE_JUMP_MARGIN_MPS => Some(Axle::Rear),
+            [false, true] if front > rear && front_gap > AXLE_JUMP_MARGIN_MPS => Some(Axle::Front),
             _ => None,
         }
+    }
+
+    /// Did `axle` run away from where the car could go at some step of
+    /// the window?
+    pub(super) fn slipped_in_window(&self, axle: Axle) -> bool {
+        let k = match axle {
+            Axle::Rear => 0,
+            Axle::Front => 1,
+        };
+        self.window_gap_mps[k] > AXLE_JUMP_MARGIN_MPS
     }
 
     /// A new window begins: it inherits only what is suspect now.
     pub(super) fn new_window(&mut self) {
         self.in_window = self.suspect;
+        self.window_gap_mps = self.gap_mps.map(f64::abs);
     }
 }
 
