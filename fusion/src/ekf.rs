@@ -989,9 +989,9 @@ impl Ekf {
         // wheels cannot read is bridged (wheel-speed sensors, four wheels).
         let bridged = (input.zero_is_floor && input.front_valid)
             .then(|| {
-                let spinning = st.axle_watch.spinning();
+                let (calm, spinning) = (st.axle_watch.calm(), st.axle_watch.spinning());
                 st.slide
-                    .step(&self.cfg, w, input.dt_s, MAX_FLOOR_FILL_MPS, spinning)
+                    .step(&self.cfg, w, input.dt_s, MAX_FLOOR_FILL_MPS, calm, spinning)
             })
             .flatten();
         let (w, slide_var_m2) = bridged

@@ -16,7 +16,11 @@
 //! half that speed or out of that envelope, the car is sliding: its speed
 //! is taken to fall at a locked tyre's friction
 //! ([`EkfConfig::slide_decel_mps2`]) and each wheel is given the distance
-//! the car covers, with the along-track variance of that prior. When two
+//! the car covers times its share of the car's speed before the slide,
+//! with the along-track variance of that prior: a slide in a turn goes on
+//! along the curve it was on (with equal distances it went straight, and a
+//! three-wheel lock in a 13°/s turn left the wheels-only heading 7° off on
+//! the multi-body BMW, seed 205 of `generate.py --harsh`). When two
 //! wheels roll together again, their speed is the car's: the slide
 //! is taken as a constant deceleration from its start to that speed, and
 //! the distance the prior got wrong is added in that sample. A slide that
@@ -58,6 +62,11 @@ const ROLLING_TOGETHER: f64 = 0.5;
 /// a step's distance averages two readings.
 const SETTLE_S: f64 = 0.1;
 
+/// Time constant of each wheel's share of the car's speed, s: long enough
+/// to smooth the speed signals' quantum, short enough to be the turn the
+/// car was in when the wheels locked.
+const SHARE_TAU_S: f64 = 0.25;
+
 /// The slide tracker's state: the car's speed as the wheels last told it
 /// and, during a slide, what was bridged. `Copy`, no allocation.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -85,6 +94,11 @@ pub(crate) struct Slide {
     bridged_m: f64,
     /// How long the wheels have rolled together during the slide, s.
     rolling_s: f64,
+    /// Each wheel's speed over the car's, smoothed over the samples in
+    /// which no axle slipped (in the order of the distances: RL, RR, FL,
+    /// FR); `shares_seen` once one has set it.
+    shares: [f64; 4],
+    shares_seen: bool,
 }
 
 /// A sample's wheels after the slide tracker.
@@ -115,7 +129,8 @@ impl Slide {
     /// seconds. `None` when the wheels are used as they are (nearly
     /// always); `floor_mps` is the speed below which a wheel-speed sensor
     /// may read 0 with the wheel turning, where a drop to 0 is a stop.
-    /// `spinning` is an axle spinning under drive torque
+    /// `calm`: no axle slips (the shares of the car's speed learn only
+    /// then). `spinning` is an axle spinning under drive torque
     /// ([`super::wheels::AxleWatch::spinning`]): the other axle then tells the car's speed,
     /// and no slide begins (two spinning wheels are the two fastest, and a
     /// car speed taken from them left the rolling pair below the envelope:
@@ -127,6 +142,7 @@ impl Slide {
         w: &WheelSet<f64>,
         dt_s: f64,
         floor_mps: f64,
+        calm: bool,
         spinning: Option<Axle>,
     ) -> Option<Bridged> {
         if !(dt_s > 0.0 && dt_s.is_finite()) {
@@ -160,6 +176,9 @@ impl Slide {
             let all_locked =
                 spinning.is_none() && self.seen && car_mps > floor_mps && locked >= MIN_LOCKED;
             if !all_locked {
+                if calm && told > floor_mps {
+                    self.learn_shares(speeds, told, dt_s);
+                }
                 if !self.seen || (lo..=hi).contains(&told) {
                     self.anchor_mps = told;
                     self.anchor_s = 0.0;
@@ -209,14 +228,8 @@ impl Slide {
             self.speed_mps = told;
             self.anchor_mps = told;
             self.anchor_s = 0.0;
-            let add = |x: f64| x + missing_m;
             return Some(Bridged {
-                wheel_m: WheelSet {
-                    rear_left: add(w.rear_left),
-                    rear_right: add(w.rear_right),
-                    front_left: add(w.front_left),
-                    front_right: add(w.front_right),
-                },
+                wheel_m: self.with_shares(missing_m, Some(w)),
                 var_m2: 0.0,
             });
         }
@@ -243,11 +256,43 @@ impl Slide {
             self.anchor_mps = 0.0;
             self.anchor_s = 0.0;
         }
-        let m = self.sign * step_m;
         Some(Bridged {
-            wheel_m: WheelSet::splat(m),
+            wheel_m: self.with_shares(self.sign * step_m, None),
             var_m2,
         })
+    }
+
+    /// One calm sample's wheel speeds against the car's (`told`), into
+    /// each wheel's smoothed share.
+    fn learn_shares(&mut self, speeds: [f64; 4], told: f64, dt_s: f64) {
+        let alpha = if self.shares_seen {
+            (dt_s / SHARE_TAU_S).min(1.0)
+        } else {
+            1.0
+        };
+        for (share, v) in self.shares.iter_mut().zip(speeds) {
+            *share += alpha * (v / told - *share);
+        }
+        self.shares_seen = true;
+    }
+
+    /// `centre_m` of the rear axle's centre given to each wheel by its
+    /// share of the car's speed before the slide (the rear pair's mean
+    /// share is 1; 1 each before any calm sample), added to `to`'s.
+    fn with_shares(&self, centre_m: f64, to: Option<&WheelSet<f64>>) -> WheelSet<f64> {
+        let rear = 0.5 * (self.shares[0] + self.shares[1]);
+        let [rl, rr, fl, fr] = if self.shares_seen && rear > 0.0 {
+            self.shares.map(|s| s / rear)
+        } else {
+            [1.0; 4]
+        };
+        let base = to.copied().unwrap_or(WheelSet::splat(0.0));
+        WheelSet {
+            rear_left: base.rear_left + centre_m * rl,
+            rear_right: base.rear_right + centre_m * rr,
+            front_left: base.front_left + centre_m * fl,
+            front_right: base.front_right + centre_m * fr,
+        }
     }
 }
 
@@ -269,7 +314,7 @@ mod tests {
                 front_right: speeds[3] * DT,
             };
             let used = s
-                .step(&cfg(), &w, DT, 1.5, None)
+                .step(&cfg(), &w, DT, 1.5, true, None)
                 .map_or((w, 0.0), |b| (b.wheel_m, b.var_m2));
             *total += 0.5 * (used.0.rear_left + used.0.rear_right);
             *var += used.1;
@@ -297,6 +342,39 @@ mod tests {
         let slid = total - before;
         assert!((slid - 8.6).abs() < 0.15, "slid {slid} m");
         assert!(var > 0.0);
+    }
+
+    #[test]
+    fn a_slide_in_a_turn_goes_on_along_the_curve_it_was_on() {
+        // A left turn: the right wheels 3 % faster than the left. The
+        // bridged distances keep each wheel's share, so the rear pair's
+        // difference (the wheels' turn) goes on; equal distances went
+        // straight. A share learns only while no axle slips.
+        let turning = [9.7, 10.3, 9.9, 10.5];
+        for calm in [true, false] {
+            let mut s = Slide::default();
+            for _ in 0..50 {
+                let w = WheelSet {
+                    rear_left: turning[0] * DT,
+                    rear_right: turning[1] * DT,
+                    front_left: turning[2] * DT,
+                    front_right: turning[3] * DT,
+                };
+                assert!(s.step(&cfg(), &w, DT, 1.5, calm, None).is_none());
+            }
+            let b = s
+                .step(&cfg(), &WheelSet::splat(0.0), DT, 1.5, calm, None)
+                .expect("every wheel locked at 10 m/s is a slide");
+            let w = b.wheel_m;
+            let centre = 0.5 * (w.rear_left + w.rear_right);
+            let share = |d: f64| d / centre;
+            if calm {
+                assert!((share(w.rear_right) - 10.3 / 10.0).abs() < 1e-9, "{w:?}");
+                assert!((share(w.front_left) - 9.9 / 10.0).abs() < 1e-9, "{w:?}");
+            } else {
+                assert_eq!(w, WheelSet::splat(centre));
+            }
+        }
     }
 
     #[test]

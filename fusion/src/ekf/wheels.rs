@@ -239,6 +239,11 @@ impl AxleWatch {
         }
     }
 
+    /// No axle is suspect, and both move as a car can.
+    pub(super) fn calm(&self) -> bool {
+        self.suspect == [false; 2] && self.gap_mps.iter().all(|g| g.abs() <= AXLE_JUMP_MARGIN_MPS)
+    }
+
     /// Did `axle` run away from where the car could go at some step of
     /// the window?
     pub(super) fn slipped_in_window(&self, axle: Axle) -> bool {
