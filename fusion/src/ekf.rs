@@ -976,15 +976,7 @@ impl Ekf {
         } else {
             w
         };
-        if input.front_valid {
-            // What the wheels read, before a slide's bridge replaces it.
-            let axle_m = [w.rear_left + w.rear_right, w.front_left + w.front_right];
-            st.axle_watch.step(
-                axle_m.map(|d| 0.5 * d.abs() / input.dt_s),
-                input.dt_s,
-                self.cfg.max_accel_mps2,
-            );
-        }
+        st.axle_watch.watch(input, w, self.cfg.max_accel_mps2);
         // Every wheel locked while the car slides on: the distance the
         // wheels cannot read is bridged (wheel-speed sensors, four wheels).
         let bridged = (input.zero_is_floor && input.front_valid)

@@ -161,6 +161,21 @@ pub(super) struct AxleWatch {
 }
 
 impl AxleWatch {
+    /// One step's wheels (`w`, after the floor fill, before a slide's
+    /// bridge replaces them). Wheel-speed sensors with all four wheels
+    /// only: an encoder's count per sample jumps by its quantum, which is
+    /// no change of speed.
+    pub(super) fn watch(&mut self, input: &OdometryInput, w: &WheelSet<f64>, max_accel_mps2: f64) {
+        if input.zero_is_floor && input.front_valid {
+            let axle_m = [w.rear_left + w.rear_right, w.front_left + w.front_right];
+            self.step(
+                axle_m.map(|d| 0.5 * d.abs() / input.dt_s),
+                input.dt_s,
+                max_accel_mps2,
+            );
+        }
+    }
+
     /// One step's rear and front axle speeds (m/s, magnitudes) over `dt_s`.
     pub(super) fn step(&mut self, speeds_mps: [f64; 2], dt_s: f64, max_accel_mps2: f64) {
         if !(dt_s > 0.0 && speeds_mps.iter().all(|v| v.is_finite())) {
