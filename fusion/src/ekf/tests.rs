@@ -774,3 +774,34 @@ fn a_brake_onset_on_the_front_does_not_outweigh_a_rear_locking() {
     assert!(watch.slipped_in_window(Axle::Front));
     assert_eq!(watch.spinning(), None);
 }
+
+proptest! {
+    /// Driving a car can do is never a slip: speeds changing at up to
+    /// 10 m/s² (the tracker allows 12), the front axle up to 3 % off the
+    /// rear (a turn's longer arc, tyre sizes), 0.05 m/s of noise on each,
+    /// frames every 10–40 ms. No axle is ever suspect, and the slide
+    /// tracker's shares keep learning.
+    #[test]
+    fn driving_a_car_can_do_never_makes_an_axle_suspect(
+        accels in prop::collection::vec(-10.0f64..10.0, 1..40),
+        front_share in 0.97f64..1.03,
+        noise in prop::collection::vec(-0.05f64..0.05, 64),
+        dt in 0.01f64..0.04,
+    ) {
+        let mut watch = AxleWatch::default();
+        let mut v: f64 = 12.0;
+        let mut k = 0;
+        for a in accels {
+            // Each acceleration held for half a second.
+            for _ in 0..(0.5 / dt) as usize {
+                v = (v + a * dt).clamp(0.0, 40.0);
+                let rear = v + noise[k % 64];
+                let front = v * front_share + noise[(k + 7) % 64];
+                k += 1;
+                watch.step([rear.max(0.0), front.max(0.0)], dt, 12.0);
+                prop_assert_eq!(watch.window_suspect(), None, "v {} a {}", v, a);
+                prop_assert!(watch.calm());
+            }
+        }
+    }
+}
