@@ -202,5 +202,9 @@ fn a_spin_of_both_driven_wheels_is_not_taken_for_the_car() {
         without.fused_pct,
         without.rear_pct
     );
-    assert!(with.fused_pct <= 1.0, "with the gyro: {:.2} %", with.fused_pct);
+    assert!(
+        with.fused_pct <= 1.0,
+        "with the gyro: {:.2} %",
+        with.fused_pct
+    );
 }
