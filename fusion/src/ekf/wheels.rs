@@ -76,20 +76,20 @@ fn consensus_outlier(centre_m: [f64; 4]) -> Wheel {
 pub(super) fn blamed_wheel(centre_m: [f64; 4], suspect: Option<Axle>) -> Wheel {
     let [rl, rr, fl, fr] = centre_m.map(f64::abs);
     let (rear, front) = (0.5 * (rl + rr), 0.5 * (fl + fr));
+    // Of a pair, the wheel farther from the other axle's mean.
+    let farther = |(a, wa): (f64, Wheel), (b, wb): (f64, Wheel), other: f64| {
+        if (a - other).abs() >= (b - other).abs() {
+            wa
+        } else {
+            wb
+        }
+    };
     match suspect {
         Some(Axle::Rear) => {
-            return if (rl - front).abs() >= (rr - front).abs() {
-                Wheel::RearLeft
-            } else {
-                Wheel::RearRight
-            };
+            return farther((rl, Wheel::RearLeft), (rr, Wheel::RearRight), front);
         }
         Some(Axle::Front) => {
-            return if (fl - rear).abs() >= (fr - rear).abs() {
-                Wheel::FrontLeft
-            } else {
-                Wheel::FrontRight
-            };
+            return farther((fl, Wheel::FrontLeft), (fr, Wheel::FrontRight), rear);
         }
         None => {}
     }
@@ -109,10 +109,15 @@ const LOCKED_AXLE_SHARE: f64 = 0.5;
 /// An axle of the car.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(super) enum Axle {
-    /// The rear axle.
-    Rear,
-    /// The front axle.
-    Front,
+    /// The rear axle (index 0 of [`AxleWatch`]'s pairs).
+    Rear = 0,
+    /// The front axle (index 1).
+    Front = 1,
+}
+
+impl Axle {
+    /// The axle of index `k` in [`AxleWatch`]'s pairs (rear, front).
+    const BY_INDEX: [Axle; 2] = [Axle::Rear, Axle::Front];
 }
 
 /// How far an axle's speed may run from where the car's acceleration could
@@ -245,13 +250,13 @@ impl AxleWatch {
     /// the car could have become: it spins, and the other tells the car's
     /// speed. (A locked axle reads below its tracker: never spinning.)
     pub(super) fn spinning(&self) -> Option<Axle> {
-        let [rear, front] = self.last_mps;
-        let [rear_gap, front_gap] = self.gap_mps;
-        match self.suspect {
-            [true, false] if rear > front && rear_gap > AXLE_JUMP_MARGIN_MPS => Some(Axle::Rear),
-            [false, true] if front > rear && front_gap > AXLE_JUMP_MARGIN_MPS => Some(Axle::Front),
-            _ => None,
-        }
+        let k = match self.suspect {
+            [true, false] => 0,
+            [false, true] => 1,
+            _ => return None,
+        };
+        (self.last_mps[k] > self.last_mps[1 - k] && self.gap_mps[k] > AXLE_JUMP_MARGIN_MPS)
+            .then_some(Axle::BY_INDEX[k])
     }
 
     /// No axle is suspect, and both move as a car can.
@@ -262,11 +267,7 @@ impl AxleWatch {
     /// Did `axle` run away from where the car could go at some step of
     /// the window?
     pub(super) fn slipped_in_window(&self, axle: Axle) -> bool {
-        let k = match axle {
-            Axle::Rear => 0,
-            Axle::Front => 1,
-        };
-        self.window_gap_mps[k] > AXLE_JUMP_MARGIN_MPS
+        self.window_gap_mps[axle as usize] > AXLE_JUMP_MARGIN_MPS
     }
 
     /// A new window begins: it inherits only what is suspect now.
