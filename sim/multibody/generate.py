@@ -50,6 +50,11 @@ from vehiclemodels.vehicle_dynamics_mb import vehicle_dynamics_mb
 # the car's speed, and gives nearly every drive both kinds.
 EVENTS = {"p_lock": 0.5, "p_spin": 0.45, "lock_s": (0.8, 1.6), "spin_ratio": 1.35}
 HARSH_EVENTS = {"p_lock": 0.9, "p_spin": 0.9, "lock_s": (1.5, 3.0), "spin_ratio": 2.5}
+# The yaw-rate sensor's draws: its scale error within ±scale_max and its white noise within
+# noise_dps. Noise of 0.05 °/s and more dithers the 0.244 °/s steps; below that the rounding
+# of a steady rate stays (see --yaw-noise-dps). Each setting draws from the seed's stream
+# the same way, so the drives of one seed differ in nothing else.
+GYRO = {"scale_max": 0.005, "noise_dps": (0.05, 0.15)}
 
 HERE = Path(__file__).resolve().parent
 REPO = HERE.parent.parent
@@ -478,8 +483,8 @@ def draw_sensor_errors(rng: np.random.Generator, veh: Vehicle, seed: int) -> Sen
         # 0.2 deg/s at 10 m/s (25 deg in two minutes).
         wheel_scale=_wheel_scales(rng),
         yaw_bias_dps=float(rng.uniform(-0.4, 0.4)),
-        yaw_scale=float(1.0 + rng.uniform(-0.005, 0.005)),
-        yaw_noise_dps=float(rng.uniform(0.05, 0.15)),
+        yaw_scale=float(1.0 + rng.uniform(-GYRO["scale_max"], GYRO["scale_max"])),
+        yaw_noise_dps=float(rng.uniform(*GYRO["noise_dps"])),
         wheel_noise_kmh=0.02,
         wheel_floor_kmh=float(rng.uniform(1.8, 2.2)),
         t0_unix_s=1_700_000_000.0 + 10_000.0 * seed,
@@ -651,6 +656,7 @@ def write_drive(veh: Vehicle, seed: int, out_dir: Path, compress: bool = True) -
         "seed": seed,
         "generator": "sim/multibody/generate.py",
         "events_setting": dict(EVENTS),
+        "gyro_setting": dict(GYRO),
         "model": "commonroad-vehicle-models 3.0.2 vehicle_dynamics_mb",
         "sensor_errors": dataclasses.asdict(err),
         "plan": sim["plan"],
@@ -719,9 +725,21 @@ def main(argv=None) -> int:
     ap.add_argument("--plain", action="store_true", help="write drive.log instead of drive.log.zst")
     ap.add_argument("--harsh", action="store_true",
                     help="harder events: locks of 1.5-3 s, spins to 2.5x the car's speed, both on most drives")
+    ap.add_argument("--yaw-scale-max", type=float, default=GYRO["scale_max"], metavar="REL",
+                    help="the yaw-rate sensor's scale error is drawn within ±REL (default %(default)s; "
+                    "0 for a sensor without one)")
+    ap.add_argument("--yaw-noise-dps", type=float, nargs=2, default=GYRO["noise_dps"], metavar=("LO", "HI"),
+                    help="its white noise is drawn within LO..HI deg/s (default %(default)s; "
+                    "0.04 0.04 for one that barely dithers its 0.244 deg/s steps)")
     args = ap.parse_args(argv)
     if args.harsh:
         EVENTS.update(HARSH_EVENTS)
+    if not 0.0 <= args.yaw_scale_max < 0.5:
+        ap.error(f"--yaw-scale-max {args.yaw_scale_max}: expected 0 <= REL < 0.5")
+    lo, hi = args.yaw_noise_dps
+    if not 0.0 <= lo <= hi:
+        ap.error(f"--yaw-noise-dps {lo} {hi}: expected 0 <= LO <= HI")
+    GYRO.update(scale_max=args.yaw_scale_max, noise_dps=(lo, hi))
     vs = vehicles()
     for key in args.vehicle:
         veh = vs[key]
