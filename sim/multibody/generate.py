@@ -55,6 +55,10 @@ HARSH_EVENTS = {"p_lock": 0.9, "p_spin": 0.9, "lock_s": (1.5, 3.0), "spin_ratio"
 # of a steady rate stays (see --yaw-noise-dps). Each setting draws from the seed's stream
 # the same way, so the drives of one seed differ in nothing else.
 GYRO = {"scale_max": 0.005, "noise_dps": (0.05, 0.15)}
+# Each wheel's radius error beyond the common one, within ±spread_max: the rear pair's
+# difference turns the rear-wheel heading (0.05 % by 0.2 °/s at 10 m/s), which nothing but
+# a yaw-rate sensor or fixes can tell (see --wheel-spread-max).
+WHEELS = {"spread_max": 0.00025}
 
 HERE = Path(__file__).resolve().parent
 REPO = HERE.parent.parent
@@ -493,7 +497,8 @@ def draw_sensor_errors(rng: np.random.Generator, veh: Vehicle, seed: int) -> Sen
 
 def _wheel_scales(rng: np.random.Generator) -> dict:
     common = rng.uniform(-0.003, 0.003)
-    return {w: float(1.0 + common + rng.uniform(-0.00025, 0.00025)) for w in ("FL", "FR", "RL", "RR")}
+    spread = WHEELS["spread_max"]
+    return {w: float(1.0 + common + rng.uniform(-spread, spread)) for w in ("FL", "FR", "RL", "RR")}
 
 
 def frame_times(rng: np.random.Generator, t_end: float, period: float) -> np.ndarray:
@@ -657,6 +662,7 @@ def write_drive(veh: Vehicle, seed: int, out_dir: Path, compress: bool = True) -
         "generator": "sim/multibody/generate.py",
         "events_setting": dict(EVENTS),
         "gyro_setting": dict(GYRO),
+        "wheels_setting": dict(WHEELS),
         "model": "commonroad-vehicle-models 3.0.2 vehicle_dynamics_mb",
         "sensor_errors": dataclasses.asdict(err),
         "plan": sim["plan"],
@@ -731,6 +737,9 @@ def main(argv=None) -> int:
     ap.add_argument("--yaw-noise-dps", type=float, nargs=2, default=GYRO["noise_dps"], metavar=("LO", "HI"),
                     help="its white noise is drawn within LO..HI deg/s (default %(default)s; "
                     "0.04 0.04 for one that barely dithers its 0.244 deg/s steps)")
+    ap.add_argument("--wheel-spread-max", type=float, default=WHEELS["spread_max"], metavar="REL",
+                    help="each wheel's radius error beyond the common one is drawn within ±REL "
+                    "(default %(default)s; 0 for wheels that differ in nothing but the common error)")
     args = ap.parse_args(argv)
     if args.harsh:
         EVENTS.update(HARSH_EVENTS)
@@ -740,6 +749,9 @@ def main(argv=None) -> int:
     if not 0.0 <= lo <= hi:
         ap.error(f"--yaw-noise-dps {lo} {hi}: expected 0 <= LO <= HI")
     GYRO.update(scale_max=args.yaw_scale_max, noise_dps=(lo, hi))
+    if not 0.0 <= args.wheel_spread_max < 0.05:
+        ap.error(f"--wheel-spread-max {args.wheel_spread_max}: expected 0 <= REL < 0.05")
+    WHEELS.update(spread_max=args.wheel_spread_max)
     vs = vehicles()
     for key in args.vehicle:
         veh = vs[key]
