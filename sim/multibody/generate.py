@@ -55,9 +55,8 @@ HARSH_EVENTS = {"p_lock": 0.9, "p_spin": 0.9, "lock_s": (1.5, 3.0), "spin_ratio"
 # of a steady rate stays (see --yaw-noise-dps). Each setting draws from the seed's stream
 # the same way, so the drives of one seed differ in nothing else.
 GYRO = {"scale_max": 0.005, "noise_dps": (0.05, 0.15)}
-# Each wheel's radius error beyond the common one, within ±spread_max: the rear pair's
-# difference turns the rear-wheel heading (0.05 % by 0.2 °/s at 10 m/s), which nothing but
-# a yaw-rate sensor or fixes can tell (see --wheel-spread-max).
+# Each wheel's radius error beyond the common one, within ±spread_max (see
+# draw_sensor_errors for what it does to the rear wheels' heading, and --wheel-spread-max).
 WHEELS = {"spread_max": 0.00025}
 
 HERE = Path(__file__).resolve().parent
@@ -741,16 +740,16 @@ def main(argv=None) -> int:
                     help="each wheel's radius error beyond the common one is drawn within ±REL "
                     "(default %(default)s; 0 for wheels that differ in nothing but the common error)")
     args = ap.parse_args(argv)
-    if args.harsh:
-        EVENTS.update(HARSH_EVENTS)
+    lo, hi = args.yaw_noise_dps
     if not 0.0 <= args.yaw_scale_max < 0.5:
         ap.error(f"--yaw-scale-max {args.yaw_scale_max}: expected 0 <= REL < 0.5")
-    lo, hi = args.yaw_noise_dps
     if not 0.0 <= lo <= hi:
         ap.error(f"--yaw-noise-dps {lo} {hi}: expected 0 <= LO <= HI")
-    GYRO.update(scale_max=args.yaw_scale_max, noise_dps=(lo, hi))
     if not 0.0 <= args.wheel_spread_max < 0.05:
         ap.error(f"--wheel-spread-max {args.wheel_spread_max}: expected 0 <= REL < 0.05")
+    if args.harsh:
+        EVENTS.update(HARSH_EVENTS)
+    GYRO.update(scale_max=args.yaw_scale_max, noise_dps=(lo, hi))
     WHEELS.update(spread_max=args.wheel_spread_max)
     vs = vehicles()
     for key in args.vehicle:

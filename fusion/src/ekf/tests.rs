@@ -817,26 +817,20 @@ fn after_an_undithered_turn(rate_dps: f64) -> (f64, f64) {
     let q = 0.244;
     let read = |true_dps: f64| Some(((true_dps / q).round() * q).to_radians());
     let dt = 0.01;
-    let mut st = State::origin();
-    let stand = OdometryInput {
-        wheel_m: WheelSet::splat(0.0),
-        front_valid: true,
-        steer_angle_rad: 0.0,
+    let input = |ds: f64, phi: f64, true_dps: f64| OdometryInput {
         zero_is_floor: true,
-        yaw_rate_radps: read(0.0),
+        yaw_rate_radps: read(true_dps),
         dt_s: dt,
+        ..arc_input(&p, ds, phi)
     };
+    let mut st = State::origin();
     for _ in 0..500 {
-        st = ekf.step(&st, &stand).unwrap();
+        st = ekf.step(&st, &input(0.0, 0.0, 0.0)).unwrap();
     }
     let v = 8.0;
     let phi = (rate_dps.to_radians() / v * p.wheelbase_m()).atan();
     for _ in 0..2000 {
-        let mut input = arc_input(&p, v * dt, phi);
-        input.zero_is_floor = true;
-        input.yaw_rate_radps = read(rate_dps);
-        input.dt_s = dt;
-        st = ekf.step(&st, &input).unwrap();
+        st = ekf.step(&st, &input(v * dt, phi, rate_dps)).unwrap();
     }
     let truth = rate_dps.to_radians() * 20.0;
     (
