@@ -27,6 +27,18 @@ const SIGN_SHARE: f64 = 0.8;
 /// A magnitude ratio outside [1/SCALE_LIMIT, SCALE_LIMIT] is a wrong scale:
 /// tyre slip and a steering ratio off by a few percent stay well inside.
 const SCALE_LIMIT: f64 = 1.5;
+/// Largest lateral acceleration, m/s², that the rear wheels' turn may
+/// imply for a step to be compared. Past it the turn is a wheel that locks
+/// or spins, not the car's: no road tyre holds it, and a locked rear wheel
+/// at 10 m/s turns the rear pair at about 6 rad/s (60 m/s²). On the
+/// multi-body drives (`sim/multibody`) such steps, 1 s of a lock, made the
+/// steering and the yaw rate look 0.66 times the wheels on 4 of 49 drives.
+const MAX_LATERAL_MPS2: f64 = 15.0;
+/// Width of a bin of the ratios' histogram, in ln(ratio): 1 %.
+const LN_RATIO_BIN: f64 = 0.01;
+/// The histogram spans ratios 1/256…256; beyond, a ratio counts in the
+/// end bin (still far outside any limit).
+const LN_RATIO_SPAN: f64 = 5.545;
 /// A share of rejected frames or faulty wheel steps above this is a wrong
 /// configuration, not a noisy bus (a few percent, as the issue asks).
 const FAULT_SHARE: f64 = 0.03;
@@ -92,14 +104,29 @@ impl fmt::Display for Warning {
 /// Agreement of one signal with the rear wheels while turning, per turn
 /// direction of the rear wheels: a magnitude without its sign bit agrees
 /// in every left turn and disagrees in every right one.
-#[derive(Clone, Copy, Debug, Default)]
+#[derive(Clone, Debug)]
 struct Tally {
     /// [left turns, right turns] of the rear wheels.
     agree: [u32; 2],
     disagree: [u32; 2],
-    /// Σ|signal's turn|, Σ|rear turn| over the same steps.
-    sum_signal: f64,
-    sum_rear: f64,
+    /// Histogram of ln(|signal's turn| / |rear turn|), one count per step,
+    /// for the median ratio. The median, not Σ|signal|/Σ|rear|: a second
+    /// of a slipping wheel that passes the lateral-acceleration test still
+    /// outweighs many seconds of turning in a sum, not in a median. A
+    /// fixed histogram keeps the state machine free of per-step allocation;
+    /// 1 % bins are finer than any limit it is compared with.
+    ln_ratio_counts: Vec<u32>,
+}
+
+impl Default for Tally {
+    fn default() -> Self {
+        let bins = (2.0 * LN_RATIO_SPAN / LN_RATIO_BIN).ceil() as usize;
+        Self {
+            agree: [0; 2],
+            disagree: [0; 2],
+            ln_ratio_counts: vec![0; bins],
+        }
+    }
 }
 
 impl Tally {
@@ -110,8 +137,13 @@ impl Tally {
         } else {
             self.disagree[side] += 1;
         }
-        self.sum_signal += signal.abs();
-        self.sum_rear += rear.abs();
+        let ln_ratio = (signal.abs() / rear.abs()).ln();
+        // A signal reading 0 gives −∞ (and NaN is impossible: |rear| > 0):
+        // both clamp into the end bins.
+        let bin = ((ln_ratio + LN_RATIO_SPAN) / LN_RATIO_BIN)
+            .floor()
+            .clamp(0.0, (self.ln_ratio_counts.len() - 1) as f64) as usize;
+        self.ln_ratio_counts[bin] += 1;
     }
 
     fn n(&self) -> u32 {
@@ -129,8 +161,21 @@ impl Tally {
             .fold(0.0, f64::max)
     }
 
+    /// The median of |signal's turn| / |rear turn| over the steps (the
+    /// centre of its bin).
     fn ratio(&self) -> f64 {
-        self.sum_signal / self.sum_rear.max(1e-12)
+        let half = u64::from(self.n()).div_ceil(2);
+        if half == 0 {
+            return 1.0;
+        }
+        let mut seen = 0u64;
+        for (bin, &count) in self.ln_ratio_counts.iter().enumerate() {
+            seen += u64::from(count);
+            if seen >= half {
+                return ((bin as f64 + 0.5) * LN_RATIO_BIN - LN_RATIO_SPAN).exp();
+            }
+        }
+        1.0
     }
 }
 
@@ -176,7 +221,10 @@ impl Plausibility {
             if dt > 0.0 {
                 let v = ds / dt;
                 let rear_turn = (b.heading_rad - a.heading_rad) / dt;
-                if v > MIN_SPEED_MPS && rear_turn.abs() > MIN_TURN_RADPS {
+                if v > MIN_SPEED_MPS
+                    && rear_turn.abs() > MIN_TURN_RADPS
+                    && v * rear_turn.abs() <= MAX_LATERAL_MPS2
+                {
                     if let Some(u) = step.steer_signal {
                         let phi = self.steering.angle_rad(u);
                         self.steer.add(v * phi.tan() / self.wheelbase_m, rear_turn);
@@ -423,6 +471,57 @@ mod tests {
         let p = run(|u, w| (u, w));
         assert!(p.warnings().is_empty(), "{:?}", p.warnings());
         assert_eq!(p.diagnosis(), None);
+    }
+
+    /// A rear wheel that locks or spins in a turn turns the rear pair's
+    /// heading far beyond any tyre's grip, and a lighter slip some way
+    /// beyond the car's: neither is the steering's or the yaw rate's
+    /// configuration. The sums this replaced read a right configuration
+    /// with a 1.2 s lock as steering and yaw rate "0.06 times the rear
+    /// wheels" at 3 s.
+    #[test]
+    fn a_wheel_that_locks_or_spins_in_a_turn_does_not_warn() {
+        let map = SteeringMap {
+            gain: 1f64.to_radians() / 15.0,
+            offset_rad: 0.0,
+        };
+        let (r, v, tread) = (30.0, 10.0, 1.5);
+        let mut steps = circle(r, v, |u, w| (u, w), 600);
+        // The rear pair's heading rate: a lock of the inner wheel for
+        // 1.2 s (the outer one rolls on: v / (tread/2) more turn), then a
+        // spin that passes for a turn twice the car's for 0.8 s.
+        let rear_rate = |k: usize| match k {
+            150..270 => v / r + 2.0 * v / tread,
+            400..480 => 2.0 * v / r,
+            _ => v / r,
+        };
+        let mut heading = 0.0;
+        for (k, s) in steps.iter_mut().enumerate().skip(1) {
+            heading += rear_rate(k) * 0.01;
+            s.odometry.heading_rad = heading;
+        }
+        let mut p = Plausibility::new(2.7, map);
+        for s in &steps {
+            p.push(s);
+        }
+        assert!(p.warnings().is_empty(), "{:?}", p.warnings());
+        assert!((p.steer.ratio() - 1.0).abs() < 0.05, "{}", p.steer.ratio());
+        assert!((p.yaw.ratio() - 1.0).abs() < 0.05, "{}", p.yaw.ratio());
+    }
+
+    #[test]
+    fn the_ratio_is_the_median_of_the_steps() {
+        let mut t = Tally::default();
+        for (signal, rear) in [(1.0, 1.0), (2.0, 1.0), (1.5, 1.0), (9.0, 1.0), (0.0, 1.0)] {
+            t.add(signal, rear);
+        }
+        // Sorted ratios 0, 1, 1.5, 2, 9: the median is 1.5, to its 1 % bin.
+        assert!((t.ratio() / 1.5 - 1.0).abs() < 0.01, "{}", t.ratio());
+        assert_eq!(Tally::default().ratio(), 1.0);
+        // Beyond the span: the end bin, still far outside the limits.
+        let mut far = Tally::default();
+        far.add(1e6, 1.0);
+        assert!(far.ratio() > 250.0, "{}", far.ratio());
     }
 
     #[test]
