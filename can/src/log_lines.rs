@@ -1,6 +1,6 @@
-//! What the readers of every log format share besides
-//! [`crate::candump::Interfaces`]: the bounded lines of a text log, and what
-//! a reader tells of the interfaces it met. Below the
+//! What the readers of every log format share besides the interface
+//! filter (`candump::Interfaces`, crate-private): the bounded lines of a
+//! text log, and what a reader tells of the interfaces it met. Below the
 //! readers ([`crate::candump_plain`], [`crate::vector_asc`],
 //! [`crate::vector_blf`]) and [`crate::any_log`], which chooses among them.
 
