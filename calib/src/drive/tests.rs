@@ -3,6 +3,7 @@
 #![allow(clippy::unwrap_used)]
 use super::*;
 use crate::drive_gate::{DriveGate, apply_gate};
+use crate::history::ParamValues;
 
 #[test]
 fn fixes_parse_by_header_name_and_errors_name_the_line() {
