@@ -56,6 +56,8 @@ impl Default for DriveGate {
 /// Applies `gate` to `cal`: every estimate that fails it is marked not
 /// observable, so [`calibrated_values`] keeps the previous value; the
 /// refusals say which and why (empty: everything the drive told passes).
+///
+/// [`calibrated_values`]: crate::drive::calibrated_values
 pub fn apply_gate(cal: &mut DriveCalibration, gate: &DriveGate) -> Vec<GateRefusal> {
     let mut refusals = Vec::new();
     let best_rms = cal

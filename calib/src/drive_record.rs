@@ -91,7 +91,7 @@ impl DriveRecorder {
     }
 
     /// Adds one filter step to the open bin, closing the bin after
-    /// [`DRIVE_BIN_S`].
+    /// `DRIVE_BIN_S`.
     pub fn step(&mut self, step: &DriveStep) {
         if self.closed || self.samples.len() >= DRIVE_MAX_SAMPLES {
             return;

@@ -184,6 +184,8 @@ impl LiveCalibration {
     /// (nothing when it is [`WindowOutcome::Open`]): a window the gate
     /// rejected is kept out of a drive's reckoning, as offline
     /// ([`canodom_offline::drive::gate_rejected`]).
+    ///
+    /// [`WindowOutcome::Open`]: canodom_fusion::ekf::WindowOutcome::Open
     pub fn on_window(&mut self, outcome: canodom_fusion::ekf::WindowOutcome) {
         use canodom_fusion::ekf::WindowOutcome;
         if outcome != WindowOutcome::Open {

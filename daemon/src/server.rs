@@ -2,12 +2,12 @@
 //! three tasks joined by bounded channels, generic over the transport so the
 //! tests and the demo run this very code on the in-process bus.
 //!
-//! - [`LinkTask`] owns the connection: opens it with kernel filters for the
+//! - `LinkTask` owns the connection: opens it with kernel filters for the
 //!   configured ids, forwards frames, and on an interface going down or away,
 //!   or a bus-off, logs, waits with exponential backoff (watching the
 //!   shutdown token) and reopens. It hands each new sending half to the
 //!   other tasks through a `watch` channel (`None` while disconnected).
-//! - [`OdometryTask`] owns the [`Pipeline`]: feeds it every wheel frame,
+//! - `OdometryTask` owns the [`Pipeline`]: feeds it every wheel frame,
 //!   publishes the pose at the configured rate (and after each step with
 //!   `publish_on_update`, and on an `ODOM_CMD` PUBLISH_NOW request), moves
 //!   the pose to the origin on `ODOM_CMD` RESET_POSE at standstill, applies

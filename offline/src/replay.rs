@@ -213,8 +213,10 @@ pub struct ReplayRow {
     /// Speed, position and heading standard deviations of the pose sample
     /// (`speed_mps, pos_std_m, heading_std_rad`).
     pub sample: [f64; 3],
-    /// The pose sample's flags ([`canodom_protocol::pose_frames::PoseFlags::bits`]):
-    /// `quality`, its bit 0 `pose_valid`.
+    /// The pose sample's flags ([`PoseFlags::bits`]): `quality`, its bit 0
+    /// `pose_valid`.
+    ///
+    /// [`PoseFlags::bits`]: canodom_pipeline::pipeline::PoseFlags::bits
     pub quality: u16,
 }
 

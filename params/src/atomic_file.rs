@@ -23,8 +23,9 @@ use std::io::Write as _;
 use std::os::unix::fs::OpenOptionsExt as _;
 use std::path::{Path, PathBuf};
 
-/// An I/O failure of [`write`], naming the path that failed (the temporary
-/// file, the target or the directory); the previous target is then untouched.
+/// An I/O failure of [`write`](fn@write), naming the path that failed (the
+/// temporary file, the target or the directory); the previous target is then
+/// untouched.
 #[derive(Debug, thiserror::Error)]
 #[error("{}: {source}", path.display())]
 pub struct AtomicWriteError {
@@ -34,7 +35,7 @@ pub struct AtomicWriteError {
     pub source: std::io::Error,
 }
 
-/// The temporary file [`write`] uses for `path`: hidden, same directory.
+/// The temporary file [`write`](fn@write) uses for `path`: hidden, same directory.
 pub fn temp_path(path: &Path) -> PathBuf {
     let name = path
         .file_name()

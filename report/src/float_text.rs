@@ -10,7 +10,7 @@
 //! is `{}`'s and leaves the rest to `{}`. One more possible difference: when
 //! the value lies exactly half-way between two shortest candidates, the
 //! tie-breaking rules of the two may differ; such a tie needs a value with
-//! few binary fraction digits (see [`tie_possible`]), so those rare values
+//! few binary fraction digits (see `tie_possible`), so those rare values
 //! go to `{}` itself. Output files therefore stay byte-identical to what
 //! earlier versions wrote.
 

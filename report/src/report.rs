@@ -18,6 +18,9 @@
 //! I/O, which is why the live daemon can build a report on commit and hand
 //! the writing to a blocking task. A committed steering map has its own
 //! report ([`SteeringReport`]), written the same way.
+//!
+//! [`write_report`]: crate::files::write_report
+//! [`SteeringReport`]: crate::steering_report::SteeringReport
 
 use crate::files::{
     AFTER_COLOUR, BEFORE_COLOUR, MetreAxes, PlotResult, ReportError, ReportFiles, json_line,

@@ -4,7 +4,7 @@
 //! plot of angle against command, so that a person sees whether the arcs lie
 //! on a line at all.
 //!
-//! [`SteeringReport::build`] is pure; [`crate::report::write_report`] writes
+//! [`SteeringReport::build`] is pure; [`crate::files::write_report`] writes
 //! it (atomically, like the rear report).
 
 use crate::files::{AFTER_COLOUR, BEFORE_COLOUR, PlotResult, PlottedReport, draw_line};

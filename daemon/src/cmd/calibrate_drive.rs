@@ -11,6 +11,9 @@
 //! drive could not observe is held. The result is committed to the parameter
 //! file as a new set (history kept, bounds checked), which `replay --params`
 //! and `run` (through `param_file`) then use.
+//!
+//! [`Pipeline`]: canodom_pipeline::pipeline::Pipeline
+//! [`DriveSample`]: canodom_calib::drive::DriveSample
 
 use anyhow::bail;
 use canodom_calib::drive::{DriveCalibration, DriveOptions, Estimate};
