@@ -98,6 +98,19 @@ fn wrong_vw_configurations_are_diagnosed() {
                 .all(|r| quality(r) & 0x100 != 0),
             "{what}: INPUT_IMPLAUSIBLE cleared"
         );
+        // The summary's warnings are the ones that set the flag (replay
+        // once kept a second checker, which judged the frame statistics
+        // only when the log ended): the first fired at the first flagged row.
+        let first_warning_s = summary
+            .warnings
+            .iter()
+            .map(|w| w.t_s)
+            .fold(f64::INFINITY, f64::min);
+        let flagged_s = rows[first.unwrap()][0];
+        assert!(
+            (first_warning_s - flagged_s).abs() < 1e-3,
+            "{what}: first warning at {first_warning_s} s, flag from {flagged_s} s"
+        );
     }
     // The right configuration never sets it.
     let mut csv = Vec::new();

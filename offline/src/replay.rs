@@ -13,7 +13,6 @@ use canodom_fusion::VehicleParams;
 use canodom_fusion::ekf::WindowOutcome;
 use canodom_pipeline::config::Config;
 use canodom_pipeline::pipeline::{Pipeline, Step};
-use canodom_pipeline::plausibility::Plausibility;
 use canodom_pipeline::stats::Stats;
 use canodom_report::float_text::{push_csv_row, push_f64, push_micros_as_seconds};
 use std::io::{Read, Write};
@@ -305,7 +304,6 @@ pub fn replay_log(
     mut mcap: Option<McapOut>,
 ) -> Result<ReplaySummary> {
     let mut pipeline = new_pipeline(config, params)?;
-    let mut plausibility = new_plausibility(config);
     // Read unbuffered by LogReader's own large blocks (a BufReader passes
     // reads larger than its buffer straight through); other formats use it.
     let mut reader =
@@ -333,7 +331,7 @@ pub fn replay_log(
                     batch.text.clear();
                     batch.samples.clear();
                     batch.encoded = false;
-                    filter_batch(&mut pipeline, &mut plausibility, &mut batch, samples);
+                    filter_batch(&mut pipeline, &mut batch, samples);
                     batch.params = Some(*pipeline.params());
                     if samples {
                         carry_tail(&mut batch, &mut carry);
@@ -355,7 +353,7 @@ pub fn replay_log(
                         waiting = filter_in.recv().ok();
                     }
                 }
-                (pipeline, plausibility)
+                pipeline
             })?;
         let fed = feed(
             &mut reader,
@@ -367,7 +365,7 @@ pub fn replay_log(
         );
         // Ends the filter thread's loop, whether feeding ended or failed.
         drop(to_filter);
-        let (pipeline, mut plausibility) = filter
+        let mut pipeline = filter
             .join()
             .unwrap_or_else(|panic| std::panic::resume_unwind(panic));
         let (malformed, by_reason) = fed?;
@@ -375,8 +373,7 @@ pub fn replay_log(
             m.finish()?.flush()?;
         }
         Ok(summary_of(
-            &pipeline,
-            &mut plausibility,
+            &mut pipeline,
             &reader,
             (malformed, by_reason),
             kept,
@@ -386,12 +383,7 @@ pub fn replay_log(
 
 /// Runs one batch's records through the pipeline, a row per filter step
 /// with the pose sample `run` would publish at that frame.
-fn filter_batch(
-    pipeline: &mut Pipeline,
-    plausibility: &mut Plausibility,
-    batch: &mut Batch,
-    samples: bool,
-) {
+fn filter_batch(pipeline: &mut Pipeline, batch: &mut Batch, samples: bool) {
     for (k, entry) in batch.records.iter().enumerate() {
         let (at, step) = match entry {
             Entry::Classic(c) => (
@@ -407,7 +399,6 @@ fn filter_batch(
             },
         };
         if let Some(s) = step {
-            plausibility.push(&s);
             let p = pipeline.pose_output(at);
             if samples {
                 batch.samples.push((k + 1, StepSample::of(pipeline, &s, p)));
@@ -579,23 +570,14 @@ fn new_pipeline(
     Ok(pipeline)
 }
 
-/// The run-time plausibility checks for `config`'s vehicle (#32).
-fn new_plausibility(config: &Config) -> Plausibility {
-    Plausibility::new(config.params.wheelbase_m(), config.params.steering())
-}
-
 /// What a finished replay did.
 fn summary_of(
-    pipeline: &Pipeline,
-    plausibility: &mut Plausibility,
+    pipeline: &mut Pipeline,
     reader: &canodom_can::any_log::AnyLogReader<'_>,
     (malformed, by_reason): (u64, MalformedCounts),
     kept: Option<Vec<(i64, [f64; 6])>>,
 ) -> ReplaySummary {
-    plausibility.judge_stats(
-        pipeline.stats(),
-        pipeline.last_step().map_or(0.0, |s| s.t_s),
-    );
+    let (warnings, diagnosis) = pipeline.plausibility_at_end();
     let seen = canodom_can::log_format::LogSeen::of(reader, pipeline.stats().frames, malformed);
     let t0_us = pipeline
         .first_frame_time()
@@ -626,8 +608,8 @@ fn summary_of(
         malformed_by_reason: by_reason,
         last_step: pipeline.last_step(),
         state: *pipeline.state(),
-        warnings: plausibility.warnings().to_vec(),
-        diagnosis: plausibility.diagnosis(),
+        warnings,
+        diagnosis,
     }
 }
 
@@ -647,7 +629,6 @@ pub fn replay_rows(
     diag: &mut impl Write,
 ) -> Result<(Vec<ReplayRow>, ReplaySummary)> {
     let mut pipeline = new_pipeline(config, params)?;
-    let mut plausibility = new_plausibility(config);
     let mut reader =
         crate::log::log_reader(std::io::BufReader::new(input), options.interface, true)?;
     let mut batch = Batch::new();
@@ -663,18 +644,12 @@ pub fn replay_rows(
             (&mut *diag, &prefix),
         )?;
         batch.rows.clear();
-        filter_batch(&mut pipeline, &mut plausibility, &mut batch, false);
+        filter_batch(&mut pipeline, &mut batch, false);
         rows.extend_from_slice(&batch.rows);
         if at_end {
             break;
         }
     }
-    let summary = summary_of(
-        &pipeline,
-        &mut plausibility,
-        &reader,
-        (malformed, by_reason),
-        None,
-    );
+    let summary = summary_of(&mut pipeline, &reader, (malformed, by_reason), None);
     Ok((rows, summary))
 }

@@ -555,6 +555,19 @@ impl Pipeline {
         self.plausibility.warnings()
     }
 
+    /// Judges the statistics once more, frames after the last pose sample
+    /// included, and returns every plausibility warning with the diagnosis
+    /// paragraph (`None` when nothing fired): what `replay` reports when its
+    /// log ends. Every step was judged as it came, as `run` judges it.
+    pub fn plausibility_at_end(&mut self) -> (Vec<Warning>, Option<String>) {
+        self.plausibility
+            .judge_stats(&self.stats, self.last_step.map_or(0.0, |s| s.t_s));
+        (
+            self.plausibility.warnings().to_vec(),
+            self.plausibility.diagnosis(),
+        )
+    }
+
     /// The last filter step, if any.
     pub fn last_step(&self) -> Option<Step> {
         self.last_step
