@@ -144,6 +144,23 @@ pub enum Refusal {
 }
 
 impl Refusal {
+    /// Every refusal, in code order (codes 1..=13).
+    pub const ALL: [Self; 13] = [
+        Self::NoSession,
+        Self::SessionActive,
+        Self::InvalidArgument,
+        Self::AlreadyRecording,
+        Self::NotRecording,
+        Self::NoRunForEndPose,
+        Self::EndPoseRequired,
+        Self::RunsIncomplete,
+        Self::NotComputing,
+        Self::NothingToCommit,
+        Self::NothingToRollback,
+        Self::Busy,
+        Self::AllRunsDone,
+    ];
+
     /// Stable numeric code.
     pub fn code(self) -> u8 {
         self as u8
@@ -1310,22 +1327,7 @@ mod tests {
 
     #[test]
     fn codes_are_stable_and_distinct() {
-        let refusals = [
-            Refusal::NoSession,
-            Refusal::SessionActive,
-            Refusal::InvalidArgument,
-            Refusal::AlreadyRecording,
-            Refusal::NotRecording,
-            Refusal::NoRunForEndPose,
-            Refusal::EndPoseRequired,
-            Refusal::RunsIncomplete,
-            Refusal::NotComputing,
-            Refusal::NothingToCommit,
-            Refusal::NothingToRollback,
-            Refusal::Busy,
-            Refusal::AllRunsDone,
-        ];
-        let codes: Vec<u8> = refusals.iter().map(|r| r.code()).collect();
+        let codes: Vec<u8> = Refusal::ALL.iter().map(|r| r.code()).collect();
         assert_eq!(codes, (1..=13).collect::<Vec<u8>>());
         assert_eq!(Action::Compute.code(), 6);
         assert_eq!(Action::SessionAborted.code(), 11);

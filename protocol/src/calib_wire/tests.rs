@@ -94,21 +94,7 @@ fn every_code_table_equals_the_dbc_value_table_and_round_trips() {
 fn every_refusal_and_rejection_has_its_own_reason() {
     use canodom_calib::run::InputFault;
     let refusals = (1..=13u8).map(|c| {
-        let r = [
-            Refusal::NoSession,
-            Refusal::SessionActive,
-            Refusal::InvalidArgument,
-            Refusal::AlreadyRecording,
-            Refusal::NotRecording,
-            Refusal::NoRunForEndPose,
-            Refusal::EndPoseRequired,
-            Refusal::RunsIncomplete,
-            Refusal::NotComputing,
-            Refusal::NothingToCommit,
-            Refusal::NothingToRollback,
-            Refusal::Busy,
-            Refusal::AllRunsDone,
-        ][usize::from(c - 1)];
+        let r = Refusal::ALL[usize::from(c - 1)];
         assert_eq!(r.code(), c);
         let reason = Reason::of_refusal(r);
         assert_eq!(reason.code(), r.code());
