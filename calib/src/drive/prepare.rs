@@ -82,24 +82,8 @@ pub(super) fn check(samples: &[DriveSample], fixes: &[Fix]) -> Result<()> {
             ("steer_angle_rad", s.steer_angle_rad),
             ("yaw_rate_radps", s.yaw_rate_radps),
         ];
-        for (field, value) in fields {
-            if let Some(value) = value.filter(|v| !v.is_finite()) {
-                return Err(Error::NotFinite {
-                    what: "sample",
-                    index,
-                    field,
-                    value,
-                });
-            }
-        }
-        if index > 0 && s.t_s <= samples[index - 1].t_s {
-            return Err(Error::NotIncreasing {
-                what: "sample",
-                index,
-                t_s: s.t_s,
-                previous_s: samples[index - 1].t_s,
-            });
-        }
+        let previous_s = index.checked_sub(1).map(|i| samples[i].t_s);
+        check_row("sample", index, &fields, s.t_s, previous_s)?;
     }
     if fixes.len() < 3 {
         return Err(Error::NotEnoughFixes {
@@ -116,24 +100,8 @@ pub(super) fn check(samples: &[DriveSample], fixes: &[Fix]) -> Result<()> {
             ("y_m", Some(f.y_m)),
             ("heading_rad", f.heading_rad),
         ];
-        for (field, value) in fields {
-            if let Some(value) = value.filter(|v| !v.is_finite()) {
-                return Err(Error::NotFinite {
-                    what: "fix",
-                    index,
-                    field,
-                    value,
-                });
-            }
-        }
-        if index > 0 && f.t_s <= fixes[index - 1].t_s {
-            return Err(Error::NotIncreasing {
-                what: "fix",
-                index,
-                t_s: f.t_s,
-                previous_s: fixes[index - 1].t_s,
-            });
-        }
+        let previous_s = index.checked_sub(1).map(|i| fixes[i].t_s);
+        check_row("fix", index, &fields, f.t_s, previous_s)?;
         if f.t_s < first_s || f.t_s > last_s {
             return Err(Error::FixOutsideSamples {
                 index,
@@ -144,6 +112,36 @@ pub(super) fn check(samples: &[DriveSample], fixes: &[Fix]) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// One sample's or fix's `fields` finite, and its time `t_s` after the
+/// previous one's (`previous_s`, `None` for the first).
+fn check_row(
+    what: &'static str,
+    index: usize,
+    fields: &[(&'static str, Option<f64>)],
+    t_s: f64,
+    previous_s: Option<f64>,
+) -> Result<()> {
+    for &(field, value) in fields {
+        if let Some(value) = value.filter(|v| !v.is_finite()) {
+            return Err(Error::NotFinite {
+                what,
+                index,
+                field,
+                value,
+            });
+        }
+    }
+    match previous_s {
+        Some(previous_s) if t_s <= previous_s => Err(Error::NotIncreasing {
+            what,
+            index,
+            t_s,
+            previous_s,
+        }),
+        _ => Ok(()),
+    }
 }
 
 /// Splits the fixes into segments of at most `max_segment_s` and
