@@ -105,16 +105,28 @@ use crate::error::{Error, Result};
 #[cfg(test)]
 use crate::odometry::wheel_distance_factors;
 use crate::odometry::{Increment, Pose};
-use crate::rotation::{SMALL_ANGLE_RAD, advance_heading, small_sin_cos};
+use crate::rotation::advance_heading;
 use crate::{Wheel, WheelSet, wrap_angle};
 use nalgebra::{Matrix2, Matrix3, Vector3};
 
 mod aided;
+mod algebra;
 mod config;
+mod retro;
+mod scales;
 mod slide;
 mod wheels;
 use aided::Aided;
+#[cfg(test)]
+use algebra::propagate;
+use algebra::{
+    compose, compose_covariance, joseph, propagate_sensitivity, propagate_with, symmetric,
+    symmetric_inverse, symmetrise, turned_cos_sin,
+};
 pub use config::{CorrectionForm, EkfConfig, FrontHeading, GateAction};
+use retro::{RETRO_ORDER, add_rear_moments, reapply_rear_pair};
+pub use scales::{Fault, HYPOTHESES, Held, WheelScales};
+use scales::{Geometry, ScaleLearner};
 use slide::Slide;
 use wheels::{
     Axle, AxleWatch, MAX_FLOOR_FILL_MPS, blamed_wheel, every_wheel_reads_zero, launch_variance,
@@ -276,6 +288,31 @@ pub struct State {
     slide: Slide,
     /// Which axle changed speed faster than the car can ([`AxleWatch`]).
     axle_watch: AxleWatch,
+    /// Each wheel's scale, learnt from the other sensors ([`scales`]).
+    scales: ScaleLearner,
+    /// The pose's history as the rear pair correction acts on it: a heading
+    /// bias β per metre rotates every displacement by `−β·S`, `S` the rear
+    /// distance driven before it, so the windows' global displacements are
+    /// kept as moments `M_n = Σ S_midⁿ Δx` (n = 0…[`RETRO_ORDER`]) with `S`
+    /// itself. When the learner changes its mind, the pose moves to where
+    /// the new scales applied from the start would have put it
+    /// ([`reapply_rear_pair`]): a fault the sensors only tell apart after
+    /// the car turned both ways (a rear tyre 0.3 % large against the front
+    /// one on its side 0.3 % small) would otherwise leave the heading it
+    /// turned before that, 0.3–0.6 rad in the first 200 m.
+    rear_moments: [[f64; 2]; RETRO_ORDER + 1],
+    rear_distance_m: f64,
+    /// A wheel's scale acts on its own distance, the centre's plus `(b/2)Δθ`:
+    /// the pair's mean scale turns the heading by `−Δμ·Θ` too, `Θ` the
+    /// wheels' turn so far (0.016 rad in a full circle for a 0.5 % tyre),
+    /// carried to first order as `N_n = Σ S_midⁿ Θ_mid Δx` with `Θ` itself.
+    rear_turn_moments: [[f64; 2]; RETRO_ORDER + 1],
+    rear_turn_rad: f64,
+    /// The wheels' log scales the readings are corrected by, and the
+    /// factors `exp(−ln s)`: taken from the learner at a window's close
+    /// only, with the pose moved to match, so that no window mixes two.
+    applied_ln_scale: [f64; 4],
+    applied_factor: [f64; 4],
 }
 
 /// The quantities a step derives from `φ − offset` alone: a tangent, three
@@ -385,6 +422,13 @@ impl State {
             wheels_were_zero: false,
             slide: Slide::default(),
             axle_watch: AxleWatch::default(),
+            scales: ScaleLearner::new(),
+            rear_moments: [[0.0; 2]; RETRO_ORDER + 1],
+            rear_distance_m: 0.0,
+            rear_turn_moments: [[0.0; 2]; RETRO_ORDER + 1],
+            rear_turn_rad: 0.0,
+            applied_ln_scale: [0.0; 4],
+            applied_factor: [1.0; 4],
         })
     }
 
@@ -413,6 +457,9 @@ impl State {
             aided: self.aided.rebased_at_origin(),
             aided_on: self.aided_on,
             pending_yaw: self.pending_yaw,
+            scales: self.scales.rebased(),
+            applied_ln_scale: self.applied_ln_scale,
+            applied_factor: self.applied_factor,
             ..Self::origin()
         }
     }
@@ -481,6 +528,7 @@ impl State {
             steer_offset_sigma_rad: self.steer_offset_var.sqrt(),
             front_scale: self.front_scale,
             front_scale_sigma: self.front_scale_var.sqrt(),
+            wheel_fault: self.scales.kept(),
             yaw_bias: if self.aided_on {
                 let [(bias, bias_sd), (ratio, ratio_sd), (tread, tread_sd)] = self.aided.learnt();
                 Some(LearntPair {
@@ -507,6 +555,14 @@ impl State {
         st.steer_offset_var = learnt.steer_offset_sigma_rad * learnt.steer_offset_sigma_rad;
         st.front_scale = learnt.front_scale;
         st.front_scale_var = learnt.front_scale_sigma * learnt.front_scale_sigma;
+        // The learner keeps more than it saves (every explanation's filter):
+        // only a value other than its own replaces it, and "none" is its prior.
+        if learnt.wheel_fault != st.scales.kept() {
+            st.scales = ScaleLearner::new();
+            if let Some(f) = learnt.wheel_fault {
+                st.scales.restore(&f);
+            }
+        }
         st.steer_terms = SteerTerms::NONE;
         if let Some(y) = learnt.yaw_bias {
             if st.aided_on {
@@ -546,6 +602,12 @@ impl State {
         self.front_scale
     }
 
+    /// Each wheel's learnt scale with its σ and the explanation the
+    /// evidence favours ([`Fault`]); every scale 1 until a wheel is off.
+    pub fn wheel_scales(&self) -> WheelScales {
+        self.scales.learnt()
+    }
+
     /// The front odometry integrated on its own (the literal form's `z`).
     pub fn front_alone(&self) -> Pose {
         Pose {
@@ -569,6 +631,25 @@ pub struct Learnt {
     pub front_scale_sigma: f64,
     /// The yaw-rate bias and rear ratio error, once a yaw-rate sensor was seen.
     pub yaw_bias: Option<LearntPair>,
+    /// The wheel taken to read off its scale, once the learner has used a
+    /// window ([`State::wheel_scales`]).
+    pub wheel_fault: Option<LearntWheelFault>,
+}
+
+/// What the wheel-scale learner keeps across a restart: its leading
+/// explanation, the scale error it learnt, and how far it leads.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LearntWheelFault {
+    /// The explanation the evidence favoured.
+    pub fault: Fault,
+    /// Its wheel's scale (1 for [`Fault::None`]).
+    pub scale: f64,
+    /// The scale's standard deviation (0 for [`Fault::None`]).
+    pub sigma: f64,
+    /// Its log odds against the runner-up, nats.
+    pub lead_log_odds: f64,
+    /// Windows the learner had used.
+    pub windows: u32,
 }
 
 /// The yaw-rate sensor's bias and the rear wheels' errors, learnt together
@@ -615,6 +696,8 @@ struct Derived {
     steer_var: f64,
     steer_bias_var: f64,
     front_scale_var: f64,
+    /// The treads and wheelbase, for the wheel-scale learner.
+    geometry: Geometry,
 }
 
 impl Derived {
@@ -630,6 +713,11 @@ impl Derived {
             steer_var: cfg.steer_sigma_rad * cfg.steer_sigma_rad,
             steer_bias_var: cfg.steer_bias_sigma_rad * cfg.steer_bias_sigma_rad,
             front_scale_var: cfg.front_scale_sigma * cfg.front_scale_sigma,
+            geometry: Geometry {
+                rear_tread_m: p.rear_tread_m(),
+                front_tread_m: p.front_tread_m(),
+                wheelbase_m: p.wheelbase_m(),
+            },
         }
     }
 }
@@ -669,82 +757,6 @@ fn finite(name: &'static str, value: f64) -> Result<f64> {
     }
 }
 
-fn symmetrise(p: &Mat3) -> Mat3 {
-    (p + p.transpose()) * 0.5
-}
-
-/// Propagates a pose `w` and covariance by an increment with input covariance `q`.
-#[cfg(test)]
-fn propagate(w: &Vec3, p: &Mat3, inc: Increment, q: &Matrix2<f64>) -> (Vec3, Mat3) {
-    let (s, c) = (w.z + 0.5 * inc.dtheta_rad).sin_cos();
-    propagate_with(w, p, inc, q, s, c)
-}
-
-/// [`propagate`] with `sin m`, `cos m` of the mid heading already computed.
-///
-/// `A = I + a e₃ᵀ` with `a = (−Δd sin m, Δd cos m, 0)`, so
-/// `A P Aᵀ = P + a cᵀ + c aᵀ + P₃₃ a aᵀ` with `c = P e₃`: a dozen products
-/// instead of two general 3×3 multiplications (this runs every sample).
-fn propagate_with(
-    w: &Vec3,
-    p: &Mat3,
-    inc: Increment,
-    q: &Matrix2<f64>,
-    s: f64,
-    c: f64,
-) -> (Vec3, Mat3) {
-    let d = inc.distance_m;
-    let (ax, ay) = (-d * s, d * c);
-    let (cx, cy, cz) = (p[(0, 2)], p[(1, 2)], p[(2, 2)]);
-    // B = [[c, −(Δd/2) s], [s, (Δd/2) c], [0, 1]]; B Q Bᵀ entry by entry.
-    let (q11, q12, q22) = (q[(0, 0)], 0.5 * (q[(0, 1)] + q[(1, 0)]), q[(1, 1)]);
-    let (b11, b12, b21, b22) = (c, 0.5 * ax, s, 0.5 * ay);
-    // Q times B's first two rows, shared by the three x-y entries of B Q Bᵀ.
-    let (t11, t12) = (q11 * b11 + q12 * b12, q12 * b11 + q22 * b12);
-    let (t21, t22) = (q11 * b21 + q12 * b22, q12 * b21 + q22 * b22);
-    let m00 = p[(0, 0)] + 2.0 * ax * cx + cz * ax * ax + (b11 * t11 + b12 * t12);
-    let m01 = p[(0, 1)] + ax * cy + ay * cx + cz * ax * ay + (b11 * t21 + b12 * t22);
-    let m11 = p[(1, 1)] + 2.0 * ay * cy + cz * ay * ay + (b21 * t21 + b22 * t22);
-    let m02 = cx + ax * cz + b12 * q22 + b11 * q12;
-    let m12 = cy + ay * cz + b22 * q22 + b21 * q12;
-    let m22 = cz + q22;
-    let p_new = Mat3::new(m00, m01, m02, m01, m11, m12, m02, m12, m22);
-    let w_new = Vec3::new(w.x + d * c, w.y + d * s, w.z + inc.dtheta_rad);
-    (w_new, p_new)
-}
-
-/// `(cos, sin)` of the anchor heading after it turned by `turn_rad` from the
-/// heading whose `(cos, sin)` is `(c, s)`; `heading_rad` is the new heading.
-///
-/// A library `sin_cos` per correction was a tenth of a step: a small turn
-/// (every window at 100 Hz on a slow car) rotates the pair by the series
-/// instead, renormalised by one Newton step; its rounding random-walks at
-/// ~1e-16 rad per window, far below anything the filter resolves. A large
-/// turn would cost a library call anyway, so it recomputes from the heading
-/// itself, which also clears what the rotations accumulated.
-fn turned_cos_sin((c, s): (f64, f64), turn_rad: f64, heading_rad: f64) -> (f64, f64) {
-    if turn_rad.abs() > SMALL_ANGLE_RAD {
-        let (s, c) = heading_rad.sin_cos();
-        return (c, s);
-    }
-    let (st, ct) = small_sin_cos(turn_rad);
-    let (c1, s1) = (c * ct - s * st, s * ct + c * st);
-    let norm = 1.5 - 0.5 * (c1 * c1 + s1 * s1);
-    (c1 * norm, s1 * norm)
-}
-
-/// Propagates the sensitivity `v = ∂w/∂b` of a window pose to a bias `b`
-/// whose effect on the increment is `j = ∂[Δd, Δθ]/∂b` (`v' = A v + B j`,
-/// with the A, B of the prediction at mid heading `m`).
-fn propagate_sensitivity(v: &Vec3, inc: Increment, j: (f64, f64), s: f64, c: f64) -> Vec3 {
-    let d = inc.distance_m;
-    Vec3::new(
-        v.x - d * s * v.z + c * j.0 - 0.5 * d * s * j.1,
-        v.y + d * c * v.z + s * j.0 + 0.5 * d * c * j.1,
-        v.z + j.1,
-    )
-}
-
 /// The wheel distance factors `g_i` of §3 (as [`crate::odometry::wheel_distance_factors`])
 /// from `tan φ`, without a second tangent.
 fn distance_factors(k: &Derived, tan_phi: f64) -> [f64; 4] {
@@ -757,90 +769,6 @@ fn distance_factors(k: &Derived, tan_phi: f64) -> [f64; 4] {
         (lk2 + (1.0 - half_bf) * (1.0 - half_bf)).sqrt(),
         (lk2 + (1.0 + half_bf) * (1.0 + half_bf)).sqrt(),
     ]
-}
-
-/// `anchor ⊕ w` for the pose.
-fn compose(anchor: &Vec3, (c, s): (f64, f64), w: &Vec3) -> Vec3 {
-    Vec3::new(
-        anchor.x + c * w.x - s * w.y,
-        anchor.y + s * w.x + c * w.y,
-        wrap_angle(anchor.z + w.z),
-    )
-}
-
-/// The covariance of `anchor ⊕ w`: `J_a P_a J_aᵀ + R P_w Rᵀ`.
-///
-/// Written out: `J_a = I + a e₃ᵀ` with `a = (−Δy, Δx, 0)` (as the prediction's
-/// `A`) and `R` a rotation of the x-y block, so both terms are a few products.
-/// Only the upper triangles are read: every covariance here is built
-/// symmetric entry by entry (`State::new` symmetrises the caller's).
-fn compose_covariance(p_a: &Mat3, (c, s): (f64, f64), w: &Vec3, p_w: &Mat3) -> Mat3 {
-    let dx = c * w.x - s * w.y;
-    let dy = s * w.x + c * w.y;
-    let (ax, ay) = (-dy, dx);
-    let (cx, cy, cz) = (p_a[(0, 2)], p_a[(1, 2)], p_a[(2, 2)]);
-    let (a11, a22, a33) = (p_w[(0, 0)], p_w[(1, 1)], p_w[(2, 2)]);
-    let (a12, a13, a23) = (p_w[(0, 1)], p_w[(0, 2)], p_w[(1, 2)]);
-    let (cc, ss, cs) = (c * c, s * s, c * s);
-    let xx = p_a[(0, 0)] + 2.0 * ax * cx + cz * ax * ax + cc * a11 - 2.0 * cs * a12 + ss * a22;
-    let xy = p_a[(0, 1)] + ax * cy + ay * cx + cz * ax * ay + cs * (a11 - a22) + (cc - ss) * a12;
-    let yy = p_a[(1, 1)] + 2.0 * ay * cy + cz * ay * ay + ss * a11 + 2.0 * cs * a12 + cc * a22;
-    let xz = cx + ax * cz + c * a13 - s * a23;
-    let yz = cy + ay * cz + s * a13 + c * a23;
-    let zz = cz + a33;
-    Mat3::new(xx, xy, xz, xy, yy, yz, xz, yz, zz)
-}
-
-/// Joseph-form update `(I−K) P (I−K)ᵀ + K R Kᵀ` with gain `K`, prior `P` and
-/// measurement covariance `R`, both symmetric.
-///
-/// Written out because it ran on every correction as four general 3×3
-/// products and a symmetrisation (a fifth of a step's instructions): the
-/// result is symmetric, so only its six distinct entries are formed from
-/// `(I−K)P` and `KR`, and it is symmetric by construction.
-fn joseph(K: &Mat3, P: &Mat3, R: &Mat3) -> Mat3 {
-    // Plain arrays (row-major here): nalgebra's operators copied whole
-    // matrices between the products.
-    let k = |i: usize, j: usize| K[(i, j)];
-    let m = |i: usize, j: usize| if i == j { 1.0 - k(i, j) } else { -k(i, j) };
-    let (mut mp, mut kr) = ([[0.0; 3]; 3], [[0.0; 3]; 3]);
-    for i in 0..3 {
-        for j in 0..3 {
-            mp[i][j] = m(i, 0) * P[(0, j)] + m(i, 1) * P[(1, j)] + m(i, 2) * P[(2, j)];
-            kr[i][j] = k(i, 0) * R[(0, j)] + k(i, 1) * R[(1, j)] + k(i, 2) * R[(2, j)];
-        }
-    }
-    let entry = |i: usize, j: usize| {
-        mp[i][0] * m(j, 0)
-            + mp[i][1] * m(j, 1)
-            + mp[i][2] * m(j, 2)
-            + (kr[i][0] * k(j, 0) + kr[i][1] * k(j, 1) + kr[i][2] * k(j, 2))
-    };
-    let (xx, xy, xz) = (entry(0, 0), entry(0, 1), entry(0, 2));
-    let (yy, yz, zz) = (entry(1, 1), entry(1, 2), entry(2, 2));
-    Mat3::new(xx, xy, xz, xy, yy, yz, xz, yz, zz)
-}
-
-/// The symmetric matrix with this upper triangle.
-fn symmetric(xx: f64, xy: f64, xz: f64, yy: f64, yz: f64, zz: f64) -> Mat3 {
-    Mat3::new(xx, xy, xz, xy, yy, yz, xz, yz, zz)
-}
-
-/// The inverse of a symmetric 3×3 matrix by its six distinct cofactors
-/// (nalgebra's general inverse forms nine); `None` if singular.
-fn symmetric_inverse(S: &Mat3) -> Option<Mat3> {
-    let (a, b, c) = (S[(0, 0)], S[(1, 1)], S[(2, 2)]);
-    let (d, e, f) = (S[(0, 1)], S[(0, 2)], S[(1, 2)]);
-    let (c00, c01, c02) = (b * c - f * f, e * f - d * c, d * f - e * b);
-    let (c11, c12, c22) = (a * c - e * e, d * e - a * f, a * b - d * d);
-    let det = a * c00 + d * c01 + e * c02;
-    if det == 0.0 || !det.is_finite() {
-        return None;
-    }
-    let inv_det = 1.0 / det;
-    let (i00, i01, i02) = (c00 * inv_det, c01 * inv_det, c02 * inv_det);
-    let (i11, i12, i22) = (c11 * inv_det, c12 * inv_det, c22 * inv_det);
-    Some(Mat3::new(i00, i01, i02, i01, i11, i12, i02, i12, i22))
 }
 
 /// A road car for the filter's unit tests: 2.5 m wheelbase, 1.5 m treads
@@ -967,8 +895,10 @@ impl Ekf {
     fn advance(&self, st: &mut State, input: &OdometryInput) -> Result<()> {
         st.last_window = WindowOutcome::Open;
         check_input(input)?;
-        let w = &input.wheel_m;
         let phi = input.steer_angle_rad;
+        let yaw_aided = st.aided_on || input.yaw_rate_radps.is_some_and(f64::is_finite);
+        let scaled = self.scaled_wheels(st, input, yaw_aided);
+        let w = scaled.as_ref().unwrap_or(&input.wheel_m);
         let filled;
         let w = if input.zero_is_floor {
             filled = self.fill_floor(st, w, phi, input.front_valid, input.dt_s);
@@ -977,6 +907,13 @@ impl Ekf {
             w
         };
         st.axle_watch.watch(input, w, self.cfg.max_accel_mps2);
+        if self.cfg.learn_wheel_scales {
+            // Only what the wheels read themselves, while both axles move as
+            // a car can.
+            let clean = input.front_valid && st.axle_watch.calm();
+            let geo = &self.k.geometry;
+            (st.scales).accumulate(geo, &input.wheel_m, phi, input.dt_s, clean);
+        }
         // Every wheel locked while the car slides on: the distance the
         // wheels cannot read is bridged (wheel-speed sensors, four wheels).
         let bridged = (input.zero_is_floor && input.front_valid)
@@ -990,7 +927,7 @@ impl Ekf {
             .as_ref()
             .map_or((w, 0.0), |b| (&b.wheel_m, b.var_m2));
         let launch_var_m2 = launch_variance(st, input, w) + slide_var_m2;
-        if st.aided_on || input.yaw_rate_radps.is_some_and(f64::is_finite) {
+        if yaw_aided {
             return self.aided_advance(st, input, w, phi, launch_var_m2);
         }
         // As odometry::rear_increment, with 1/b precomputed (inputs checked above).
@@ -1061,6 +998,29 @@ impl Ekf {
             });
         }
         Ok(())
+    }
+
+    /// The readings corrected by the applied wheel scales, where the wheels
+    /// alone carry the heading (with a gyro the aided estimator learns the
+    /// rear ratio against it); `None` where nothing is to correct.
+    #[inline]
+    fn scaled_wheels(
+        &self,
+        st: &State,
+        input: &OdometryInput,
+        yaw_aided: bool,
+    ) -> Option<WheelSet<f64>> {
+        let c = st.applied_factor;
+        if !self.cfg.learn_wheel_scales || yaw_aided || c == [1.0; 4] {
+            return None;
+        }
+        let r = &input.wheel_m;
+        Some(WheelSet {
+            rear_left: r.rear_left * c[0],
+            rear_right: r.rear_right * c[1],
+            front_left: r.front_left * c[2],
+            front_right: r.front_right * c[3],
+        })
     }
 
     /// A step of the yaw-rate-aided estimator ([`aided`]), which takes the
@@ -1230,11 +1190,19 @@ impl Ekf {
                 let new_anchor = compose(&st.anchor, st.anchor_cos_sin, &w);
                 st.p_anchor = compose_covariance(&st.p_anchor, st.anchor_cos_sin, &w, &p_w);
                 st.anchor_heading_unwrapped_rad += w.z;
+                if self.cfg.learn_wheel_scales {
+                    let rear_kept = st.last_window != WindowOutcome::RejectedUsedFront;
+                    let moved = [new_anchor.x - st.anchor.x, new_anchor.y - st.anchor.y];
+                    add_rear_moments(st, moved, rear_kept.then_some((st.window_rear_m, w.z)));
+                }
                 st.anchor = new_anchor;
                 w.z
             }
         };
         st.anchor_cos_sin = turned_cos_sin(st.anchor_cos_sin, turn_rad, st.anchor.z);
+        if self.cfg.learn_wheel_scales {
+            reapply_rear_pair(st, self.k.inv_rear_tread);
+        }
         st.rear_w = Vec3::zeros();
         st.p_rear_w = Mat3::zeros();
         st.front_w = Vec3::zeros();

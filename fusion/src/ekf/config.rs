@@ -220,6 +220,11 @@ pub struct EkfConfig {
     /// into 0.1–0.5 %, but with matched tyres it learns quantisation noise and
     /// costs margin on §12 (0.12 % against 0.04 %; `tests/experiments.rs`).
     pub front_scale_drift: Option<f64>,
+    /// Learn each wheel's scale from the other sensors and correct the
+    /// readings by it where the wheels carry the heading (no yaw-rate
+    /// sensor): see [`super::scales`]. One rear tyre 0.3 % large otherwise
+    /// turns a car without a gyro by `0.003/b` per metre.
+    pub learn_wheel_scales: bool,
 }
 
 /// The default least speed of a straight, in wheelbases per second
@@ -294,6 +299,7 @@ impl EkfConfig {
             rejected_front_from_pair: true,
             steer_offset_drift_rad: Some(0.005f64.to_radians()),
             front_scale_drift: None,
+            learn_wheel_scales: true,
         }
     }
 

@@ -195,6 +195,9 @@ impl Validator<'_> {
         if let Some(b) = e.blend_accepted {
             ekf.blend_accepted = b;
         }
+        if let Some(b) = e.learn_wheel_scales {
+            ekf.learn_wheel_scales = b;
+        }
         if let Some(a) = &e.gate_action {
             use canodom_fusion::ekf::GateAction;
             ekf.gate_action = match a.as_str() {

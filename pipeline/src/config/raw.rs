@@ -125,6 +125,7 @@ pub(super) struct RawEkf {
     pub(super) learn_steer_offset: Option<bool>,
     pub(super) steer_offset_drift_deg: Option<f64>,
     pub(super) front_scale_drift: Option<f64>,
+    pub(super) learn_wheel_scales: Option<bool>,
     // The yaw-rate-aided estimator.
     pub(super) yaw_sigma_deg_s: Option<f64>,
     pub(super) yaw_bias_walk_deg_s_per_sqrt_s: Option<f64>,

@@ -133,7 +133,7 @@ fn the_slide_keys_reach_their_fields_and_a_zero_deceleration_is_refused() {
 fn every_ekf_key_reaches_its_field_in_its_unit() {
     use canodom_fusion::ekf::GateAction;
     let c = rav4_yaw(
-        "[ekf]\nfront_scale_sigma = 0.02\nmin_slip_ratio = 0.1\nblend_accepted = true\n\
+        "[ekf]\nfront_scale_sigma = 0.02\nmin_slip_ratio = 0.1\nblend_accepted = true\nlearn_wheel_scales = false\n\
          gate_action = \"keep_rear\"\nyaw_gate_sigma = 4.0\nyaw_sigma_deg_s = 0.2\n\
          yaw_bias_walk_deg_s_per_sqrt_s = 0.001\nyaw_bias_sigma_deg_s = 0.3\n\
          yaw_scale_sigma = 0.01\nrear_ratio_sigma = 0.002\nratio_walk = 1e-4\n\
@@ -148,6 +148,7 @@ fn every_ekf_key_reaches_its_field_in_its_unit() {
     assert_eq!(e.front_scale_sigma, 0.02);
     assert_eq!(e.min_slip_ratio, 0.1);
     assert!(e.blend_accepted);
+    assert!(!e.learn_wheel_scales);
     assert_eq!(e.gate_action, GateAction::KeepRear);
     assert_eq!(e.yaw_gate_sigma, 4.0);
     assert!(close(e.yaw_sigma_radps, deg(0.2)));

@@ -1,0 +1,119 @@
+//! The pose's retro-correction by the learnt wheel scales
+//! (`docs/calibration-math.md` §14).
+//!
+//! The learner ([`super::scales`]) tells a rear tyre from the front one on
+//! its side only after the car has turned tightly both ways, 150–250 m into
+//! a drive; a correction applied from then on would leave the heading the
+//! fault turned before (0.3–0.6 rad for a 0.3–0.5 % tyre). So the windows'
+//! global displacements are kept as moments of the rear distance driven
+//! before them, and when the applied scales change the anchor moves to where
+//! they would have put it had they applied from the start: exact in the
+//! heading, in position to the series' order (7·10⁻⁴ of the displacement at
+//! 0.6 rad). On the opendbc Honda drives with one rear tyre 0.3–0.5 % off
+//! this ended 0.003–0.06 % of the distance off where the true scale applied
+//! from the first sample ended 0.004–0.07 %.
+
+use super::State;
+use crate::wrap_angle;
+
+/// The highest power of the rear pair's moments: the correction's series in
+/// `β·S` is cut after it (0.6 rad leaves 7·10⁻⁴ of the displacement).
+pub(super) const RETRO_ORDER: usize = 5;
+
+/// Adds a window's global displacement `moved` to the rear pair's moments,
+/// at the middle of its rear distance and turn `rear` (`None` when the
+/// window's increment came from the front: its heading carries the bias of
+/// the windows before, not its own).
+pub(super) fn add_rear_moments(st: &mut State, moved: [f64; 2], rear: Option<(f64, f64)>) {
+    let (rear_m, turn_rad) = rear.unwrap_or((0.0, 0.0));
+    let s_mid = st.rear_distance_m + 0.5 * rear_m;
+    let turn_mid = st.rear_turn_rad + 0.5 * turn_rad;
+    st.rear_distance_m += rear_m;
+    st.rear_turn_rad += turn_rad;
+    let mut power = 1.0;
+    for (m, n) in st.rear_moments.iter_mut().zip(&mut st.rear_turn_moments) {
+        for k in 0..2 {
+            m[k] += power * moved[k];
+            n[k] += power * turn_mid * moved[k];
+        }
+        power *= s_mid;
+    }
+}
+
+/// `Σ_k (−Δβ)^k/k! J^k M_{n+k}` for each n (J the quarter turn), times
+/// `scale`: the moments of the history rotated by `−Δβ·S` and scaled.
+fn rotated_moments(
+    m: &[[f64; 2]; RETRO_ORDER + 1],
+    d_beta: f64,
+    scale: f64,
+) -> [[f64; 2]; RETRO_ORDER + 1] {
+    let mut out = [[0.0; 2]; RETRO_ORDER + 1];
+    for (n, o) in out.iter_mut().enumerate() {
+        let mut coef = 1.0;
+        for (k, mk) in m[n..].iter().enumerate() {
+            if k > 0 {
+                coef *= -d_beta / k as f64;
+            }
+            // J^k (x, y): (x, y), (−y, x), (−x, −y), (y, −x).
+            let (x, y) = match k % 4 {
+                0 => (mk[0], mk[1]),
+                1 => (-mk[1], mk[0]),
+                2 => (-mk[0], -mk[1]),
+                _ => (mk[1], -mk[0]),
+            };
+            o[0] += coef * x;
+            o[1] += coef * y;
+        }
+        o[0] *= scale;
+        o[1] *= scale;
+    }
+    out
+}
+
+/// Takes the learner's scales as the ones applied, and moves the anchor to
+/// where they would have put it had they applied from the start. Called at a
+/// window's close, when the anchor holds every sample.
+pub(super) fn reapply_rear_pair(st: &mut State, inv_rear_tread: f64) {
+    let now = st.scales.ln_scale();
+    if now == st.applied_ln_scale {
+        return;
+    }
+    let [rl0, rr0, _, _] = st.applied_ln_scale;
+    let [rl, rr, _, _] = now;
+    // The corrected rear heading turns less by (Δ ln s_RR − Δ ln s_RL)/b per
+    // metre and by the mean's change per radian the wheels turned; every
+    // rear distance shrinks by the mean's change.
+    let (d_right, d_left) = (rr - rr0, rl - rl0);
+    let d_beta = (d_right - d_left) * inv_rear_tread;
+    let d_mean = 0.5 * (d_right + d_left);
+    let scale = (-d_mean).exp();
+    let rot_m = rotated_moments(&st.rear_moments, d_beta, scale);
+    let rot_n = rotated_moments(&st.rear_turn_moments, d_beta, scale);
+    let mut next_m = rot_m;
+    let mut next_n = rot_n;
+    for k in 0..=RETRO_ORDER {
+        // − Δμ J N_n (J: the quarter turn), and N's own Θ moved by the change.
+        next_m[k][0] += d_mean * rot_n[k][1];
+        next_m[k][1] -= d_mean * rot_n[k][0];
+        let higher = if k < RETRO_ORDER {
+            rot_m[k + 1]
+        } else {
+            [0.0; 2]
+        };
+        next_n[k][0] = (1.0 - d_mean) * rot_n[k][0] - d_beta * higher[0];
+        next_n[k][1] = (1.0 - d_mean) * rot_n[k][1] - d_beta * higher[1];
+    }
+    let turn = -d_beta * st.rear_distance_m - d_mean * st.rear_turn_rad;
+    st.anchor.x += next_m[0][0] - st.rear_moments[0][0];
+    st.anchor.y += next_m[0][1] - st.rear_moments[0][1];
+    st.anchor_heading_unwrapped_rad += turn;
+    st.anchor.z = wrap_angle(st.anchor.z + turn);
+    let (s, c) = st.anchor.z.sin_cos();
+    st.anchor_cos_sin = (c, s);
+    st.rear_moments = next_m;
+    st.rear_turn_moments = next_n;
+    st.rear_turn_rad += turn;
+    st.rear_distance_m *= scale;
+    st.applied_ln_scale = now;
+    st.applied_factor = now.map(|l| (-l).exp());
+}
