@@ -268,6 +268,51 @@ pub struct SavedLearnt {
     /// Its standard deviation.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub tread_sigma: Option<f64>,
+    /// The wheel the scale learner takes to read off, once it has used a
+    /// window (absent in files of older versions).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub wheel_fault: Option<SavedWheelFault>,
+}
+
+/// The wheel-scale learner's leading explanation, as saved (see
+/// [`canodom_fusion::ekf::LearntWheelFault`]).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SavedWheelFault {
+    /// `none`, `rear_left`, `rear_right`, `front_left`, `front_right` or `front_axle`.
+    pub wheel: SavedFault,
+    /// That wheel's (or axle's) scale: it reads `scale` times what it rolled.
+    pub scale: f64,
+    /// Its standard deviation.
+    pub scale_sigma: f64,
+    /// How far this explanation led the next, nats.
+    pub lead_log_odds: f64,
+    /// Windows the learner had used.
+    pub windows: u32,
+}
+
+/// A [`canodom_fusion::ekf::Fault`] in the file, by its name.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SavedFault(pub canodom_fusion::ekf::Fault);
+
+impl Serialize for SavedFault {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_str(self.0.as_str())
+    }
+}
+
+impl<'de> Deserialize<'de> for SavedFault {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        use canodom_fusion::ekf::Fault;
+        let name = String::deserialize(d)?;
+        Fault::from_name(&name).map(Self).ok_or_else(|| {
+            let known: Vec<&str> = Fault::ALL.iter().map(|f| f.as_str()).collect();
+            serde::de::Error::custom(format!(
+                "unknown wheel {name:?} (one of {})",
+                known.join(", ")
+            ))
+        })
+    }
 }
 
 /// The largest learnt values a restart takes back: beyond them a saved
@@ -284,6 +329,8 @@ pub mod learnt_bounds {
     pub const REAR_RATIO_ERR: f64 = 0.01;
     /// Effective rear tread error (20 %).
     pub const TREAD_ERR: f64 = 0.2;
+    /// A wheel's scale's distance from 1 (5 %).
+    pub const WHEEL_SCALE: f64 = 0.05;
 }
 
 /// A saved learnt value a restart refuses.
@@ -313,6 +360,13 @@ impl SavedLearnt {
             rear_ratio_sigma: l.yaw_bias.map(|y| y.rear_ratio_sigma),
             tread_err: l.yaw_bias.map(|y| y.tread_err),
             tread_sigma: l.yaw_bias.map(|y| y.tread_sigma),
+            wheel_fault: l.wheel_fault.map(|f| SavedWheelFault {
+                wheel: SavedFault(f.fault),
+                scale: f.scale,
+                scale_sigma: f.sigma,
+                lead_log_odds: f.lead_log_odds,
+                windows: f.windows,
+            }),
         }
     }
 
@@ -365,6 +419,16 @@ impl SavedLearnt {
             }
             _ => None,
         };
+        let wheel_fault = match self.wheel_fault {
+            None => None,
+            Some(f) => Some(canodom_fusion::ekf::LearntWheelFault {
+                fault: f.wheel.0,
+                scale: within("wheel_fault.scale", f.scale, 1.0, b::WHEEL_SCALE)?,
+                sigma: sigma("wheel_fault.scale_sigma", f.scale_sigma)?,
+                lead_log_odds: sigma("wheel_fault.lead_log_odds", f.lead_log_odds)?,
+                windows: f.windows,
+            }),
+        };
         Ok(canodom_fusion::ekf::Learnt {
             steer_offset_rad: within(
                 "steer_offset_rad",
@@ -376,6 +440,7 @@ impl SavedLearnt {
             front_scale: within("front_scale", self.front_scale, 1.0, b::FRONT_SCALE)?,
             front_scale_sigma: sigma("front_scale_sigma", self.front_scale_sigma)?,
             yaw_bias: yaw,
+            wheel_fault,
         })
     }
 }

@@ -91,6 +91,7 @@ fn learnt() -> Learnt {
             tread_err: 0.03,
             tread_sigma: 2e-3,
         }),
+        wheel_fault: None,
     }
 }
 
@@ -654,6 +655,7 @@ mod format {
             rear_ratio_sigma: yaw_bias_dps.map(|_| 1e-4),
             tread_err: yaw_bias_dps.map(|_| 0.01),
             tread_sigma: yaw_bias_dps.map(|_| 1e-3),
+            wheel_fault: None,
         }
     }
 

@@ -102,8 +102,8 @@ impl std::fmt::Display for ParamIdentity {
 #[allow(clippy::struct_excessive_bools)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct ParamChanges {
-    /// A rear wheel diameter: the rear ratio error, and the front scale
-    /// (the front wheels' distance relative to the rear's).
+    /// A rear wheel diameter: the rear ratio error, the front scale (the
+    /// front wheels' distance relative to the rear's) and the wheels' scales.
     pub rear_diameters: bool,
     /// The rear tread: the effective tread error.
     pub rear_tread: bool,
@@ -158,6 +158,8 @@ pub fn reset_learnt(learnt: &Learnt, changes: ParamChanges, priors: &EkfConfig) 
     if changes.rear_diameters {
         out.front_scale = 1.0;
         out.front_scale_sigma = 0.0;
+        // The wheels' scales were learnt on the old diameters.
+        out.wheel_fault = None;
     }
     out.yaw_bias = learnt.yaw_bias.map(|y| {
         let mut y: LearntPair = y;
@@ -182,6 +184,7 @@ pub fn reset_learnt(learnt: &Learnt, changes: ParamChanges, priors: &EkfConfig) 
 mod tests {
     use super::*;
     use canodom_fusion::SteeringMap;
+    use canodom_fusion::ekf::{Fault, LearntWheelFault};
 
     fn nominal() -> ParamsInUse {
         ParamsInUse {
@@ -204,6 +207,13 @@ mod tests {
                 rear_ratio_sigma: 1e-4,
                 tread_err: 0.02,
                 tread_sigma: 1e-3,
+            }),
+            wheel_fault: Some(LearntWheelFault {
+                fault: Fault::RearLeft,
+                scale: 1.003,
+                sigma: 1e-5,
+                lead_log_odds: 25.0,
+                windows: 400,
             }),
         }
     }
@@ -333,6 +343,11 @@ mod tests {
                 "{group}"
             );
             let diam = group == "rear_diameters";
+            assert_eq!(
+                r.wheel_fault,
+                if diam { None } else { l.wheel_fault },
+                "{group}"
+            );
             assert_eq!(
                 (r.front_scale, r.front_scale_sigma),
                 if diam {

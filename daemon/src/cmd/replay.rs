@@ -194,6 +194,7 @@ pub fn execute(args: &ReplayArgs) -> anyhow::Result<()> {
             s.odometry.heading_rad
         );
     }
+    eprintln!("replay: wheel scales: {}", summary.state.wheel_scales());
     for w in &summary.warnings {
         eprintln!("replay: warning: {w}");
     }

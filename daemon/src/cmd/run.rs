@@ -26,7 +26,10 @@ READY, WATCHDOG and STOPPING (see daemon/dist/canodom.service).\n\n\
 Before opening the bus it checks that the parameter file ([calibration] param_file) can be \
 created or replaced, and exits naming the path otherwise. Relative paths in the configuration \
 are taken from its folder; without param_file the file is canodom-params.toml in \
-$STATE_DIRECTORY when systemd sets it (StateDirectory=), else beside the configuration."
+$STATE_DIRECTORY when systemd sets it (StateDirectory=), else beside the configuration. \
+Under systemd the state (what the filter learnt: wheel scales, steering offset, gyro bias) is \
+kept in $STATE_DIRECTORY/canodom-state.json unless --state-file or --no-state-file says otherwise, \
+so a restart resumes what the car taught it."
 )]
 pub struct RunArgs {
     /// The configuration file.
@@ -41,8 +44,14 @@ pub struct RunArgs {
     /// set in use; otherwise (another set, an edited configuration, a
     /// damaged or older file, a value out of bounds) they are dropped with a
     /// warning and the filter starts from its priors.
-    #[arg(long)]
+    ///
+    /// Default: `$STATE_DIRECTORY/canodom-state.json` when systemd sets
+    /// `$STATE_DIRECTORY` (the shipped unit does), else none.
+    #[arg(long, conflicts_with = "no_state_file")]
     pub state_file: Option<PathBuf>,
+    /// Keep no state file, even under systemd: every start learns anew.
+    #[arg(long)]
+    pub no_state_file: bool,
     /// With --state-file: seconds between two writes while running, the most
     /// a power cut can lose.
     #[arg(long, value_name = "SECONDS", default_value_t = crate::state_file::DEFAULT_EVERY_S,
@@ -103,8 +112,15 @@ pub fn execute(args: &RunArgs) -> anyhow::Result<()> {
     let connector = SocketCan {
         iface: config.interface.clone(),
     };
-    let state_file = args
-        .state_file
+    let state_path = state_file_path(
+        args.state_file.as_deref(),
+        args.no_state_file,
+        std::env::var_os(canodom_pipeline::config::STATE_DIRECTORY_ENV).as_deref(),
+    );
+    if let Some(path) = &state_path {
+        info!(path = %path.display(), "state file: learnt values kept here across restarts");
+    }
+    let state_file = state_path
         .clone()
         .map(|path| crate::state_file::StateFileOptions {
             path,
@@ -146,7 +162,7 @@ pub fn execute(args: &RunArgs) -> anyhow::Result<()> {
         info!(poses = r.poses, dropped = r.dropped, files = ?r.files, "recording and live view stopped");
     }
     let summary = summary?;
-    if let (Some(path), Some(written)) = (&args.state_file, &summary.state_file) {
+    if let (Some(path), Some(written)) = (&state_path, &summary.state_file) {
         match written {
             Ok(()) => info!(path = %path.display(), "state saved"),
             Err(cause) => anyhow::bail!("end state not saved: {cause}"),
@@ -154,6 +170,28 @@ pub fn execute(args: &RunArgs) -> anyhow::Result<()> {
     }
     info!(stats = %summary.stats, poses = summary.poses_published, "canodom stopped");
     Ok(())
+}
+
+/// The state file's name in systemd's state directory.
+pub const STATE_FILE_NAME: &str = "canodom-state.json";
+
+/// Where `run` keeps its state: `--state-file`, else none with
+/// `--no-state-file`, else `STATE_FILE_NAME` in the service's state directory
+/// (`$STATE_DIRECTORY`, set by systemd's `StateDirectory=`), else none.
+pub fn state_file_path(
+    explicit: Option<&std::path::Path>,
+    none: bool,
+    state_directory: Option<&std::ffi::OsStr>,
+) -> Option<PathBuf> {
+    if let Some(p) = explicit {
+        return Some(p.to_path_buf());
+    }
+    if none {
+        return None;
+    }
+    // systemd may list several directories, separated by ':'; the first is ours.
+    let dir = state_directory?.to_str()?.split(':').next()?;
+    (!dir.is_empty()).then(|| PathBuf::from(dir).join(STATE_FILE_NAME))
 }
 
 /// `--state-every-s`: a finite number of seconds > 0 (and at most a day: a
@@ -207,5 +245,36 @@ fn require_keys(security: &canodom_pipeline::security::SecurityConfig) -> anyhow
              (README: Security)",
             canodom_pipeline::security::KEY_CREDENTIAL
         ),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::ffi::OsStr;
+    use std::path::Path;
+
+    #[test]
+    fn a_service_keeps_its_state_in_its_state_directory_by_default() {
+        let dir = Some(OsStr::new("/var/lib/canodom"));
+        assert_eq!(
+            state_file_path(None, false, dir),
+            Some(PathBuf::from("/var/lib/canodom/canodom-state.json"))
+        );
+        // systemd lists several directories with ':'; the first is the unit's own.
+        assert_eq!(
+            state_file_path(None, false, Some(OsStr::new("/var/lib/a:/var/lib/b"))),
+            Some(PathBuf::from("/var/lib/a/canodom-state.json"))
+        );
+        // Asked for explicitly, or turned off.
+        let mine = Path::new("/tmp/mine.json");
+        assert_eq!(
+            state_file_path(Some(mine), false, dir),
+            Some(mine.to_path_buf())
+        );
+        assert_eq!(state_file_path(None, true, dir), None);
+        // Outside systemd nothing is written unasked.
+        assert_eq!(state_file_path(None, false, None), None);
+        assert_eq!(state_file_path(None, false, Some(OsStr::new(""))), None);
     }
 }
