@@ -110,6 +110,7 @@ pub fn execute(args: &ConfigArgs) -> anyhow::Result<()> {
                 p.aliases.join(", ")
             )?;
         }
+        writeln!(stdout, "\n{}", canodom_cars::LIST_FOOTER)?;
         return Ok(());
     }
     let (Some(car), Some(out)) = (car, out) else {
