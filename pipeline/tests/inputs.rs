@@ -293,6 +293,20 @@ fn a_configured_message_that_never_comes_is_warned_of_by_name() {
     assert!(warnings.iter().all(|w| w.signal == "signals.direction"));
 }
 
+/// The Civic's CVT gear.
+const CVT: &str = "GEARBOX_CVT.GEAR_SHIFTER";
+
+/// `seconds` of the Honda preset's messages at `speed_mps`, GEARBOX_CVT
+/// saying R (`reverse`) or D, and GEARBOX_AUTO saying D too when `auto_d`.
+fn cvt_drive(bus: &mut Bus<'_>, seconds: u32, speed_mps: f64, reverse: bool, auto_d: bool) {
+    for _ in 0..seconds {
+        if auto_d {
+            bus.gear("GEARBOX_AUTO.GEAR_SHIFTER", false);
+        }
+        honda_second(bus, speed_mps, true, Some((CVT, reverse)));
+    }
+}
+
 /// The Civic's CVT (issue #45): 30 m out in D, 30 m back in R, the gear in
 /// GEARBOX_CVT. The preset signed the speeds by GEARBOX_AUTO only, which a
 /// CVT Civic does not send, and ended 60 m off.
@@ -300,30 +314,9 @@ fn a_configured_message_that_never_comes_is_warned_of_by_name() {
 fn a_cvt_civic_reversing_counts_backwards() {
     let c = config("honda.toml", without_checks);
     let mut bus = Bus::new(&c);
-    for _ in 0..10 {
-        honda_second(
-            &mut bus,
-            3.0,
-            true,
-            Some(("GEARBOX_CVT.GEAR_SHIFTER", false)),
-        );
-    }
-    for _ in 0..2 {
-        honda_second(
-            &mut bus,
-            0.0,
-            true,
-            Some(("GEARBOX_CVT.GEAR_SHIFTER", true)),
-        );
-    }
-    for _ in 0..10 {
-        honda_second(
-            &mut bus,
-            3.0,
-            true,
-            Some(("GEARBOX_CVT.GEAR_SHIFTER", true)),
-        );
-    }
+    cvt_drive(&mut bus, 10, 3.0, false, false);
+    cvt_drive(&mut bus, 2, 0.0, true, false);
+    cvt_drive(&mut bus, 10, 3.0, true, false);
     // Near the start, not 60 m off: the speed's steps to and from 3 m/s,
     // which no car makes, leave about 0.6 m of the trapezoid's rounding.
     let end = bus.pipeline.last_step().unwrap().fused;
@@ -333,23 +326,8 @@ fn a_cvt_civic_reversing_counts_backwards() {
     // A car sending both: GEARBOX_CVT says it (openpilot reads 0x191 when
     // it is on the bus), a GEARBOX_AUTO saying D does not undo it.
     let mut bus = Bus::new(&c);
-    for _ in 0..10 {
-        honda_second(
-            &mut bus,
-            3.0,
-            true,
-            Some(("GEARBOX_CVT.GEAR_SHIFTER", false)),
-        );
-    }
-    for _ in 0..10 {
-        bus.gear("GEARBOX_AUTO.GEAR_SHIFTER", false);
-        honda_second(
-            &mut bus,
-            3.0,
-            true,
-            Some(("GEARBOX_CVT.GEAR_SHIFTER", true)),
-        );
-    }
+    cvt_drive(&mut bus, 10, 3.0, false, false);
+    cvt_drive(&mut bus, 10, 3.0, true, true);
     let end = bus.pipeline.last_step().unwrap().fused;
     assert!(end.x_m.hypot(end.y_m) < 1.0, "ended at {end:?}");
 }

@@ -189,7 +189,8 @@ def main():
                     o_end = got_over[1]
                     o = math.hypot(o_end[0] - end[1], o_end[1] - end[2])
                     cell = f" | {o:.3f} m ({100 * o / dist:.3f} %)"
-                    learnt += [f"(override) {l}" for l in got_over[0].splitlines() if LEARNT.search(l)]
+                    learnt += [f"(override) {l}" for l in got_over[0].splitlines()
+                               if LEARNT.search(l) or "warning" in l]
                 ok = (bad["bad_checksum"] == 0 and bad["bad_counter"] == 0 and (faults or not faults_warned)
                       and fused <= rear + WORSE_SHARE * dist + TIE_M and fused <= 0.01 * dist)
                 print(f"| {platform} | {os.path.basename(dbc)} | {frames} | "
