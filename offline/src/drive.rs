@@ -31,6 +31,10 @@ pub struct DriveLog {
     pub malformed: u64,
     /// The warning when the log mixes several interfaces and none was chosen.
     pub mixed_buses: Option<String>,
+    /// The pipeline's warnings at the log's end (a saturated yaw rate, a
+    /// configured message that never came, an implausible signal), as
+    /// `replay` prints them.
+    pub warnings: Vec<String>,
 }
 
 /// Runs `frames` through the pipeline with `set` in use and collects a
@@ -99,7 +103,14 @@ pub fn samples_from_frames(
             pipeline.stats()
         )));
     }
+    let warnings = pipeline
+        .plausibility_at_end()
+        .0
+        .iter()
+        .map(ToString::to_string)
+        .collect();
     Ok(DriveLog {
+        warnings,
         samples,
         stats: pipeline.stats().to_string(),
         malformed: frames.malformed(),

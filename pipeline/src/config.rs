@@ -20,7 +20,7 @@ mod raw;
 mod validate;
 mod validator;
 
-use crate::signal_forms::{DirectionSignal, SignalForm};
+use crate::signal_forms::{DirectionSignal, Saturation, SignalForm};
 use canodom_dbc::{Database, FrameChecksum, SignalHandle};
 use canodom_fusion::ekf::EkfConfig;
 use canodom_fusion::wheel::SpeedUnit;
@@ -177,6 +177,9 @@ pub struct Signals {
     /// The signal that says the car reverses: wheel speeds are then read as
     /// magnitudes, negative while it says so.
     pub direction: Option<DirectionSignal>,
+    /// The second gear message `direction` names, for the other gearbox of
+    /// the car line: whichever of the two is on the bus says it.
+    pub direction_alt: Option<DirectionSignal>,
 }
 
 /// The bus's position fixes: two signals of one message.
@@ -201,6 +204,9 @@ pub struct YawRateSignal {
     /// Radians per second, left positive, per unit of the signal (the DBC
     /// unit's conversion times `yaw_rate_sign`).
     pub radps_per_unit: f64,
+    /// Where its readings are at an end of the DBC signal's range (in the
+    /// signal's unit): not given to the filter.
+    pub saturation: Saturation,
 }
 
 /// Integrity checks of one input message.

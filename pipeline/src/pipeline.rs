@@ -29,7 +29,7 @@
 use crate::config::{Config, InputsConfig, WheelKind};
 use crate::param_set;
 use crate::plausibility::{Plausibility, Warning};
-use crate::signal_forms::{DirectionSignal, SignalForm};
+use crate::signal_forms::{DirectionSignal, Saturation, SignalForm};
 use crate::stats::{Reasons, Reject, Stats};
 use canodom_can::frame::{CanFrame, FrameKind};
 use canodom_can::time::Timestamp;
@@ -39,6 +39,12 @@ pub use canodom_protocol::pose_frames::{PoseFlags, PoseOutput};
 
 /// A wheel message's silence, in periods, past which a frame was lost.
 const LOST_FRAME_PERIODS: f64 = 1.9;
+
+/// Traffic after which a configured message that never came is warned of,
+/// µs: longer than any input's period (a gear message at 1 Hz), short
+/// enough to say it before a user drives off (issue #45: a Honda preset's
+/// steering message that a car does not send went unreported).
+const MISSING_AFTER_US: u64 = 5_000_000;
 
 /// How sure the filter starts of a calibrated yaw-rate bias, rad/s (0.1°/s).
 const CALIBRATED_YAW_BIAS_SIGMA_RADPS: f64 = 0.1 * std::f64::consts::PI / 180.0;
@@ -178,6 +184,13 @@ struct Input {
     yaw: bool,
     /// Carries the reversing signal (`[signals] direction`).
     direction: bool,
+    /// Its index in the database (which direction signal it carries).
+    message_index: usize,
+    /// Its DBC name, for warnings.
+    name: String,
+    /// A frame of it came (checked or not): a message that never does is
+    /// warned of after [`MISSING_AFTER_US`] of traffic.
+    arrived: bool,
     counter: Option<(SignalHandle, CounterCheck)>,
     checksum: Option<canodom_dbc::FrameChecksum>,
     health: Health,
@@ -198,10 +211,17 @@ pub struct Pipeline {
     wheel_speed_factor: f64,
     /// The reversing signal, and whether it last said the car reverses.
     direction: Option<DirectionSignal>,
+    /// The other gearbox's gear signal (`direction` naming two), read
+    /// until a frame of the first came.
+    direction_alt: Option<DirectionSignal>,
+    primary_gear_came: bool,
     reversing: bool,
     steering: SignalForm,
-    /// The yaw-rate signal and its rad/s (left positive) per unit.
-    yaw_signal: Option<(SignalForm, f64)>,
+    /// The yaw-rate signal, its rad/s (left positive) per unit, and where
+    /// its readings are saturated.
+    yaw_signal: Option<(SignalForm, f64, Saturation)>,
+    /// `MESSAGE.SIGNAL` of the yaw rate, for its warnings.
+    yaw_name: String,
     /// The latest yaw rate, rad/s, its scale corrected.
     yaw_radps: Option<f64>,
     /// The yaw-rate sensor's scale in use (1, or calibrated): measured =
@@ -243,6 +263,11 @@ pub struct Pipeline {
     param_version: Option<u16>,
     /// The set's yaw-rate calibration (bias rad/s, scale), part of its identity.
     set_yaw_rate: (Option<f64>, Option<f64>),
+    /// The first frame's time (any id): the traffic a missing message is
+    /// judged after.
+    traffic_t0_us: Option<u64>,
+    /// Missing messages were judged (once per pipeline).
+    missing_judged: bool,
 }
 
 /// Index of a message within `inputs`, by role.
@@ -310,6 +335,70 @@ fn wheel_decoders(config: &Config) -> Result<Decoders, canodom_fusion::Error> {
     Ok(decoders)
 }
 
+/// The input messages of `config`, one per message, with the roles each
+/// carries, its checks and its health.
+fn inputs_of(config: &Config) -> Vec<Input> {
+    let s = &config.signals;
+    let db = &config.db;
+    let mut inputs: Vec<Input> = Vec::new();
+    let mut role = |idx: usize, rear: bool, front: bool, steering: bool, yaw: bool, dir: bool| {
+        let m = &db.messages()[idx];
+        let pos = if let Some(p) = find(&inputs, m.id()) {
+            p
+        } else {
+            let check = config.checks.iter().find(|c| c.message_index == idx);
+            inputs.push(Input {
+                id: m.id(),
+                length: m.length(),
+                rear: false,
+                front: false,
+                steering: false,
+                yaw: false,
+                direction: false,
+                message_index: idx,
+                name: m.name().to_owned(),
+                arrived: false,
+                counter: check
+                    .and_then(|c| c.counter)
+                    .and_then(|h| CounterCheck::new(h.size()).ok().map(|cc| (h, cc))),
+                checksum: check.and_then(|c| c.checksum.clone()),
+                health: Health::new(m.cycle_time_ms(), &config.inputs),
+            });
+            inputs.len() - 1
+        };
+        let i = &mut inputs[pos];
+        i.rear |= rear;
+        i.front |= front;
+        i.steering |= steering;
+        i.yaw |= yaw;
+        i.direction |= dir;
+    };
+    role(
+        s.wheels.rear_left.message_index,
+        true,
+        false,
+        false,
+        false,
+        false,
+    );
+    role(
+        s.wheels.front_left.message_index,
+        false,
+        true,
+        false,
+        false,
+        false,
+    );
+    role(s.steering.message_index, false, false, true, false, false);
+    if let Some(y) = &s.yaw_rate {
+        role(y.signal.message_index, false, false, false, true, false);
+    }
+    for d in s.direction.iter().chain(&s.direction_alt) {
+        role(d.message_index, false, false, false, false, true);
+    }
+    inputs
+}
+
 impl Pipeline {
     /// Builds the pipeline for a validated configuration.
     ///
@@ -319,60 +408,7 @@ impl Pipeline {
     pub fn new(config: &Config) -> Result<Self, canodom_fusion::Error> {
         let s = &config.signals;
         let db = &config.db;
-        let mut inputs: Vec<Input> = Vec::new();
-        let mut role =
-            |idx: usize, rear: bool, front: bool, steering: bool, yaw: bool, dir: bool| {
-                let m = &db.messages()[idx];
-                let pos = if let Some(p) = find(&inputs, m.id()) {
-                    p
-                } else {
-                    let check = config.checks.iter().find(|c| c.message_index == idx);
-                    inputs.push(Input {
-                        id: m.id(),
-                        length: m.length(),
-                        rear: false,
-                        front: false,
-                        steering: false,
-                        yaw: false,
-                        direction: false,
-                        counter: check
-                            .and_then(|c| c.counter)
-                            .and_then(|h| CounterCheck::new(h.size()).ok().map(|cc| (h, cc))),
-                        checksum: check.and_then(|c| c.checksum.clone()),
-                        health: Health::new(m.cycle_time_ms(), &config.inputs),
-                    });
-                    inputs.len() - 1
-                };
-                let i = &mut inputs[pos];
-                i.rear |= rear;
-                i.front |= front;
-                i.steering |= steering;
-                i.yaw |= yaw;
-                i.direction |= dir;
-            };
-        role(
-            s.wheels.rear_left.message_index,
-            true,
-            false,
-            false,
-            false,
-            false,
-        );
-        role(
-            s.wheels.front_left.message_index,
-            false,
-            true,
-            false,
-            false,
-            false,
-        );
-        role(s.steering.message_index, false, false, true, false, false);
-        if let Some(y) = &s.yaw_rate {
-            role(y.signal.message_index, false, false, false, true, false);
-        }
-        if let Some(d) = &s.direction {
-            role(d.message_index, false, false, false, false, true);
-        }
+        let inputs = inputs_of(config);
         let decoders = wheel_decoders(config)?;
         let params = config.params;
         Ok(Self {
@@ -380,9 +416,16 @@ impl Pipeline {
             wheels: s.wheels.map(|_, w| w.form),
             wheel_speed_factor: s.wheel_speed_factor,
             direction: s.direction,
+            direction_alt: s.direction_alt,
+            primary_gear_came: false,
             reversing: false,
             steering: s.steering.form,
-            yaw_signal: s.yaw_rate.map(|y| (y.signal.form, y.radps_per_unit)),
+            yaw_signal: s
+                .yaw_rate
+                .map(|y| (y.signal.form, y.radps_per_unit, y.saturation)),
+            yaw_name: s.yaw_rate.map_or_else(String::new, |y| {
+                crate::signal_forms::signal_path(db, y.signal.form.main)
+            }),
             yaw_radps: None,
             yaw_scale: 1.0,
             steer_map: params.steering(),
@@ -409,6 +452,8 @@ impl Pipeline {
             rear_scale: (1.0, 1.0),
             param_version: None,
             set_yaw_rate: (None, None),
+            traffic_t0_us: None,
+            missing_judged: false,
         })
     }
 
@@ -627,11 +672,13 @@ impl Pipeline {
         data: &[u8],
     ) -> Outcome {
         self.stats.frames += 1;
+        let t_us = t.as_micros();
+        self.judge_missing(t_us);
         let Some(idx) = self.input_index(id) else {
             return self.reject(Reject::UnknownId);
         };
-        let t_us = t.as_micros();
         let input = &mut self.inputs[idx];
+        input.arrived = true;
         if let Some(reason) = Self::check(input, data, t_us) {
             input.health.bad(&self.inputs_cfg);
             match reason {
@@ -643,16 +690,19 @@ impl Pipeline {
         }
         // Every configured signal of this message must be finite before any is used.
         let (rear, front, steering, yaw) = (input.rear, input.front, input.steering, input.yaw);
-        if input.direction
-            && let Some(d) = &self.direction
-            && let Some(raw) = d.handle.raw(data)
-        {
+        if input.direction {
             // Read before this frame's wheels: a message may carry both.
-            self.reversing = d.is_reverse(raw);
+            let index = input.message_index;
+            self.read_gear(index, data);
         }
         let val = |f: &SignalForm| f.decode(data).unwrap_or(f64::NAN);
-        let yaw_radps = match (&self.yaw_signal, yaw) {
-            (Some((f, per_unit)), true) => Some(val(f) * per_unit),
+        // (rad/s, at its range's end): no measurement of the rate at the
+        // end, where the sensor holds it however fast the car turns.
+        let yaw_reading = match (&self.yaw_signal, yaw) {
+            (Some((f, per_unit, saturation)), true) => {
+                let reading = val(f);
+                Some((reading * per_unit, saturation.is_saturated(reading)))
+            }
             _ => None,
         };
         let mut steer_signal = None;
@@ -675,7 +725,7 @@ impl Pipeline {
         };
         let speeds = raws.map(|_, (_, v)| v);
         if steer_signal.is_some_and(|u| !u.is_finite())
-            || yaw_radps.is_some_and(|w| !w.is_finite())
+            || yaw_reading.is_some_and(|(w, _)| !w.is_finite())
             || !(speeds.rear_left.is_finite()
                 && speeds.rear_right.is_finite()
                 && speeds.front_left.is_finite()
@@ -716,8 +766,10 @@ impl Pipeline {
             self.steer_rad = Some(phi);
             self.steer_signal = steer_signal;
         }
-        if let Some(w) = yaw_radps {
-            self.yaw_radps = Some(w / self.yaw_scale);
+        match yaw_reading {
+            Some((w, true)) => self.yaw_saturated(w, t_s, &mut reasons),
+            Some((w, false)) => self.yaw_radps = Some(w / self.yaw_scale),
+            None => {}
         }
         if front {
             let fl = self.wheel(Wheel::FrontLeft, t_s, raws.front_left, &mut reasons);
@@ -733,6 +785,85 @@ impl Pipeline {
             return self.step(t_s, t_rel_us, t_us, rl, rr, reasons);
         }
         Outcome::Used(reasons)
+    }
+
+    /// A gear or direction frame of message `index`: says whether the car
+    /// reverses. The first gear message listed says it once it came
+    /// (openpilot reads a Honda's GEARBOX_CVT when 0x191 is on the bus),
+    /// the second until then.
+    fn read_gear(&mut self, index: usize, data: &[u8]) {
+        let primary = self.direction.filter(|d| d.message_index == index);
+        self.primary_gear_came |= primary.is_some();
+        let gear = primary.or_else(|| {
+            self.direction_alt
+                .filter(|d| d.message_index == index && !self.primary_gear_came)
+        });
+        if let Some(d) = gear
+            && let Some(raw) = d.handle.raw(data)
+        {
+            self.reversing = d.is_reverse(raw);
+        }
+    }
+
+    /// A yaw-rate reading of `w_radps` at its range's end: the filter runs
+    /// without the gyro until it leaves the end; counted and warned of.
+    fn yaw_saturated(&mut self, w_radps: f64, t_s: f64, reasons: &mut Reasons) {
+        self.yaw_radps = None;
+        Self::remark(&mut self.stats, reasons, Reject::YawSaturated);
+        if let Some((_, per_unit, saturation)) = &self.yaw_signal {
+            let dps_per_unit = per_unit.abs().to_degrees();
+            self.plausibility.saturated(
+                &self.yaw_name,
+                w_radps.to_degrees(),
+                (
+                    saturation.range.0 * dps_per_unit,
+                    saturation.range.1 * dps_per_unit,
+                ),
+                t_s,
+            );
+        }
+    }
+
+    /// Once the traffic has lasted [`MISSING_AFTER_US`]: every configured
+    /// message that never came is a warning naming it (a car line that does
+    /// not send it, or a message of another bus). Of two gear messages
+    /// (`direction` naming two) one coming is enough.
+    #[inline]
+    fn judge_missing(&mut self, t_us: u64) {
+        if self.missing_judged {
+            return;
+        }
+        let t0 = *self.traffic_t0_us.get_or_insert(t_us);
+        if t_us.saturating_sub(t0) < MISSING_AFTER_US {
+            return;
+        }
+        self.missing_judged = true;
+        let gear_came = self.inputs.iter().any(|i| i.direction && i.arrived);
+        let t_s = self
+            .t0_us
+            .map_or(0.0, |first| t_us.saturating_sub(first) as f64 / 1e6);
+        let waited_s = t_us.saturating_sub(t0) as f64 / 1e6;
+        for input in self.inputs.iter().filter(|i| !i.arrived) {
+            let key = if input.rear {
+                "signals.rear_left"
+            } else if input.front {
+                "signals.front_left"
+            } else if input.steering {
+                "signals.steering"
+            } else if input.yaw {
+                "signals.yaw_rate"
+            } else if gear_came {
+                continue;
+            } else {
+                "signals.direction"
+            };
+            self.plausibility.missing(
+                key,
+                &format!("{} ({})", input.name, input.id),
+                waited_s,
+                t_s,
+            );
+        }
     }
 
     /// DLC, checksum and counter checks; `Some(reason)` rejects the frame.

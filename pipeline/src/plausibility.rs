@@ -61,6 +61,10 @@ pub enum Suspicion {
     Algorithm,
     /// The kind (`wheel_kind`, `steering_kind`).
     Kind,
+    /// The sensor's range: its readings held at an end of the DBC signal's.
+    Range,
+    /// The message: configured, but never on the bus.
+    Message,
 }
 
 impl fmt::Display for Suspicion {
@@ -70,6 +74,8 @@ impl fmt::Display for Suspicion {
             Self::Unit => "unit",
             Self::Algorithm => "algorithm",
             Self::Kind => "kind",
+            Self::Range => "range",
+            Self::Message => "message",
         })
     }
 }
@@ -214,6 +220,9 @@ pub struct Plausibility {
     /// Checksum, counter and wheel-fault shares already warned of: judged
     /// again at every pose sample in `run`, each warns once.
     judged_stats: [bool; 3],
+    /// The yaw rate's saturation was warned of (once: the counter
+    /// `yaw_saturated` says how often it lasted).
+    warned_saturated: bool,
 }
 
 impl Plausibility {
@@ -229,7 +238,45 @@ impl Plausibility {
             judged_steer: false,
             judged_yaw: false,
             judged_stats: [false; 3],
+            warned_saturated: false,
         }
+    }
+
+    /// A yaw-rate reading of `reading_dps` at an end of its signal's DBC
+    /// range `range_dps` (`signal`: `MESSAGE.SIGNAL`): warned of once, at
+    /// the first.
+    pub fn saturated(&mut self, signal: &str, reading_dps: f64, range_dps: (f64, f64), t_s: f64) {
+        if self.warned_saturated {
+            return;
+        }
+        self.warned_saturated = true;
+        self.warnings.push(Warning {
+            signal: "signals.yaw_rate",
+            suspicion: Suspicion::Range,
+            flag: None,
+            message: format!(
+                "{signal} read {reading_dps:.2} deg/s, at the end of its DBC range \
+                 ({:.2} .. {:.2} deg/s): the car turned faster than the sensor reads, or it is stuck; \
+                 its readings are not used while they stay there (counted as yaw_saturated)",
+                range_dps.0, range_dps.1
+            ),
+            t_s,
+        });
+    }
+
+    /// A configured message (`message`: its name and id) carrying `key`
+    /// that did not come in `waited_s` of traffic.
+    pub fn missing(&mut self, key: &'static str, message: &str, waited_s: f64, t_s: f64) {
+        self.warnings.push(Warning {
+            signal: key,
+            suspicion: Suspicion::Message,
+            flag: None,
+            message: format!(
+                "{message} never came in {waited_s:.1} s of traffic: this car does not send it on \
+                 this bus (another car line's or another bus's message?); `canodom decode` lists what it sends"
+            ),
+            t_s,
+        });
     }
 
     /// Feeds one filter step; returns how many warnings fired with it.
@@ -416,16 +463,20 @@ impl Plausibility {
         &self.warnings
     }
 
-    /// One paragraph on what fired, `None` when nothing did.
+    /// One paragraph on what fired, `None` when nothing did (or only a
+    /// saturated or missing input, which its warning explains).
     pub fn diagnosis(&self) -> Option<String> {
-        if self.warnings.is_empty() {
-            return None;
-        }
+        // A saturated or missing input is no configuration that disagrees
+        // with the rear wheels: its warning says all there is.
         let what: Vec<String> = self
             .warnings
             .iter()
+            .filter(|w| !matches!(w.suspicion, Suspicion::Range | Suspicion::Message))
             .map(|w| format!("{} ({})", w.signal, w.suspicion))
             .collect();
+        if what.is_empty() {
+            return None;
+        }
         Some(format!(
             "diagnosis: this pose is likely wrong, not merely noisy: {} disagree with the rear wheels or the bus. \
              The rear wheels are the reference here; fix the configuration of {} (each warning above says how) \

@@ -227,10 +227,40 @@ pub enum RawValue {
 #[derive(Clone, Debug, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct RawDirection {
-    /// `MESSAGE.SIGNAL` of a direction bit or the gear.
-    pub signal: String,
+    /// `MESSAGE.SIGNAL` of a direction bit or the gear, or two of them.
+    pub signal: DirectionPaths,
     /// The values that mean reversing.
     pub reverse: Vec<RawValue>,
+}
+
+/// `signal` of `[signals] direction`: one `MESSAGE.SIGNAL`, or the two
+/// messages a car line sends its gear in, one per gearbox (Honda:
+/// `GEARBOX_AUTO` on automatics, `GEARBOX_CVT` on CVTs, as openpilot's
+/// honda carstate chooses by the model): the gear is read from whichever is
+/// on the bus (the latest frame of either).
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(untagged)]
+pub enum DirectionPaths {
+    /// `signal = "MESSAGE.SIGNAL"`.
+    One(String),
+    /// `signal = ["GEARBOX_AUTO.GEAR_SHIFTER", "GEARBOX_CVT.GEAR_SHIFTER"]`.
+    Either(Vec<String>),
+}
+
+impl DirectionPaths {
+    /// The paths, in the file's order.
+    pub fn paths(&self) -> &[String] {
+        match self {
+            Self::One(p) => std::slice::from_ref(p),
+            Self::Either(v) => v,
+        }
+    }
+}
+
+impl From<&str> for DirectionPaths {
+    fn from(path: &str) -> Self {
+        Self::One(path.to_owned())
+    }
 }
 
 /// A sign signal: which raw value means negative.
@@ -324,6 +354,83 @@ impl SignalForm {
     pub fn is_plain(&self) -> bool {
         self.fine.is_none() && self.sign.is_none()
     }
+}
+
+/// Where a sensor's reading says it may be saturated: at (or within two
+/// steps of) an end of its DBC signal's range, where a real sensor holds
+/// its reading when the quantity passes the range (issue #45: a Hyundai
+/// gyro's ±40.95 °/s end read through a tight turn cost a quarter of the
+/// distance, silently).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Saturation {
+    /// The range's ends, in the form's unit (signed: a magnitude's range
+    /// mirrored by its sign).
+    pub range: (f64, f64),
+    /// A reading at or below this is saturated (−∞: the low end is 0 or
+    /// positive, which a rate holds without being saturated).
+    pub below: f64,
+    /// A reading at or above this is saturated (+∞ likewise).
+    pub above: f64,
+}
+
+impl Saturation {
+    /// Steps of the signal within which a reading counts as at the end: a
+    /// reading held at the end may still dither by a step.
+    const STEPS: f64 = 2.0;
+
+    /// The range of `form` in `db`: the raw bits' range, narrowed by the
+    /// DBC's `[min|max]` where that end is non-zero and inside the bits'
+    /// (opendbc's Toyota `YAW_RATE` states `[0|65535]`: a 0 minimum is no
+    /// range and 65535 is past its 10 bits; VW's magnitude ends at its
+    /// stated 163.82 a step short of its bits').
+    pub fn of(db: &Database, form: &SignalForm) -> Self {
+        let def = |h: SignalHandle| &db.messages()[h.message_index()].signals()[h.signal_index()];
+        let ends = |h: SignalHandle| {
+            let signal = def(h);
+            let (mut lo, mut hi) = signal.encodable_range();
+            let (min, max) = (signal.min(), signal.max());
+            if min < max {
+                if min != 0.0 && min > lo && min < hi {
+                    lo = min;
+                }
+                if max != 0.0 && max < hi && max > lo {
+                    hi = max;
+                }
+            }
+            (lo, hi)
+        };
+        let (mut lo, mut hi) = ends(form.main);
+        if let Some(fine) = form.fine {
+            let (a, b) = ends(fine);
+            (lo, hi) = (lo + a, hi + b);
+        }
+        if form.sign.is_some() {
+            let m = lo.abs().max(hi.abs());
+            (lo, hi) = (-m, m);
+        }
+        let margin = Self::STEPS * form.quantum();
+        Self {
+            range: (lo, hi),
+            below: if lo < 0.0 {
+                lo + margin
+            } else {
+                f64::NEG_INFINITY
+            },
+            above: if hi > 0.0 { hi - margin } else { f64::INFINITY },
+        }
+    }
+
+    /// Whether `reading` (in the form's unit) is at an end of the range.
+    #[inline]
+    pub fn is_saturated(&self, reading: f64) -> bool {
+        reading <= self.below || reading >= self.above
+    }
+}
+
+/// `MESSAGE.SIGNAL` of a handle, for messages naming it.
+pub fn signal_path(db: &Database, h: SignalHandle) -> String {
+    let m = &db.messages()[h.message_index()];
+    format!("{}.{}", m.name(), m.signals()[h.signal_index()].name())
 }
 
 /// A direction source resolved: its signal and the raw values of reversing.
@@ -556,16 +663,52 @@ fn check_unit(
     Ok(unit)
 }
 
-/// Resolves `[signals] direction`.
+/// Resolves `[signals] direction`: its signal, and the second one when
+/// `signal` names two (each read with the same `reverse` names or values).
 ///
 /// # Errors
-/// [`FormError`] naming `signals.direction...`.
-pub fn resolve_direction(db: &Database, raw: &RawDirection) -> Result<DirectionSignal, FormError> {
+/// [`FormError`] naming `signals.direction...`: a signal the DBC lacks, a
+/// reverse value its table lacks, more than two signals, two in one message.
+pub fn resolve_direction(
+    db: &Database,
+    raw: &RawDirection,
+) -> Result<(DirectionSignal, Option<DirectionSignal>), FormError> {
+    let key = "signals.direction.signal";
+    match raw.signal.paths() {
+        [one] => Ok((resolve_gear(db, one, &raw.reverse)?, None)),
+        [a, b] => {
+            let (a_sig, b_sig) = (
+                resolve_gear(db, a, &raw.reverse)?,
+                resolve_gear(db, b, &raw.reverse)?,
+            );
+            if a_sig.message_index == b_sig.message_index {
+                return Err(form_err(
+                    key,
+                    "two signals of two messages (one per gearbox)",
+                    format!("{a:?} and {b:?}, one message"),
+                ));
+            }
+            Ok((a_sig, Some(b_sig)))
+        }
+        other => Err(form_err(
+            key,
+            "\"MESSAGE.SIGNAL\", or two of them in a list (one per gearbox)",
+            format!("{} signals", other.len()),
+        )),
+    }
+}
+
+/// One direction or gear signal of `[signals] direction`.
+fn resolve_gear(
+    db: &Database,
+    path: &str,
+    reverse: &[RawValue],
+) -> Result<DirectionSignal, FormError> {
     let key = "signals.direction";
-    let h = handle(db, &format!("{key}.signal"), &raw.signal)?;
+    let h = handle(db, &format!("{key}.signal"), path)?;
     let signal = &db.messages()[h.message_index()].signals()[h.signal_index()];
     let table = signal.value_descriptions();
-    if raw.reverse.is_empty() {
+    if reverse.is_empty() {
         return Err(form_err(
             &format!("{key}.reverse"),
             "the values that mean reversing, raw (1) or named (\"R\")",
@@ -573,7 +716,7 @@ pub fn resolve_direction(db: &Database, raw: &RawDirection) -> Result<DirectionS
         ));
     }
     let mut mask = 0u64;
-    for v in &raw.reverse {
+    for v in reverse {
         let value = match v {
             RawValue::Raw(r) => *r,
             RawValue::Name(name) => table
@@ -585,7 +728,7 @@ pub fn resolve_direction(db: &Database, raw: &RawDirection) -> Result<DirectionS
                     form_err(
                         &format!("{key}.reverse"),
                         if names.is_empty() {
-                            format!("raw values: {} has no value table", raw.signal)
+                            format!("raw values: {path} has no value table")
                         } else {
                             format!("a raw value or one of {names:?}")
                         },
@@ -774,7 +917,7 @@ VAL_ 173 GE_Fahrstufe 5 "P" 6 "R" 7 "N" 8 "D" ;
     #[test]
     fn direction_by_name_or_raw() {
         let db = db();
-        let d = resolve_direction(
+        let (d, _) = resolve_direction(
             &db,
             &RawDirection {
                 signal: "Getriebe_11.GE_Fahrstufe".into(),
@@ -796,7 +939,7 @@ VAL_ 173 GE_Fahrstufe 5 "P" 6 "R" 7 "N" 8 "D" ;
             e.expected.contains("\"R\"") && e.key == "signals.direction.reverse",
             "{e:?}"
         );
-        let d = resolve_direction(
+        let (d, _) = resolve_direction(
             &db,
             &RawDirection {
                 signal: "LWI_01.LWI_VZ_Lenkradwinkel".into(),

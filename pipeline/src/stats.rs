@@ -35,11 +35,15 @@ pub enum Reject {
     GateReject,
     /// The EKF refused a step (the previous state was kept).
     FilterError,
+    /// The yaw-rate reading was at (or within a step or two of) an end of
+    /// its DBC signal's range: the sensor may be saturated, so the reading
+    /// is not given to the filter (the rest of the frame is used).
+    YawSaturated,
 }
 
 impl Reject {
     /// Every reason, in the order statistics print them.
-    pub const ALL: [Self; 12] = [
+    pub const ALL: [Self; 13] = [
         Self::UnknownId,
         Self::NotData,
         Self::Truncated,
@@ -52,6 +56,7 @@ impl Reject {
         Self::WheelGap,
         Self::GateReject,
         Self::FilterError,
+        Self::YawSaturated,
     ];
 
     /// Short snake-case name for logs.
@@ -69,6 +74,7 @@ impl Reject {
             Self::WheelGap => "wheel_gap",
             Self::GateReject => "gate_reject",
             Self::FilterError => "filter_error",
+            Self::YawSaturated => "yaw_saturated",
         }
     }
 }

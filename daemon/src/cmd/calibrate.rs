@@ -185,7 +185,13 @@ fn end_pose_of(poses: &HashMap<String, Pose>, log: &Path) -> Option<Pose> {
 fn input_faults(pipeline: &Pipeline) -> u64 {
     Reject::ALL
         .iter()
-        .filter(|r| !matches!(r, Reject::UnknownId | Reject::NotData | Reject::GateReject))
+        .filter(|r| {
+            // A saturated yaw rate is no fault of the wheels this fits.
+            !matches!(
+                r,
+                Reject::UnknownId | Reject::NotData | Reject::GateReject | Reject::YawSaturated
+            )
+        })
         .map(|&r| pipeline.stats().get(r))
         .sum()
 }
@@ -254,6 +260,11 @@ pub fn run_from_log(
     }
     if let Some(warning) = frames.finish(pipeline.stats().frames)? {
         tracing::warn!("calibrate: {warning}");
+    }
+    // What `replay` ends with: a saturated yaw rate, a configured message
+    // that never came, an implausible signal (issue #45).
+    for w in pipeline.plausibility_at_end().0 {
+        tracing::warn!("calibrate: {}: warning: {w}", log.display());
     }
     let malformed = frames.malformed();
     let moving = |s: &RevSample| s.rear_left_rev.abs().max(s.rear_right_rev.abs()) > MOVING_REV;

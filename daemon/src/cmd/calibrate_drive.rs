@@ -58,6 +58,9 @@ pub fn samples_from_log(
     if let Some(warning) = &drive.mixed_buses {
         tracing::warn!("calibrate: {warning}");
     }
+    for w in &drive.warnings {
+        tracing::warn!("calibrate: {}: warning: {w}", log.display());
+    }
     Ok(drive)
 }
 

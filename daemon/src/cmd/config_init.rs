@@ -44,8 +44,8 @@ pub enum ConfigAction {
     },
 }
 
+use canodom_cars::refusal;
 pub use canodom_cars::{PLATFORMS, Platform, platform};
-use canodom_cars::{normalise, not_covered};
 
 /// Writes `platform`'s configuration to `out` and its DBC beside it.
 ///
@@ -110,25 +110,14 @@ pub fn execute(args: &ConfigArgs) -> anyhow::Result<()> {
                 p.aliases.join(", ")
             )?;
         }
+        writeln!(stdout, "\n{}", canodom_cars::LIST_FOOTER)?;
         return Ok(());
     }
     let (Some(car), Some(out)) = (car, out) else {
         anyhow::bail!("--car PLATFORM and --out FILE are needed (or --list)");
     };
     let Some(p) = platform(car) else {
-        let names: Vec<&str> = PLATFORMS.iter().map(|p| p.name).collect();
-        let key = normalise(car);
-        if let Some(why) = not_covered(key.strip_suffix("_generated").unwrap_or(&key)) {
-            anyhow::bail!(
-                "no configuration for `{car}`: {why}. Platforms: {} (canodom config init --list); \
-                 or write [signals] by hand (README \"Configure it\")",
-                names.join(", ")
-            );
-        }
-        anyhow::bail!(
-            "unknown platform `{car}`: one of {} or a maker name (canodom config init --list)",
-            names.join(", ")
-        );
+        anyhow::bail!("{}", refusal(car));
     };
     let dbc = write(p, out, interface)?;
     // What was written loads: the same validation `run` does.

@@ -166,10 +166,12 @@ impl Validator<'_> {
             }
             steering.form.fine = Some(fine.handle);
         }
-        let direction = match &s.direction {
-            None => None,
+        let (direction, direction_alt) = match &s.direction {
+            None => (None, None),
             Some(d) => {
-                Some(crate::signal_forms::resolve_direction(&db, d).map_err(|e| self.form(e))?)
+                let (first, second) =
+                    crate::signal_forms::resolve_direction(&db, d).map_err(|e| self.form(e))?;
+                (Some(first), second)
             }
         };
         let tick_bits = wheels.rear_left.handle.size();
@@ -215,6 +217,7 @@ impl Validator<'_> {
                     }
                 };
                 Some(YawRateSignal {
+                    saturation: crate::signal_forms::Saturation::of(&db, &signal.form),
                     signal,
                     radps_per_unit: per_unit * sign,
                 })
@@ -547,6 +550,7 @@ impl Validator<'_> {
                 yaw_rate,
                 wheel_speed_factor,
                 direction,
+                direction_alt,
             },
             checks,
             inputs,
