@@ -19,10 +19,11 @@ pub use opendbc_cars::OPENDBC_CARS;
 pub const LIST_FOOTER: &str = "\
 Every [vehicle] above is the platform's typical car: yours differs. On drives packed by
 opendbc's packer (README \"What a preset gives on your car\"; 642-805 m, 0.7 g turns) a
-preset ends 0.002-0.23 % of the distance off on its own car, 0.27-3.7 % on a car whose
-treads are 2 % wider, and 4.6-58 % with one rear tyre 0.3-0.5 % larger than the other
-(wear, pressure); a front tyre or a steering ratio 5 % off costs nothing. Measure the rear
-tread, or calibrate the tread and the rear wheels' ratio (README \"Calibrate it\").";
+preset ends 0.002-0.23 % of the distance off on its own car and 0.27-3.7 % on a car whose
+treads are 2 % wider. One rear tyre 0.3-0.5 % larger than the other (wear, pressure) is
+learnt once the car has turned tightly both ways: 0.002-0.43 % (the rear wheels alone:
+3.3-58 %). A front tyre or a steering ratio 5 % off costs nothing. Measure the rear tread,
+or calibrate it with the rear wheels' ratio (README \"Calibrate it\").";
 
 /// The README section a refusal points to for writing `[signals]` by hand.
 pub const README_BY_HAND: &str = "Configure it by hand";

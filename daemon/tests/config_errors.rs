@@ -237,6 +237,7 @@ fn the_examples_ekf_blocks_state_the_defaults() {
             "max_accel_mps2",
             "slide_decel_mps2",
             "slide_decel_sigma_mps2",
+            "learn_wheel_scales",
         ] {
             assert!(
                 keys.contains(&key),
@@ -244,7 +245,7 @@ fn the_examples_ekf_blocks_state_the_defaults() {
                 path.display()
             );
         }
-        assert_eq!(keys.len(), 36, "{}: {keys:?}", path.display());
+        assert_eq!(keys.len(), 37, "{}: {keys:?}", path.display());
     }
 }
 

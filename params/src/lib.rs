@@ -10,4 +10,5 @@
 
 pub mod atomic_file;
 pub mod freshness;
+pub mod learnt;
 pub mod persist;

@@ -1,5 +1,5 @@
 //! The pose's retro-correction by the learnt wheel scales
-//! (`docs/calibration-math.md` §14).
+//! (`docs/calibration-math.md` §15).
 //!
 //! The learner ([`super::scales`]) tells a rear tyre from the front one on
 //! its side only after the car has turned tightly both ways, 150–250 m into

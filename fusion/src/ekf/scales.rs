@@ -1,4 +1,4 @@
-//! Each wheel's scale, learnt from the other sensors (`docs/calibration-math.md` §14).
+//! Each wheel's scale, learnt from the other sensors (`docs/calibration-math.md` §15).
 //!
 //! **What the sensors tell.** Four wheel speeds and the steering angle tell
 //! the car's curvature three times (the rear pair's difference, the front
