@@ -77,6 +77,41 @@ fn ekf_step(c: &mut Criterion) {
                 .unwrap_or_else(|e| panic!("{e}"));
         });
     });
+    // The same without the wheel-scale learner (issue #45): what it costs.
+    let unlearnt = Ekf::new(EkfConfig {
+        learn_wheel_scales: false,
+        ..EkfConfig::new(p)
+    })
+    .unwrap_or_else(|e| panic!("{e}"));
+    g.bench_function("step, default cadence, wheel scales not learnt", |b| {
+        let inp = input(&p, 0.0);
+        let mut st = State::origin();
+        b.iter(|| {
+            st = unlearnt
+                .step(black_box(&st), black_box(&inp))
+                .unwrap_or_else(|e| panic!("{e}"));
+        });
+    });
+    // At 10 m/s in a curve: the learner closes a window every 5 m and
+    // compares its six explanations (at the bench's 0.1 m/s it never does).
+    g.bench_function(
+        "step, default cadence, 10 m/s (wheel-scale windows every 5 m)",
+        |b| {
+            let mut inp = input_at(&p, 0.0, (2.5f64 / 50.0).atan());
+            inp.wheel_m = WheelSet {
+                rear_left: inp.wheel_m.rear_left * 100.0,
+                rear_right: inp.wheel_m.rear_right * 100.0,
+                front_left: inp.wheel_m.front_left * 100.0,
+                front_right: inp.wheel_m.front_right * 100.0,
+            };
+            let mut st = State::origin();
+            b.iter(|| {
+                st = default
+                    .step(black_box(&st), black_box(&inp))
+                    .unwrap_or_else(|e| panic!("{e}"));
+            });
+        },
+    );
     // A new steering angle every sample: the tangent and square roots anew.
     g.bench_function(
         "step, default cadence, steering changing every sample",
