@@ -376,13 +376,18 @@ impl ScaleLearner {
     /// standstill): what it learnt is kept.
     pub(crate) fn rebased(&self) -> Self {
         let mut s = *self;
-        s.win_wheel_m = [0.0; 4];
-        s.win_centre_m = 0.0;
-        s.win_turn_m = 0.0;
-        s.win_turn_sq_m = 0.0;
-        s.win_t_s = 0.0;
-        s.win_spoilt = false;
+        s.reset_window();
         s
+    }
+
+    /// Drops the open window's sums.
+    fn reset_window(&mut self) {
+        self.win_wheel_m = [0.0; 4];
+        self.win_centre_m = 0.0;
+        self.win_turn_m = 0.0;
+        self.win_turn_sq_m = 0.0;
+        self.win_t_s = 0.0;
+        self.win_spoilt = false;
     }
 
     /// What a state file keeps: `None` before the first window.
@@ -576,12 +581,7 @@ impl ScaleLearner {
         let usable = !self.win_spoilt && speed >= MIN_SPEED_MPS && dist > 0.0;
         let (wheels, turn, turn_sq) = (self.win_wheel_m, self.win_turn_m, self.win_turn_sq_m);
         self.last_speed_mps = speed;
-        self.win_wheel_m = [0.0; 4];
-        self.win_centre_m = 0.0;
-        self.win_turn_m = 0.0;
-        self.win_turn_sq_m = 0.0;
-        self.win_t_s = 0.0;
-        self.win_spoilt = false;
+        self.reset_window();
         if !usable {
             return;
         }
