@@ -49,7 +49,7 @@ WORSE_SHARE = 0.0005
 TIE_M = 1e-6
 # What a replay prints about a value it learnt (the estimator's lines, once
 # it prints them: the pattern is the hook).
-LEARNT = re.compile(r"\blearn(?:t|ed)\b|\bscale\b", re.IGNORECASE)
+LEARNT = re.compile(r"\blearn(?:t|ed)\b|\bscales?\b", re.IGNORECASE)
 HERE = os.path.dirname(os.path.abspath(__file__))
 
 
