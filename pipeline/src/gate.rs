@@ -398,7 +398,7 @@ mod tests {
     use canodom_can::time::Timestamp;
     use canodom_protocol::calib_wire::{Ack, AckStatus, Command};
     use canodom_protocol::secoc_keys::{MasterKey, Party};
-    use std::os::unix::fs::PermissionsExt as _;
+    use std::os::unix::fs::{OpenOptionsExt as _, PermissionsExt as _};
     use std::path::PathBuf;
 
     const MASTER_HEX: &str = "000102030405060708090a0b0c0d0e0f";
@@ -503,6 +503,46 @@ mod tests {
             ),
             (10, 60, 5_000)
         );
+    }
+
+    #[test]
+    fn auth_a_key_file_in_a_linked_folder_is_refused() {
+        // Issue #44: the file itself is real, a folder on its path is a link.
+        let (dir, _) = setup("key-linked-dir", 0o600, &daemon_keys(), "");
+        let real = dir.join("real");
+        std::fs::create_dir_all(&real).unwrap();
+        std::fs::rename(dir.join("canodom.keys"), real.join("canodom.keys")).unwrap();
+        std::os::unix::fs::symlink(&real, dir.join("linked")).unwrap();
+        let e = crate::security::read_key_file(&dir.join("linked/canodom.keys")).unwrap_err();
+        assert!(matches!(e, crate::security::KeyFileError::Symlink), "{e}");
+        assert!(crate::security::read_key_file(&real.join("canodom.keys")).is_ok());
+    }
+
+    #[test]
+    fn auth_a_fifo_as_key_file_is_refused_at_once() {
+        // Issue #44: opening a FIFO for reading blocks until a writer comes;
+        // the start must be refused instead. Judged on a thread so that the
+        // old behaviour fails the test rather than hanging it.
+        let (dir, _) = setup("key-fifo", 0o600, &daemon_keys(), "");
+        let fifo = dir.join("fifo.keys");
+        nix::unistd::mkfifo(&fifo, nix::sys::stat::Mode::from_bits_truncate(0o600)).unwrap();
+        let (tx, rx) = std::sync::mpsc::channel();
+        let path = fifo.clone();
+        std::thread::spawn(move || {
+            let _ = tx.send(crate::security::read_key_file(&path).map(|_| ()));
+        });
+        let r = rx
+            .recv_timeout(std::time::Duration::from_secs(10))
+            .expect("reading a FIFO as key file must not block");
+        assert!(
+            matches!(r, Err(crate::security::KeyFileError::NotAFile)),
+            "{r:?}"
+        );
+        // Let a thread still blocked on the old code go.
+        let _ = std::fs::OpenOptions::new()
+            .write(true)
+            .custom_flags(libc::O_NONBLOCK)
+            .open(&fifo);
     }
 
     #[test]

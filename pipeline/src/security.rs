@@ -104,13 +104,15 @@ pub enum KeyFileError {
     /// Cannot be opened or read.
     #[error("cannot read: {0}")]
     Io(#[from] std::io::Error),
-    /// A symbolic link: refused rather than followed (it could be swapped
-    /// between a check and the read).
+    /// A symbolic link, or a path through a linked folder: refused rather
+    /// than followed (it could be swapped between a check and the read).
     #[error(
-        "is a symbolic link; give the real file (a key file is opened without following links)"
+        "is a symbolic link or lies in a linked folder; give the real path (a key file is \
+         opened without following any link)"
     )]
     Symlink,
-    /// Not a regular file.
+    /// Not a regular file (a FIFO, a device, a folder): refused at once,
+    /// never read from.
     #[error("not a regular file")]
     NotAFile,
     /// Owned by another user than the one reading it (or root).
@@ -170,28 +172,22 @@ pub fn read_credential_key_file(path: &Path) -> Result<KeySet, KeyFileError> {
 }
 
 /// Reads a secret (a key file, a master key): opened without following a
-/// symbolic link (`O_NOFOLLOW`), then checked on the open descriptor
-/// (`fstat`: a regular file, owned by this process's user or root, no
-/// access for group or others), read into memory that is wiped when the
-/// returned text is dropped. `access` says which permission bits besides
-/// the owner's are tolerated.
+/// symbolic link anywhere on its path (`openat2` with
+/// `RESOLVE_NO_SYMLINKS`: a linked folder is refused as a linked file is,
+/// since whoever can swap either can swap the key) and without blocking
+/// (`O_NONBLOCK`: a FIFO or a device opens at once and is refused by the
+/// check below instead of stalling the start), then checked on the open
+/// descriptor (`fstat`: a regular file, owned by this process's user or
+/// root, no access for group or others), read into memory that is wiped
+/// when the returned text is dropped. `access` says which permission bits
+/// besides the owner's are tolerated.
 ///
 /// # Errors
 /// [`KeyFileError`].
 pub fn read_secret_file(path: &Path, access: Access) -> Result<Zeroizing<String>, KeyFileError> {
     use std::io::Read as _;
-    use std::os::unix::fs::{MetadataExt as _, OpenOptionsExt as _};
-    let mut file = std::fs::OpenOptions::new()
-        .read(true)
-        .custom_flags(libc::O_NOFOLLOW | libc::O_CLOEXEC | libc::O_NOCTTY)
-        .open(path)
-        .map_err(|e| {
-            if e.raw_os_error() == Some(libc::ELOOP) {
-                KeyFileError::Symlink
-            } else {
-                KeyFileError::Io(e)
-            }
-        })?;
+    use std::os::unix::fs::MetadataExt as _;
+    let mut file = open_no_symlinks(path)?;
     let meta = file.metadata()?;
     if !meta.is_file() {
         return Err(KeyFileError::NotAFile);
@@ -231,6 +227,52 @@ pub fn read_secret_file(path: &Path, access: Access) -> Result<Zeroizing<String>
     let mut text = Zeroizing::new(String::with_capacity(bytes.len()));
     text.push_str(std::str::from_utf8(&bytes).unwrap_or_default());
     Ok(text)
+}
+
+/// Opens `path` read-only, non-blocking, refusing a symbolic link in any
+/// component of it (see [`read_secret_file`]).
+fn open_no_symlinks(path: &Path) -> Result<std::fs::File, KeyFileError> {
+    use nix::fcntl::{OFlag, OpenHow, ResolveFlag, openat2};
+    let how = OpenHow::new()
+        .flags(
+            OFlag::O_RDONLY
+                | OFlag::O_NOFOLLOW
+                | OFlag::O_CLOEXEC
+                | OFlag::O_NOCTTY
+                | OFlag::O_NONBLOCK,
+        )
+        .resolve(ResolveFlag::RESOLVE_NO_SYMLINKS);
+    match openat2(nix::fcntl::AT_FDCWD, path, how) {
+        Ok(fd) => Ok(std::fs::File::from(fd)),
+        Err(nix::errno::Errno::ELOOP) => Err(KeyFileError::Symlink),
+        Err(nix::errno::Errno::ENOSYS) => {
+            // Linux before 5.6 has no openat2: every folder on the way is
+            // checked first (a narrow race with whoever can write to one of
+            // them), then the file opened without following a link.
+            use std::os::unix::fs::OpenOptionsExt as _;
+            let absolute = std::path::absolute(path)?;
+            if absolute.ancestors().skip(1).any(|a| {
+                a.symlink_metadata()
+                    .is_ok_and(|m| m.file_type().is_symlink())
+            }) {
+                return Err(KeyFileError::Symlink);
+            }
+            std::fs::OpenOptions::new()
+                .read(true)
+                .custom_flags(
+                    libc::O_NOFOLLOW | libc::O_CLOEXEC | libc::O_NOCTTY | libc::O_NONBLOCK,
+                )
+                .open(path)
+                .map_err(|e| {
+                    if e.raw_os_error() == Some(libc::ELOOP) {
+                        KeyFileError::Symlink
+                    } else {
+                        KeyFileError::Io(e)
+                    }
+                })
+        }
+        Err(e) => Err(KeyFileError::Io(e.into())),
+    }
 }
 
 /// A `[security]` value that cannot be used; the configuration names its file.

@@ -1326,6 +1326,16 @@ mod tests {
     }
 
     #[test]
+    fn auth_the_key_schedule_and_subkeys_are_wiped_when_dropped() {
+        // Issue #44: without the `zeroize` features of `aes` and `cmac` the
+        // expanded key (from which the key follows) stayed in freed memory.
+        fn wiped<T: zeroize::ZeroizeOnDrop>() {}
+        wiped::<Aes128>();
+        wiped::<cmac::CmacCore<Aes128>>();
+        wiped::<Key>();
+    }
+
+    #[test]
     fn auth_the_mac_binds_the_frame_id() {
         let a = Authenticator::new(&key());
         let p = [0u8; 8];
