@@ -1,5 +1,5 @@
-//! `[security]`: the SecOC keys, the freshness files, the acceptance window
-//! and the lockout (issues #22, #33), validated once at load (the gate that
+//! `[security]`: the SecOC keys, the freshness files and the acceptance
+//! window (issues #22, #33, #44), validated once at load (the gate that
 //! uses them is [`crate::gate`]).
 //!
 //! ```toml
@@ -8,10 +8,7 @@
 //!                              # default: $CREDENTIALS_DIRECTORY/canodom.keys (systemd LoadCredential=)
 //! freshness_file = "canodom-freshness"        # default: beside the parameter file
 //! operator_freshness_file = "operator-freshness"  # `canodom calib`'s counter (default: ~/.local/state/canodom/)
-//! freshness_window_s = 5.0     # a freshness value is accepted only this close to the receiver's clock
-//! lockout_failures = 10        # this many bad MACs on one secured id ...
-//! lockout_window_s = 10.0      # ... within this window ...
-//! lockout_s = 60.0             # ... lock that id out this long (CALIB_ACK never)
+//! freshness_window_s = 5.0     # a frame is accepted this long after the SECOC_SYNC it was signed by
 //! allow_without_key = false    # true: a bench without keys (nothing authenticated)
 //! ```
 //!
@@ -49,9 +46,6 @@ pub(crate) struct RawSecurity {
     freshness_file: Option<PathBuf>,
     operator_freshness_file: Option<PathBuf>,
     freshness_window_s: f64,
-    lockout_failures: u32,
-    lockout_window_s: f64,
-    lockout_s: f64,
     allow_without_key: bool,
 }
 
@@ -61,10 +55,9 @@ impl Default for RawSecurity {
             key_file: None,
             freshness_file: None,
             operator_freshness_file: None,
-            freshness_window_s: canodom_protocol::secoc::DEFAULT_WINDOW_MS as f64 / 1000.0,
-            lockout_failures: 10,
-            lockout_window_s: 10.0,
-            lockout_s: 60.0,
+            freshness_window_s: f64::from(canodom_protocol::secoc::DEFAULT_WINDOW_TICKS)
+                * canodom_protocol::secoc::SYNC_PERIOD_US as f64
+                / 1e6,
             allow_without_key: false,
         }
     }
@@ -88,14 +81,19 @@ pub struct SecurityConfig {
     /// `$HOME/.local/state/canodom/operator-freshness`, else beside the
     /// configuration (its folder is created when the client first signs).
     pub operator_freshness_file: PathBuf,
-    /// How far a freshness value may be from the receiver's clock.
+    /// How long after the `SECOC_SYNC` it was signed by a secured frame
+    /// is accepted (on the daemon's monotonic clock; whole announcement
+    /// periods, at least one).
     pub freshness_window: Duration,
-    /// Bad MACs on one id within [`Self::lockout_window`] that lock it out (≥ 1).
-    pub lockout_failures: u32,
-    /// The window the failures are counted in.
-    pub lockout_window: Duration,
-    /// How long a lockout lasts.
-    pub lockout: Duration,
+}
+
+impl SecurityConfig {
+    /// The acceptance window in announcements ([`Self::freshness_window`]
+    /// rounded up to whole [`canodom_protocol::secoc::SYNC_PERIOD_US`]).
+    pub fn window_ticks(&self) -> u32 {
+        let period = canodom_protocol::secoc::SYNC_PERIOD_US as u128;
+        (self.freshness_window.as_micros().div_ceil(period)).clamp(1, u128::from(u32::MAX)) as u32
+    }
 }
 
 /// Why a key file is refused.
@@ -299,13 +297,6 @@ pub(crate) fn validate(
         SecurityError::Invalid(key.to_owned(), expected.to_owned(), got)
     };
     let beside = |p: &Path| file.parent().unwrap_or(Path::new(".")).join(p);
-    if raw.lockout_failures == 0 {
-        return Err(invalid(
-            "security.lockout_failures",
-            "an integer >= 1",
-            "0".into(),
-        ));
-    }
     let secs = |key: &str, v: f64, max: f64| {
         if v.is_finite() && v > 0.0 && v <= max {
             Ok(Duration::from_secs_f64(v))
@@ -364,9 +355,6 @@ pub(crate) fn validate(
             beside,
         ),
         freshness_window: secs("security.freshness_window_s", raw.freshness_window_s, 600.0)?,
-        lockout_failures: raw.lockout_failures,
-        lockout_window: secs("security.lockout_window_s", raw.lockout_window_s, 1e8)?,
-        lockout: secs("security.lockout_s", raw.lockout_s, 1e8)?,
     })
 }
 
@@ -375,6 +363,14 @@ pub fn data_id(id: FrameId) -> u32 {
     match id {
         FrameId::Standard(s) => u32::from(s),
         FrameId::Extended(e) => e | 0x8000_0000,
+    }
+}
+
+/// The daemon's announcement (`SECOC_SYNC`) and its authenticators' id.
+pub fn sync_link(base: BaseId) -> Link {
+    Link {
+        secured: OwnFrame::SecocSync.id(base),
+        authenticator: OwnFrame::SecocSyncAuth.id(base),
     }
 }
 
