@@ -239,29 +239,35 @@ impl Bench {
     }
 }
 
+/// A fresh signer with `role`'s key and its own counter file `file` in
+/// `dir`, sending its authenticators on `auth`.
+fn signer(dir: &Path, config: &Config, role: Role, file: &str, auth: OwnFrame) -> Signer {
+    let _ = std::fs::remove_file(dir.join(file));
+    let base = config.output.base_id;
+    Signer::new(&role_key(role), &dir.join(file), auth.id(base), base).unwrap()
+}
+
 /// The operator's signer (command key only), as `canodom calib` signs.
 fn operator_signer(dir: &Path, config: &Config) -> Signer {
-    let _ = std::fs::remove_file(dir.join("test-operator-freshness"));
-    Signer::new(
-        &role_key(Role::CalibCmd),
-        &dir.join("test-operator-freshness"),
-        OwnFrame::CalibCmdAuth.id(config.output.base_id),
-        config.output.base_id,
+    signer(
+        dir,
+        config,
+        Role::CalibCmd,
+        "test-operator-freshness",
+        OwnFrame::CalibCmdAuth,
     )
-    .unwrap()
 }
 
 /// The parameter store's CALIB_ACK signer: signs with its `calib_ack`
 /// key, hears the daemon with its `calib_params` key.
 fn store_signer(dir: &Path, config: &Config) -> Signer {
-    let _ = std::fs::remove_file(dir.join("test-store-freshness"));
-    Signer::new(
-        &role_key(Role::CalibAck),
-        &dir.join("test-store-freshness"),
-        OwnFrame::CalibAckAuth.id(config.output.base_id),
-        config.output.base_id,
+    signer(
+        dir,
+        config,
+        Role::CalibAck,
+        "test-store-freshness",
+        OwnFrame::CalibAckAuth,
     )
-    .unwrap()
     .hearing_with(&role_key(Role::CalibParams))
 }
 

@@ -820,45 +820,33 @@ mod tests {
         assert_eq!(op.last_sync(), Some(heard));
         // The parameter store verifies the other authenticator with its key.
         let store = keys(Party::ParamStore);
-        let mut ps = Signer::new(
-            store.key(Role::CalibAck).unwrap(),
-            &c.security
-                .operator_freshness_file
-                .with_file_name("store-freshness"),
-            OwnFrame::CalibAckAuth.id(c.output.base_id),
-            c.output.base_id,
-        )
-        .unwrap();
-        for f in &frames {
-            let _ = ps.observe(f);
-        }
-        assert_eq!(ps.last_sync(), None, "the ACK key verifies no announcement");
+        let store_signer = |c: &Config| {
+            Signer::new(
+                store.key(Role::CalibAck).unwrap(),
+                &c.security
+                    .operator_freshness_file
+                    .with_file_name("store-freshness"),
+                OwnFrame::CalibAckAuth.id(c.output.base_id),
+                c.output.base_id,
+            )
+            .unwrap()
+        };
+        let hear_all = |s: &mut Signer| {
+            for f in &frames {
+                let _ = s.observe(f);
+            }
+            s.last_sync().map(|s| s.epoch)
+        };
+        let mut ps = store_signer(&c);
+        assert_eq!(
+            hear_all(&mut ps),
+            None,
+            "the ACK key verifies no announcement"
+        );
         let mut ps = ps.hearing_with(store.key(Role::CalibParams).unwrap());
-        for f in &frames {
-            let _ = ps.observe(f);
-        }
-        assert_eq!(ps.last_sync().map(|s| s.epoch), gate.epoch());
-        let mut pstore = Signer::new(
-            store.key(Role::CalibParams).unwrap(),
-            &c.security
-                .operator_freshness_file
-                .with_file_name("store-freshness"),
-            OwnFrame::CalibAckAuth.id(c.output.base_id),
-            c.output.base_id,
-        )
-        .unwrap();
-        for f in &frames {
-            let _ = pstore.observe(f);
-        }
-        assert_eq!(pstore.last_sync().map(|s| s.epoch), gate.epoch());
+        assert_eq!(hear_all(&mut ps), gate.epoch());
         // Without any announcement nothing is signed.
-        let mut deaf = Signer::new(
-            store.key(Role::CalibParams).unwrap(),
-            &c.security.operator_freshness_file,
-            OwnFrame::CalibAckAuth.id(c.output.base_id),
-            c.output.base_id,
-        )
-        .unwrap();
+        let mut deaf = store_signer(&c);
         assert!(matches!(
             deaf.sign(FrameId::Standard(0x613), &[0; 8]),
             Err(SignError::NoSync)
