@@ -444,6 +444,8 @@ impl<R: FrameSource, T: FrameSink> Link<R, T> {
         mut counter: u8,
     ) -> anyhow::Result<Answer> {
         let mut seq_before = self.counts().await?.cmd_seq;
+        // Before the command goes out: its authenticator must follow within 100 ms.
+        self.await_sync().await?;
         for attempt in 0..2 {
             let data = self.wire.encode_command(cmd, arming, counter);
             let frame = CalibWire::frame(cmd_id, &data)?;
@@ -451,7 +453,6 @@ impl<R: FrameSource, T: FrameSink> Link<R, T> {
                 .send(&frame)
                 .await
                 .with_context(|| format!("sending CALIB_CMD on {}", self.iface))?;
-            self.await_sync().await?;
             if let Some(signer) = &mut self.signer {
                 let auth = signer.sign(cmd_id, &data)?;
                 self.tx
