@@ -333,10 +333,11 @@ async fn auth_commands_signed_after_the_daemons_announcement_are_accepted_and_re
 
 /// Issue #44's clock attack through the daemon: two commands (COMMIT,
 /// ROLLBACK) accepted and recorded, the daemon restarted with its bus clock
-/// `back_us` behind (the store kept, or deleted when `delete`), the
-/// recording replayed. Returns the answers to the replay and the seconds
-/// from the restart until a new command of the operator was answered.
-async fn clock_back_replay(tag: &str, back_us: u64, delete: bool) -> (u64, f64) {
+/// stepped by `step_us` (back when negative; the store kept, or deleted
+/// when `delete`), the recording replayed. Returns the answers to the
+/// replay and the seconds from sending a new command of the operator,
+/// signed after the daemon's next announcement, until it was answered.
+async fn clock_step_replay(tag: &str, step_us: i64, delete: bool) -> (u64, f64) {
     let dir = tmp_dir(tag);
     let (path, _) = configs(&dir, "");
     let config = Arc::new(Config::load(&path).unwrap());
@@ -361,7 +362,7 @@ async fn clock_back_replay(tag: &str, back_us: u64, delete: bool) -> (u64, f64) 
         std::fs::remove_file(&config.security.freshness_file).unwrap();
     }
     let restart = tokio::time::Instant::now();
-    let bench = Bench::start_at(&config, now - back_us).await;
+    let bench = Bench::start_at(&config, now.saturating_add_signed(step_us)).await;
     for frames in &recorded {
         bench.send(frames).await;
         tokio::time::sleep(Duration::from_secs(2)).await;
@@ -387,27 +388,31 @@ async fn clock_back_replay(tag: &str, back_us: u64, delete: bool) -> (u64, f64) 
     };
     bench.stop().await;
     eprintln!(
-        "{tag}: clock back {} s (store {}): {replayed} of 2 replayed commands answered; \
+        "{tag}: clock stepped {} s (store {}): {replayed} of 2 replayed commands answered; \
          a new command answered {resync:.3} s after it was sent, first SECOC_SYNC {:?} µs of \
          bus time after the restart ({:.1} s of test time)",
-        back_us / 1_000_000,
+        step_us / 1_000_000,
         if delete { "deleted" } else { "kept" },
-        first_sync.map(|t| t.saturating_sub(now - back_us)),
+        first_sync.map(|t| t.saturating_sub(now.saturating_add_signed(step_us))),
         restart.elapsed().as_secs_f64(),
     );
     (replayed, resync)
 }
 
 #[tokio::test(start_paused = true)]
-async fn auth_a_clock_set_back_an_hour_or_two_years_reopens_no_recorded_command() {
-    const HOUR_US: u64 = 3_600_000_000;
-    const TWO_YEARS_US: u64 = 2 * 365 * 24 * HOUR_US;
-    for (tag, back, delete) in [
-        ("auth-back-1h", HOUR_US, false),
-        ("auth-back-2y", TWO_YEARS_US, false),
-        ("auth-back-2y-deleted", TWO_YEARS_US, true),
+async fn auth_a_clock_stepped_back_or_forward_reopens_no_recorded_command() {
+    const HOUR_US: i64 = 3_600_000_000;
+    const DAY_US: i64 = 24 * HOUR_US;
+    const YEAR_US: i64 = 365 * DAY_US;
+    for (tag, step, delete) in [
+        ("auth-back-1h", -HOUR_US, false),
+        ("auth-back-2y", -2 * YEAR_US, false),
+        ("auth-back-2y-deleted", -2 * YEAR_US, true),
+        ("auth-back-1d", -DAY_US, false),
+        ("auth-forward-1d", DAY_US, false),
+        ("auth-forward-1y", YEAR_US, false),
     ] {
-        let (replayed, resync_s) = clock_back_replay(tag, back, delete).await;
+        let (replayed, resync_s) = clock_step_replay(tag, step, delete).await;
         assert_eq!(
             replayed, 0,
             "{tag}: a recorded command was carried out again"
