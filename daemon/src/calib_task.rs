@@ -317,29 +317,33 @@ impl<Tx: FrameSink + Clone> CalibTask<Tx> {
 
     async fn send(&mut self, frame: &CanFrame) {
         let tx = self.sink.borrow().clone();
-        let Some(tx) = tx else { return };
-        // The bus clock, as the receivers' own timestamps see it: a signed
-        // CALIB_PARAMS page is judged against the parameter store's clock.
-        let now_ms = self.now().map_or_else(
-            || {
-                std::time::SystemTime::now()
-                    .duration_since(std::time::UNIX_EPOCH)
-                    .map_or(0, |d| d.as_millis() as u64)
-            },
-            |t| t.as_micros() / 1000,
-        );
-        let frames = lock(&self.security).outgoing(frame, now_ms);
-        for frame in frames {
-            if let Err(e) = tx.send(&frame).await {
-                if e.is_link_loss() {
-                    let _ = self.link_lost.try_send(e);
-                } else {
-                    debug!(cause = %e, "calibration frame not sent");
-                }
-                return;
+        let frames = lock(&self.security).outgoing(frame);
+        let _ = send_all(tx.as_ref(), &frames, &self.link_lost, "calibration frame").await;
+    }
+}
+
+/// Sends `frames` in order on `tx` (nothing when the bus is down); false at
+/// the first that fails. A link loss is handed to the link task, which may
+/// never see it itself, so the outage is logged, counted and the socket
+/// reopened.
+pub(crate) async fn send_all<Tx: FrameSink>(
+    tx: Option<&Tx>,
+    frames: &[CanFrame],
+    link_lost: &mpsc::Sender<BusError>,
+    what: &str,
+) -> bool {
+    let Some(tx) = tx else { return false };
+    for f in frames {
+        if let Err(e) = tx.send(f).await {
+            if e.is_link_loss() {
+                let _ = link_lost.try_send(e);
+            } else {
+                debug!(cause = %e, "{what} not sent");
             }
+            return false;
         }
     }
+    true
 }
 
 /// The effect in flight, when it finishes (never without one).

@@ -338,6 +338,7 @@ pub async fn run<C: Connector>(
         odom_commands,
         odom_refusals: OdomRefusals::default(),
         security: Arc::clone(&security),
+        mono_start: Instant::now(),
         notifier,
         observers,
         published: 0,
@@ -747,6 +748,9 @@ struct OdometryTask<Tx> {
     /// SecOC: verifies secured frames before anything acts on them; the
     /// calibration task signs its `CALIB_PARAMS` with the same gate.
     security: Arc<Mutex<SecurityGate>>,
+    /// The start of the gate's clock (tokio's: monotonic, virtual in paused
+    /// tests): pairing and announcements run on it, never on the wall clock.
+    mono_start: Instant,
     notifier: Option<Notifier>,
     observers: Observers,
     published: u64,
@@ -799,6 +803,12 @@ impl<Tx: FrameSink + Clone> OdometryTask<Tx> {
         // Not at once: the file still holds the previous run's state until
         // there is something new.
         state_tick.tick().await;
+        // SecOC announcements (SECOC_SYNC): at once, then every period.
+        let keyed = lock(&self.security).is_keyed();
+        let mut sync_tick = tokio::time::interval(Duration::from_micros(
+            canodom_protocol::secoc::SYNC_PERIOD_US,
+        ));
+        sync_tick.set_missed_tick_behavior(MissedTickBehavior::Delay);
         loop {
             tokio::select! {
                 biased;
@@ -812,13 +822,14 @@ impl<Tx: FrameSink + Clone> OdometryTask<Tx> {
                     None => break,
                 },
                 _ = pose_tick.tick() => self.publish().await,
+                _ = sync_tick.tick(), if keyed => self.announce(true).await,
                 _ = stats_tick.tick() => {
                     // One lock for the line: a second lock() in the same
                     // statement would wait on the first's guard forever.
-                    let (auth_refused, auth_lockouts) = {
+                    let (auth_refused, auth_epochs) = {
                         let mut gate = lock(&self.security);
-                        gate.expire(unix_now_us());
-                        let figures = (gate.counts(), gate.lockouts());
+                        gate.expire(self.mono_us());
+                        let figures = (gate.counts(), gate.epochs());
                         gate.new_period();
                         figures
                     };
@@ -830,7 +841,7 @@ impl<Tx: FrameSink + Clone> OdometryTask<Tx> {
                         outages = self.outages.load(Ordering::Relaxed),
                         odom_cmd_refused = self.odom_refusals.total,
                         auth_refused = %auth_refused,
-                        auth_lockouts,
+                        auth_epochs,
                         "statistics"
                     );
                     self.odom_refusals.new_period();
@@ -857,7 +868,8 @@ impl<Tx: FrameSink + Clone> OdometryTask<Tx> {
         }
         // A secured frame still waiting for its authenticator when the bus
         // went quiet is refused now, so the last count is complete.
-        lock(&self.security).expire(unix_now_us() + protocol_pair_timeout_us());
+        let end = self.mono_us() + protocol_pair_timeout_us();
+        lock(&self.security).expire(end);
         info!(
             stats = %self.pipeline.stats(),
             odom_cmd_refused = self.odom_refusals.total,
@@ -901,18 +913,44 @@ impl<Tx: FrameSink + Clone> OdometryTask<Tx> {
         }
     }
 
+    /// µs on the gate's monotonic clock.
+    fn mono_us(&self) -> u64 {
+        self.mono_start.elapsed().as_micros() as u64
+    }
+
+    /// Sends the gate's announcement (`SECOC_SYNC` and its authenticators);
+    /// `tick`: one period has passed, the floor moves up.
+    async fn announce(&mut self, tick: bool) {
+        let frames = match lock(&self.security).announce(tick) {
+            Ok(f) => f,
+            Err(e) => {
+                warn!(cause = %e, "SecOC: a new epoch could not be stored; the current one goes on");
+                return;
+            }
+        };
+        let _ = self.send_frames(&frames, "SecOC announcement").await;
+    }
+
+    /// Sends `frames` in order on the bus, if it is up
+    /// ([`crate::calib_task::send_all`]).
+    async fn send_frames(&self, frames: &[CanFrame], what: &str) -> bool {
+        let tx = self.sink.borrow().clone();
+        crate::calib_task::send_all(tx.as_ref(), frames, &self.link_lost, what).await
+    }
+
     /// Passes a received frame through the SecOC gate: `false` when nothing
     /// may act on it (refused, counted and logged once a period, or held
-    /// until its authenticator arrives); an authenticated frame replaces it.
-    fn admit(&self, r: &mut Received) -> bool {
+    /// until its authenticator arrives); an authenticated frame replaces it,
+    /// and the second `true` asks for the new floor to be announced.
+    fn admit(&self, r: &mut Received) -> (bool, bool) {
         let mut gate = lock(&self.security);
-        match gate.admit(r) {
-            Admit::Pass => true,
+        match gate.admit(&r.frame, self.mono_us()) {
+            Admit::Pass => (true, false),
             Admit::Authentic(frame) => {
                 r.frame = frame;
-                true
+                (true, true)
             }
-            Admit::Held => false,
+            Admit::Held => (false, false),
             Admit::Refused {
                 reason,
                 log,
@@ -922,7 +960,7 @@ impl<Tx: FrameSink + Clone> OdometryTask<Tx> {
                     warn!(%reason, id = %r.frame.id(), last_accepted, refused = %gate.counts(),
                         "secured frame refused (more of this reason are only counted until the next statistics line)");
                 }
-                false
+                (false, false)
             }
         }
     }
@@ -935,7 +973,13 @@ impl<Tx: FrameSink + Clone> OdometryTask<Tx> {
                 if let Some(tap) = &mut self.observers.tap {
                     tap.frame(r.timestamp, &r.frame);
                 }
-                if !self.admit(&mut r) {
+                let (admitted, announce) = self.admit(&mut r);
+                if announce {
+                    // The floor moved above the accepted counter: say so at
+                    // once, so the next sender need not wait for a period.
+                    self.announce(false).await;
+                }
+                if !admitted {
                     return;
                 }
                 let id = r.frame.id();
@@ -1062,29 +1106,10 @@ impl<Tx: FrameSink + Clone> OdometryTask<Tx> {
         let Ok(frames) = self.encoder.encode(&pose) else {
             return;
         };
-        let tx = self.sink.borrow().clone();
-        let Some(tx) = tx else { return };
-        for f in &frames {
-            if let Err(e) = tx.send(f).await {
-                if e.is_link_loss() {
-                    // The receiver may never see this error: hand it over so
-                    // the outage is logged, counted and the socket reopened.
-                    let _ = self.link_lost.try_send(e);
-                } else {
-                    debug!(cause = %e, "pose frame not sent");
-                }
-                return;
-            }
+        if self.send_frames(&frames, "pose frame").await {
+            self.published += 1;
         }
-        self.published += 1;
     }
-}
-
-/// Microseconds since the Unix epoch (the SecOC receiver's clock).
-fn unix_now_us() -> u64 {
-    std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_micros() as u64)
 }
 
 /// How long a secured frame waits for its authenticator, µs; at stop every

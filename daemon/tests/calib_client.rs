@@ -98,3 +98,54 @@ fn a_missing_config_is_named() {
     let err = String::from_utf8(out.stderr).unwrap();
     assert!(err.contains("no/such.toml"), "{err}");
 }
+
+/// `canodom calib`'s arguments as clap parses them (moved here from the
+/// client's own tests to keep daemon/src under its line limit).
+fn parse(args: &[&str]) -> Result<canodom::cmd::calib::CalibArgs, clap::Error> {
+    use clap::Parser as _;
+    #[derive(Debug, clap::Parser)]
+    struct Cli {
+        #[command(flatten)]
+        args: canodom::cmd::calib::CalibArgs,
+    }
+    Cli::try_parse_from(std::iter::once("calib").chain(args.iter().copied())).map(|c| c.args)
+}
+
+#[test]
+fn argument_errors_say_what_is_wrong() {
+    let err = |argv: &[&str]| {
+        let mut full = vec!["--config", "x.toml"];
+        full.extend_from_slice(argv);
+        parse(&full).unwrap_err().to_string()
+    };
+    assert!(err(&["start"]).contains("--track-radius"));
+    assert!(err(&["start", "--track-radius", "-1"]).contains("must be positive"));
+    assert!(err(&["start", "--track-radius", "0"]).contains("must be positive"));
+    assert!(err(&["start", "--track-radius", "70"]).contains("65.535"));
+    assert!(err(&["start", "--track-radius", "1", "--runs", "16"]).contains("16"));
+    assert!(
+        err(&[
+            "end-pose",
+            "--dx-mm",
+            "9000",
+            "--dy-mm",
+            "0",
+            "--dtheta-deg",
+            "0"
+        ])
+        .contains("9000")
+    );
+    assert!(
+        err(&[
+            "end-pose",
+            "--dx-mm",
+            "0",
+            "--dy-mm",
+            "0",
+            "--dtheta-deg",
+            "300"
+        ])
+        .contains("204.7")
+    );
+    assert!(err(&["--timeout-s", "0", "status"]).contains("timeout"));
+}

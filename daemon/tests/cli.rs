@@ -282,8 +282,20 @@ fn demo_prints_the_table_and_end_errors() {
 fn run_stops_cleanly_on_sigterm_even_while_retrying() {
     // No CAN interface exists on the test host: the daemon retries with
     // backoff, and SIGTERM must still stop it at once (the backoff watches
-    // the shutdown token).
-    let cfg = rc_car_toml();
+    // the shutdown token). The example refuses to run without keys: its
+    // bench lines turned on, as a bench does.
+    let text = std::fs::read_to_string(rc_car_toml()).unwrap();
+    let cfg = crate::util::tmp_dir("sigterm").join("bench.toml");
+    let bench = text
+        .replace(
+            "# [security]\n# allow_without_key",
+            "[security]\nallow_without_key",
+        )
+        .replace(
+            "dbc = \"../../data/dbc/rc_car.dbc\"",
+            &format!("dbc = {:?}", manifest().join("../data/dbc/rc_car.dbc")),
+        );
+    std::fs::write(&cfg, bench).unwrap();
     let child = Command::new(env!("CARGO_BIN_EXE_canodom"))
         .args([
             "run",

@@ -129,8 +129,62 @@ fn the_unit_keeps_the_calibration_in_its_state_directory() {
     assert!(!unit.contains("params ="), "{unit}");
 }
 
+#[test]
+fn the_unit_keeps_keys_out_of_core_dumps_and_starts_after_time_sync() {
+    // Issue #44: a core dump would carry the keys; the logs and the
+    // parameter file's history carry wall-clock times.
+    let unit = std::fs::read_to_string(manifest().join("dist/canodom.service")).unwrap();
+    for line in [
+        "LimitCORE=0",
+        "After=time-sync.target",
+        "Wants=time-sync.target",
+    ] {
+        assert!(
+            unit.lines().any(|l| l.trim() == line),
+            "{line} missing: {unit}"
+        );
+    }
+}
+
+/// Whether a configuration text says it is a keyless bench (an active
+/// `allow_without_key = true`, not a comment).
+fn is_keyless_bench(text: &str) -> bool {
+    text.lines().any(|l| {
+        let code = l.split('#').next().unwrap_or("").trim();
+        code.replace(' ', "") == "allow_without_key=true"
+    })
+}
+
+#[test]
+fn no_shipped_example_or_preset_is_a_keyless_bench() {
+    // Issue #44: a copied example, or a `config init` preset, must not run
+    // a vehicle with nothing authenticated.
+    let mut checked = 0;
+    for entry in std::fs::read_dir(manifest().join("examples")).unwrap() {
+        let path = entry.unwrap().path();
+        if path.extension().is_some_and(|e| e == "toml") {
+            let text = std::fs::read_to_string(&path).unwrap();
+            assert!(!is_keyless_bench(&text), "{}", path.display());
+            checked += 1;
+        }
+    }
+    for p in canodom_cars::PLATFORMS {
+        assert!(
+            !is_keyless_bench(&p.config_text("can0")),
+            "config init --car {}",
+            p.name
+        );
+        checked += 1;
+    }
+    assert!(checked > 10, "{checked}");
+    assert!(is_keyless_bench(
+        "[security]\nallow_without_key = true   # a bench\n"
+    ));
+}
+
 /// The README's service recipe for the configuration: the example with its
-/// DBC beside it and its bench line deleted (`sed -e '/^allow_without_key = true/d'`).
+/// DBC beside it and any bench line deleted (`sed -e '/^allow_without_key = true/d'`,
+/// which since issue #44 finds none).
 fn service_config(name: &str) -> (PathBuf, PathBuf) {
     let (dir, config) = install(name, "");
     let text = std::fs::read_to_string(&config).unwrap();
@@ -142,7 +196,10 @@ fn service_config(name: &str) -> (PathBuf, PathBuf) {
             out.push('\n');
             out
         });
-    assert_ne!(kept, text, "the example has its bench line");
+    assert_eq!(
+        kept, text,
+        "the example has no active bench line (issue #44)"
+    );
     std::fs::write(&config, kept).unwrap();
     (dir, config)
 }
@@ -190,7 +247,7 @@ fn the_unit_hands_the_key_file_over_as_a_credential_and_the_recipe_starts_with_i
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success(), "{stderr}");
     assert!(
-        stderr.contains("LoadCredential") && stderr.contains("security.key_file"),
+        stderr.contains("LoadCredential") && stderr.contains("key_file"),
         "{stderr}"
     );
     // systemd's layout: a private folder, the file 0400 plus an ACL entry
@@ -219,10 +276,8 @@ fn the_unit_hands_the_key_file_over_as_a_credential_and_the_recipe_starts_with_i
     // The same file named as key_file, outside the credentials folder, is
     // refused for its group bit.
     std::fs::set_permissions(&creds, std::fs::Permissions::from_mode(0o700)).unwrap();
-    let text = std::fs::read_to_string(&config).unwrap().replace(
-        "[security]\n",
-        &format!("[security]\nkey_file = {:?}\n", key.display().to_string()),
-    );
+    let text = std::fs::read_to_string(&config).unwrap()
+        + &format!("\n[security]\nkey_file = {:?}\n", key.display().to_string());
     std::fs::write(&config, text).unwrap();
     let out = run_as_service(&config, None, &state, 10);
     let stderr = String::from_utf8_lossy(&out.stderr);

@@ -1,34 +1,29 @@
-//! The SecOC freshness values that must survive a restart (issue #22): per
-//! secured frame id, the last value a receiver accepted (`rx`) and the
-//! highest value a sender reserved (`tx`).
+//! The SecOC values that must survive a restart (issues #22, #33, #44):
+//! the receiver's **epoch** (SecOC profile 3: one above the last at every
+//! start), and per secured frame id the highest value a sender reserved
+//! (`tx`) and, for receivers that keep one, the last value accepted (`rx`).
 //!
 //! Every change is written ahead: the file is replaced atomically and
-//! durably ([`crate::atomic_file`]) *before* the caller acts on the value,
-//! and the value in memory changes only once the file holds it. A crash at
-//! any instant therefore leaves a file whose `rx` is at least every value
-//! acted on and whose `tx` is at least every value sent, so a frame
-//! captured before a restart is refused after it and a sender never reuses
-//! a value.
+//! durably ([`crate::atomic_file`]) *before* the caller uses the value, and
+//! the value in memory changes only once the file holds it. A crash at any
+//! instant therefore leaves a file whose epoch is at least every epoch used
+//! and whose `tx` is at least every value sent, so no epoch and no sent
+//! value is ever used twice while the file lives.
 //!
-//! The format is a line per id, readable with `cat`:
+//! The format is a line per value, readable with `cat`:
 //!
 //! ```text
 //! # canodom SecOC freshness values ...
-//! rx 0x00000610 1764000123456
-//! tx 0x00000612 1764000190064
+//! epoch 0x5ec0c003
+//! rx 0x00000610 6791143120455221249
+//! tx 0x00000612 6791143120455221300
 //! ```
 //!
-//! Values are SecOC profile 2 freshness values: milliseconds since the
-//! Unix epoch (issue #33). A file of profile 1 (seconds, below 2^32) loads
-//! as values far in the past, which refuse nothing that the acceptance
-//! window does not refuse anyway.
-//!
 //! The id is the SecOC DataId (bit 31 set for an extended id). A missing
-//! file is an empty store (a first start): since a value is accepted only
-//! within a few seconds of the receiver's clock, losing the file reopens at
-//! most the frames of that last window, never an old recording. A damaged
-//! file is an error naming the file and the line, never silently an empty
-//! store.
+//! file is an empty store (a first start, or a lost file): the daemon then
+//! draws its epoch at random, so a recording of an earlier epoch fails its
+//! MAC all the same. A damaged file is an error naming the file and the
+//! line, never silently an empty store.
 
 use crate::atomic_file::{self, AtomicWriteError};
 use std::collections::BTreeMap;
@@ -46,10 +41,10 @@ pub enum FreshnessError {
         /// The OS error.
         source: std::io::Error,
     },
-    /// A line is not `rx|tx 0xID VALUE`.
+    /// A line is not `epoch 0xEPOCH` or `rx|tx 0xID VALUE`.
     #[error(
-        "{}: line {line}: expected `rx 0xID VALUE` or `tx 0xID VALUE`, got {got:?} \
-         (the file is damaged; removing it reopens the frames of the last few seconds only)",
+        "{}: line {line}: expected `epoch 0xEPOCH`, `rx 0xID VALUE` or `tx 0xID VALUE`, got \
+         {got:?} (the file is damaged; removing it makes the next start draw a random epoch)",
         path.display()
     )]
     Malformed {
@@ -76,6 +71,7 @@ enum Dir {
 #[derive(Debug, Clone)]
 pub struct FreshnessFile {
     path: PathBuf,
+    epoch: Option<u32>,
     values: BTreeMap<(Dir, u32), u64>,
 }
 
@@ -96,6 +92,7 @@ impl FreshnessFile {
             }
         };
         let mut values = BTreeMap::new();
+        let mut epoch = None;
         for (i, line) in text.lines().enumerate() {
             let line = line.trim();
             if line.is_empty() || line.starts_with('#') {
@@ -110,6 +107,17 @@ impl FreshnessFile {
             let dir = match it.next() {
                 Some("rx") => Dir::Rx,
                 Some("tx") => Dir::Tx,
+                Some("epoch") => {
+                    let e = it
+                        .next()
+                        .and_then(|t| t.strip_prefix("0x"))
+                        .and_then(|h| u32::from_str_radix(h, 16).ok())
+                        .ok_or_else(bad)?;
+                    if it.next().is_some() || epoch.replace(e).is_some() {
+                        return Err(bad());
+                    }
+                    continue;
+                }
                 _ => return Err(bad()),
             };
             let id = it
@@ -127,8 +135,24 @@ impl FreshnessFile {
         }
         Ok(Self {
             path: path.to_owned(),
+            epoch,
             values,
         })
+    }
+
+    /// The last epoch stored (`None`: a first start or a lost file).
+    pub fn epoch(&self) -> Option<u32> {
+        self.epoch
+    }
+
+    /// Stores `epoch` durably, before the caller uses it.
+    ///
+    /// # Errors
+    /// [`FreshnessError::Write`]; the store is then unchanged.
+    pub fn store_epoch(&mut self, epoch: u32) -> Result<(), FreshnessError> {
+        atomic_file::write(&self.path, render(Some(epoch), &self.values).as_bytes())?;
+        self.epoch = Some(epoch);
+        Ok(())
     }
 
     /// The file's path.
@@ -167,18 +191,21 @@ impl FreshnessFile {
     fn set(&mut self, dir: Dir, data_id: u32, value: u64) -> Result<(), FreshnessError> {
         let mut next = self.values.clone();
         next.insert((dir, data_id), value);
-        atomic_file::write(&self.path, render(&next).as_bytes())?;
+        atomic_file::write(&self.path, render(self.epoch, &next).as_bytes())?;
         self.values = next;
         Ok(())
     }
 }
 
-fn render(values: &BTreeMap<(Dir, u32), u64>) -> String {
+fn render(epoch: Option<u32>, values: &BTreeMap<(Dir, u32), u64>) -> String {
     let mut s = String::from(
-        "# canodom SecOC freshness values (issue #22), replaced atomically before each use.\n\
-         # rx: last value accepted per secured id; tx: highest value reserved for sending.\n\
-         # Values are ms since the Unix epoch (SecOC profile 2, issue #33).\n",
+        "# canodom SecOC freshness values (issues #22, #44), replaced atomically before each use.\n\
+         # epoch: the receiver's last epoch (SecOC profile 3: one above it at the next start).\n\
+         # rx: last value accepted per secured id; tx: highest value reserved for sending.\n",
     );
+    if let Some(e) = epoch {
+        let _ = writeln!(s, "epoch {e:#010x}");
+    }
     for (&(dir, id), value) in values {
         let d = match dir {
             Dir::Rx => "rx",
@@ -217,6 +244,26 @@ mod tests {
         assert_eq!(back.rx(0x612), None, "rx and tx are kept apart");
         let text = std::fs::read_to_string(&path).unwrap();
         assert!(text.contains("rx 0x00000610 42\n"), "{text}");
+    }
+
+    #[test]
+    fn auth_the_epoch_survives_a_reload_beside_the_values() {
+        let path = scratch("epoch");
+        let mut f = FreshnessFile::load(&path).unwrap();
+        assert_eq!(f.epoch(), None);
+        f.reserve_tx(0x612, 9).unwrap();
+        f.store_epoch(0x5EC0_C003).unwrap();
+        f.reserve_tx(0x612, 10).unwrap();
+        let back = FreshnessFile::load(&path).unwrap();
+        assert_eq!(
+            (back.epoch(), back.tx(0x612)),
+            (Some(0x5EC0_C003), Some(10))
+        );
+        std::fs::write(&path, "epoch 0x1\nepoch 0x2\n").unwrap();
+        assert!(matches!(
+            FreshnessFile::load(&path),
+            Err(FreshnessError::Malformed { line: 2, .. })
+        ));
     }
 
     #[test]

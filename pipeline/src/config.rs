@@ -12,7 +12,7 @@
 //! and `[output]` (own frames' base id, pose rate), and `[calibration]` (the
 //! live session over CAN: command id, arming code, parameter file, bounds,
 //! uncertainty limits, write-back timing; see [`CalibrationConfig`]), and
-//! `[security]` (the SecOC key and lockout; see [`crate::security`]).
+//! `[security]` (the SecOC key and freshness; see [`crate::security`]).
 
 mod calibration;
 mod ekf;

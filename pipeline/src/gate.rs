@@ -1,20 +1,20 @@
-//! The daemon's SecOC end (issues #22, #33): [`SecurityGate`], the one
-//! object the daemon asks about every received frame and hands every
-//! calibration frame it sends, and [`Signer`], a sender's end (`canodom
-//! calib`, parameter stores in tests). The profile is
-//! [`canodom_protocol::secoc`]'s, the keys per role
-//! [`canodom_protocol::secoc_keys`]'s; the configuration is
-//! [`crate::security`]'s.
+//! The daemon's SecOC end (issues #22, #33, #44): [`SecurityGate`], the one
+//! object the daemon asks about every received frame, hands every
+//! calibration frame it sends, and asks for its announcements
+//! (`SECOC_SYNC`); and [`Signer`], a sender's end (`canodom calib`,
+//! parameter stores in tests), which learns the daemon's epoch and floor
+//! from those announcements. The profile is [`canodom_protocol::secoc`]'s,
+//! the keys per role [`canodom_protocol::secoc_keys`]'s; the configuration
+//! is [`crate::security`]'s.
 
-use crate::security::{SecurityConfig, data_id, receive_links};
-use canodom_can::bus::Received;
+use crate::security::{SecurityConfig, data_id, receive_links, sync_link};
 use canodom_can::frame::{CanFrame, FrameId};
-use canodom_params::freshness::FreshnessFile;
+use canodom_params::freshness::{FreshnessError, FreshnessFile};
 use canodom_protocol::calib_wire::CalibWire;
 use canodom_protocol::own_dbc::{BaseId, OwnFrame};
 use canodom_protocol::secoc::{
-    AuthFailure, Authenticator, FailureCounts, Key, Link, Lockout, Receiver, SecuredId, Verdict,
-    next_tx_freshness,
+    AuthFailure, Authenticator, FailureCounts, Key, Link, Receiver, SecuredId, Sync, Verdict,
+    freshness, next_freshness,
 };
 use canodom_protocol::secoc_keys::{KeySet, Role};
 use std::path::Path;
@@ -22,9 +22,10 @@ use std::path::Path;
 /// Why the gate cannot start.
 #[derive(Debug, thiserror::Error)]
 pub enum GateError {
-    /// The freshness file is unreadable or damaged.
+    /// The freshness file is unreadable, damaged, or its new epoch cannot
+    /// be stored.
     #[error("security.freshness_file: {0}")]
-    Freshness(#[from] canodom_params::freshness::FreshnessError),
+    Freshness(#[from] FreshnessError),
     /// The shipped DBC lacks a signal (protocol's tests prove it does not).
     #[error("canodom.dbc: {0}")]
     Dbc(#[from] canodom_protocol::calib_wire::WireError),
@@ -39,6 +40,9 @@ pub enum GateError {
         /// Its vehicle.
         vehicle: String,
     },
+    /// No epoch stored and the operating system gave no random one.
+    #[error("no random epoch from the operating system: {0}")]
+    Random(String),
 }
 
 /// What to do with a received frame.
@@ -46,7 +50,8 @@ pub enum GateError {
 pub enum Admit {
     /// Not a secured frame, or no key configured: handle it as it is.
     Pass,
-    /// Authenticated: handle this frame (the secured frame alone) instead.
+    /// Authenticated: handle this frame (the secured frame alone) instead,
+    /// and send [`SecurityGate::announce`]'s frames (the floor moved).
     Authentic(CanFrame),
     /// Held for its authenticator: nothing to do yet.
     Held,
@@ -57,15 +62,15 @@ pub enum Admit {
         reason: AuthFailure,
         /// Whether to log it.
         log: bool,
-        /// The receiver's last accepted freshness value of that id (ms), for
+        /// The receiver's last accepted freshness value of that id, for
         /// the log line of a `Replayed` refusal.
         last_accepted: Option<u64>,
     },
 }
 
 /// The daemon's SecOC end: verifies what it receives with the command and
-/// acknowledgement keys, signs the `CALIB_PARAMS` it sends with the
-/// parameter key.
+/// acknowledgement keys in its own epoch, signs the `CALIB_PARAMS` it sends
+/// with the parameter key, and announces its epoch and floor.
 #[derive(Debug)]
 pub struct SecurityGate {
     /// `None` without a key: everything passes, nothing is signed.
@@ -78,31 +83,50 @@ struct Keyed {
     receiver: Receiver,
     store: FreshnessFile,
     signer: Authenticator,
+    /// The announcement's signers: the operators' key, the parameter store's.
+    sync_signers: [Authenticator; 2],
+    sync: Link,
     wire: CalibWire,
     /// The secured ids received and their authenticators (kernel filters).
     links: [Link; 3],
     params_auth_id: FrameId,
-    /// The last freshness value sent on `CALIB_PARAMS`, ms.
-    tx_last: Option<u64>,
-    /// `CALIB_PARAMS` pages not sent because their freshness value could
-    /// not be stored (never sent unsigned).
-    unsent: u64,
+    /// The last counter sent on `CALIB_PARAMS` in this epoch.
+    tx_counter: u32,
+    /// Epochs started since start (the first included).
+    epochs: u64,
 }
-
-/// Values reserved ahead for sending: one store write per this many ms of
-/// freshness (a set's four pages take four).
-const TX_RESERVE_MS: u64 = 64;
 
 /// The role of each link of [`receive_links`], in its order.
 const RECEIVE_ROLES: [Role; 3] = [Role::OdomCmd, Role::CalibCmd, Role::CalibAck];
+
+/// The next epoch after `stored`, or a random one when none was stored (a
+/// first start or a lost file: an earlier epoch comes back with chance
+/// 2⁻³² per start). Never 0, so a zeroed file is no epoch.
+///
+/// # Errors
+/// [`GateError::Random`] when the operating system has no random source.
+pub fn next_epoch(stored: Option<u32>) -> Result<u32, GateError> {
+    let e = match stored {
+        Some(e) => e.wrapping_add(1),
+        None => getrandom::u32().map_err(|e| GateError::Random(e.to_string()))?,
+    };
+    Ok(e.max(1))
+}
+
+/// Starts a new epoch: stored durably before it is used.
+fn start_epoch(store: &mut FreshnessFile) -> Result<u32, GateError> {
+    let epoch = next_epoch(store.epoch())?;
+    store.store_epoch(epoch)?;
+    Ok(epoch)
+}
 
 impl SecurityGate {
     /// The gate of a validated configuration (its `[security]`, base id
     /// and `CALIB_CMD` id).
     ///
     /// # Errors
-    /// [`GateError`] when the freshness file is unreadable or damaged, or
-    /// the key file is not canodom's.
+    /// [`GateError`] when the freshness file is unreadable, damaged or its
+    /// new epoch cannot be stored, or the key file is not canodom's.
     pub fn for_config(config: &crate::config::Config) -> Result<Self, GateError> {
         Self::new(
             &config.security,
@@ -112,11 +136,11 @@ impl SecurityGate {
     }
 
     /// The gate of `[security]` for frames at `base` and `CALIB_CMD` at
-    /// `calib_cmd_id`; loads the freshness file.
+    /// `calib_cmd_id`: loads the freshness file and starts a new epoch in
+    /// it.
     ///
     /// # Errors
-    /// [`GateError`] when the freshness file is unreadable or damaged, or
-    /// the key file is not canodom's.
+    /// As [`Self::for_config`].
     pub fn new(
         security: &SecurityConfig,
         base: BaseId,
@@ -136,40 +160,32 @@ impl SecurityGate {
             })
         };
         let params_key = key(Role::CalibParams)?;
-        let store = FreshnessFile::load(&security.freshness_file)?;
+        let mut store = FreshnessFile::load(&security.freshness_file)?;
         let links = receive_links(base, calib_cmd_id);
         let mut ids = Vec::with_capacity(links.len());
         for (link, role) in links.into_iter().zip(RECEIVE_ROLES) {
             ids.push(SecuredId {
                 link,
                 key: key(role)?.clone(),
-                last_accepted: store.rx(data_id(link.secured)),
-                // The parameter store's acknowledgement is never locked
-                // out: junk on the bus must not fail a write-back.
-                lockable: role != Role::CalibAck,
             });
         }
-        let lockout = Lockout::new(
-            security.lockout_failures,
-            security.lockout_window.as_micros() as u64,
-            security.lockout.as_micros() as u64,
-        );
-        let params_id = OwnFrame::CalibParams.id(base);
+        let epoch = start_epoch(&mut store)?;
         let wire = CalibWire::new(base)?;
         Ok(Self {
             keyed: Some(Keyed {
-                receiver: Receiver::new(
-                    &ids,
-                    &lockout,
-                    security.freshness_window.as_millis() as u64,
-                ),
-                tx_last: store.tx(data_id(params_id)),
+                receiver: Receiver::new(&ids, epoch, security.window_ticks()),
                 store,
                 signer: Authenticator::new(params_key),
+                sync_signers: [
+                    Authenticator::new(key(Role::CalibCmd)?),
+                    Authenticator::new(params_key),
+                ],
+                sync: sync_link(base),
                 wire,
                 links,
                 params_auth_id: OwnFrame::CalibParamsAuth.id(base),
-                unsent: 0,
+                tx_counter: 0,
+                epochs: 1,
             }),
             logged,
         })
@@ -188,20 +204,19 @@ impl SecurityGate {
             .collect()
     }
 
-    /// Judges a received frame (see [`Admit`]); its timestamp (µs since the
-    /// Unix epoch: the kernel's receive time) is the receiver's clock.
-    pub fn admit(&mut self, r: &Received) -> Admit {
+    /// The current epoch (`None` without a key).
+    pub fn epoch(&self) -> Option<u32> {
+        self.keyed.as_ref().map(|k| k.receiver.epoch())
+    }
+
+    /// Judges a received frame (see [`Admit`]) at `mono_us`, µs on the
+    /// daemon's monotonic clock (only the pairing timeout uses it; the
+    /// frame's wall-clock timestamp is never used).
+    pub fn admit(&mut self, frame: &CanFrame, mono_us: u64) -> Admit {
         let Some(k) = &mut self.keyed else {
             return Admit::Pass;
         };
-        let now_us = r.timestamp.as_micros();
-        let Keyed {
-            receiver, store, ..
-        } = k;
-        let verdict = receiver.on_frame(now_us, r.frame.id(), r.frame.data(), |id, fv| {
-            store.record_rx(data_id(id), fv)
-        });
-        match verdict {
+        match k.receiver.on_frame(mono_us, frame.id(), frame.data()) {
             Verdict::NotSecured => Admit::Pass,
             Verdict::Held => Admit::Held,
             Verdict::Accepted { id, payload, .. } => match CanFrame::new_data(id, &payload) {
@@ -211,18 +226,54 @@ impl SecurityGate {
             Verdict::Refused(reason) => Admit::Refused {
                 reason,
                 log: !std::mem::replace(&mut self.logged[reason.index()], true),
-                last_accepted: receiver.last_accepted(r.frame.id()),
+                last_accepted: k.receiver.last_accepted(frame.id()),
             },
         }
     }
 
-    /// The frames to send for `frame` at `now_ms` (the bus clock, ms since
-    /// the Unix epoch): a `CALIB_PARAMS` page followed by its authenticator,
-    /// signed with a freshness value stored first — or nothing at all when
-    /// it cannot be stored (a page is never sent unsigned; the write-back
-    /// retries and ends FAILED); anything else as it is. `CALIB_STATUS`
-    /// carries no lockout hint: its `AUTH_LOCKOUT` bit stays 0.
-    pub fn outgoing(&mut self, frame: &CanFrame, now_ms: u64) -> Vec<CanFrame> {
+    /// The announcement frames now: `SECOC_SYNC` and its two
+    /// authenticators (none without a key). `tick` once per
+    /// [`canodom_protocol::secoc::SYNC_PERIOD_US`] of the monotonic clock
+    /// moves the floor up (what ages a kept-back frame out); without it
+    /// the current floor is announced (after an accepted frame). A counter
+    /// space near its end starts a new epoch first.
+    ///
+    /// # Errors
+    /// The new epoch could not be stored (the old one goes on).
+    pub fn announce(&mut self, tick: bool) -> Result<Vec<CanFrame>, GateError> {
+        let Some(k) = &mut self.keyed else {
+            return Ok(Vec::new());
+        };
+        if k.receiver.exhausted() {
+            let epoch = start_epoch(&mut k.store)?;
+            k.receiver = Receiver::new_epoch(&k.receiver, epoch);
+            k.tx_counter = 0;
+            k.epochs += 1;
+        }
+        let sync = if tick {
+            k.receiver.tick()
+        } else {
+            k.receiver.sync()
+        };
+        let mut out = Vec::with_capacity(3);
+        if let Ok(f) = CanFrame::new_data(k.sync.secured, &sync.payload()) {
+            out.push(f);
+            for a in &k.sync_signers {
+                if let Ok(f) =
+                    CanFrame::new_data(k.sync.authenticator, &sync.sign(a, k.sync.secured))
+                {
+                    out.push(f);
+                }
+            }
+        }
+        Ok(out)
+    }
+
+    /// The frames to send for `frame`: a `CALIB_PARAMS` page followed by
+    /// its authenticator, signed with the next counter of this epoch;
+    /// anything else as it is. `CALIB_STATUS` carries no lockout hint: its
+    /// `AUTH_LOCKOUT` bit stays 0.
+    pub fn outgoing(&mut self, frame: &CanFrame) -> Vec<CanFrame> {
         let Some(k) = &mut self.keyed else {
             return vec![*frame];
         };
@@ -230,28 +281,14 @@ impl SecurityGate {
             return vec![*frame];
         }
         let Ok(payload) = <[u8; 8]>::try_from(frame.data()) else {
-            k.unsent += 1;
             return Vec::new();
         };
-        let fv = next_tx_freshness(k.tx_last, now_ms);
-        let id = data_id(frame.id());
-        if k.store.tx(id).is_none_or(|reserved| fv > reserved)
-            && k.store
-                .reserve_tx(id, fv.saturating_add(TX_RESERVE_MS))
-                .is_err()
-        {
-            k.unsent += 1;
-            return Vec::new();
-        }
-        k.tx_last = Some(fv);
+        k.tx_counter = k.tx_counter.saturating_add(1);
+        let fv = freshness(k.receiver.epoch(), k.tx_counter);
         let auth = k.signer.sign(frame.id(), &payload, fv);
-        #[allow(clippy::single_match_else)]
         match CanFrame::new_data(k.params_auth_id, &auth) {
             Ok(a) => vec![*frame, a],
-            Err(_) => {
-                k.unsent += 1;
-                Vec::new()
-            }
+            Err(_) => Vec::new(),
         }
     }
 
@@ -263,24 +300,18 @@ impl SecurityGate {
             .unwrap_or_default()
     }
 
-    /// Lockouts started since start (all ids together).
-    pub fn lockouts(&self) -> u64 {
-        self.keyed.as_ref().map_or(0, |k| k.receiver.lockouts())
-    }
-
-    /// `CALIB_PARAMS` pages not sent because their freshness value could
-    /// not be stored.
-    pub fn unsent_params(&self) -> u64 {
-        self.keyed.as_ref().map_or(0, |k| k.unsent)
+    /// Epochs started since start (1 with a key: the start's own).
+    pub fn epochs(&self) -> u64 {
+        self.keyed.as_ref().map_or(0, |k| k.epochs)
     }
 
     /// Refuses as `missing_authenticator` every secured frame that waited
-    /// longer than the pairing timeout at `now_us` (µs since the Unix
-    /// epoch): without a later frame to trigger it, the last one would
-    /// otherwise never be counted.
-    pub fn expire(&mut self, now_us: u64) {
+    /// longer than the pairing timeout at `mono_us` (the monotonic clock of
+    /// [`Self::admit`]): without a later frame to trigger it, the last one
+    /// would otherwise never be counted.
+    pub fn expire(&mut self, mono_us: u64) {
         if let Some(k) = self.keyed.as_mut() {
-            k.receiver.expire(now_us);
+            k.receiver.expire(mono_us);
         }
     }
 
@@ -290,44 +321,47 @@ impl SecurityGate {
     }
 }
 
-/// A sender's freshness: the next value for `secured` at `now_ms`,
-/// reserved in `store` before it is returned (the caller sends it or loses
-/// it, never reuses it); `floor` continues above a receiver's mark.
-///
-/// # Errors
-/// The store could not be written.
-pub fn operator_next_freshness(
-    store: &mut FreshnessFile,
-    secured: FrameId,
-    now_ms: u64,
-    floor: Option<u64>,
-) -> Result<u64, canodom_params::freshness::FreshnessError> {
-    let id = data_id(secured);
-    let last = match (store.tx(id), floor) {
-        (Some(a), Some(b)) => Some(a.max(b)),
-        (a, b) => a.or(b),
-    };
-    let fv = next_tx_freshness(last, now_ms);
-    store.reserve_tx(id, fv)?;
-    Ok(fv)
+/// Why a sender cannot sign.
+#[derive(Debug, thiserror::Error)]
+pub enum SignError {
+    /// No authenticated `SECOC_SYNC` heard yet: the daemon's epoch and
+    /// floor are unknown (it is not running, or not on this bus).
+    #[error(
+        "no SECOC_SYNC from canodom verified with this key yet: the daemon's epoch is unknown \
+         (is it running on this bus, with keys of the same vehicle?)"
+    )]
+    NoSync,
+    /// The sender's own record could not be written (then nothing may be sent).
+    #[error("{0}")]
+    Store(#[from] FreshnessError),
 }
 
-/// A sender's end for one authenticator id: signs each secured frame with
-/// the next freshness value, reserved in its store first (`canodom calib`
-/// with the operator's command key, test parameter stores with theirs).
+/// A sender's end for one authenticator id: learns the receiver's epoch
+/// and floor from its authenticated announcements ([`Self::observe`]) and
+/// signs each secured frame with the next counter, recorded in its store
+/// first (`canodom calib` with the operator's command key, test parameter
+/// stores with theirs).
 #[derive(Debug)]
 pub struct Signer {
     auth: Authenticator,
+    /// Verifies the announcements: the key itself for an operator; the
+    /// parameter store's `calib_params` key for its `CALIB_ACK` signer.
+    sync_auth: Authenticator,
     store: FreshnessFile,
     authenticator_id: FrameId,
-    /// The receiver's mark a resynchronising sender must continue above.
-    floor: Option<u64>,
+    /// The announcement's ids at the daemon's base.
+    sync: Link,
+    /// A `SECOC_SYNC` payload waiting for its authenticators.
+    heard: Option<[u8; 8]>,
+    /// The last announcement verified with this key.
+    last_sync: Option<Sync>,
 }
 
 impl Signer {
-    /// A signer with `key` whose counter lives in `freshness_file`, sending
-    /// authenticators on `authenticator_id`; `floor` continues above a
-    /// receiver's mark (see [`canodom_protocol::secoc`]).
+    /// A signer with `key` (whose direction's announcements it verifies)
+    /// whose counter lives in `freshness_file`, sending authenticators on
+    /// `authenticator_id`, listening to the daemon's announcements at
+    /// `base`.
     ///
     /// # Errors
     /// The freshness file is unreadable or damaged.
@@ -335,8 +369,8 @@ impl Signer {
         key: &Key,
         freshness_file: &Path,
         authenticator_id: FrameId,
-        floor: Option<u64>,
-    ) -> Result<Self, canodom_params::freshness::FreshnessError> {
+        base: BaseId,
+    ) -> Result<Self, FreshnessError> {
         if let Some(dir) = freshness_file
             .parent()
             .filter(|d| !d.as_os_str().is_empty())
@@ -346,9 +380,12 @@ impl Signer {
         }
         Ok(Self {
             auth: Authenticator::new(key),
+            sync_auth: Authenticator::new(key),
             store: FreshnessFile::load(freshness_file)?,
             authenticator_id,
-            floor,
+            sync: sync_link(base),
+            heard: None,
+            last_sync: None,
         })
     }
 
@@ -361,31 +398,69 @@ impl Signer {
         role: Role,
         freshness_file: &Path,
         authenticator_id: FrameId,
-    ) -> Result<Option<Self>, canodom_params::freshness::FreshnessError> {
+        base: BaseId,
+    ) -> Result<Option<Self>, FreshnessError> {
         keys.key(role)
-            .map(|k| Self::new(k, freshness_file, authenticator_id, None))
+            .map(|k| Self::new(k, freshness_file, authenticator_id, base))
             .transpose()
     }
 
-    /// The authenticator frame of `data` sent at `secured` at `now_ms`
-    /// (the sender's clock, ms since the Unix epoch), its freshness value
-    /// stored before it is returned.
+    /// Verifies the announcements with `key` instead of the signing key
+    /// (the parameter store signs `CALIB_ACK` with its `calib_ack` key and
+    /// hears the daemon with its `calib_params` key).
+    #[must_use]
+    pub fn hearing_with(mut self, key: &Key) -> Self {
+        self.sync_auth = Authenticator::new(key);
+        self
+    }
+
+    /// The ids of the daemon's announcements (to receive them).
+    pub fn sync_ids(&self) -> [FrameId; 2] {
+        [self.sync.secured, self.sync.authenticator]
+    }
+
+    /// Feeds a received frame: an announcement whose authenticator this
+    /// key verifies becomes the one signed with; returns it then. Anything
+    /// else (another key's authenticator, a changed payload, other frames)
+    /// is ignored: a sender never trusts an unauthenticated value.
+    pub fn observe(&mut self, frame: &CanFrame) -> Option<Sync> {
+        let data = <[u8; 8]>::try_from(frame.data()).ok()?;
+        if frame.id() == self.sync.secured {
+            self.heard = Some(data);
+            return None;
+        }
+        if frame.id() != self.sync.authenticator {
+            return None;
+        }
+        let s = Sync::verify(&self.sync_auth, self.sync.secured, &self.heard?, &data)?;
+        self.last_sync = Some(s);
+        Some(s)
+    }
+
+    /// The last announcement verified.
+    pub fn last_sync(&self) -> Option<Sync> {
+        self.last_sync
+    }
+
+    /// The authenticator frame of `data` sent at `secured`, with the next
+    /// counter above the announced floor and this sender's last one,
+    /// recorded before it is returned.
     ///
     /// # Errors
-    /// The freshness value could not be stored (then nothing may be sent).
-    pub fn sign(
-        &mut self,
-        secured: FrameId,
-        data: &[u8; 8],
-        now_ms: u64,
-    ) -> Result<CanFrame, canodom_params::freshness::FreshnessError> {
-        let fv = operator_next_freshness(&mut self.store, secured, now_ms, self.floor)?;
+    /// [`SignError::NoSync`] before an announcement was verified;
+    /// [`SignError::Store`] when the counter could not be recorded (then
+    /// nothing may be sent).
+    pub fn sign(&mut self, secured: FrameId, data: &[u8; 8]) -> Result<CanFrame, SignError> {
+        let sync = self.last_sync.ok_or(SignError::NoSync)?;
+        let id = data_id(secured);
+        let fv = next_freshness(sync, self.store.tx(id));
+        self.store.reserve_tx(id, fv)?;
         let auth = self.auth.sign(secured, data, fv);
         CanFrame::new_data(self.authenticator_id, &auth).map_err(|e| {
-            canodom_params::freshness::FreshnessError::Read {
+            SignError::Store(FreshnessError::Read {
                 path: self.store.path().to_owned(),
                 source: std::io::Error::other(e.to_string()),
-            }
+            })
         })
     }
 }
@@ -395,18 +470,16 @@ mod tests {
     use super::*;
     use crate::config::{Config, ConfigError};
     use crate::security::DEFAULT_FRESHNESS_FILE;
-    use canodom_can::time::Timestamp;
     use canodom_protocol::calib_wire::{Ack, AckStatus, Command};
     use canodom_protocol::secoc_keys::{MasterKey, Party};
-    use std::os::unix::fs::PermissionsExt as _;
+    use std::os::unix::fs::{OpenOptionsExt as _, PermissionsExt as _};
     use std::path::PathBuf;
 
     const MASTER_HEX: &str = "000102030405060708090a0b0c0d0e0f";
     const VEHICLE: &str = "rc-car-7";
 
-    /// 2025-11-24 16:00 UTC, µs: the bus clock of these tests.
-    const T0_US: u64 = 1_764_000_000_000_000;
-    const T0_MS: u64 = T0_US / 1000;
+    /// The daemon's monotonic clock in these tests, µs.
+    const T0_US: u64 = 5_000_000_000;
 
     fn master() -> MasterKey {
         MasterKey::parse(MASTER_HEX).unwrap()
@@ -495,25 +568,51 @@ mod tests {
         let c = load(&dir, &cfg).unwrap();
         assert_eq!(c.security.keys.as_ref().unwrap().party, Party::Canodom);
         assert_eq!(c.security.freshness_file, dir.join(DEFAULT_FRESHNESS_FILE));
-        assert_eq!(
-            (
-                c.security.lockout_failures,
-                c.security.lockout.as_secs(),
-                c.security.freshness_window.as_millis()
-            ),
-            (10, 60, 5_000)
+        assert_eq!(c.security.freshness_window.as_millis(), 5_000);
+    }
+
+    #[test]
+    fn auth_a_key_file_in_a_linked_folder_is_refused() {
+        // Issue #44: the file itself is real, a folder on its path is a link.
+        let (dir, _) = setup("key-linked-dir", 0o600, &daemon_keys(), "");
+        let real = dir.join("real");
+        std::fs::create_dir_all(&real).unwrap();
+        std::fs::rename(dir.join("canodom.keys"), real.join("canodom.keys")).unwrap();
+        std::os::unix::fs::symlink(&real, dir.join("linked")).unwrap();
+        let e = crate::security::read_key_file(&dir.join("linked/canodom.keys")).unwrap_err();
+        assert!(matches!(e, crate::security::KeyFileError::Symlink), "{e}");
+        assert!(crate::security::read_key_file(&real.join("canodom.keys")).is_ok());
+    }
+
+    #[test]
+    fn auth_a_fifo_as_key_file_is_refused_at_once() {
+        // Issue #44: opening a FIFO for reading blocks until a writer comes;
+        // the start must be refused instead. Judged on a thread so that the
+        // old behaviour fails the test rather than hanging it.
+        let (dir, _) = setup("key-fifo", 0o600, &daemon_keys(), "");
+        let fifo = dir.join("fifo.keys");
+        nix::unistd::mkfifo(&fifo, nix::sys::stat::Mode::from_bits_truncate(0o600)).unwrap();
+        let (tx, rx) = std::sync::mpsc::channel();
+        let path = fifo.clone();
+        std::thread::spawn(move || {
+            let _ = tx.send(crate::security::read_key_file(&path).map(|_| ()));
+        });
+        let r = rx
+            .recv_timeout(std::time::Duration::from_secs(10))
+            .expect("reading a FIFO as key file must not block");
+        assert!(
+            matches!(r, Err(crate::security::KeyFileError::NotAFile)),
+            "{r:?}"
         );
+        // Let a thread still blocked on the old code go.
+        let _ = std::fs::OpenOptions::new()
+            .write(true)
+            .custom_flags(libc::O_NONBLOCK)
+            .open(&fifo);
     }
 
     #[test]
     fn auth_secure_defaults_a_security_section_needs_its_key_and_a_bench_says_so() {
-        let (dir, cfg) = setup("keys", 0o600, &daemon_keys(), "lockout_failures = 0\n");
-        assert!(
-            load(&dir, &cfg)
-                .unwrap_err()
-                .to_string()
-                .contains("lockout_failures")
-        );
         let (dir, cfg) = setup("keys2", 0o600, &daemon_keys(), "freshness_window_s = 0\n");
         assert!(
             load(&dir, &cfg)
@@ -521,21 +620,17 @@ mod tests {
                 .to_string()
                 .contains("freshness_window_s")
         );
-        let (dir, cfg) = setup(
-            "keys3",
-            0o600,
-            &daemon_keys(),
-            "lockout_s = 5\nlockout_failures = 3\nlockout_window_s = 2\nfreshness_window_s = 2.5\n",
-        );
+        let (dir, cfg) = setup("keys3", 0o600, &daemon_keys(), "freshness_window_s = 2.5\n");
         let c = load(&dir, &cfg).unwrap();
-        assert_eq!(
-            (
-                c.security.lockout_failures,
-                c.security.lockout_window.as_secs(),
-                c.security.lockout.as_secs(),
-                c.security.freshness_window.as_millis()
-            ),
-            (3, 2, 5, 2_500)
+        assert_eq!(c.security.freshness_window.as_millis(), 2_500);
+        assert_eq!(c.security.window_ticks(), 3, "whole announcement periods");
+        // The lockout is gone (issue #44): its keys are unknown now.
+        let (dir, old) = setup("keys4", 0o600, &daemon_keys(), "lockout_s = 60\n");
+        assert!(
+            load(&dir, &old)
+                .unwrap_err()
+                .to_string()
+                .contains("lockout_s")
         );
         // A [security] section without a key: refused, naming the bench switch.
         let no_key = cfg.replace("key_file = \"canodom.keys\"\n", "");
@@ -559,20 +654,10 @@ mod tests {
         );
         let c = load(&dir, &none).unwrap();
         assert!(c.security.keys.is_none() && !c.security.allow_without_key);
-        let typo = cfg.replace("lockout_s", "lockout_sec");
-        assert!(
-            load(&dir, &typo)
-                .unwrap_err()
-                .to_string()
-                .contains("lockout_sec")
-        );
     }
 
-    fn rx(t_us: u64, id: FrameId, data: &[u8]) -> Received {
-        Received {
-            timestamp: Timestamp::from_micros(t_us),
-            frame: CanFrame::new_data(id, data).unwrap(),
-        }
+    fn frame(id: FrameId, data: &[u8]) -> CanFrame {
+        CanFrame::new_data(id, data).unwrap()
     }
 
     fn keyed(tag: &str, extra: &str) -> (PathBuf, Config) {
@@ -581,117 +666,191 @@ mod tests {
         (dir, c)
     }
 
-    /// Operator side: a CALIB_CMD and its authenticator as `canodom calib`
-    /// sends them, with the operator's own key file, at `now_ms`.
-    fn operator_frames(
-        c: &Config,
-        store: &mut FreshnessFile,
-        cmd: Command,
-        counter: u8,
-        now_ms: u64,
-    ) -> [(FrameId, [u8; 8]); 2] {
+    /// The operator's signer (`canodom calib`), having heard the gate's
+    /// announcement now.
+    fn operator(c: &Config, gate: &mut SecurityGate) -> Signer {
+        let op = keys(Party::Operator);
+        let mut s = Signer::new(
+            op.key(Role::CalibCmd).unwrap(),
+            &c.security.operator_freshness_file,
+            OwnFrame::CalibCmdAuth.id(c.output.base_id),
+            c.output.base_id,
+        )
+        .unwrap();
+        hear(&mut s, gate, false);
+        s
+    }
+
+    /// `signer` hears the gate's announcement (after a tick when `tick`).
+    fn hear(signer: &mut Signer, gate: &mut SecurityGate, tick: bool) {
+        for f in gate.announce(tick).unwrap() {
+            let _ = signer.observe(&f);
+        }
+    }
+
+    /// A CALIB_CMD and its authenticator as `canodom calib` sends them.
+    fn command(c: &Config, signer: &mut Signer, cmd: Command, counter: u8) -> [CanFrame; 2] {
         let wire = CalibWire::new(c.output.base_id).unwrap();
         let data = wire.encode_command(cmd, 0, counter);
         let id = c.calibration.command_id;
-        let fv = operator_next_freshness(store, id, now_ms, None).unwrap();
-        let op = keys(Party::Operator);
-        let auth = Authenticator::new(op.key(Role::CalibCmd).unwrap()).sign(id, &data, fv);
-        [
-            (id, data),
-            (OwnFrame::CalibCmdAuth.id(c.output.base_id), auth),
-        ]
+        [frame(id, &data), signer.sign(id, &data).unwrap()]
+    }
+
+    fn pass(gate: &mut SecurityGate, frames: &[CanFrame], t_us: u64) -> Admit {
+        let mut last = Admit::Pass;
+        for (k, f) in frames.iter().enumerate() {
+            last = gate.admit(f, t_us + k as u64 * 100);
+        }
+        last
     }
 
     #[test]
     fn auth_a_signed_calib_command_is_accepted_and_replays_before_and_after_a_restart_are_not() {
         let (_dir, c) = keyed("gate", "");
         let mut gate = SecurityGate::for_config(&c).unwrap();
-        let mut op = FreshnessFile::load(&c.security.operator_freshness_file).unwrap();
-        let [(id, data), (aid, auth)] = operator_frames(&c, &mut op, Command::Commit, 1, T0_MS);
-        assert_eq!(gate.admit(&rx(T0_US, id, &data)), Admit::Held);
-        assert_eq!(
-            gate.admit(&rx(T0_US + 300, aid, &auth)),
-            Admit::Authentic(CanFrame::new_data(id, &data).unwrap())
-        );
-        // The operator's next command in the same millisecond is fresh too.
-        let [(id2, data2), (aid2, auth2)] =
-            operator_frames(&c, &mut op, Command::Rollback, 2, T0_MS);
-        assert_eq!(gate.admit(&rx(T0_US + 1_000, id2, &data2)), Admit::Held);
+        let mut op = operator(&c, &mut gate);
+        let first = command(&c, &mut op, Command::Commit, 1);
+        assert_eq!(pass(&mut gate, &first, T0_US), Admit::Authentic(first[0]));
+        // The operator's next command, before any new announcement, is fresh too.
+        let second = command(&c, &mut op, Command::Rollback, 2);
         assert!(matches!(
-            gate.admit(&rx(T0_US + 1_300, aid2, &auth2)),
+            pass(&mut gate, &second, T0_US + 1_000),
             Admit::Authentic(_)
         ));
         // Replayed at once: refused, logged once, then only counted.
-        assert_eq!(gate.admit(&rx(T0_US + 2_000, id, &data)), Admit::Held);
         assert!(matches!(
-            gate.admit(&rx(T0_US + 2_300, aid, &auth)),
+            pass(&mut gate, &first, T0_US + 2_000),
             Admit::Refused {
                 reason: AuthFailure::Replayed,
                 log: true,
                 last_accepted: Some(_)
             }
         ));
-        assert_eq!(gate.admit(&rx(T0_US + 3_000, id2, &data2)), Admit::Held);
         assert!(matches!(
-            gate.admit(&rx(T0_US + 3_300, aid2, &auth2)),
+            pass(&mut gate, &second, T0_US + 3_000),
             Admit::Refused {
                 reason: AuthFailure::Replayed,
                 log: false,
                 ..
             }
         ));
-        // A restart within the window: a new gate from the same files refuses both.
+        // A restart: a new epoch, both refused; the operator resynchronises
+        // from the new announcement and is accepted at once.
+        let epoch = gate.epoch().unwrap();
         drop(gate);
         let mut gate = SecurityGate::for_config(&c).unwrap();
-        for (t, (i, d)) in [(id, data), (aid, auth), (id2, data2), (aid2, auth2)]
-            .into_iter()
-            .enumerate()
-        {
-            let v = gate.admit(&rx(T0_US + 10_000 + t as u64 * 10, i, &d));
+        assert_eq!(gate.epoch(), Some(epoch + 1));
+        for (k, f) in [&first, &second].into_iter().enumerate() {
+            let v = pass(&mut gate, f, T0_US + 10_000 + k as u64 * 1000);
             assert!(!matches!(v, Admit::Authentic(_)), "{v:?}");
         }
-        assert_eq!(gate.counts().of(AuthFailure::Replayed), 2);
+        assert_eq!(gate.counts().of(AuthFailure::BadMac), 2);
+        hear(&mut op, &mut gate, false);
+        let third = command(&c, &mut op, Command::Abort, 3);
+        assert!(matches!(
+            pass(&mut gate, &third, T0_US + 20_000),
+            Admit::Authentic(_)
+        ));
         assert_eq!(
-            gate.admit(&rx(T0_US + 20_000, FrameId::Standard(0x100), &[0; 8])),
+            gate.admit(&frame(FrameId::Standard(0x100), &[0; 8]), T0_US),
             Admit::Pass
         );
     }
 
     #[test]
-    fn auth_a_deleted_freshness_file_then_a_two_year_old_recording_is_refused() {
+    fn auth_a_deleted_freshness_file_draws_a_random_epoch_and_old_frames_fail() {
         let (_dir, c) = keyed("deleted", "");
-        let two_years_ms = 2 * 365 * 86_400_000;
-        let mut op = FreshnessFile::load(&c.security.operator_freshness_file).unwrap();
+        let mut gate = SecurityGate::for_config(&c).unwrap();
+        let mut op = operator(&c, &mut gate);
         let recorded: Vec<_> = (0..5u8)
             .map(|k| {
-                operator_frames(
-                    &c,
-                    &mut op,
-                    Command::Abort,
-                    k,
-                    T0_MS - two_years_ms + u64::from(k),
-                )
+                let f = command(&c, &mut op, Command::Abort, k);
+                assert!(matches!(
+                    pass(&mut gate, &f, T0_US + u64::from(k) * 1000),
+                    Admit::Authentic(_)
+                ));
+                f
             })
             .collect();
-        // The daemon accepted them two years ago; its freshness file is gone.
-        let _ = std::fs::remove_file(&c.security.freshness_file);
+        let old = gate.epoch().unwrap();
+        drop(gate);
+        std::fs::remove_file(&c.security.freshness_file).unwrap();
         let mut gate = SecurityGate::for_config(&c).unwrap();
-        for (k, [(id, data), (aid, auth)]) in recorded.iter().enumerate() {
-            let t = T0_US + k as u64 * 1_000_000;
-            assert_eq!(gate.admit(&rx(t, *id, data)), Admit::Held);
+        assert_ne!(
+            gate.epoch(),
+            Some(old + 1),
+            "drawn at random, not counted on"
+        );
+        for (k, f) in recorded.iter().enumerate() {
+            let v = pass(&mut gate, f, T0_US + k as u64 * 1_000_000);
             assert!(
                 matches!(
-                    gate.admit(&rx(t + 100, *aid, auth)),
+                    v,
                     Admit::Refused {
-                        reason: AuthFailure::Stale,
+                        reason: AuthFailure::BadMac,
                         ..
                     }
                 ),
-                "recording {k} accepted"
+                "recording {k}: {v:?}"
             );
         }
-        assert_eq!(gate.counts().of(AuthFailure::Stale), 5);
-        assert!(!c.security.freshness_file.exists(), "nothing was accepted");
+        let text = std::fs::read_to_string(&c.security.freshness_file).unwrap();
+        assert!(
+            text.contains(&format!("epoch {:#010x}", gate.epoch().unwrap())),
+            "{text}"
+        );
+    }
+
+    #[test]
+    fn auth_a_signer_trusts_only_an_announcement_its_key_verifies() {
+        let (_dir, c) = keyed("sync", "");
+        let mut gate = SecurityGate::for_config(&c).unwrap();
+        let frames = gate.announce(true).unwrap();
+        assert_eq!(frames.len(), 3, "SECOC_SYNC and one authenticator per key");
+        let mut op = operator(&c, &mut gate);
+        let heard = op.last_sync().unwrap();
+        // A forged announcement (another epoch, no key) changes nothing.
+        let forged = Sync {
+            epoch: heard.epoch ^ 1,
+            floor: 7,
+        };
+        let other = Authenticator::new(&master().derive("rc-car-8", Role::CalibCmd));
+        let _ = op.observe(&frame(frames[0].id(), &forged.payload()));
+        let _ = op.observe(&frame(frames[1].id(), &forged.sign(&other, frames[0].id())));
+        assert_eq!(op.last_sync(), Some(heard));
+        // The parameter store verifies the other authenticator with its key.
+        let store = keys(Party::ParamStore);
+        let store_signer = |c: &Config| {
+            Signer::new(
+                store.key(Role::CalibAck).unwrap(),
+                &c.security
+                    .operator_freshness_file
+                    .with_file_name("store-freshness"),
+                OwnFrame::CalibAckAuth.id(c.output.base_id),
+                c.output.base_id,
+            )
+            .unwrap()
+        };
+        let hear_all = |s: &mut Signer| {
+            for f in &frames {
+                let _ = s.observe(f);
+            }
+            s.last_sync().map(|s| s.epoch)
+        };
+        let mut ps = store_signer(&c);
+        assert_eq!(
+            hear_all(&mut ps),
+            None,
+            "the ACK key verifies no announcement"
+        );
+        let mut ps = ps.hearing_with(store.key(Role::CalibParams).unwrap());
+        assert_eq!(hear_all(&mut ps), gate.epoch());
+        // Without any announcement nothing is signed.
+        let mut deaf = store_signer(&c);
+        assert!(matches!(
+            deaf.sign(FrameId::Standard(0x613), &[0; 8]),
+            Err(SignError::NoSync)
+        ));
     }
 
     #[test]
@@ -700,12 +859,10 @@ mod tests {
         let base = c.output.base_id;
         let wire = CalibWire::new(base).unwrap();
         let mut gate = SecurityGate::for_config(&c).unwrap();
+        let fv = freshness(gate.epoch().unwrap(), 1);
         let op = keys(Party::Operator);
         let store = keys(Party::ParamStore);
-        // The operator's file holds no CALIB_PARAMS or CALIB_ACK key at all ...
         assert!(op.key(Role::CalibParams).is_none() && op.key(Role::CalibAck).is_none());
-        // ... and what it signs with its command key as CALIB_PARAMS is
-        // refused by the parameter store's verifier, as CALIB_ACK by the daemon.
         let set = canodom_protocol::calib_wire::ParamSet {
             version: 9,
             rear_tread_m: 0.5,
@@ -717,9 +874,12 @@ mod tests {
         };
         let page = wire.encode_params(&set, 0).unwrap()[0];
         let cmd_key = op.key(Role::CalibCmd).unwrap();
-        let forged = Authenticator::new(cmd_key).sign(wire.params_id(), &page, T0_MS);
+        let forged = Authenticator::new(cmd_key).sign(wire.params_id(), &page, fv);
         let store_verifier = Authenticator::new(store.key(Role::CalibParams).unwrap());
-        assert!(!store_verifier.verify(wire.params_id(), &page, &forged, T0_MS));
+        assert_eq!(
+            store_verifier.verify_near(wire.params_id(), &page, &forged, fv),
+            None
+        );
         let ack = wire.encode_ack(
             Ack {
                 version: 9,
@@ -729,68 +889,49 @@ mod tests {
             0,
         );
         let ack_auth = OwnFrame::CalibAckAuth.id(base);
-        let by_operator = Authenticator::new(cmd_key).sign(wire.ack_id(), &ack, T0_MS);
-        assert_eq!(gate.admit(&rx(T0_US, wire.ack_id(), &ack)), Admit::Held);
+        let by_operator = Authenticator::new(cmd_key).sign(wire.ack_id(), &ack, fv);
         assert!(matches!(
-            gate.admit(&rx(T0_US + 100, ack_auth, &by_operator)),
+            pass(
+                &mut gate,
+                &[frame(wire.ack_id(), &ack), frame(ack_auth, &by_operator)],
+                T0_US
+            ),
             Admit::Refused {
                 reason: AuthFailure::BadMac,
                 ..
             }
         ));
         // The store's key signs the ACK the daemon accepts, but no command.
-        let by_store = Authenticator::new(store.key(Role::CalibAck).unwrap()).sign(
-            wire.ack_id(),
-            &ack,
-            T0_MS + 1,
-        );
-        assert_eq!(
-            gate.admit(&rx(T0_US + 1_000, wire.ack_id(), &ack)),
-            Admit::Held
-        );
+        let by_store =
+            Authenticator::new(store.key(Role::CalibAck).unwrap()).sign(wire.ack_id(), &ack, fv);
         assert!(matches!(
-            gate.admit(&rx(T0_US + 1_100, ack_auth, &by_store)),
+            pass(
+                &mut gate,
+                &[frame(wire.ack_id(), &ack), frame(ack_auth, &by_store)],
+                T0_US + 1000
+            ),
             Admit::Authentic(_)
         ));
         let cmd = wire.encode_command(Command::Commit, 0, 1);
-        let store_cmd = Authenticator::new(store.key(Role::CalibAck).unwrap()).sign(
-            c.calibration.command_id,
-            &cmd,
-            T0_MS + 2,
-        );
-        assert_eq!(
-            gate.admit(&rx(T0_US + 2_000, c.calibration.command_id, &cmd)),
-            Admit::Held
-        );
-        assert!(matches!(
-            gate.admit(&rx(
-                T0_US + 2_100,
-                OwnFrame::CalibCmdAuth.id(base),
-                &store_cmd
-            )),
-            Admit::Refused {
-                reason: AuthFailure::BadMac,
-                ..
-            }
-        ));
-        // Another vehicle's daemon key (same master) signs nothing here.
-        let other = master().derive("rc-car-8", Role::CalibCmd);
-        let other_cmd = Authenticator::new(&other).sign(c.calibration.command_id, &cmd, T0_MS + 3);
-        assert_eq!(
-            gate.admit(&rx(T0_US + 3_000, c.calibration.command_id, &cmd)),
-            Admit::Held
-        );
-        assert!(matches!(
-            gate.admit(&rx(
-                T0_US + 3_100,
-                OwnFrame::CalibCmdAuth.id(base),
-                &other_cmd
-            )),
-            Admit::Refused {
-                reason: AuthFailure::BadMac,
-                ..
-            }
-        ));
+        let cmd_auth = OwnFrame::CalibCmdAuth.id(base);
+        let fv2 = freshness(gate.epoch().unwrap(), 2);
+        for key in [
+            store.key(Role::CalibAck).unwrap().clone(),
+            master().derive("rc-car-8", Role::CalibCmd),
+        ] {
+            let a = Authenticator::new(&key).sign(c.calibration.command_id, &cmd, fv2);
+            assert!(matches!(
+                pass(
+                    &mut gate,
+                    &[frame(c.calibration.command_id, &cmd), frame(cmd_auth, &a)],
+                    T0_US + 2000
+                ),
+                Admit::Refused {
+                    reason: AuthFailure::BadMac,
+                    ..
+                }
+            ));
+        }
         // The daemon refuses to start on an operator's or a store's key file.
         for party in [Party::Operator, Party::ParamStore] {
             let mut sec = c.security.clone();
@@ -801,8 +942,8 @@ mod tests {
     }
 
     #[test]
-    fn auth_calib_params_are_signed_with_the_params_key_and_never_sent_unsigned() {
-        let (dir, c) = keyed("tx", "lockout_failures = 2\n");
+    fn auth_calib_params_are_signed_with_the_params_key_in_the_epoch() {
+        let (dir, c) = keyed("tx", "");
         let base = c.output.base_id;
         let mut gate = SecurityGate::for_config(&c).unwrap();
         let wire = CalibWire::new(base).unwrap();
@@ -816,114 +957,84 @@ mod tests {
             steer_offset_rad: 0.0,
         };
         let verifier = Authenticator::new(&role_key(Role::CalibParams));
-        let mut fvs = Vec::new();
+        let epoch = gate.epoch().unwrap();
+        let mut mark = freshness(epoch, 0);
         for page in wire.encode_params(&set, 0).unwrap() {
-            let out = gate.outgoing(&CanFrame::new_data(wire.params_id(), &page).unwrap(), T0_MS);
+            let out = gate.outgoing(&frame(wire.params_id(), &page));
             assert_eq!(out.len(), 2);
             assert_eq!(out[1].id(), OwnFrame::CalibParamsAuth.id(base));
             let auth: [u8; 8] = out[1].data().try_into().unwrap();
-            assert!(verifier.verify(wire.params_id(), &page, &auth, T0_MS));
-            fvs.push(canodom_protocol::secoc::reconstruct(
-                canodom_protocol::secoc::split_auth(&auth).0,
-                T0_MS,
-            ));
+            let fv = verifier
+                .verify_near(wire.params_id(), &page, &auth, mark)
+                .unwrap();
+            assert!(fv > mark, "strictly increasing");
+            mark = fv;
         }
-        assert_eq!(fvs, [T0_MS, T0_MS + 1, T0_MS + 2, T0_MS + 3]);
-        // After a restart the daemon continues above what it reserved.
+        assert_eq!(mark, freshness(epoch, 4));
+        // After a restart the daemon signs in a higher epoch.
         let mut again = SecurityGate::for_config(&c).unwrap();
+        assert_eq!(again.epoch(), Some(epoch + 1));
         let page = wire.encode_params(&set, 0).unwrap()[0];
-        let out = again.outgoing(&CanFrame::new_data(wire.params_id(), &page).unwrap(), T0_MS);
-        let low = canodom_protocol::secoc::split_auth(&out[1].data().try_into().unwrap()).0;
-        assert!(canodom_protocol::secoc::reconstruct(low, T0_MS) > T0_MS + 3);
-        // The freshness file cannot be written (its folder does not exist):
-        // nothing is sent, not an unsigned page.
+        let out = again.outgoing(&frame(wire.params_id(), &page));
+        let auth: [u8; 8] = out[1].data().try_into().unwrap();
+        assert_eq!(
+            verifier.verify_near(wire.params_id(), &page, &auth, freshness(epoch + 1, 0)),
+            Some(freshness(epoch + 1, 1))
+        );
+        // The freshness file cannot be written: the daemon does not start.
         let mut sec = c.security.clone();
         sec.freshness_file = dir.join("no-such-folder/canodom-freshness");
-        let mut stuck = SecurityGate::new(&sec, base, c.calibration.command_id).unwrap();
-        let out = stuck.outgoing(&CanFrame::new_data(wire.params_id(), &page).unwrap(), T0_MS);
-        assert_eq!(out, Vec::<CanFrame>::new());
-        assert_eq!(stuck.unsent_params(), 1);
+        let e = SecurityGate::new(&sec, base, c.calibration.command_id).unwrap_err();
+        assert!(e.to_string().contains("no-such-folder"), "{e}");
         // CALIB_STATUS passes untouched: no lockout hint is stamped on it.
         let status = [0x10, 0, 0, 0, 0, 0, 0x30, 0x00];
-        let f = CanFrame::new_data(wire.status_id(), &status).unwrap();
-        assert_eq!(gate.outgoing(&f, T0_MS), vec![f]);
+        let f = frame(wire.status_id(), &status);
+        assert_eq!(gate.outgoing(&f), vec![f]);
     }
 
     #[test]
-    fn auth_junk_does_not_lock_out_and_calib_ack_is_never_locked_out() {
-        let (_dir, c) = keyed(
-            "lock",
-            "lockout_failures = 3\nlockout_window_s = 5\nlockout_s = 30\n",
-        );
+    fn auth_no_keyless_frame_locks_anything_and_a_kept_back_command_goes_stale() {
+        let (_dir, c) = keyed("lock", "");
         let base = c.output.base_id;
         let wire = CalibWire::new(base).unwrap();
         let mut gate = SecurityGate::for_config(&c).unwrap();
+        let mut op = operator(&c, &mut gate);
         let cmd_id = c.calibration.command_id;
         let cmd = wire.encode_command(Command::Abort, 0, 1);
         let aid = OwnFrame::CalibCmdAuth.id(base);
-        // Junk that is no MAC guess: unpaired authenticators, short frames,
-        // plain commands. None of it locks out.
-        for k in 0..100u64 {
-            let t = T0_US + k * 10_000;
-            let _ = gate.admit(&rx(t, aid, &[0; 8]));
-            let _ = gate.admit(&rx(t + 1, aid, &[0; 3]));
-            let _ = gate.admit(&rx(t + 2, cmd_id, &cmd));
-        }
-        assert_eq!(gate.lockouts(), 0, "{}", gate.counts());
-        // Three bad MACs on CALIB_CMD lock it; CALIB_ACK stays open.
-        let t = T0_US + 2_000_000;
-        // A guess carries a fresh freshness value: anything else is refused
-        // as stale before a MAC is computed, and is no guess.
-        let guess = |t_us: u64, k: u64| {
-            let mut g = [0, 0, 0, 0, 5, 6, 7, k as u8];
-            g[..4].copy_from_slice(&((t_us / 1000) as u32).to_le_bytes());
-            g
-        };
-        for k in 0..3u64 {
-            let _ = gate.admit(&rx(t + k * 1000, cmd_id, &cmd));
-            let v = gate.admit(&rx(t + k * 1000 + 10, aid, &guess(t + k * 1000, k)));
-            assert!(
-                matches!(
-                    v,
-                    Admit::Refused {
-                        reason: AuthFailure::BadMac | AuthFailure::LockedOut,
-                        ..
-                    }
-                ),
-                "{v:?}"
+        let ack_aid = OwnFrame::CalibAckAuth.id(base);
+        // A thousand bad MACs with the expected counter, on CALIB_CMD and CALIB_ACK.
+        let floor = op.last_sync().unwrap().floor as u16;
+        for k in 0..1000u64 {
+            let t = T0_US + k * 1000;
+            let mut guess = [0, 0, 1, 2, 3, 4, 5, k as u8];
+            guess[..2].copy_from_slice(&floor.to_le_bytes());
+            let _ = pass(&mut gate, &[frame(cmd_id, &cmd), frame(aid, &guess)], t);
+            let _ = pass(
+                &mut gate,
+                &[frame(wire.ack_id(), &cmd), frame(ack_aid, &guess)],
+                t + 500,
             );
         }
-        assert_eq!(gate.lockouts(), 1);
-        let ack = wire.encode_ack(
-            Ack {
-                version: 1,
-                status: AckStatus::Stored,
-                set_crc: 0x1234,
-            },
-            0,
+        assert!(
+            gate.counts().of(AuthFailure::BadMac) >= 2000,
+            "{}",
+            gate.counts()
         );
-        let ack_aid = OwnFrame::CalibAckAuth.id(base);
-        for k in 0..5u64 {
-            let _ = gate.admit(&rx(t + 5_000 + k * 1000, wire.ack_id(), &ack));
-            let _ = gate.admit(&rx(
-                t + 5_010 + k * 1000,
-                ack_aid,
-                &guess(t + 5_010 + k * 1000, k),
-            ));
-        }
-        assert_eq!(gate.lockouts(), 1, "CALIB_ACK bad MACs do not lock");
-        let t2 = t + 20_000;
-        let signed =
-            Authenticator::new(&role_key(Role::CalibAck)).sign(wire.ack_id(), &ack, t2 / 1000);
-        assert_eq!(gate.admit(&rx(t2, wire.ack_id(), &ack)), Admit::Held);
+        let valid = command(&c, &mut op, Command::Abort, 2);
         assert!(matches!(
-            gate.admit(&rx(t2 + 10, ack_aid, &signed)),
+            pass(&mut gate, &valid, T0_US + 2_000_000),
             Admit::Authentic(_)
         ));
+        // A signed command kept back: accepted within the window, stale after.
+        let kept = command(&c, &mut op, Command::Compute, 3);
+        for _ in 0..c.security.window_ticks() {
+            hear(&mut op, &mut gate, true);
+        }
         assert!(matches!(
-            gate.admit(&rx(t2 + 20, cmd_id, &cmd)),
+            pass(&mut gate, &kept, T0_US + 9_000_000),
             Admit::Refused {
-                reason: AuthFailure::LockedOut,
+                reason: AuthFailure::Stale,
                 ..
             }
         ));
@@ -938,24 +1049,31 @@ mod tests {
         let mut reset = [2, 0, 0, 0, 0, 0, 0x10, 0];
         let _ = canodom_dbc::Checksum::rc_car().apply(&mut reset);
         // Plain: held, then refused for its missing authenticator.
-        assert_eq!(gate.admit(&rx(T0_US, id, &reset)), Admit::Held);
-        let _ = gate.admit(&rx(T0_US + 200_000, FrameId::Standard(0x100), &[0; 8]));
+        assert_eq!(gate.admit(&frame(id, &reset), T0_US), Admit::Held);
+        let _ = gate.admit(&frame(FrameId::Standard(0x100), &[0; 8]), T0_US + 200_000);
         assert_eq!(gate.counts().of(AuthFailure::MissingAuthenticator), 1);
         // Signed with the CALIB_CMD key: refused; with the ODOM_CMD key: accepted.
-        let for_calib = Authenticator::new(&role_key(Role::CalibCmd)).sign(id, &reset, T0_MS + 300);
-        assert_eq!(gate.admit(&rx(T0_US + 300_000, id, &reset)), Admit::Held);
+        let fv = freshness(gate.epoch().unwrap(), 1);
+        let for_calib = Authenticator::new(&role_key(Role::CalibCmd)).sign(id, &reset, fv);
         assert!(matches!(
-            gate.admit(&rx(T0_US + 300_010, aid, &for_calib)),
+            pass(
+                &mut gate,
+                &[frame(id, &reset), frame(aid, &for_calib)],
+                T0_US + 300_000
+            ),
             Admit::Refused {
                 reason: AuthFailure::BadMac,
                 ..
             }
         ));
-        let signed = Authenticator::new(&role_key(Role::OdomCmd)).sign(id, &reset, T0_MS + 400);
-        assert_eq!(gate.admit(&rx(T0_US + 400_000, id, &reset)), Admit::Held);
+        let signed = Authenticator::new(&role_key(Role::OdomCmd)).sign(id, &reset, fv);
         assert_eq!(
-            gate.admit(&rx(T0_US + 400_010, aid, &signed)),
-            Admit::Authentic(CanFrame::new_data(id, &reset).unwrap())
+            pass(
+                &mut gate,
+                &[frame(id, &reset), frame(aid, &signed)],
+                T0_US + 400_000
+            ),
+            Admit::Authentic(frame(id, &reset))
         );
     }
 
@@ -965,9 +1083,10 @@ mod tests {
         let c = load(&dir, &cfg.replace("key_file = \"canodom.keys\"\n", "")).unwrap();
         let mut gate = SecurityGate::for_config(&c).unwrap();
         assert!(!gate.is_keyed());
-        let f = CanFrame::new_data(c.calibration.command_id, &[0; 8]).unwrap();
-        assert_eq!(gate.admit(&rx(0, f.id(), f.data())), Admit::Pass);
-        assert_eq!(gate.outgoing(&f, 0), vec![f]);
+        let f = frame(c.calibration.command_id, &[0; 8]);
+        assert_eq!(gate.admit(&f, 0), Admit::Pass);
+        assert_eq!(gate.outgoing(&f), vec![f]);
+        assert_eq!(gate.announce(true).unwrap(), Vec::<CanFrame>::new());
         assert!(!c.security.freshness_file.exists());
     }
 }

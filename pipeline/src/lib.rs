@@ -14,7 +14,7 @@
 //! - [`step`]: one filter step, what every consumer of the pipeline gets.
 //! - [`plausibility`]: run-time checks that name a confidently wrong signal (sign, unit, algorithm, kind).
 //! - [`stats`]: reject reasons and counters.
-//! - [`security`]: `[security]`: the SecOC key, freshness files and lockout, validated.
+//! - [`security`]: `[security]`: the SecOC key, freshness files and window, validated.
 //! - [`gate`]: the SecOC gate the daemon passes its calibration frames through.
 
 pub mod config;

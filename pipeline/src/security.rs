@@ -1,5 +1,5 @@
-//! `[security]`: the SecOC keys, the freshness files, the acceptance window
-//! and the lockout (issues #22, #33), validated once at load (the gate that
+//! `[security]`: the SecOC keys, the freshness files and the acceptance
+//! window (issues #22, #33, #44), validated once at load (the gate that
 //! uses them is [`crate::gate`]).
 //!
 //! ```toml
@@ -8,10 +8,7 @@
 //!                              # default: $CREDENTIALS_DIRECTORY/canodom.keys (systemd LoadCredential=)
 //! freshness_file = "canodom-freshness"        # default: beside the parameter file
 //! operator_freshness_file = "operator-freshness"  # `canodom calib`'s counter (default: ~/.local/state/canodom/)
-//! freshness_window_s = 5.0     # a freshness value is accepted only this close to the receiver's clock
-//! lockout_failures = 10        # this many bad MACs on one secured id ...
-//! lockout_window_s = 10.0      # ... within this window ...
-//! lockout_s = 60.0             # ... lock that id out this long (CALIB_ACK never)
+//! freshness_window_s = 5.0     # a frame is accepted this long after the SECOC_SYNC it was signed by
 //! allow_without_key = false    # true: a bench without keys (nothing authenticated)
 //! ```
 //!
@@ -49,9 +46,6 @@ pub(crate) struct RawSecurity {
     freshness_file: Option<PathBuf>,
     operator_freshness_file: Option<PathBuf>,
     freshness_window_s: f64,
-    lockout_failures: u32,
-    lockout_window_s: f64,
-    lockout_s: f64,
     allow_without_key: bool,
 }
 
@@ -61,10 +55,9 @@ impl Default for RawSecurity {
             key_file: None,
             freshness_file: None,
             operator_freshness_file: None,
-            freshness_window_s: canodom_protocol::secoc::DEFAULT_WINDOW_MS as f64 / 1000.0,
-            lockout_failures: 10,
-            lockout_window_s: 10.0,
-            lockout_s: 60.0,
+            freshness_window_s: f64::from(canodom_protocol::secoc::DEFAULT_WINDOW_TICKS)
+                * canodom_protocol::secoc::SYNC_PERIOD_US as f64
+                / 1e6,
             allow_without_key: false,
         }
     }
@@ -88,14 +81,19 @@ pub struct SecurityConfig {
     /// `$HOME/.local/state/canodom/operator-freshness`, else beside the
     /// configuration (its folder is created when the client first signs).
     pub operator_freshness_file: PathBuf,
-    /// How far a freshness value may be from the receiver's clock.
+    /// How long after the `SECOC_SYNC` it was signed by a secured frame
+    /// is accepted (on the daemon's monotonic clock; whole announcement
+    /// periods, at least one).
     pub freshness_window: Duration,
-    /// Bad MACs on one id within [`Self::lockout_window`] that lock it out (≥ 1).
-    pub lockout_failures: u32,
-    /// The window the failures are counted in.
-    pub lockout_window: Duration,
-    /// How long a lockout lasts.
-    pub lockout: Duration,
+}
+
+impl SecurityConfig {
+    /// The acceptance window in announcements ([`Self::freshness_window`]
+    /// rounded up to whole [`canodom_protocol::secoc::SYNC_PERIOD_US`]).
+    pub fn window_ticks(&self) -> u32 {
+        let period = canodom_protocol::secoc::SYNC_PERIOD_US as u128;
+        (self.freshness_window.as_micros().div_ceil(period)).clamp(1, u128::from(u32::MAX)) as u32
+    }
 }
 
 /// Why a key file is refused.
@@ -104,13 +102,15 @@ pub enum KeyFileError {
     /// Cannot be opened or read.
     #[error("cannot read: {0}")]
     Io(#[from] std::io::Error),
-    /// A symbolic link: refused rather than followed (it could be swapped
-    /// between a check and the read).
+    /// A symbolic link, or a path through a linked folder: refused rather
+    /// than followed (it could be swapped between a check and the read).
     #[error(
-        "is a symbolic link; give the real file (a key file is opened without following links)"
+        "is a symbolic link or lies in a linked folder; give the real path (a key file is \
+         opened without following any link)"
     )]
     Symlink,
-    /// Not a regular file.
+    /// Not a regular file (a FIFO, a device, a folder): refused at once,
+    /// never read from.
     #[error("not a regular file")]
     NotAFile,
     /// Owned by another user than the one reading it (or root).
@@ -170,28 +170,22 @@ pub fn read_credential_key_file(path: &Path) -> Result<KeySet, KeyFileError> {
 }
 
 /// Reads a secret (a key file, a master key): opened without following a
-/// symbolic link (`O_NOFOLLOW`), then checked on the open descriptor
-/// (`fstat`: a regular file, owned by this process's user or root, no
-/// access for group or others), read into memory that is wiped when the
-/// returned text is dropped. `access` says which permission bits besides
-/// the owner's are tolerated.
+/// symbolic link anywhere on its path (`openat2` with
+/// `RESOLVE_NO_SYMLINKS`: a linked folder is refused as a linked file is,
+/// since whoever can swap either can swap the key) and without blocking
+/// (`O_NONBLOCK`: a FIFO or a device opens at once and is refused by the
+/// check below instead of stalling the start), then checked on the open
+/// descriptor (`fstat`: a regular file, owned by this process's user or
+/// root, no access for group or others), read into memory that is wiped
+/// when the returned text is dropped. `access` says which permission bits
+/// besides the owner's are tolerated.
 ///
 /// # Errors
 /// [`KeyFileError`].
 pub fn read_secret_file(path: &Path, access: Access) -> Result<Zeroizing<String>, KeyFileError> {
     use std::io::Read as _;
-    use std::os::unix::fs::{MetadataExt as _, OpenOptionsExt as _};
-    let mut file = std::fs::OpenOptions::new()
-        .read(true)
-        .custom_flags(libc::O_NOFOLLOW | libc::O_CLOEXEC | libc::O_NOCTTY)
-        .open(path)
-        .map_err(|e| {
-            if e.raw_os_error() == Some(libc::ELOOP) {
-                KeyFileError::Symlink
-            } else {
-                KeyFileError::Io(e)
-            }
-        })?;
+    use std::os::unix::fs::MetadataExt as _;
+    let mut file = open_no_symlinks(path)?;
     let meta = file.metadata()?;
     if !meta.is_file() {
         return Err(KeyFileError::NotAFile);
@@ -233,6 +227,52 @@ pub fn read_secret_file(path: &Path, access: Access) -> Result<Zeroizing<String>
     Ok(text)
 }
 
+/// Opens `path` read-only, non-blocking, refusing a symbolic link in any
+/// component of it (see [`read_secret_file`]).
+fn open_no_symlinks(path: &Path) -> Result<std::fs::File, KeyFileError> {
+    use nix::fcntl::{OFlag, OpenHow, ResolveFlag, openat2};
+    let how = OpenHow::new()
+        .flags(
+            OFlag::O_RDONLY
+                | OFlag::O_NOFOLLOW
+                | OFlag::O_CLOEXEC
+                | OFlag::O_NOCTTY
+                | OFlag::O_NONBLOCK,
+        )
+        .resolve(ResolveFlag::RESOLVE_NO_SYMLINKS);
+    match openat2(nix::fcntl::AT_FDCWD, path, how) {
+        Ok(fd) => Ok(std::fs::File::from(fd)),
+        Err(nix::errno::Errno::ELOOP) => Err(KeyFileError::Symlink),
+        Err(nix::errno::Errno::ENOSYS) => {
+            // Linux before 5.6 has no openat2: every folder on the way is
+            // checked first (a narrow race with whoever can write to one of
+            // them), then the file opened without following a link.
+            use std::os::unix::fs::OpenOptionsExt as _;
+            let absolute = std::path::absolute(path)?;
+            if absolute.ancestors().skip(1).any(|a| {
+                a.symlink_metadata()
+                    .is_ok_and(|m| m.file_type().is_symlink())
+            }) {
+                return Err(KeyFileError::Symlink);
+            }
+            std::fs::OpenOptions::new()
+                .read(true)
+                .custom_flags(
+                    libc::O_NOFOLLOW | libc::O_CLOEXEC | libc::O_NOCTTY | libc::O_NONBLOCK,
+                )
+                .open(path)
+                .map_err(|e| {
+                    if e.raw_os_error() == Some(libc::ELOOP) {
+                        KeyFileError::Symlink
+                    } else {
+                        KeyFileError::Io(e)
+                    }
+                })
+        }
+        Err(e) => Err(KeyFileError::Io(e.into())),
+    }
+}
+
 /// A `[security]` value that cannot be used; the configuration names its file.
 #[derive(Debug)]
 pub(crate) enum SecurityError {
@@ -257,13 +297,6 @@ pub(crate) fn validate(
         SecurityError::Invalid(key.to_owned(), expected.to_owned(), got)
     };
     let beside = |p: &Path| file.parent().unwrap_or(Path::new(".")).join(p);
-    if raw.lockout_failures == 0 {
-        return Err(invalid(
-            "security.lockout_failures",
-            "an integer >= 1",
-            "0".into(),
-        ));
-    }
     let secs = |key: &str, v: f64, max: f64| {
         if v.is_finite() && v > 0.0 && v <= max {
             Ok(Duration::from_secs_f64(v))
@@ -322,9 +355,6 @@ pub(crate) fn validate(
             beside,
         ),
         freshness_window: secs("security.freshness_window_s", raw.freshness_window_s, 600.0)?,
-        lockout_failures: raw.lockout_failures,
-        lockout_window: secs("security.lockout_window_s", raw.lockout_window_s, 1e8)?,
-        lockout: secs("security.lockout_s", raw.lockout_s, 1e8)?,
     })
 }
 
@@ -333,6 +363,14 @@ pub fn data_id(id: FrameId) -> u32 {
     match id {
         FrameId::Standard(s) => u32::from(s),
         FrameId::Extended(e) => e | 0x8000_0000,
+    }
+}
+
+/// The daemon's announcement (`SECOC_SYNC`) and its authenticators' id.
+pub fn sync_link(base: BaseId) -> Link {
+    Link {
+        secured: OwnFrame::SecocSync.id(base),
+        authenticator: OwnFrame::SecocSyncAuth.id(base),
     }
 }
 

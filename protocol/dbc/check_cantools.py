@@ -2,7 +2,8 @@
 """Checks that cantools (the reference DBC tool) accepts canodom.dbc in strict
 mode and that every message, for every multiplexer value, round-trips example
 values through encode/decode within one LSB, with a valid CRC-8 in byte 7
-(the SecOC *_AUTH authenticators excepted: a freshness value and a MAC).
+(the SecOC *_AUTH authenticators and SECOC_SYNC excepted: a freshness value
+and a MAC, an epoch and a floor).
 
     python3 -m venv /tmp/venv && /tmp/venv/bin/pip install cantools
     /tmp/venv/bin/python protocol/dbc/check_cantools.py [DBC] [--write-vectors JSON]
@@ -61,8 +62,8 @@ def main():
             if mux is not None:
                 values[mux.name] = case
             # The SecOC authenticators (*_AUTH) carry a freshness value and a
-            # MAC, no counter or CRC.
-            secoc = msg.name.endswith("_AUTH")
+            # MAC, SECOC_SYNC an epoch and a floor: no counter or CRC.
+            secoc = msg.name.endswith("_AUTH") or msg.name.startswith("SECOC_")
             if not secoc:
                 values["COUNTER"] = counter % 16
                 values["CHECKSUM"] = 0

@@ -18,10 +18,13 @@
 //! | +0x14 | `CALIB_CMD_AUTH` | operator | after `CALIB_CMD`, with a key |
 //! | +0x15 | `CALIB_PARAMS_AUTH` | canodom | after each `CALIB_PARAMS`, with a key |
 //! | +0x16 | `CALIB_ACK_AUTH` | parameter store ECU | after `CALIB_ACK`, with a key |
+//! | +0x17 | `SECOC_SYNC` | canodom | 1 s and after each accepted secured frame, with a key |
+//! | +0x18 | `SECOC_SYNC_AUTH` | canodom | twice after each `SECOC_SYNC` (operators' key, parameter store's key) |
 //!
 //! Every frame is 8 bytes with `COUNTER` at bits 52..55 and a CRC-8 SAE
 //! J1850 `CHECKSUM` over bytes 0..=6 in byte 7, as in `rc_car.dbc`, except
-//! the `*_AUTH` authenticators of [`crate::secoc`] (freshness value and MAC).
+//! the `*_AUTH` authenticators of [`crate::secoc`] (freshness value and MAC)
+//! and `SECOC_SYNC` (the receiver's epoch and floor).
 
 use canodom_can::frame::{FrameId, MAX_EXTENDED_ID, MAX_STANDARD_ID};
 use canodom_dbc::Database;
@@ -35,7 +38,7 @@ pub const OWN_DBC: &str = include_str!("../dbc/canodom.dbc");
 pub const DEFAULT_BASE_ID: u32 = 0x600;
 
 /// Largest offset in the map; `base_id + MAX_OFFSET` must be a valid id.
-pub const MAX_OFFSET: u32 = 0x16;
+pub const MAX_OFFSET: u32 = 0x18;
 
 /// One of canodom's own frames.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -64,11 +67,16 @@ pub enum OwnFrame {
     CalibParamsAuth,
     /// Authenticator of `CALIB_ACK`.
     CalibAckAuth,
+    /// The daemon's SecOC announcement: its epoch and floor
+    /// ([`crate::secoc::Sync`]).
+    SecocSync,
+    /// Authenticators of `SECOC_SYNC`, one per key it is signed with.
+    SecocSyncAuth,
 }
 
 impl OwnFrame {
     /// Every frame, in id order.
-    pub const ALL: [Self; 12] = [
+    pub const ALL: [Self; 14] = [
         Self::OdomPosition,
         Self::OdomMotion,
         Self::OdomQuality,
@@ -81,6 +89,8 @@ impl OwnFrame {
         Self::CalibCmdAuth,
         Self::CalibParamsAuth,
         Self::CalibAckAuth,
+        Self::SecocSync,
+        Self::SecocSyncAuth,
     ];
 
     /// Offset from the base id.
@@ -98,6 +108,8 @@ impl OwnFrame {
             Self::CalibCmdAuth => 0x14,
             Self::CalibParamsAuth => 0x15,
             Self::CalibAckAuth => 0x16,
+            Self::SecocSync => 0x17,
+            Self::SecocSyncAuth => 0x18,
         }
     }
 
@@ -116,6 +128,8 @@ impl OwnFrame {
             Self::CalibCmdAuth => "CALIB_CMD_AUTH",
             Self::CalibParamsAuth => "CALIB_PARAMS_AUTH",
             Self::CalibAckAuth => "CALIB_ACK_AUTH",
+            Self::SecocSync => "SECOC_SYNC",
+            Self::SecocSyncAuth => "SECOC_SYNC_AUTH",
         }
     }
 
@@ -360,8 +374,14 @@ mod tests {
             if m.name.ends_with("_AUTH") {
                 // A SecOC authenticator: freshness and MAC, no counter or CRC.
                 assert_eq!(m.signals.len(), 2, "{}", m.name);
-                assert_eq!((sig("FRESHNESS").start_bit, sig("FRESHNESS").size), (0, 32));
-                assert_eq!((sig("MAC").start_bit, sig("MAC").size), (32, 32));
+                assert_eq!((sig("FRESHNESS").start_bit, sig("FRESHNESS").size), (0, 16));
+                assert_eq!((sig("MAC").start_bit, sig("MAC").size), (16, 48));
+                continue;
+            }
+            if m.name == "SECOC_SYNC" {
+                // The receiver's epoch and floor, signed by SECOC_SYNC_AUTH.
+                assert_eq!((sig("EPOCH").start_bit, sig("EPOCH").size), (0, 32));
+                assert_eq!((sig("FLOOR").start_bit, sig("FLOOR").size), (32, 32));
                 continue;
             }
             let counter = sig("COUNTER");
@@ -478,7 +498,7 @@ mod tests {
         let dbc = parse(OWN_DBC);
         let crc8 = crc::Crc::<u8>::new(&crc::CRC_8_SAE_J1850);
         let frames = vectors["frames"].as_array().unwrap();
-        assert_eq!(frames.len(), 21, "one vector per message and mux value");
+        assert_eq!(frames.len(), 23, "one vector per message and mux value");
         for v in frames {
             let id = v["id"].as_u64().unwrap();
             let msg = dbc
@@ -490,7 +510,7 @@ mod tests {
             let bytes: Vec<u8> = (0..8)
                 .map(|i| u8::from_str_radix(&hex[2 * i..2 * i + 2], 16).unwrap())
                 .collect();
-            if !msg.name.ends_with("_AUTH") {
+            if !msg.name.starts_with("SECOC_") && !msg.name.ends_with("_AUTH") {
                 assert_eq!(bytes[7], crc8.checksum(&bytes[..7]), "{}", msg.name);
             }
             let data = u64::from_le_bytes(bytes.try_into().unwrap());
@@ -532,11 +552,11 @@ mod tests {
     #[test]
     fn base_ids_are_validated() {
         assert_eq!(BaseId::new(0x600, false), Ok(BaseId::DEFAULT));
-        assert!(BaseId::new(0x7E9, false).is_ok());
-        let err = BaseId::new(0x7EA, false).unwrap_err();
+        assert!(BaseId::new(0x7E7, false).is_ok());
+        let err = BaseId::new(0x7E8, false).unwrap_err();
         assert_eq!(err.max, MAX_STANDARD_ID);
-        assert!(BaseId::new(0x1FFF_FFE9, true).is_ok());
-        assert!(BaseId::new(0x1FFF_FFEA, true).is_err());
+        assert!(BaseId::new(0x1FFF_FFE7, true).is_ok());
+        assert!(BaseId::new(0x1FFF_FFE8, true).is_err());
         assert!(BaseId::new(u32::MAX, true).is_err());
         let ext = BaseId::new(0x18FF_0000, true).unwrap();
         assert_eq!(OwnFrame::CalibAck.id(ext), FrameId::Extended(0x18FF_0013));

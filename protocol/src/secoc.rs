@@ -1,9 +1,10 @@
 //! Authenticated commands and write-back in the manner of AUTOSAR SecOC
-//! (issues #22, #33): a truncated CMAC-AES-128 over the frame id, the
-//! payload and a freshness value bound to time, with a key per message and
-//! direction ([`crate::secoc_keys`]) that never travels on the bus.
+//! (issues #22, #33, #44): a truncated CMAC-AES-128 over the frame id, the
+//! payload and a freshness value that the *receiver* owns, with a key per
+//! message and direction ([`crate::secoc_keys`]) that never travels on the
+//! bus.
 //!
-//! # The profile ("canodom SecOC profile 2")
+//! # The profile ("canodom SecOC profile 3")
 //!
 //! A *secured* frame is one of `ODOM_CMD`, `CALIB_CMD`, `CALIB_PARAMS` and
 //! `CALIB_ACK`. Its 8-byte payload (the *authentic PDU*: the frame as it was
@@ -12,63 +13,67 @@
 //!
 //! | bytes | signal | content |
 //! |---|---|---|
-//! | 0..=3 | `FRESHNESS` (bits 0..31, Intel) | the low 32 bits of the freshness value, little-endian |
-//! | 4..=7 | `MAC` (bits 32..63, Intel) | the first 4 bytes of the CMAC, in CMAC order |
+//! | 0..=1 | `FRESHNESS` (bits 0..15, Intel) | the low 16 bits of the freshness counter, little-endian |
+//! | 2..=7 | `MAC` (bits 16..63, Intel) | the first 6 bytes (48 bits) of the CMAC, in CMAC order |
 //!
 //! The MAC is CMAC-AES-128 (NIST SP 800-38B) over *DataToAuthenticator* =
 //! the secured frame's id (4 bytes big-endian, bit 31 set for an extended
 //! id) ‖ the 8 payload bytes ‖ the **full 64-bit** freshness value (8
-//! bytes big-endian), truncated to its 32 most significant bits as SecOC
-//! truncates.
+//! bytes big-endian), truncated to its 48 most significant bits.
 //!
 //! On classic CAN the cryptographic PDU travels as its own frame on the
-//! secured frame's *authenticator id* (`*_AUTH` in `canodom.dbc`: base
-//! +0x04, +0x14, +0x15, +0x16), sent right after the secured frame. A
-//! receiver keeps up to [`MAX_PENDING`] secured frames of the linked id
-//! received within [`PAIR_TIMEOUT_US`] and pairs an authenticator with the
-//! one whose MAC it matches, so a plain frame slipped in between a command
-//! and its authenticator neither replaces the command nor makes its
-//! authenticator fail. On CAN FD the two travel together as one 16-byte
-//! frame on the secured id: bytes 0..=7 the payload, 8..=15 the
-//! cryptographic PDU.
+//! secured frame's *authenticator id* (`*_AUTH` in `canodom.dbc`), sent
+//! right after the secured frame. A receiver keeps up to [`MAX_PENDING`]
+//! secured frames of the linked id received within [`PAIR_TIMEOUT_US`]
+//! and pairs an authenticator with the one whose MAC it matches, so a plain
+//! frame slipped in between a command and its authenticator neither
+//! replaces the command nor makes its authenticator fail. On CAN FD the two
+//! travel together as one 16-byte frame on the secured id.
 //!
-//! # Freshness: bound to time, used once
+//! # Freshness: the receiver's epoch and counter, no clock
 //!
-//! As in the Toyota scheme (opendbc `car/secoc.py`), the frame carries only
-//! the low bits of a longer freshness value and the MAC covers all of it.
-//! The freshness value is the sender's clock in **milliseconds since the
-//! Unix epoch**, made unique per id by `max(last + 1, now)`
-//! ([`next_tx_freshness`]). The receiver rebuilds the full value as the one
-//! nearest its own clock with those low 32 bits ([`reconstruct`]; they wrap
-//! every 49.7 days, far beyond any window) and accepts it only
-//! ([`check_freshness`])
+//! Profile 2 bound freshness to the sender's wall clock and checked it
+//! against the receiver's: a receiver clock set back reopened every command
+//! accepted since (issue #44). Profile 3 uses no wall clock at all, as
+//! AUTOSAR's freshness value manager with a trip counter does. The
+//! freshness value is `epoch << 32 | counter` ([`freshness`]):
 //!
-//! - within `±window` of its own clock (default [`DEFAULT_WINDOW_MS`]):
-//!   a frame recorded earlier — a command kept from its receiver, a signed
-//!   `--print-frame` line, a two-year-old recording — is refused as
-//!   [`AuthFailure::Stale`] once the window has passed, whatever the
-//!   receiver remembers; a value recorded 49.7·k days ago rebuilds to
-//!   today's and fails its MAC;
-//! - above the last value accepted on that id, kept durably *before* the
-//!   frame is acted on (write-ahead): a replay inside the window, at once
-//!   or after a restart, is refused as [`AuthFailure::Replayed`].
+//! - the **epoch** is the receiver's (the daemon's): drawn anew at every
+//!   start, one above the last one stored durably, or from the operating
+//!   system's random source when there is none; a frame recorded in an
+//!   earlier epoch — before a restart, a clock step, a deleted store — has
+//!   a MAC over another epoch and fails;
+//! - the **counter** is above every counter accepted on that id in this
+//!   epoch ([`AuthFailure::Replayed`] otherwise) and not below the floor
+//!   the receiver announced [`Receiver::window_ticks`] announcements ago
+//!   ([`AuthFailure::Stale`]): the receiver raises its floor by one at each
+//!   [`Receiver::tick`] (every [`SYNC_PERIOD_US`] on its monotonic clock),
+//!   so a command kept from its receiver and sent later is refused once
+//!   that many announcements have passed.
 //!
-//! A remembered value further ahead than the window (a receiver clock that
-//! was wrong and has been corrected) is brought back to `now + window`, so
-//! it refuses new frames for at most one window instead of for good.
-//! Senders and receiver need clocks within the window of each other (NTP,
-//! or the vehicle's time master).
+//! Senders learn the epoch and the floor from the receiver's `SECOC_SYNC`
+//! frame ([`Sync`]), sent at every tick and right after each accepted
+//! frame, authenticated like any secured frame (one authenticator with the
+//! operators' `calib_cmd` key, one with the parameter store's
+//! `calib_params` key); they sign with a counter at or above the floor
+//! ([`next_freshness`]). A sender never trusts an unauthenticated value, and
+//! a replayed old `SECOC_SYNC` only makes its frames fail: it can deny
+//! service, which anyone on a bus can, but never opens a replay. The frame
+//! carries the counter's low 16 bits; the receiver rebuilds the counter as
+//! the one nearest its floor ([`rebuild`]).
 //!
-//! # Lockout
+//! The state a frame can change — a counter's mark, the floor — changes
+//! only after its MAC is verified, lives in memory only (the next start is
+//! a new epoch), and only moves forward.
 //!
-//! Only a MAC that does not match counts as a failure (a guess at the MAC);
-//! unpaired, late, stale or short frames are refused and counted but cannot
-//! be guesses. [`Lockout`] is kept per secured id: `max_failures` bad MACs
-//! on one id within `window_us` lock that id out for `duration_us`
-//! (refused as [`AuthFailure::LockedOut`] without computing a MAC); other
-//! ids go on. An id marked `lockable = false` (`CALIB_ACK`, whose sender is
-//! the parameter store) is never locked. Time is an argument: the receiver
-//! passes the bus timestamps (kernel receive time, Unix epoch).
+//! # No lockout
+//!
+//! Anyone can send a bad MAC, so any lockout counting them is a denial of
+//! service without a key (issue #44). Profile 3 has none: every refusal is
+//! only counted by reason. An online guess succeeds with probability
+//! 2⁻⁴⁸ per payload tried; at 8,000 frames/s, each authenticator tried
+//! against up to [`MAX_PENDING`] held payloads, the expected time to one
+//! forgery is 2⁴⁸ / 32,000 s ≈ 280 years per id, `CALIB_ACK` included.
 
 use aes::Aes128;
 use canodom_can::frame::FrameId;
@@ -76,10 +81,13 @@ use cmac::{Cmac, Mac as _};
 use zeroize::{Zeroize as _, ZeroizeOnDrop};
 
 /// Bytes of the truncated MAC.
-pub const MAC_LEN: usize = 4;
+pub const MAC_LEN: usize = 6;
+
+/// Bytes of the transmitted low part of the freshness counter.
+pub const FRESHNESS_LEN: usize = 2;
 
 /// Bytes of the cryptographic PDU (freshness + MAC).
-pub const AUTH_LEN: usize = 8;
+pub const AUTH_LEN: usize = FRESHNESS_LEN + MAC_LEN;
 
 /// Bytes of the authentic PDU (every secured frame is 8 bytes).
 pub const PAYLOAD_LEN: usize = 8;
@@ -95,13 +103,21 @@ pub const PAIR_TIMEOUT_US: u64 = 100_000;
 /// [`PAIR_TIMEOUT_US`].
 pub const MAX_PENDING: usize = 4;
 
-/// The default acceptance window around the receiver's clock, ms.
-pub const DEFAULT_WINDOW_MS: u64 = 5_000;
+/// The receiver's announcement period (`SECOC_SYNC`, [`Receiver::tick`]),
+/// µs on its monotonic clock.
+pub const SYNC_PERIOD_US: u64 = 1_000_000;
 
-/// How far ahead of its clock a sender's remembered counter may be before
-/// the sender drops it and starts again from its clock, ms (a counter
-/// further ahead would only be refused as stale).
-pub const MAX_SENDER_LEAD_MS: u64 = 60_000;
+/// The default acceptance window in announcements: a counter is accepted
+/// for this many [`SYNC_PERIOD_US`] after the floor it was signed above.
+pub const DEFAULT_WINDOW_TICKS: u32 = 5;
+
+/// How far from the receiver's floor a counter is rebuilt from its low 16
+/// bits ([`rebuild`]).
+pub const REBUILD_SPAN: u32 = 1 << 15;
+
+/// A floor this close to the end of the counter space asks for a new
+/// epoch ([`Receiver::exhausted`]).
+const EXHAUSTED_AT: u32 = u32::MAX - 4 * REBUILD_SPAN;
 
 /// Bytes of an AES-128 key.
 pub const KEY_LEN: usize = 16;
@@ -180,7 +196,18 @@ fn data_id(id: FrameId) -> [u8; 4] {
     }
 }
 
-/// CMAC-AES-128 with the key schedule and subkeys computed once.
+/// The 64-bit freshness value of a counter in an epoch.
+pub fn freshness(epoch: u32, counter: u32) -> u64 {
+    (u64::from(epoch) << 32) | u64::from(counter)
+}
+
+/// The epoch and counter of a freshness value.
+pub fn split_freshness(fv: u64) -> (u32, u32) {
+    ((fv >> 32) as u32, fv as u32)
+}
+
+/// CMAC-AES-128 with the key schedule and subkeys computed once (wiped
+/// when dropped: the `zeroize` features of `aes` and `cmac`).
 #[derive(Clone)]
 pub struct Authenticator {
     prepared: Cmac<Aes128>,
@@ -219,8 +246,8 @@ impl Authenticator {
     /// The cryptographic PDU of a secured frame sent with `freshness`.
     pub fn sign(&self, id: FrameId, payload: &[u8; PAYLOAD_LEN], freshness: u64) -> [u8; AUTH_LEN] {
         let mut out = [0u8; AUTH_LEN];
-        out[..4].copy_from_slice(&(freshness as u32).to_le_bytes());
-        out[4..].copy_from_slice(&self.mac(id, payload, freshness));
+        out[..FRESHNESS_LEN].copy_from_slice(&(freshness as u16).to_le_bytes());
+        out[FRESHNESS_LEN..].copy_from_slice(&self.mac(id, payload, freshness));
         out
     }
 
@@ -243,46 +270,124 @@ impl Authenticator {
             == 0
     }
 
-    /// Whether `auth` is the cryptographic PDU of `payload` at `id`, its
-    /// freshness rebuilt around `now_ms` ([`reconstruct`]).
-    pub fn verify(
+    /// The full freshness value of `auth` for `payload` at `id` when its
+    /// MAC verifies, its counter rebuilt around `near` (a freshness value
+    /// of the same epoch: a receiver's mark). For receivers outside the
+    /// daemon (a parameter store, tests).
+    pub fn verify_near(
         &self,
         id: FrameId,
         payload: &[u8; PAYLOAD_LEN],
         auth: &[u8; AUTH_LEN],
-        now_ms: u64,
-    ) -> bool {
+        near: u64,
+    ) -> Option<u64> {
         let (low, mac) = split_auth(auth);
-        self.verify_full(id, payload, reconstruct(low, now_ms), &mac)
+        let (epoch, counter) = split_freshness(near);
+        let fv = freshness(epoch, rebuild(low, counter));
+        self.verify_full(id, payload, fv, &mac).then_some(fv)
     }
 }
 
-/// The transmitted low 32 bits of the freshness value and the MAC of a
+/// The transmitted low 16 bits of the freshness counter and the MAC of a
 /// cryptographic PDU.
-pub fn split_auth(auth: &[u8; AUTH_LEN]) -> (u32, [u8; MAC_LEN]) {
-    let mut fv = [0u8; 4];
-    fv.copy_from_slice(&auth[..4]);
+pub fn split_auth(auth: &[u8; AUTH_LEN]) -> (u16, [u8; MAC_LEN]) {
+    let low = u16::from_le_bytes([auth[0], auth[1]]);
     let mut mac = [0u8; MAC_LEN];
-    mac.copy_from_slice(&auth[4..]);
-    (u32::from_le_bytes(fv), mac)
+    mac.copy_from_slice(&auth[FRESHNESS_LEN..]);
+    (low, mac)
 }
 
-/// The full freshness value nearest the receiver's clock `now_ms` whose
-/// low 32 bits are `low` (the Toyota scheme's reconstruction: the frame
-/// carries the low bits, the receiver supplies the rest).
-pub fn reconstruct(low: u32, now_ms: u64) -> u64 {
-    const SPAN: u64 = 1 << 32;
-    let base = now_ms & !(SPAN - 1);
-    let candidates = [
-        base.checked_sub(SPAN).map(|b| b | u64::from(low)),
-        Some(base | u64::from(low)),
-        base.checked_add(SPAN).map(|b| b | u64::from(low)),
-    ];
-    candidates
-        .into_iter()
-        .flatten()
-        .min_by_key(|c| c.abs_diff(now_ms))
-        .unwrap_or(u64::from(low))
+/// The counter nearest `floor` whose low 16 bits are `low` (AUTOSAR's
+/// reconstruction from the transmitted part), within the epoch's counter
+/// space: a counter within [`REBUILD_SPAN`] of the floor is rebuilt
+/// exactly; one further away rebuilds to another value and fails its MAC.
+pub fn rebuild(low: u16, floor: u32) -> u32 {
+    const SPAN: u32 = 1 << 16;
+    let base = floor & !(SPAN - 1);
+    let low = u32::from(low);
+    [
+        base.checked_sub(SPAN).map(|b| b | low),
+        Some(base | low),
+        base.checked_add(SPAN).map(|b| b | low),
+    ]
+    .into_iter()
+    .flatten()
+    .min_by_key(|c| c.abs_diff(floor))
+    .unwrap_or(low)
+}
+
+/// The receiver's announcement (`SECOC_SYNC`): its epoch and the floor,
+/// the lowest counter a sender should sign with now. Payload: epoch (u32
+/// little-endian) ‖ floor (u32 little-endian); its own freshness value is
+/// [`Sync::freshness`], so an announcement signs itself.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Sync {
+    /// The receiver's epoch.
+    pub epoch: u32,
+    /// The lowest counter to sign with.
+    pub floor: u32,
+}
+
+impl Sync {
+    /// The 8-byte payload.
+    pub fn payload(self) -> [u8; PAYLOAD_LEN] {
+        let mut p = [0u8; PAYLOAD_LEN];
+        p[..4].copy_from_slice(&self.epoch.to_le_bytes());
+        p[4..].copy_from_slice(&self.floor.to_le_bytes());
+        p
+    }
+
+    /// The announcement of a payload.
+    pub fn from_payload(p: &[u8; PAYLOAD_LEN]) -> Self {
+        Self {
+            epoch: u32::from_le_bytes([p[0], p[1], p[2], p[3]]),
+            floor: u32::from_le_bytes([p[4], p[5], p[6], p[7]]),
+        }
+    }
+
+    /// The freshness value the announcement is signed with.
+    pub fn freshness(self) -> u64 {
+        freshness(self.epoch, self.floor)
+    }
+
+    /// Its authenticator frame's data, signed by `auth` for `sync_id`.
+    pub fn sign(self, auth: &Authenticator, sync_id: FrameId) -> [u8; AUTH_LEN] {
+        auth.sign(sync_id, &self.payload(), self.freshness())
+    }
+
+    /// The announcement of `payload` when `pdu` is its authenticator under
+    /// `auth` (the sender's key of that direction), else `None`.
+    pub fn verify(
+        auth: &Authenticator,
+        sync_id: FrameId,
+        payload: &[u8; PAYLOAD_LEN],
+        pdu: &[u8; AUTH_LEN],
+    ) -> Option<Self> {
+        let s = Self::from_payload(payload);
+        let (low, mac) = split_auth(pdu);
+        (low == s.floor as u16 && auth.verify_full(sync_id, payload, s.freshness(), &mac))
+            .then_some(s)
+    }
+}
+
+/// A sender's next freshness value: at or above the receiver's announced
+/// floor, and above the last value it used itself in that epoch while that
+/// stays within reach of the floor (further ahead it starts at the floor
+/// again: its frames above were never accepted, and go stale).
+pub fn next_freshness(sync: Sync, last_used: Option<u64>) -> u64 {
+    let floor = sync.floor.max(1);
+    let counter = match last_used.map(split_freshness) {
+        Some((epoch, c)) if epoch == sync.epoch => {
+            let next = c.saturating_add(1);
+            if next >= floor && next - floor < REBUILD_SPAN / 2 {
+                next
+            } else {
+                floor
+            }
+        }
+        _ => floor,
+    };
+    freshness(sync.epoch, counter)
 }
 
 /// Why a secured frame was refused. Every refusal is counted by its kind.
@@ -290,13 +395,13 @@ pub fn reconstruct(low: u32, now_ms: u64) -> u64 {
 pub enum AuthFailure {
     /// The MAC does not match: no key, another role's or vehicle's key, a
     /// changed payload (a rolled counter and recomputed CRC), another id,
-    /// or a guessed MAC. The only reason that counts towards the lockout.
+    /// another epoch (a frame from before a restart), or a guessed MAC.
     BadMac,
-    /// Inside the window but not above the last accepted value: a replay,
-    /// at once or after a restart.
+    /// Not above the last counter accepted on that id in this epoch: a
+    /// replay.
     Replayed,
-    /// Outside the window around the receiver's clock: recorded earlier (a
-    /// kept-back command, an old recording) or a sender whose clock is off.
+    /// Below the floor announced a window ago: a frame kept back and sent
+    /// late, or a sender that has not heard the receiver's announcement.
     Stale,
     /// A secured frame without its authenticator: a plain frame from a
     /// sender without the key, or its authenticator came too late.
@@ -305,24 +410,17 @@ pub enum AuthFailure {
     Unpaired,
     /// A secured or authenticator frame of the wrong length.
     BadLength,
-    /// Refused unseen while its id is locked out.
-    LockedOut,
-    /// The freshness value could not be persisted: refused, since accepting
-    /// it would let the frame be replayed after a restart.
-    StoreFailed,
 }
 
 impl AuthFailure {
     /// Every reason, in [`Self::index`] order.
-    pub const ALL: [Self; 8] = [
+    pub const ALL: [Self; 6] = [
         Self::BadMac,
         Self::Replayed,
         Self::Stale,
         Self::MissingAuthenticator,
         Self::Unpaired,
         Self::BadLength,
-        Self::LockedOut,
-        Self::StoreFailed,
     ];
 
     /// Position in [`Self::ALL`], for counters.
@@ -334,8 +432,6 @@ impl AuthFailure {
             Self::MissingAuthenticator => 3,
             Self::Unpaired => 4,
             Self::BadLength => 5,
-            Self::LockedOut => 6,
-            Self::StoreFailed => 7,
         }
     }
 
@@ -348,116 +444,13 @@ impl AuthFailure {
             Self::MissingAuthenticator => "missing_authenticator",
             Self::Unpaired => "unpaired_authenticator",
             Self::BadLength => "bad_length",
-            Self::LockedOut => "locked_out",
-            Self::StoreFailed => "freshness_store_failed",
         }
-    }
-
-    /// Whether it counts towards the lockout: only a MAC that was checked
-    /// and did not match is a guess; the other refusals cost an attacker
-    /// nothing and would let anyone lock the receiver out cheaply.
-    pub fn counts_for_lockout(self) -> bool {
-        matches!(self, Self::BadMac)
     }
 }
 
 impl std::fmt::Display for AuthFailure {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.write_str(self.name())
-    }
-}
-
-/// The acceptance rule: `freshness` within `window_ms` of the receiver's
-/// clock `now_ms`, and above the last accepted value (any value inside the
-/// window when none was accepted yet).
-///
-/// # Errors
-/// [`AuthFailure::Stale`] outside the window, [`AuthFailure::Replayed`]
-/// not above the last accepted value.
-pub fn check_freshness(
-    last_accepted: Option<u64>,
-    freshness: u64,
-    now_ms: u64,
-    window_ms: u64,
-) -> Result<(), AuthFailure> {
-    if freshness.abs_diff(now_ms) > window_ms {
-        return Err(AuthFailure::Stale);
-    }
-    match last_accepted {
-        Some(last) if freshness <= last => Err(AuthFailure::Replayed),
-        _ => Ok(()),
-    }
-}
-
-/// A sender's next freshness value: its clock in ms, and above the last
-/// value it used on that id. A remembered value more than
-/// [`MAX_SENDER_LEAD_MS`] ahead of the clock (a clock set back, a damaged
-/// counter) is dropped: continuing above it would only be refused as stale.
-pub fn next_tx_freshness(last_used: Option<u64>, now_ms: u64) -> u64 {
-    match last_used {
-        Some(last) if last < now_ms.saturating_add(MAX_SENDER_LEAD_MS) => {
-            last.saturating_add(1).max(now_ms)
-        }
-        _ => now_ms.max(1),
-    }
-}
-
-/// Lockout after too many failures in a window (pure: time is an argument).
-#[derive(Debug, Clone)]
-pub struct Lockout {
-    max_failures: usize,
-    window_us: u64,
-    duration_us: u64,
-    /// Times of the last `max_failures` counted failures, oldest first.
-    recent: std::collections::VecDeque<u64>,
-    /// End of the lockout in force, if any.
-    until_us: Option<u64>,
-    /// Lockouts started so far.
-    trips: u64,
-}
-
-impl Lockout {
-    /// `max_failures` (≥ 1) within `window_us` lock out for `duration_us`.
-    pub fn new(max_failures: u32, window_us: u64, duration_us: u64) -> Self {
-        let n = max_failures.max(1) as usize;
-        Self {
-            max_failures: n,
-            window_us,
-            duration_us,
-            recent: std::collections::VecDeque::with_capacity(n.min(64)),
-            until_us: None,
-            trips: 0,
-        }
-    }
-
-    /// Whether it is locked at `now_us`.
-    pub fn is_locked(&self, now_us: u64) -> bool {
-        self.until_us.is_some_and(|until| now_us < until)
-    }
-
-    /// Lockouts started since start.
-    pub fn trips(&self) -> u64 {
-        self.trips
-    }
-
-    /// Counts a failure at `now_us`; true when it starts a lockout.
-    pub fn record_failure(&mut self, now_us: u64) -> bool {
-        if self.is_locked(now_us) {
-            return false;
-        }
-        if self.recent.len() == self.max_failures {
-            self.recent.pop_front();
-        }
-        self.recent.push_back(now_us);
-        let oldest = self.recent.front().copied().unwrap_or(now_us);
-        if self.recent.len() == self.max_failures && now_us.saturating_sub(oldest) <= self.window_us
-        {
-            self.until_us = Some(now_us.saturating_add(self.duration_us));
-            self.recent.clear();
-            self.trips += 1;
-            return true;
-        }
-        false
     }
 }
 
@@ -468,8 +461,7 @@ pub enum Verdict {
     NotSecured,
     /// A secured frame held until its authenticator arrives.
     Held,
-    /// Authenticated and fresh (its freshness value already persisted):
-    /// handle `payload` as a frame at `id`.
+    /// Authenticated and fresh: handle `payload` as a frame at `id`.
     Accepted {
         /// The secured frame's id.
         id: FrameId,
@@ -498,20 +490,14 @@ pub struct SecuredId {
     pub link: Link,
     /// The key of its role (see [`crate::secoc_keys`]).
     pub key: Key,
-    /// The last freshness value accepted before (from the persisted store;
-    /// `None` for a fresh start).
-    pub last_accepted: Option<u64>,
-    /// Whether bad MACs may lock it out (`false` for `CALIB_ACK`: a
-    /// write-back must not fail because someone sent junk).
-    pub lockable: bool,
 }
 
 #[derive(Debug, Clone)]
 struct RxLink {
     link: Link,
     auth: Authenticator,
-    last_accepted: Option<u64>,
-    lockout: Option<Lockout>,
+    /// The last counter accepted in this epoch (0: none yet).
+    mark: u32,
     /// Secured frames waiting for their authenticator: arrival time, payload; oldest first.
     pending: std::collections::VecDeque<(u64, [u8; PAYLOAD_LEN])>,
 }
@@ -553,32 +539,62 @@ impl std::fmt::Display for FailureCounts {
     }
 }
 
-/// The receiving end: pairs, verifies, judges freshness, locks out, counts.
+/// The receiving end: pairs, verifies, judges freshness in its own epoch,
+/// counts. Time (`now_us`) only ages the pairing of a secured frame with
+/// its authenticator; the caller passes a monotonic clock.
 #[derive(Debug, Clone)]
 pub struct Receiver {
     links: Vec<RxLink>,
-    window_ms: u64,
+    epoch: u32,
+    /// The lowest counter a sender should sign with: above every mark.
+    floor: u32,
+    /// The floors of the last `window_ticks` announcements, oldest first:
+    /// the oldest is the lowest counter accepted.
+    announced: std::collections::VecDeque<u32>,
+    window_ticks: usize,
     counts: FailureCounts,
 }
 
 impl Receiver {
-    /// A receiver of `ids`, each lockable one with its own copy of
-    /// `lockout`, accepting freshness values within `window_ms` of its clock.
-    pub fn new(ids: &[SecuredId], lockout: &Lockout, window_ms: u64) -> Self {
+    /// A receiver of `ids` in `epoch` (a new one at every start: see the
+    /// module doc), accepting a counter for `window_ticks` (≥ 1)
+    /// announcements after the floor it was signed above.
+    pub fn new(ids: &[SecuredId], epoch: u32, window_ticks: u32) -> Self {
+        let window_ticks = window_ticks.max(1) as usize;
+        let mut announced = std::collections::VecDeque::with_capacity(window_ticks);
+        announced.push_back(1);
         Self {
             links: ids
                 .iter()
                 .map(|s| RxLink {
                     link: s.link,
                     auth: Authenticator::new(&s.key),
-                    last_accepted: s.last_accepted,
-                    lockout: s.lockable.then(|| lockout.clone()),
+                    mark: 0,
                     pending: std::collections::VecDeque::with_capacity(MAX_PENDING),
                 })
                 .collect(),
-            window_ms,
+            epoch,
+            floor: 1,
+            announced,
+            window_ticks,
             counts: FailureCounts::default(),
         }
+    }
+
+    /// The same ids, window and counts in a new `epoch` (its counters
+    /// start again: nothing of the old epoch is accepted in it).
+    #[must_use]
+    pub fn new_epoch(&self, epoch: u32) -> Self {
+        let mut next = self.clone();
+        next.epoch = epoch;
+        next.floor = 1;
+        next.announced.clear();
+        next.announced.push_back(1);
+        for l in &mut next.links {
+            l.mark = 0;
+            l.pending.clear();
+        }
+        next
     }
 
     /// Refusals so far, by reason.
@@ -586,37 +602,52 @@ impl Receiver {
         self.counts
     }
 
-    /// The acceptance window, ms.
-    pub fn window_ms(&self) -> u64 {
-        self.window_ms
+    /// The epoch.
+    pub fn epoch(&self) -> u32 {
+        self.epoch
     }
 
-    /// Whether the secured id `id` (or the one an authenticator id belongs
-    /// to) is locked out at `now_us`.
-    pub fn is_locked(&self, id: FrameId, now_us: u64) -> bool {
-        self.links
-            .iter()
-            .find(|l| l.link.secured == id || l.link.authenticator == id)
-            .and_then(|l| l.lockout.as_ref())
-            .is_some_and(|l| l.is_locked(now_us))
+    /// The acceptance window, in announcements.
+    pub fn window_ticks(&self) -> u32 {
+        self.window_ticks as u32
     }
 
-    /// Lockouts started since start, all ids together.
-    pub fn lockouts(&self) -> u64 {
-        self.links
-            .iter()
-            .filter_map(|l| l.lockout.as_ref())
-            .map(Lockout::trips)
-            .sum()
+    /// The announcement to send now (after an accepted frame: the floor
+    /// above it at once, so the next sender need not wait for a tick).
+    pub fn sync(&self) -> Sync {
+        Sync {
+            epoch: self.epoch,
+            floor: self.floor,
+        }
+    }
+
+    /// One announcement period has passed: the floor moves up by one, the
+    /// oldest floor of the window drops out (frames signed above it alone
+    /// are now stale). Returns the announcement to send.
+    pub fn tick(&mut self) -> Sync {
+        self.floor = self.floor.saturating_add(1);
+        if self.announced.len() == self.window_ticks {
+            self.announced.pop_front();
+        }
+        self.announced.push_back(self.floor);
+        self.sync()
+    }
+
+    /// Whether the counters near the end of their space: the owner should
+    /// start a new epoch (never reached at one tick a second and any
+    /// command rate a bus carries, but a key holder could push it).
+    pub fn exhausted(&self) -> bool {
+        self.floor >= EXHAUSTED_AT
     }
 
     /// The last accepted freshness value of a secured id (or of the secured
-    /// id an authenticator id belongs to).
+    /// id an authenticator id belongs to) in this epoch.
     pub fn last_accepted(&self, id: FrameId) -> Option<u64> {
         self.links
             .iter()
             .find(|l| l.link.secured == id || l.link.authenticator == id)
-            .and_then(|l| l.last_accepted)
+            .filter(|l| l.mark > 0)
+            .map(|l| freshness(self.epoch, l.mark))
     }
 
     fn refuse(&mut self, reason: AuthFailure) -> Verdict {
@@ -642,23 +673,11 @@ impl Receiver {
         n
     }
 
-    /// Judges one received frame at bus time `now_us` (µs since the Unix
-    /// epoch). `persist` stores a secured id's new last-accepted freshness
-    /// value durably; it is called before a frame is accepted, and a
-    /// failure refuses the frame (write-ahead: a crash can never re-open a
-    /// value once acted on).
-    pub fn on_frame<E>(
-        &mut self,
-        now_us: u64,
-        id: FrameId,
-        data: &[u8],
-        persist: impl FnOnce(FrameId, u64) -> Result<(), E>,
-    ) -> Verdict {
+    /// Judges one received frame at `now_us` (µs on the caller's monotonic
+    /// clock: only the pairing timeout uses it).
+    pub fn on_frame(&mut self, now_us: u64, id: FrameId, data: &[u8]) -> Verdict {
         self.expire(now_us);
         if let Some(i) = self.links.iter().position(|l| l.link.secured == id) {
-            if self.is_locked(id, now_us) {
-                return self.refuse(AuthFailure::LockedOut);
-            }
             return match data.len() {
                 PAYLOAD_LEN => {
                     let mut payload = [0u8; PAYLOAD_LEN];
@@ -680,7 +699,7 @@ impl Receiver {
                     payload.copy_from_slice(&data[..PAYLOAD_LEN]);
                     let mut auth = [0u8; AUTH_LEN];
                     auth.copy_from_slice(&data[PAYLOAD_LEN..]);
-                    self.judge(now_us, i, Some(payload), auth, persist)
+                    self.judge(i, Some(payload), auth)
                 }
                 _ => self.refuse(AuthFailure::BadLength),
             };
@@ -688,74 +707,56 @@ impl Receiver {
         let Some(i) = self.links.iter().position(|l| l.link.authenticator == id) else {
             return Verdict::NotSecured;
         };
-        if self.is_locked(id, now_us) {
-            return self.refuse(AuthFailure::LockedOut);
-        }
         let Ok(auth) = <[u8; AUTH_LEN]>::try_from(data) else {
             return self.refuse(AuthFailure::BadLength);
         };
         if self.links[i].pending.is_empty() {
             return self.refuse(AuthFailure::Unpaired);
         }
-        self.judge(now_us, i, None, auth, persist)
+        self.judge(i, None, auth)
     }
 
     /// Judges `auth` against the FD payload `fd`, or else against the
     /// pending frames of link `i` (oldest first; the one it matches is
-    /// taken, the others wait on for their own authenticators).
-    fn judge<E>(
-        &mut self,
-        now_us: u64,
-        i: usize,
-        fd: Option<[u8; PAYLOAD_LEN]>,
-        auth: [u8; AUTH_LEN],
-        persist: impl FnOnce(FrameId, u64) -> Result<(), E>,
-    ) -> Verdict {
-        let now_ms = now_us / 1000;
-        let window_ms = self.window_ms;
-        let l = &mut self.links[i];
-        let id = l.link.secured;
-        // A mark from a clock that was ahead refuses for one window at most.
-        if let Some(last) = l.last_accepted {
-            l.last_accepted = Some(last.min(now_ms.saturating_add(window_ms)));
-        }
+    /// taken, the others wait on for their own authenticators). Nothing
+    /// but the counts changes unless the MAC verifies.
+    fn judge(&mut self, i: usize, fd: Option<[u8; PAYLOAD_LEN]>, auth: [u8; AUTH_LEN]) -> Verdict {
         let (low, mac) = split_auth(&auth);
-        let freshness = reconstruct(low, now_ms);
-        if let Err(reason) = check_freshness(l.last_accepted, freshness, now_ms, window_ms) {
-            return self.refuse(reason);
+        let counter = rebuild(low, self.floor);
+        let oldest = self.announced.front().copied().unwrap_or(self.floor);
+        let l = &self.links[i];
+        if counter < oldest {
+            return self.refuse(AuthFailure::Stale);
         }
+        if counter <= l.mark {
+            return self.refuse(AuthFailure::Replayed);
+        }
+        let fv = freshness(self.epoch, counter);
+        let id = l.link.secured;
         let matched = match fd {
             Some(payload) => l
                 .auth
-                .verify_full(id, &payload, freshness, &mac)
+                .verify_full(id, &payload, fv, &mac)
                 .then_some((None, payload)),
             None => l
                 .pending
                 .iter()
-                .position(|(_, p)| l.auth.verify_full(id, p, freshness, &mac))
+                .position(|(_, p)| l.auth.verify_full(id, p, fv, &mac))
                 .map(|k| (Some(k), l.pending[k].1)),
         };
         let Some((k, payload)) = matched else {
-            // Each payload tried was one guess at the MAC.
-            let guesses = if fd.is_some() { 1 } else { l.pending.len() };
-            if let Some(lockout) = &mut l.lockout {
-                for _ in 0..guesses {
-                    lockout.record_failure(now_us);
-                }
-            }
             return self.refuse(AuthFailure::BadMac);
         };
+        let l = &mut self.links[i];
         if let Some(k) = k {
             l.pending.remove(k);
         }
-        if persist(id, freshness).is_err() {
-            return self.refuse(AuthFailure::StoreFailed);
-        }
-        self.links[i].last_accepted = Some(freshness);
+        l.mark = counter;
+        self.floor = self.floor.max(counter.saturating_add(1));
         Verdict::Accepted {
             id,
             payload,
-            freshness,
+            freshness: fv,
         }
     }
 }
@@ -765,11 +766,9 @@ mod tests {
     use proptest::prelude::*;
 
     const KEY_HEX: &str = "2b7e151628aed2a6abf7158809cf4f3c";
-
-    /// 2025-11-24 16:00 UTC in µs: the receiver's clock in these tests.
-    const T0_US: u64 = 1_764_000_000_000_000;
-    const T0_MS: u64 = T0_US / 1000;
-    const HOUR_US: u64 = 3_600_000_000;
+    const EPOCH: u32 = 0x5EC0_C003;
+    /// The receiver's monotonic clock in these tests, µs.
+    const T0_US: u64 = 1_000_000_000;
 
     fn key() -> Key {
         Key::parse(KEY_HEX).unwrap()
@@ -789,37 +788,46 @@ mod tests {
         }
     }
 
-    fn spec(link: Link, last: Option<u64>, lockable: bool) -> SecuredId {
-        SecuredId {
-            link,
-            key: key(),
-            last_accepted: last,
-            lockable,
+    fn odom_link() -> Link {
+        Link {
+            secured: FrameId::Standard(0x603),
+            authenticator: FrameId::Standard(0x604),
         }
     }
 
-    fn receiver(last: Option<u64>) -> Receiver {
-        Receiver::new(
-            &[spec(link(), last, true), spec(ack_link(), None, false)],
-            &Lockout::new(10, 10_000_000, 60_000_000),
-            DEFAULT_WINDOW_MS,
-        )
+    fn receiver_in(epoch: u32) -> Receiver {
+        let ids: Vec<SecuredId> = [link(), ack_link(), odom_link()]
+            .into_iter()
+            .map(|link| SecuredId { link, key: key() })
+            .collect();
+        Receiver::new(&ids, epoch, DEFAULT_WINDOW_TICKS)
     }
 
-    /// A store that always succeeds (the `persist` argument's shape).
-    #[allow(clippy::unnecessary_wraps)]
-    fn ok(_: FrameId, _: u64) -> Result<(), ()> {
-        Ok(())
+    fn receiver() -> Receiver {
+        receiver_in(EPOCH)
     }
 
-    /// A secured payload's authenticator at `fv` (ms).
+    /// A secured payload's authenticator on `l` at `fv`.
+    fn signed_on(l: Link, payload: [u8; 8], fv: u64) -> [u8; 8] {
+        Authenticator::new(&key()).sign(l.secured, &payload, fv)
+    }
+
     fn signed(payload: [u8; 8], fv: u64) -> [u8; 8] {
-        Authenticator::new(&key()).sign(link().secured, &payload, fv)
+        signed_on(link(), payload, fv)
+    }
+
+    fn send_on(rx: &mut Receiver, l: Link, t: u64, payload: [u8; 8], auth: [u8; 8]) -> Verdict {
+        assert_eq!(rx.on_frame(t, l.secured, &payload), Verdict::Held);
+        rx.on_frame(t + 100, l.authenticator, &auth)
     }
 
     fn send(rx: &mut Receiver, t: u64, payload: [u8; 8], auth: [u8; 8]) -> Verdict {
-        assert_eq!(rx.on_frame(t, link().secured, &payload, ok), Verdict::Held);
-        rx.on_frame(t + 100, link().authenticator, &auth, ok)
+        send_on(rx, link(), t, payload, auth)
+    }
+
+    /// What a sender who heard the receiver's last announcement signs with.
+    fn fresh(rx: &Receiver) -> u64 {
+        next_freshness(rx.sync(), None)
     }
 
     fn hex(s: &str) -> Vec<u8> {
@@ -827,6 +835,19 @@ mod tests {
             .step_by(2)
             .map(|i| u8::from_str_radix(&s[i..i + 2], 16).unwrap())
             .collect()
+    }
+
+    /// splitmix64: reproducible random MACs without a dependency.
+    fn splitmix(state: &mut u64) -> u64 {
+        *state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = *state;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+
+    fn junk(seed: &mut u64) -> [u8; 8] {
+        splitmix(seed).to_le_bytes()
     }
 
     #[test]
@@ -853,10 +874,10 @@ mod tests {
 
     #[test]
     fn auth_the_mac_covers_id_payload_and_the_full_64_bit_freshness() {
-        // Our MAC is the first 4 bytes of the CMAC of DataId ‖ payload ‖
+        // Our MAC is the first 6 bytes of the CMAC of DataId ‖ payload ‖
         // FV (8 bytes big-endian), computed here independently.
         let payload = [1, 2, 3, 4, 5, 6, 7, 8];
-        let fv: u64 = 0x0000_019A_B3C4_D5E6;
+        let fv: u64 = 0x5EC0_C003_0001_D5E6;
         let mut m = vec![0x8B, 0xC1, 0xBE, 0xE2];
         m.extend_from_slice(&payload);
         m.extend_from_slice(&fv.to_be_bytes());
@@ -865,394 +886,335 @@ mod tests {
         let expected = c.finalize().into_bytes();
         let a = Authenticator::new(&key());
         let ext = FrameId::Extended(0x0bc1_bee2);
-        assert_eq!(a.mac(ext, &payload, fv), expected[..4]);
+        assert_eq!(a.mac(ext, &payload, fv), expected[..6]);
         let auth = a.sign(ext, &payload, fv);
-        assert_eq!(
-            auth[..4],
-            (fv as u32).to_le_bytes(),
-            "the low 32 bits travel"
-        );
-        assert_eq!(auth[4..], expected[..4]);
-        // The same low bits 2^32 ms (49.7 days) earlier: another MAC.
+        assert_eq!(auth[..2], [0xE6, 0xD5], "the low 16 bits travel");
+        assert_eq!(auth[2..], expected[..6]);
+        // The same counter in another epoch: another MAC.
         assert_ne!(
-            a.mac(ext, &payload, fv - (1 << 32)),
+            a.mac(ext, &payload, fv ^ (1 << 40)),
             a.mac(ext, &payload, fv)
         );
     }
 
     #[test]
-    fn auth_reconstruct_takes_the_value_nearest_the_clock_across_a_wrap() {
-        let now = 0x19A_FFFF_FF00u64;
-        assert_eq!(reconstruct(0xFFFF_FF00, now), now);
-        // 0x200 ms later, past the wrap of the low 32 bits.
-        assert_eq!(reconstruct(0x0000_0100, now), 0x19B_0000_0100);
-        // And 0x200 ms earlier than a clock just past the wrap.
-        assert_eq!(reconstruct(0xFFFF_FF00, 0x19B_0000_0100), now);
-        assert_eq!(reconstruct(5, 0), 5);
+    fn auth_rebuild_takes_the_counter_nearest_the_floor_across_a_wrap() {
+        assert_eq!(rebuild(0xFF00, 0x3_FF00), 0x3_FF00);
+        assert_eq!(rebuild(0x0100, 0x3_FF00), 0x4_0100);
+        assert_eq!(rebuild(0xFF00, 0x4_0100), 0x3_FF00);
+        assert_eq!(rebuild(5, 0), 5);
+        assert_eq!(rebuild(0xFFFF, 1), 0xFFFF, "no counter below zero");
+        assert_eq!(rebuild(0, u32::MAX), 0xFFFF_0000, "none past the end");
     }
 
     #[test]
     fn auth_a_signed_command_is_accepted_once_and_its_replay_refused() {
-        let mut rx = receiver(None);
+        let mut rx = receiver();
         let payload = [1, 0xC0, 0x30, 0x50, 0, 0, 0x10, 0xF4];
-        let auth = signed(payload, T0_MS);
+        let fv = fresh(&rx);
+        let auth = signed(payload, fv);
         assert_eq!(
             send(&mut rx, T0_US, payload, auth),
             Verdict::Accepted {
                 id: link().secured,
                 payload,
-                freshness: T0_MS
+                freshness: fv
             }
         );
-        // The same pair again inside the window: replayed; an hour later: stale.
+        assert_eq!(
+            rx.sync().floor,
+            split_freshness(fv).1 + 1,
+            "the floor moves above it"
+        );
         assert_eq!(
             send(&mut rx, T0_US + 1_000, payload, auth),
             Verdict::Refused(AuthFailure::Replayed)
         );
-        assert_eq!(
-            send(&mut rx, T0_US + HOUR_US, payload, auth),
-            Verdict::Refused(AuthFailure::Stale)
-        );
-        // An older value signed with the key is refused too; a newer one passes.
-        assert_eq!(
-            send(&mut rx, T0_US + 2_000, payload, signed(payload, T0_MS - 1)),
-            Verdict::Refused(AuthFailure::Replayed)
-        );
+        // The next one from a sender who heard the new announcement passes.
+        let next = next_freshness(rx.sync(), Some(fv));
         assert!(matches!(
-            send(&mut rx, T0_US + 3_000, payload, signed(payload, T0_MS + 1)),
+            send(&mut rx, T0_US + 2_000, payload, signed(payload, next)),
             Verdict::Accepted { .. }
         ));
-        let c = rx.counts();
+        assert_eq!(rx.counts().of(AuthFailure::Replayed), 1);
+    }
+
+    #[test]
+    fn auth_a_command_kept_back_goes_stale_after_the_window_and_not_before() {
+        let mut rx = receiver();
+        let payload = [2, 0, 0, 0, 0, 0, 0x20, 0x37];
+        let kept = signed(payload, fresh(&rx));
+        for _ in 0..DEFAULT_WINDOW_TICKS - 1 {
+            rx.tick();
+        }
+        let mut early = rx.clone();
+        assert!(matches!(
+            send(&mut early, T0_US, payload, kept),
+            Verdict::Accepted { .. }
+        ));
+        rx.tick();
         assert_eq!(
-            (c.of(AuthFailure::Replayed), c.of(AuthFailure::Stale)),
-            (2, 1)
+            send(&mut rx, T0_US, payload, kept),
+            Verdict::Refused(AuthFailure::Stale)
         );
+        // A sender who heard the last announcement is accepted at once.
+        let auth = signed(payload, fresh(&rx));
+        assert!(matches!(
+            send(&mut rx, T0_US + 1000, payload, auth),
+            Verdict::Accepted { .. }
+        ));
+    }
+
+    #[test]
+    fn auth_frames_of_an_earlier_epoch_are_refused_whatever_the_clocks_say() {
+        // Issue #44: a restart is a new epoch, so commands accepted before it
+        // (recorded, replayed after the clock was set back an hour or two
+        // years, with the store kept or deleted) all fail their MAC; no
+        // clock is read.
+        let mut before = receiver_in(EPOCH);
+        let mut recorded = Vec::new();
+        for k in 0..2u8 {
+            let payload = [k, 0, 0, 0, 0, 0, 0x60, 0x10];
+            let auth = signed(payload, fresh(&before));
+            assert!(matches!(
+                send(&mut before, T0_US, payload, auth),
+                Verdict::Accepted { .. }
+            ));
+            recorded.push((payload, auth));
+        }
+        for epoch in [EPOCH + 1, 0x1234_5678] {
+            let mut after = receiver_in(epoch);
+            for (payload, auth) in &recorded {
+                assert_eq!(
+                    send(&mut after, T0_US, *payload, *auth),
+                    Verdict::Refused(AuthFailure::BadMac)
+                );
+            }
+            assert_eq!(after.last_accepted(link().secured), None);
+            assert_eq!(after.sync().floor, 1, "nothing moved");
+        }
     }
 
     #[test]
     fn auth_an_interleaved_plain_frame_neither_blocks_the_command_nor_keeps_it_for_later() {
-        // Issue #33 item 1: command, a plain frame on the same id slipped in
-        // by an attacker, the command's authenticator.
-        let mut rx = receiver(None);
+        let mut rx = receiver();
         let cmd = [7, 0, 0, 0, 0, 0, 0x70, 0x11];
         let plain = [7, 0, 0, 0, 0, 0, 0x80, 0x22];
-        let auth = signed(cmd, T0_MS);
-        assert_eq!(rx.on_frame(T0_US, link().secured, &cmd, ok), Verdict::Held);
+        let fv = fresh(&rx);
+        let auth = signed(cmd, fv);
+        assert_eq!(rx.on_frame(T0_US, link().secured, &cmd), Verdict::Held);
         assert_eq!(
-            rx.on_frame(T0_US + 50, link().secured, &plain, ok),
+            rx.on_frame(T0_US + 50, link().secured, &plain),
             Verdict::Held
         );
         assert_eq!(
-            rx.on_frame(T0_US + 100, link().authenticator, &auth, ok),
+            rx.on_frame(T0_US + 100, link().authenticator, &auth),
             Verdict::Accepted {
                 id: link().secured,
                 payload: cmd,
-                freshness: T0_MS
+                freshness: fv
             }
         );
-        // The attacker who also blocked the authenticator (say, by an error
-        // frame) replays the recorded pair one hour later: stale.
-        let mut blocked = receiver(None);
+        // The attacker who also blocked the authenticator replays the pair
+        // after the window: stale.
+        let mut blocked = receiver();
+        let auth = signed(cmd, fresh(&blocked));
+        assert_eq!(blocked.on_frame(T0_US, link().secured, &cmd), Verdict::Held);
+        for _ in 0..DEFAULT_WINDOW_TICKS {
+            blocked.tick();
+        }
         assert_eq!(
-            blocked.on_frame(T0_US, link().secured, &cmd, ok),
-            Verdict::Held
-        );
-        let later = T0_US + HOUR_US;
-        assert_eq!(
-            send(&mut blocked, later, cmd, auth),
+            send(&mut blocked, T0_US + 10_000_000, cmd, auth),
             Verdict::Refused(AuthFailure::Stale)
         );
-        assert_eq!(
-            send(&mut blocked, later + 3_600_000_000, cmd, auth),
-            Verdict::Refused(AuthFailure::Stale)
-        );
-        assert_eq!(blocked.counts().of(AuthFailure::BadMac), 0);
         // A junk authenticator between the command and its own does not
         // consume the command either.
-        let mut rx = receiver(None);
-        assert_eq!(rx.on_frame(T0_US, link().secured, &cmd, ok), Verdict::Held);
+        let mut rx = receiver();
+        let auth = signed(cmd, fresh(&rx));
+        assert_eq!(rx.on_frame(T0_US, link().secured, &cmd), Verdict::Held);
         let mut junk = auth;
         junk[5] ^= 0x40;
         assert_eq!(
-            rx.on_frame(T0_US + 40, link().authenticator, &junk, ok),
+            rx.on_frame(T0_US + 40, link().authenticator, &junk),
             Verdict::Refused(AuthFailure::BadMac)
         );
         assert!(matches!(
-            rx.on_frame(T0_US + 80, link().authenticator, &auth, ok),
+            rx.on_frame(T0_US + 80, link().authenticator, &auth),
             Verdict::Accepted { .. }
         ));
     }
 
-    #[test]
-    fn auth_junk_authenticators_at_0_2_per_second_for_30_minutes_block_no_valid_command() {
-        // Issue #33 item 3: junk authenticator frames at 0.2 frames/s, some
-        // right after a command's secured frame, while a valid command
-        // arrives every 5 s for 30 simulated minutes.
-        let mut rx = receiver(None);
-        let mut seed = 33u64;
+    /// 30 minutes with a valid command every 5 s on `CALIB_CMD` while a
+    /// keyless sender sends `burst` frames every `every_s` seconds on every
+    /// secured id (plain frames and junk authenticators, some right between
+    /// a command and its authenticator); returns the commands accepted.
+    fn keyless_30_minutes(burst: u64, every_s: u64) -> u64 {
+        let mut rx = receiver();
+        let mut seed = 44u64;
         let mut accepted = 0;
-        let mut commands = 0;
-        let step_us = 5_000_000;
-        for k in 0..(30 * 60 / 5) {
-            let t = T0_US + k * step_us;
-            let cmd = [3, 0, 0, 0, 0, 0, (k % 16) as u8, k as u8];
-            let r = splitmix(&mut seed);
-            let mut junk = [0u8; 8];
-            junk[..4].copy_from_slice(&((t / 1000) as u32).to_le_bytes());
-            junk[4..].copy_from_slice(&(r as u32).to_le_bytes());
-            // Command frame, junk between it and its authenticator, then the
-            // authenticator; on even steps the junk comes alone 2.5 s later.
-            assert_eq!(rx.on_frame(t, link().secured, &cmd, ok), Verdict::Held);
-            if k % 2 == 1 {
-                let _ = rx.on_frame(t + 10, link().authenticator, &junk, ok);
+        let mut last = None;
+        for s in 0..30 * 60u64 {
+            let t = T0_US + s * 1_000_000;
+            if s % every_s == 0 {
+                for b in 0..burst {
+                    for l in [link(), ack_link(), odom_link()] {
+                        let tb = t + 200_000 + b * 1000;
+                        if b % 2 == 0 {
+                            let _ = rx.on_frame(tb, l.secured, &junk(&mut seed));
+                        } else {
+                            let _ = rx.on_frame(tb, l.authenticator, &junk(&mut seed));
+                        }
+                    }
+                }
             }
-            let v = rx.on_frame(t + 20, link().authenticator, &signed(cmd, t / 1000), ok);
-            commands += 1;
-            if matches!(v, Verdict::Accepted { .. }) {
-                accepted += 1;
+            if s % 5 == 0 {
+                let cmd = [3, 0, 0, 0, 0, 0, (s % 16) as u8, s as u8];
+                let fv = next_freshness(rx.sync(), last);
+                assert_eq!(rx.on_frame(t, link().secured, &cmd), Verdict::Held);
+                // Junk slipped in between the command and its authenticator.
+                let _ = rx.on_frame(t + 10, link().secured, &junk(&mut seed));
+                let _ = rx.on_frame(t + 20, link().authenticator, &junk(&mut seed));
+                if matches!(
+                    rx.on_frame(t + 30, link().authenticator, &signed(cmd, fv)),
+                    Verdict::Accepted { .. }
+                ) {
+                    accepted += 1;
+                    last = Some(fv);
+                }
             }
-            if k % 2 == 0 {
-                let _ = rx.on_frame(t + 2_500_000, link().authenticator, &junk, ok);
-            }
+            rx.tick();
         }
-        assert_eq!(commands, 360);
-        assert_eq!(accepted, 360, "{}", rx.counts());
-        assert_eq!(rx.lockouts(), 0);
-        let c = rx.counts();
-        assert_eq!(
-            (c.of(AuthFailure::BadMac), c.of(AuthFailure::Unpaired)),
-            (180, 180),
-            "{c}"
-        );
+        assert!(rx.counts().of(AuthFailure::BadMac) > 0, "{}", rx.counts());
+        accepted
     }
 
     #[test]
-    fn auth_bad_macs_lock_out_only_their_id_and_never_calib_ack() {
-        let mut rx = receiver(None);
-        let payload = [5, 0, 0, 0, 0, 0, 0x50, 0x07];
-        let ack_auth = |p: [u8; 8], fv| Authenticator::new(&key()).sign(ack_link().secured, &p, fv);
-        // 10 bad MACs within 10 s on the command id and on CALIB_ACK.
-        for k in 0..10u64 {
-            let t = T0_US + k * 100_000;
-            let mut bad = signed(payload, t / 1000);
-            bad[7] ^= 1;
-            assert_eq!(
-                send(&mut rx, t, payload, bad),
-                Verdict::Refused(AuthFailure::BadMac)
-            );
-            let mut bad_ack = ack_auth(payload, t / 1000);
-            bad_ack[7] ^= 1;
-            let _ = rx.on_frame(t + 200, ack_link().secured, &payload, ok);
-            let _ = rx.on_frame(t + 300, ack_link().authenticator, &bad_ack, ok);
+    fn auth_keyless_bursts_on_every_secured_id_keep_no_valid_command_out() {
+        // Issue #44: 7 keyless frames a minute (the burst that locked an id
+        // for 60 s in profile 2) and 1 a second on every secured id.
+        assert_eq!(keyless_30_minutes(7, 60), 360);
+        assert_eq!(keyless_30_minutes(1, 1), 360);
+    }
+
+    #[test]
+    fn auth_a_million_random_macs_are_never_accepted_and_change_nothing() {
+        let payload = [6, 0, 0, 0, 0, 0, 0x50, 0x07];
+        let mut seed = 22u64;
+        let mut rx = receiver();
+        let before = rx.sync();
+        for k in 0..1_000_000u64 {
+            let t = T0_US + k * 1000;
+            let mut auth = junk(&mut seed);
+            // Half of them with the counter the receiver expects.
+            if k % 2 == 0 {
+                auth[..2].copy_from_slice(&(before.floor as u16).to_le_bytes());
+            }
+            let l = if k % 3 == 0 { ack_link() } else { link() };
+            assert!(!matches!(
+                send_on(&mut rx, l, t, payload, auth),
+                Verdict::Accepted { .. }
+            ));
         }
-        assert_eq!(rx.lockouts(), 1);
-        let t = T0_US + 2_000_000;
-        assert!(rx.is_locked(link().secured, t));
-        assert!(!rx.is_locked(ack_link().secured, t));
-        // A valid command is refused unseen; a valid ACK is accepted.
-        assert_eq!(
-            rx.on_frame(t, link().secured, &payload, ok),
-            Verdict::Refused(AuthFailure::LockedOut)
-        );
-        assert_eq!(
-            rx.on_frame(t, ack_link().secured, &payload, ok),
-            Verdict::Held
-        );
+        assert_eq!(rx.sync(), before, "nothing a refused frame does is kept");
+        assert_eq!(rx.last_accepted(link().secured), None);
+        let c = rx.counts();
+        assert!(c.of(AuthFailure::BadMac) > 900_000, "{c}");
+        // And the next valid command, and ACK, pass at once.
+        let t = T0_US + 1_000_000_000;
+        let auth = signed(payload, fresh(&rx));
         assert!(matches!(
-            rx.on_frame(
-                t + 10,
-                ack_link().authenticator,
-                &ack_auth(payload, t / 1000),
-                ok
+            send(&mut rx, t, payload, auth),
+            Verdict::Accepted { .. }
+        ));
+        let fv = fresh(&rx);
+        assert!(matches!(
+            send_on(
+                &mut rx,
+                ack_link(),
+                t + 500,
+                payload,
+                signed_on(ack_link(), payload, fv)
             ),
             Verdict::Accepted { .. }
         ));
-        // After lockout_s the command id is open again.
-        let after = T0_US + 62_000_000;
-        assert!(matches!(
-            send(&mut rx, after, payload, signed(payload, after / 1000)),
-            Verdict::Accepted { .. }
-        ));
-        // Unpaired, stale, replayed and short frames never lock.
-        let mut rx = receiver(None);
-        for k in 0..1000u64 {
-            let t = T0_US + k * 1_000;
-            let _ = rx.on_frame(t, link().authenticator, &[0; 8], ok);
-            let _ = send(
-                &mut rx,
-                t + 200,
-                payload,
-                signed(payload, T0_MS - HOUR_US / 1000),
-            );
-            let _ = rx.on_frame(t + 400, link().secured, &payload[..5], ok);
-        }
-        assert_eq!(rx.lockouts(), 0, "{}", rx.counts());
-    }
-
-    /// splitmix64: reproducible random MACs without a dependency.
-    fn splitmix(state: &mut u64) -> u64 {
-        *state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = *state;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
     }
 
     #[test]
-    fn auth_a_million_random_macs_are_never_accepted_and_trip_the_lockout() {
-        let payload = [6, 0, 0, 0, 0, 0, 0x50, 0x07];
-        let mut seed = 22u64;
-        // No lockout in the way: every one of them is verified.
-        let mut open = Receiver::new(
-            &[spec(link(), None, true)],
-            &Lockout::new(u32::MAX, 0, 0),
-            DEFAULT_WINDOW_MS,
-        );
-        let mut accepted = 0;
-        for k in 0..1_000_000u64 {
-            let t = T0_US + k * 1000;
-            let r = splitmix(&mut seed);
-            let mut auth = [0u8; 8];
-            auth[..4].copy_from_slice(&((t / 1000) as u32).to_le_bytes());
-            auth[4..].copy_from_slice(&(r as u32).to_le_bytes());
-            if matches!(send(&mut open, t, payload, auth), Verdict::Accepted { .. }) {
-                accepted += 1;
-            }
-        }
-        assert_eq!(accepted, 0);
-        assert_eq!(open.counts().of(AuthFailure::BadMac), 1_000_000);
-        // With a lockout of 10 failures in 10 s for 60 s: it trips, and the
-        // rest are refused unseen; none is accepted either way.
-        let mut rx = receiver(None);
-        for k in 0..1_000_000u64 {
-            let t = T0_US + k * 1000;
-            let r = splitmix(&mut seed);
-            let mut auth = [0u8; 8];
-            auth[..4].copy_from_slice(&((t / 1000) as u32).to_le_bytes());
-            auth[4..].copy_from_slice(&(r as u32).to_le_bytes());
-            let _ = rx.on_frame(t, link().secured, &payload, ok);
-            let v = rx.on_frame(t + 100, link().authenticator, &auth, ok);
-            assert!(!matches!(v, Verdict::Accepted { .. }));
-        }
-        let c = rx.counts();
-        // 1,000 s of attack: a lockout every 60 s plus the time to trip it.
-        assert_eq!(rx.lockouts(), 17, "{c}");
-        // A secured frame whose authenticator failed waits on (its own may
-        // follow), so the next authenticator is tried against 2, then 3,
-        // then 4 of them: each payload tried is one guess, and 1 + 2 + 3 + 4
-        // guesses trip the lockout after 4 refused authenticators.
-        assert_eq!(c.of(AuthFailure::BadMac), 17 * 4, "{c}");
-        assert!(c.of(AuthFailure::LockedOut) > 1_900_000, "{c}");
-    }
-
-    #[test]
-    fn auth_a_frame_accepted_before_a_restart_is_refused_after_it() {
-        let payload = [7, 0, 0, 0, 0, 0, 0x60, 0x10];
-        let auth = signed(payload, T0_MS);
-        let mut stored = None;
-        let mut before = receiver(None);
-        assert_eq!(
-            before.on_frame(T0_US, link().secured, &payload, ok),
-            Verdict::Held
-        );
-        let v = before.on_frame(T0_US + 50, link().authenticator, &auth, |_, fv| {
-            stored = Some(fv);
-            Ok::<(), ()>(())
-        });
-        assert!(matches!(v, Verdict::Accepted { .. }));
-        // The restart, within the window: a new receiver from what was persisted.
-        let mut after = receiver(stored);
-        assert_eq!(
-            send(&mut after, T0_US + 2_000_000, payload, auth),
-            Verdict::Refused(AuthFailure::Replayed)
+    fn auth_an_online_brute_force_outlasts_a_vehicle_on_every_id_calib_ack_included() {
+        // Issue #44: no lockout, so the MAC alone bounds a forgery. At 8,000
+        // frames/s, each authenticator tried against MAX_PENDING payloads,
+        // the expected time to one accepted forgery, on any id (CALIB_ACK is
+        // judged as every other: no id is treated differently).
+        let guesses_per_s = 8_000.0 * MAX_PENDING as f64;
+        let expected_s = 2f64.powi(8 * MAC_LEN as i32) / guesses_per_s;
+        let years = expected_s / (365.25 * 86_400.0);
+        // A vehicle's life: 30 years. Profile 2 (32-bit MAC): 1.6 days.
+        assert!(years > 30.0, "{years} years");
+        assert!(
+            (years - 278.9).abs() < 1.0,
+            "{years} years: the README's figure"
         );
     }
 
     #[test]
-    fn auth_a_lost_freshness_store_does_not_reopen_an_old_recording() {
-        // Issue #33 item 5: the store is gone (a fresh receiver) and a
-        // recording two years old is played back: every frame is stale.
-        let mut rx = receiver(None);
-        let two_years_ms = 2 * 365 * 24 * 3_600_000u64;
-        let then = T0_MS - two_years_ms;
-        for k in 0..5u64 {
-            let payload = [k as u8, 0, 0, 0, 0, 0, 0x10, 0x20];
-            let auth = signed(payload, then + k * 1000);
-            assert_eq!(
-                send(&mut rx, T0_US + k * 1_000_000, payload, auth),
-                Verdict::Refused(AuthFailure::Stale)
-            );
-        }
-        // Even one whose low 32 bits happen to match the clock now: its MAC
-        // was made over the full value of two years ago.
-        let payload = [9, 0, 0, 0, 0, 0, 0x10, 0x20];
-        let aligned = T0_MS - (T0_MS - then).div_ceil(1 << 32) * (1 << 32);
-        let auth = signed(payload, aligned);
+    fn auth_an_announcement_verifies_only_with_its_key_and_unchanged() {
+        let sync_id = FrameId::Standard(0x617);
+        let a = Authenticator::new(&key());
+        let s = Sync {
+            epoch: EPOCH,
+            floor: 0x1_2345,
+        };
+        let pdu = s.sign(&a, sync_id);
+        assert_eq!(Sync::verify(&a, sync_id, &s.payload(), &pdu), Some(s));
+        let other = Authenticator::new(&Key::parse("00112233445566778899aabbccddeeff").unwrap());
+        assert_eq!(Sync::verify(&other, sync_id, &s.payload(), &pdu), None);
+        let mut p = s.payload();
+        p[4] ^= 1;
+        assert_eq!(Sync::verify(&a, sync_id, &p, &pdu), None);
         assert_eq!(
-            send(&mut rx, T0_US, payload, auth),
-            Verdict::Refused(AuthFailure::BadMac)
+            Sync::verify(&a, FrameId::Standard(0x610), &s.payload(), &pdu),
+            None
         );
     }
 
     #[test]
-    fn auth_a_far_future_freshness_never_locks_an_id_for_good() {
-        let payload = [4, 0, 0, 0, 0, 0, 0x40, 0x44];
-        let mut rx = receiver(None);
-        // Signed with the key but far ahead (u32::MAX, a wrong sender clock): refused.
-        for fv in [u64::from(u32::MAX), T0_MS + 3_600_000, u64::MAX - 1] {
-            assert_eq!(
-                send(&mut rx, T0_US, payload, signed(payload, fv)),
-                Verdict::Refused(AuthFailure::Stale),
-                "{fv}"
-            );
-        }
-        assert_eq!(rx.last_accepted(link().secured), None);
-        assert!(matches!(
-            send(&mut rx, T0_US + 1000, payload, signed(payload, T0_MS)),
-            Verdict::Accepted { .. }
-        ));
-        // A mark a year ahead (stored while the receiver's clock was wrong)
-        // refuses new frames for one window at most.
-        let mut rx = receiver(Some(T0_MS + 365 * 24 * 3_600_000));
+    fn auth_sender_freshness_continues_above_the_floor_and_its_own_last() {
+        let s = Sync {
+            epoch: EPOCH,
+            floor: 100,
+        };
+        assert_eq!(next_freshness(s, None), freshness(EPOCH, 100));
         assert_eq!(
-            send(&mut rx, T0_US, payload, signed(payload, T0_MS)),
-            Verdict::Refused(AuthFailure::Replayed)
+            next_freshness(s, Some(freshness(EPOCH, 100))),
+            freshness(EPOCH, 101)
         );
-        let t = T0_US + (DEFAULT_WINDOW_MS + 1) * 1000;
-        assert!(matches!(
-            send(&mut rx, t, payload, signed(payload, t / 1000)),
-            Verdict::Accepted { .. }
-        ));
-    }
-
-    #[test]
-    fn auth_a_frame_whose_freshness_cannot_be_stored_is_refused_and_not_remembered() {
-        let payload = [7, 0, 0, 0, 0, 0, 0x60, 0x10];
-        let auth = signed(payload, T0_MS);
-        let mut rx = receiver(None);
         assert_eq!(
-            rx.on_frame(T0_US, link().secured, &payload, ok),
-            Verdict::Held
+            next_freshness(s, Some(freshness(EPOCH, 10))),
+            freshness(EPOCH, 100)
         );
-        let v = rx.on_frame(T0_US + 1, link().authenticator, &auth, |_, _| {
-            Err("disk full")
-        });
-        assert_eq!(v, Verdict::Refused(AuthFailure::StoreFailed));
-        assert_eq!(rx.last_accepted(link().secured), None);
-        assert!(matches!(
-            send(&mut rx, T0_US + 5, payload, auth),
-            Verdict::Accepted { .. }
-        ));
+        // Another epoch's counter, or one far ahead, is not continued.
+        assert_eq!(
+            next_freshness(s, Some(freshness(EPOCH - 1, 500))),
+            freshness(EPOCH, 100)
+        );
+        assert_eq!(
+            next_freshness(s, Some(freshness(EPOCH, 90_000))),
+            freshness(EPOCH, 100)
+        );
+        assert_eq!(
+            next_freshness(Sync { epoch: 1, floor: 0 }, None),
+            freshness(1, 1)
+        );
     }
 
     #[test]
     fn auth_plain_unpaired_late_and_short_frames_are_refused_by_reason() {
-        let mut rx = receiver(None);
+        let mut rx = receiver();
         let payload = [9, 0, 0, 0, 0, 0, 0x90, 0x6E];
         // Five plain frames: the oldest is dropped when a fifth waits.
         for k in 0..5 {
             assert_eq!(
-                rx.on_frame(T0_US + k, link().secured, &payload, ok),
+                rx.on_frame(T0_US + k, link().secured, &payload),
                 Verdict::Held
             );
         }
@@ -1261,78 +1223,82 @@ mod tests {
             rx.on_frame(
                 T0_US + 10 + PAIR_TIMEOUT_US,
                 FrameId::Standard(0x100),
-                &[0; 8],
-                ok
+                &[0; 8]
             ),
             Verdict::NotSecured
         );
-        // A valid authenticator with nothing to pair with.
         let t = T0_US + 200_000;
-        let auth = signed(payload, t / 1000);
+        let auth = signed(payload, fresh(&rx));
         assert_eq!(
-            rx.on_frame(t, link().authenticator, &auth, ok),
+            rx.on_frame(t, link().authenticator, &auth),
             Verdict::Refused(AuthFailure::Unpaired)
         );
-        // A late authenticator: its frame expired first.
         assert_eq!(
-            rx.on_frame(t + 100_000, link().secured, &payload, ok),
+            rx.on_frame(t + 100_000, link().secured, &payload),
             Verdict::Held
         );
         assert_eq!(
             rx.on_frame(
                 t + 100_000 + PAIR_TIMEOUT_US + 5,
                 link().authenticator,
-                &auth,
-                ok
+                &auth
             ),
             Verdict::Refused(AuthFailure::Unpaired)
         );
         assert_eq!(
-            rx.on_frame(t + 400_000, link().authenticator, &auth[..7], ok),
+            rx.on_frame(t + 400_000, link().authenticator, &auth[..7]),
             Verdict::Refused(AuthFailure::BadLength)
         );
         let c = rx.counts();
-        assert_eq!(c.of(AuthFailure::MissingAuthenticator), 6, "{c}");
-        assert_eq!(c.of(AuthFailure::Unpaired), 2, "{c}");
-        assert_eq!(c.of(AuthFailure::BadLength), 1, "{c}");
         assert_eq!(
             c.to_string(),
             "missing_authenticator=6 unpaired_authenticator=2 bad_length=1"
         );
-        assert_eq!(rx.lockouts(), 0);
     }
 
     #[test]
     fn auth_a_can_fd_frame_carries_both_pdus() {
-        let mut rx = receiver(None);
+        let mut rx = receiver();
         let payload = [2, 0, 0, 0, 0, 0, 0x20, 0x37];
+        let fv = fresh(&rx);
         let mut fd = payload.to_vec();
-        fd.extend_from_slice(&signed(payload, T0_MS));
+        fd.extend_from_slice(&signed(payload, fv));
         assert!(matches!(
-            rx.on_frame(T0_US, link().secured, &fd, ok),
-            Verdict::Accepted {
-                freshness: T0_MS,
-                ..
-            }
+            rx.on_frame(T0_US, link().secured, &fd),
+            Verdict::Accepted { freshness, .. } if freshness == fv
         ));
         assert_eq!(
-            rx.on_frame(T0_US + 1, link().secured, &fd, ok),
+            rx.on_frame(T0_US + 1, link().secured, &fd),
             Verdict::Refused(AuthFailure::Replayed)
         );
         assert_eq!(
-            rx.on_frame(T0_US + 2, link().secured, &fd[..12], ok),
+            rx.on_frame(T0_US + 2, link().secured, &fd[..12]),
             Verdict::Refused(AuthFailure::BadLength)
         );
+    }
+
+    #[test]
+    fn auth_the_key_schedule_and_subkeys_are_wiped_when_dropped() {
+        // Issue #44: without the `zeroize` features of `aes` and `cmac` the
+        // expanded key (from which the key follows) stayed in freed memory.
+        fn wiped<T: zeroize::ZeroizeOnDrop>() {}
+        wiped::<Aes128>();
+        wiped::<cmac::CmacCore<Aes128>>();
+        wiped::<Key>();
     }
 
     #[test]
     fn auth_the_mac_binds_the_frame_id() {
         let a = Authenticator::new(&key());
         let p = [0u8; 8];
-        let auth = a.sign(FrameId::Standard(0x603), &p, T0_MS);
-        assert!(a.verify(FrameId::Standard(0x603), &p, &auth, T0_MS));
-        assert!(!a.verify(FrameId::Standard(0x610), &p, &auth, T0_MS));
-        assert!(!a.verify(FrameId::Extended(0x603), &p, &auth, T0_MS));
+        let fv = freshness(EPOCH, 7);
+        let auth = a.sign(FrameId::Standard(0x603), &p, fv);
+        assert_eq!(
+            a.verify_near(FrameId::Standard(0x603), &p, &auth, fv - 3),
+            Some(fv)
+        );
+        assert_eq!(a.verify_near(FrameId::Standard(0x610), &p, &auth, fv), None);
+        assert_eq!(a.verify_near(FrameId::Extended(0x603), &p, &auth, fv), None);
     }
 
     #[test]
@@ -1352,38 +1318,6 @@ mod tests {
         assert!(!format!("{:?}", Authenticator::new(&key())).contains("2b7e"));
     }
 
-    #[test]
-    fn auth_sender_freshness_is_the_clock_in_ms_and_unique() {
-        assert_eq!(next_tx_freshness(None, T0_MS), T0_MS);
-        assert_eq!(next_tx_freshness(Some(T0_MS), T0_MS), T0_MS + 1);
-        assert_eq!(next_tx_freshness(Some(T0_MS - 10), T0_MS), T0_MS);
-        // A counter from a clock far ahead is dropped, not continued.
-        assert_eq!(next_tx_freshness(Some(T0_MS + 3_600_000), T0_MS), T0_MS);
-        assert_eq!(next_tx_freshness(Some(u64::MAX), T0_MS), T0_MS);
-        assert_eq!(next_tx_freshness(None, 0), 1);
-    }
-
-    #[test]
-    fn auth_lockout_needs_n_failures_within_the_window_and_ends() {
-        let mut l = Lockout::new(3, 1_000, 5_000);
-        assert!(!l.record_failure(0));
-        assert!(!l.record_failure(600));
-        // Third failure 1,200 µs after the first: outside the window.
-        assert!(!l.record_failure(1_200));
-        assert!(!l.is_locked(1_200));
-        assert!(
-            l.record_failure(1_500),
-            "600, 1200, 1500 lie within 1000 µs"
-        );
-        assert!(l.is_locked(1_500) && l.is_locked(6_499));
-        assert!(
-            !l.record_failure(2_000),
-            "failures during a lockout do not extend it"
-        );
-        assert!(!l.is_locked(6_500));
-        assert_eq!(l.trips(), 1);
-    }
-
     proptest! {
         #![proptest_config(ProptestConfig { failure_persistence: None, ..ProptestConfig::default() })]
 
@@ -1395,8 +1329,27 @@ mod tests {
             let mut p = payload;
             let mut x = auth;
             if bit < 64 { p[bit / 8] ^= 1 << (bit % 8); } else { x[(bit - 64) / 8] ^= 1 << (bit % 8); }
-            prop_assert!(a.verify(link().secured, &payload, &auth, fv));
-            prop_assert!(!a.verify(link().secured, &p, &x, fv));
+            prop_assert_eq!(a.verify_near(link().secured, &payload, &auth, fv), Some(fv));
+            prop_assert_eq!(a.verify_near(link().secured, &p, &x, fv), None);
+        }
+
+        /// Whatever keyless frames arrive, in any order, the receiver's
+        /// floor and marks never move, and never move backwards after.
+        #[test]
+        fn auth_keyless_frames_never_move_the_marks(frames in proptest::collection::vec((0usize..6, any::<[u8; 8]>()), 1..60)) {
+            let mut rx = receiver();
+            let ids = [link().secured, link().authenticator, ack_link().secured,
+                       ack_link().authenticator, odom_link().secured, odom_link().authenticator];
+            let payload = [1, 0, 0, 0, 0, 0, 0, 1];
+            let fv = fresh(&rx);
+            let first = send(&mut rx, T0_US, payload, signed(payload, fv));
+            prop_assert!(matches!(first, Verdict::Accepted { .. }), "{:?}", first);
+            let (sync, mark) = (rx.sync(), rx.last_accepted(link().secured));
+            for (k, (which, data)) in frames.iter().enumerate() {
+                let _ = rx.on_frame(T0_US + 1000 + k as u64, ids[*which], data);
+            }
+            prop_assert_eq!(rx.sync(), sync);
+            prop_assert_eq!(rx.last_accepted(link().secured), mark);
         }
     }
 }

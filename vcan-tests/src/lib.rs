@@ -107,9 +107,41 @@ pub fn repo_file(relative: &str) -> PathBuf {
     repo_dir().join(relative)
 }
 
+/// The rc_car example's commented bench lines (issue #44: the shipped
+/// examples authenticate by default).
+const EXAMPLE_BENCH: &str = "# [security]\n# allow_without_key = true ";
+
+/// The same lines active: a vcan scenario without keys is a bench.
+const BENCH: &str = "[security]\nallow_without_key = true ";
+
+/// The rc_car example as a keyless bench with its DBC by absolute path,
+/// written once to the temporary folder (the shipped example refuses to run
+/// without keys); returns its path.
+///
+/// # Panics
+/// The example cannot be read, has lost its bench lines, or the copy
+/// cannot be written.
+pub fn rc_car_bench_config() -> PathBuf {
+    let example = std::fs::read_to_string(repo_file("daemon/examples/rc_car.toml"))
+        .expect("daemon/examples/rc_car.toml");
+    assert!(
+        example.contains(EXAMPLE_BENCH),
+        "rc_car.toml lost its bench lines"
+    );
+    let dbc = repo_file("data/dbc/rc_car.dbc");
+    let text = example.replace(EXAMPLE_BENCH, BENCH).replace(
+        "dbc = \"../../data/dbc/rc_car.dbc\"",
+        &format!("dbc = \"{}\"", dbc.display()),
+    );
+    let path = std::env::temp_dir().join("vcan-rc-car-bench.toml");
+    std::fs::write(&path, text).expect("write the bench configuration");
+    path
+}
+
 /// Writes `dir/canodom.toml` for a calibration scenario: the rc_car example
 /// with `dbc` (absolute, since the configuration moves), the parameter file
-/// `dir/params.toml` and `arming_code`; returns its path.
+/// `dir/params.toml` and `arming_code`, as a keyless bench (its
+/// `[security]` lines uncommented); returns its path.
 ///
 /// # Errors
 /// The example cannot be read, no longer has the lines this edits, or the
@@ -135,6 +167,10 @@ pub fn calibration_config(dir: &Path, dbc: &Path, arming_code: u8) -> Result<Pat
             dir.join("params.toml").display()
         ),
     );
+    if !config.contains(EXAMPLE_BENCH) {
+        return Err(format!("{}: the bench lines moved", example_path.display()));
+    }
+    config = config.replace(EXAMPLE_BENCH, BENCH);
     let path = dir.join("canodom.toml");
     std::fs::write(&path, config).map_err(|e| format!("{}: {e}", path.display()))?;
     Ok(path)

@@ -40,7 +40,7 @@ const LOG_EPOCH_US: u64 = 1_700_000_000_000_000;
 const MAX_LAG_STEPS: usize = 200;
 
 fn rc_car_config() -> PathBuf {
-    repo_file("daemon/examples/rc_car.toml")
+    canodom_vcan_tests::rc_car_bench_config()
 }
 
 fn toyota_config() -> PathBuf {

@@ -23,8 +23,8 @@ use canodom_vcan_tests::recording::{
     RECORDS_A_KILL_CUTS, cut_record, read_indexed, read_streaming,
 };
 use canodom_vcan_tests::{
-    Spawned, canodom_bin, metric, path_arg, read, read_candump, repo_file, scratch_dir,
-    start_daemon_with, unix_now_us, wait_until,
+    Spawned, canodom_bin, metric, path_arg, read, read_candump, scratch_dir, start_daemon_with,
+    unix_now_us, wait_until,
 };
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
@@ -109,7 +109,7 @@ fn seconds(ns: u64) -> f64 {
 
 #[test]
 fn recording_survives_sigkill_mid_file_and_rotated_files_are_each_complete() {
-    let config = repo_file("daemon/examples/rc_car.toml");
+    let config = canodom_vcan_tests::rc_car_bench_config();
 
     // 1. One file, SIGKILL mid-file.
     let dir = scratch_dir("record-kill").unwrap();

@@ -1,4 +1,4 @@
-//! Issues #22 and #33 on vcan: a sniffed session must not start, commit or
+//! Issues #22, #33 and #44 on vcan: a sniffed session must not start, commit or
 //! roll back a calibration. The real `canodom run` with its key file
 //! (`canodom keys derive`'s `canodom` file) on `vcan0`; a whole guided
 //! session (the operator's `canodom calib` start, compute and commit signed
@@ -11,8 +11,10 @@
 //! authenticators kept: the attacker has no key). Judged: no new session,
 //! the parameter file byte for byte and the live parameters (ODOM_QUALITY,
 //! CALIB_STATUS) unchanged, and every replayed secured frame counted by
-//! reason in the daemon's statistics: `stale` (recorded more than the
-//! 5-second window ago), its secured frame `missing_authenticator`.
+//! reason in the daemon's statistics: `bad_mac` (signed in the daemon's
+//! previous epoch), its secured frame `missing_authenticator`. Then the
+//! clock of the VM is set back an hour (issue #44), the daemon restarted
+//! once more and the recording replayed again: the same, nothing changes.
 #![cfg(feature = "vcan")]
 // Test code: the scenario reads top to bottom as the story it checks.
 #![allow(clippy::unwrap_used, clippy::too_many_lines)]
@@ -25,9 +27,7 @@ use canodom_protocol::calib_wire::{
     Ack, AckStatus, CalibWire, Counts, ParamsAssembler, Progress, State, StatusPage, Writeback,
 };
 use canodom_protocol::own_dbc::{BaseId, OwnFrame};
-use canodom_protocol::secoc::{
-    Authenticator, DEFAULT_WINDOW_MS, check_freshness, reconstruct, split_auth,
-};
+use canodom_protocol::secoc::{Authenticator, Sync, freshness, split_freshness};
 use canodom_protocol::secoc_keys::{MasterKey, Party, Role};
 use canodom_vcan_tests::{
     Spawned, calibration_config, canodom_bin, metric, read, read_candump, repo_file, run,
@@ -56,20 +56,13 @@ fn key_file(dir: &Path, party: Party) -> PathBuf {
     path
 }
 
-fn now_ms() -> u64 {
-    std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_millis() as u64)
-}
-
 fn base() -> BaseId {
     BaseId::new(BASE, false).unwrap()
 }
 
 /// The calibration scenario's configuration (input cycle times declared
 /// 40 ms, see calib_over_can.rs) with the daemon's key file and
-/// `[security]`, and the operator's twin holding the operator's key file;
-/// the lockout is set out of reach so every refusal keeps its own reason.
+/// `[security]`, and the operator's twin holding the operator's key file.
 fn write_config(dir: &Path) -> (PathBuf, PathBuf) {
     let mut dbc = read(&repo_file("data/dbc/rc_car.dbc"));
     for id in [256, 257, 272] {
@@ -81,7 +74,7 @@ fn write_config(dir: &Path) -> (PathBuf, PathBuf) {
     let dbc_path = dir.join("rc_car_40ms.dbc");
     std::fs::write(&dbc_path, dbc).unwrap();
     let config = calibration_config(dir, &dbc_path, ARMING).unwrap();
-    let bench = "[security]\nallow_without_key = true";
+    let bench = "[security]\nallow_without_key = true ";
     let text = read(&config);
     assert!(text.contains(bench), "the example is a bench: {text}");
     let with_key = |party| {
@@ -89,7 +82,7 @@ fn write_config(dir: &Path) -> (PathBuf, PathBuf) {
         let _ = write!(
             section,
             "key_file = {:?}\nfreshness_file = {:?}\noperator_freshness_file = {:?}\n\
-             lockout_failures = 100000\n# allow_without_key = false",
+             # allow_without_key = false ",
             key_file(dir, party).display().to_string(),
             dir.join("daemon-freshness").display().to_string(),
             dir.join("operator-freshness").display().to_string(),
@@ -124,15 +117,19 @@ fn listen_and_ack(dir: &Path, heard: Arc<Mutex<Heard>>) -> tokio::task::JoinHand
     let version = db.signal("ODOM_QUALITY.PARAM_VERSION").unwrap();
     let nominal = db.signal("ODOM_QUALITY.NOMINAL_PARAMS").unwrap();
     let store_keys = master();
-    let verifier = Authenticator::new(&store_keys.derive(VEHICLE, Role::CalibParams));
+    let params_key = store_keys.derive(VEHICLE, Role::CalibParams);
+    let verifier = Authenticator::new(&params_key);
+    // The store's mark: the last CALIB_PARAMS freshness value accepted.
     let mut last_params: Option<u64> = None;
     let mut signer = Signer::new(
         &store_keys.derive(VEHICLE, Role::CalibAck),
         &dir.join("ecu-freshness"),
         OwnFrame::CalibAckAuth.id(base()),
-        None,
+        base(),
     )
-    .unwrap();
+    .unwrap()
+    .hearing_with(&params_key);
+    let sync_ids = signer.sync_ids();
     let (mut rx, tx) = open_socketcan(
         "vcan0",
         &[
@@ -140,6 +137,8 @@ fn listen_and_ack(dir: &Path, heard: Arc<Mutex<Heard>>) -> tokio::task::JoinHand
             IdFilter::exact(wire.params_id()),
             IdFilter::exact(params_auth),
             IdFilter::exact(quality_id),
+            IdFilter::exact(sync_ids[0]),
+            IdFilter::exact(sync_ids[1]),
         ],
     )
     .expect("open vcan0");
@@ -150,6 +149,10 @@ fn listen_and_ack(dir: &Path, heard: Arc<Mutex<Heard>>) -> tokio::task::JoinHand
         while let Ok(ev) = rx.recv().await {
             let BusEvent::Frame(r) = ev else { continue };
             let (id, data) = (r.frame.id(), r.frame.data());
+            // The daemon's announcement: its epoch, verified with the key.
+            if signer.observe(&r.frame).is_some() {
+                continue;
+            }
             if id == wire.status_id() {
                 match wire.decode_status(data) {
                     Ok((StatusPage::Progress(p), _)) => heard.lock().unwrap().progress = Some(p),
@@ -164,17 +167,22 @@ fn listen_and_ack(dir: &Path, heard: Arc<Mutex<Heard>>) -> tokio::task::JoinHand
                 && let Some(p) = page.take()
             {
                 let auth: [u8; 8] = data.try_into().unwrap();
-                // As a store does: the MAC with the full freshness value
-                // rebuilt around its clock, the window, and only once.
-                let now = now_ms();
-                let (low, mac) = split_auth(&auth);
-                let fv = reconstruct(low, now);
-                if !verifier.verify_full(wire.params_id(), &p, fv, &mac)
-                    || check_freshness(last_params, fv, now, DEFAULT_WINDOW_MS).is_err()
-                {
+                // As a store does: in the epoch the daemon announced, the
+                // counter rebuilt around its mark, the MAC, and only once.
+                let Some(epoch) = signer.last_sync().map(|s: Sync| s.epoch) else {
                     heard.lock().unwrap().params_refused += 1;
                     continue;
-                }
+                };
+                let mark = last_params
+                    .filter(|m| split_freshness(*m).0 == epoch)
+                    .unwrap_or(freshness(epoch, 0));
+                let Some(fv) = verifier
+                    .verify_near(wire.params_id(), &p, &auth, mark)
+                    .filter(|fv| *fv > mark)
+                else {
+                    heard.lock().unwrap().params_refused += 1;
+                    continue;
+                };
                 last_params = Some(fv);
                 heard.lock().unwrap().params_verified += 1;
                 if let Ok((pg, _)) = wire.decode_params(&p)
@@ -190,7 +198,7 @@ fn listen_and_ack(dir: &Path, heard: Arc<Mutex<Heard>>) -> tokio::task::JoinHand
                         ack_counter,
                     );
                     ack_counter = ack_counter.wrapping_add(1);
-                    let auth = signer.sign(wire.ack_id(), &ack, now_ms()).unwrap();
+                    let auth = signer.sign(wire.ack_id(), &ack).unwrap();
                     let _ = tx
                         .send(&CanFrame::new_data(wire.ack_id(), &ack).unwrap())
                         .await;
@@ -418,81 +426,118 @@ async fn secoc_replayed_and_edited_session_changes_nothing_and_is_counted_by_rea
     let edited_log = dir.join("edited.log");
     std::fs::write(&edited_log, &edited).unwrap();
 
-    // 2. The daemon restarts; the attacker replays.
-    let attack_log = dir.join("daemon-attacked.log");
-    let mut daemon = start_daemon(&config, &attack_log).unwrap();
-    tokio::time::sleep(Duration::from_secs(2)).await;
-    // The whole recording at its own pace (a flood would only measure the
-    // kernel's queues), then the edited commands with gaps over 1 s cut.
-    let replay_started = Instant::now();
-    run("canplayer", &["-I", session_log.to_str().unwrap()]).unwrap();
-    run(
-        "canplayer",
-        &["-I", edited_log.to_str().unwrap(), "-s", "1"],
-    )
-    .unwrap();
-    metric(
-        "secoc_replay_s",
-        format!("{:.1}", replay_started.elapsed().as_secs_f64()),
-    );
-    // The replayed status frames still queued for the listener are stale:
-    // judge only what the daemon sends from now on.
-    tokio::time::sleep(Duration::from_secs(2)).await;
-    *heard.lock().unwrap() = Heard::default();
-    until(
-        &heard,
-        "fresh status and poses",
-        Duration::from_secs(10),
-        |h| h.progress.is_some() && h.counts.is_some() && h.quality.is_some(),
-    )
-    .await;
-    let (progress, counts, quality) = {
-        let h = heard.lock().unwrap();
-        (h.progress.unwrap(), h.counts.unwrap(), h.quality)
+    // 2. The daemon restarts; the attacker replays. 3. Again with the
+    // clock set back an hour before the restart (issue #44).
+    let attack = Attack {
+        config: &config,
+        session_log: &session_log,
+        edited_log: &edited_log,
+        params: &params,
+        file_before: &file_before,
+        heard: &heard,
+        secured: 2 * (cmds + acks),
     };
-    let status = daemon.stop("TERM", Duration::from_secs(10)).unwrap();
-    assert!(status.success(), "{}", read(&attack_log));
+    attack.run(&dir.join("daemon-attacked.log"), "").await;
+    let real = nix::time::clock_gettime(nix::time::ClockId::CLOCK_REALTIME).unwrap();
+    let back = nix::sys::time::TimeSpec::new(real.tv_sec() - 3600, real.tv_nsec());
+    nix::time::clock_settime(nix::time::ClockId::CLOCK_REALTIME, back)
+        .expect("set the VM's clock back an hour (the scenarios run as root in the VM)");
+    let stepped = Instant::now();
+    attack
+        .run(&dir.join("daemon-clock-back.log"), "_clock_back_1h")
+        .await;
+    let restored = nix::sys::time::TimeSpec::new(
+        real.tv_sec() + stepped.elapsed().as_secs() as i64,
+        real.tv_nsec(),
+    );
+    nix::time::clock_settime(nix::time::ClockId::CLOCK_REALTIME, restored).unwrap();
     listener.abort();
-    let log = read(&attack_log);
-    let line = log
-        .lines()
-        .rev()
-        .find(|l| l.contains("auth_refused"))
-        .unwrap_or("");
-    println!("daemon after the attack: {line}");
-    assert_eq!(
-        progress.state,
-        State::Idle,
-        "no session was started: {progress:?}"
-    );
-    assert_eq!(counts.active_version, 1, "{counts:?}");
-    assert_eq!(quality, Some((1, 0)), "the live parameters are set 1");
-    assert_eq!(
-        std::fs::read(&params).unwrap(),
-        file_before,
-        "the parameter file is unchanged"
-    );
-    // Every replayed or edited authenticator was recorded more than the
-    // window ago: refused as stale before its MAC is even computed, and its
-    // secured frame, left without a valid authenticator, expires.
-    assert_eq!(refused(&log, "stale"), 2 * (cmds + acks), "{line}");
-    assert_eq!(
-        refused(&log, "missing_authenticator"),
-        2 * (cmds + acks),
-        "{line}"
-    );
-    for other in [
-        "replayed",
-        "bad_mac",
-        "unpaired_authenticator",
-        "locked_out",
-        "bad_length",
-    ] {
-        assert_eq!(refused(&log, other), 0, "{other}: {line}");
+}
+
+/// The attacker's replay of a recorded session against a restarted daemon.
+struct Attack<'a> {
+    config: &'a Path,
+    session_log: &'a Path,
+    edited_log: &'a Path,
+    params: &'a Path,
+    file_before: &'a [u8],
+    heard: &'a Mutex<Heard>,
+    /// Secured frames replayed in all (the recording's and the edited ones).
+    secured: u64,
+}
+
+impl Attack<'_> {
+    /// Restarts the daemon (log `log`), replays the recording and the
+    /// edited copy, and judges: nothing changed, every replayed
+    /// authenticator refused as `bad_mac` (another epoch) or `stale` (below
+    /// the floor of a window ago), every secured frame left without one.
+    async fn run(&self, log_path: &Path, tag: &str) {
+        let mut daemon = start_daemon(self.config, log_path).unwrap();
+        tokio::time::sleep(Duration::from_secs(2)).await;
+        // The whole recording at its own pace (a flood would only measure
+        // the kernel's queues), then the edited commands with gaps over 1 s cut.
+        let replay_started = Instant::now();
+        run("canplayer", &["-I", self.session_log.to_str().unwrap()]).unwrap();
+        run(
+            "canplayer",
+            &["-I", self.edited_log.to_str().unwrap(), "-s", "1"],
+        )
+        .unwrap();
+        metric(
+            &format!("secoc_replay{tag}_s"),
+            format!("{:.1}", replay_started.elapsed().as_secs_f64()),
+        );
+        // The replayed status frames still queued for the listener are
+        // stale: judge only what the daemon sends from now on.
+        tokio::time::sleep(Duration::from_secs(2)).await;
+        *self.heard.lock().unwrap() = Heard::default();
+        until(
+            self.heard,
+            "fresh status and poses",
+            Duration::from_secs(10),
+            |h| h.progress.is_some() && h.counts.is_some() && h.quality.is_some(),
+        )
+        .await;
+        let (progress, counts, quality) = {
+            let h = self.heard.lock().unwrap();
+            (h.progress.unwrap(), h.counts.unwrap(), h.quality)
+        };
+        let status = daemon.stop("TERM", Duration::from_secs(10)).unwrap();
+        assert!(status.success(), "{}", read(log_path));
+        let log = read(log_path);
+        let line = log
+            .lines()
+            .rev()
+            .find(|l| l.contains("auth_refused"))
+            .unwrap_or("");
+        println!("daemon after the attack{tag}: {line}");
+        assert_eq!(
+            progress.state,
+            State::Idle,
+            "no session was started: {progress:?}"
+        );
+        assert_eq!(counts.active_version, 1, "{counts:?}");
+        assert_eq!(quality, Some((1, 0)), "the live parameters are set 1");
+        assert_eq!(
+            std::fs::read(self.params).unwrap(),
+            self.file_before,
+            "the parameter file is unchanged"
+        );
+        let (bad_mac, stale) = (refused(&log, "bad_mac"), refused(&log, "stale"));
+        assert_eq!(bad_mac + stale, self.secured, "{line}");
+        assert_eq!(
+            refused(&log, "missing_authenticator"),
+            self.secured,
+            "{line}"
+        );
+        for other in ["replayed", "unpaired_authenticator", "bad_length"] {
+            assert_eq!(refused(&log, other), 0, "{other}: {line}");
+        }
+        metric(&format!("secoc{tag}_refused_bad_mac"), bad_mac);
+        metric(&format!("secoc{tag}_refused_stale"), stale);
+        metric(
+            &format!("secoc{tag}_refused_missing_authenticator"),
+            refused(&log, "missing_authenticator"),
+        );
     }
-    metric("secoc_refused_stale", refused(&log, "stale"));
-    metric(
-        "secoc_refused_missing_authenticator",
-        refused(&log, "missing_authenticator"),
-    );
 }

@@ -63,7 +63,8 @@ pub struct CalibArgs {
     #[arg(long, global = true, default_value_t = 2.0, value_parser = parse_timeout)]
     pub timeout_s: f64,
     /// Print the command as a `cansend` line (id, counter, arming code and
-    /// CRC filled in) instead of sending it; needs no interface.
+    /// CRC filled in) instead of sending it; with a key it first hears the
+    /// daemon's `SECOC_SYNC` on the interface (valid for its window).
     #[arg(long, global = true)]
     pub print_frame: bool,
     /// With --print-frame: the rolling counter, 0..=15 (default: from the
@@ -75,11 +76,6 @@ pub struct CalibArgs {
     #[arg(long, global = true,
           value_parser = clap::value_parser!(u8).range(0..=15))]
     pub counter: Option<u8>,
-    /// SecOC resynchronisation: continue the freshness value above this
-    /// one (ms since the Unix epoch: the daemon's `last_accepted` from its
-    /// `replayed` log line). Rarely needed: values follow the clock.
-    #[arg(long, global = true)]
-    pub freshness_floor: Option<u64>,
     /// What to do.
     #[command(subcommand)]
     pub action: Action,
@@ -254,7 +250,7 @@ pub fn cansend_line(
     canodom_can::candump::format_frame(&mut line, &frame);
     if let Some(signer) = signer {
         // The authenticator follows at once (SecOC): a second cansend line.
-        let auth = signer.sign(frame.id(), &data, now_ms())?;
+        let auth = signer.sign(frame.id(), &data)?;
         line.extend_from_slice(format!(" && cansend {} ", config.interface).as_bytes());
         canodom_can::candump::format_frame(&mut line, &auth);
     }
@@ -263,7 +259,7 @@ pub fn cansend_line(
 
 /// The signer of `CALIB_CMD` when `[security] key_file` is set: the
 /// operator's `calib_cmd` key (the daemon's own key file holds it too).
-fn operator_signer(config: &Config, floor: Option<u64>) -> anyhow::Result<Option<Signer>> {
+fn operator_signer(config: &Config) -> anyhow::Result<Option<Signer>> {
     let Some(keys) = &config.security.keys else {
         return Ok(None);
     };
@@ -284,15 +280,8 @@ fn operator_signer(config: &Config, floor: Option<u64>) -> anyhow::Result<Option
         key,
         &config.security.operator_freshness_file,
         OwnFrame::CalibCmdAuth.id(config.output.base_id),
-        floor,
+        config.output.base_id,
     )?))
-}
-
-/// The operator's clock, ms since the Unix epoch (the freshness value).
-fn now_ms() -> u64 {
-    std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_millis() as u64)
 }
 
 /// Said once when a keyed client reads what the daemon sends.
@@ -338,13 +327,19 @@ enum Incoming {
 }
 
 impl Link<canodom_can::bus::SocketCanRx, canodom_can::bus::SocketCanTx> {
-    fn open(config: &Config, timeout: Duration) -> anyhow::Result<Self> {
+    fn open(config: &Config, timeout: Duration, signer: Option<Signer>) -> anyhow::Result<Self> {
         let wire = CalibWire::new(config.output.base_id)?;
         let iface = config.interface.clone();
-        let filters = [
+        let mut filters = vec![
             IdFilter::exact(wire.status_id()),
             IdFilter::exact(wire.params_id()),
         ];
+        // The daemon's SecOC announcements, which a signer needs.
+        filters.extend(
+            signer
+                .iter()
+                .flat_map(|s| s.sync_ids().map(IdFilter::exact)),
+        );
         let (rx, tx) = open_socketcan(&iface, &filters).map_err(|e| {
             let hint = e
                 .hint()
@@ -358,7 +353,7 @@ impl Link<canodom_can::bus::SocketCanRx, canodom_can::bus::SocketCanTx> {
             iface,
             timeout,
             early_params: Vec::new(),
-            signer: None,
+            signer,
         })
     }
 }
@@ -372,6 +367,10 @@ impl<R: FrameSource, T: FrameSink> Link<R, T> {
                 Ok(ev) => ev.with_context(|| format!("receiving on {}", self.iface))?,
             };
             let BusEvent::Frame(r) = ev else { continue };
+            if let Some(signer) = &mut self.signer {
+                // A SecOC announcement: the epoch and floor to sign above.
+                let _ = signer.observe(&r.frame);
+            }
             let data = r.frame.data();
             if r.frame.id() == self.wire.status_id() {
                 if let Ok((page, _)) = self.wire.decode_status(data) {
@@ -383,6 +382,25 @@ impl<R: FrameSource, T: FrameSink> Link<R, T> {
                 return Ok(Some(Incoming::Params(page)));
             }
         }
+    }
+
+    /// With a signer: waits (up to the timeout) until a `SECOC_SYNC` of
+    /// the daemon was verified with the key; without one, returns at once.
+    async fn await_sync(&mut self) -> anyhow::Result<()> {
+        // The daemon announces every second: two periods at least.
+        let deadline = Instant::now() + self.timeout.max(Duration::from_secs(2));
+        while self
+            .signer
+            .as_ref()
+            .is_some_and(|s| s.last_sync().is_none())
+        {
+            match self.next(deadline).await? {
+                None => return Err(self.no_answer("SECOC_SYNC verified with this key")),
+                Some(Incoming::Params(page)) => self.early_params.push(page),
+                Some(Incoming::Status(_)) => {}
+            }
+        }
+        Ok(())
     }
 
     fn no_answer(&self, what: &str) -> anyhow::Error {
@@ -426,6 +444,8 @@ impl<R: FrameSource, T: FrameSink> Link<R, T> {
         mut counter: u8,
     ) -> anyhow::Result<Answer> {
         let mut seq_before = self.counts().await?.cmd_seq;
+        // Before the command goes out: its authenticator must follow within 100 ms.
+        self.await_sync().await?;
         for attempt in 0..2 {
             let data = self.wire.encode_command(cmd, arming, counter);
             let frame = CalibWire::frame(cmd_id, &data)?;
@@ -434,7 +454,7 @@ impl<R: FrameSource, T: FrameSink> Link<R, T> {
                 .await
                 .with_context(|| format!("sending CALIB_CMD on {}", self.iface))?;
             if let Some(signer) = &mut self.signer {
-                let auth = signer.sign(cmd_id, &data, now_ms())?;
+                let auth = signer.sign(cmd_id, &data)?;
                 self.tx
                     .send(&auth)
                     .await
@@ -607,21 +627,27 @@ fn run(args: &CalibArgs) -> anyhow::Result<()> {
         );
     }
     let config = Config::load(config_path)?;
-    if args.print_frame {
-        let mut signer = operator_signer(&config, args.freshness_floor)?;
+    let signer = operator_signer(&config)?;
+    let timeout = Duration::from_secs_f64(args.timeout_s);
+    if args.print_frame && signer.is_none() {
         println!(
             "{}",
-            cansend_line(&config, &args.action, args.counter, signer.as_mut())?
+            cansend_line(&config, &args.action, args.counter, None)?
         );
         return Ok(());
     }
-    let timeout = Duration::from_secs_f64(args.timeout_s);
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()?;
     rt.block_on(async {
-        let mut link = Link::open(&config, timeout)?;
-        link.signer = operator_signer(&config, args.freshness_floor)?;
+        let mut link = Link::open(&config, timeout, signer)?;
+        if args.print_frame {
+            // Signed: the daemon's epoch and floor first (SecOC profile 3).
+            link.await_sync().await?;
+            let line = cansend_line(&config, &args.action, args.counter, link.signer.as_mut())?;
+            println!("{line}");
+            return Ok(());
+        }
         if link.signer.is_some()
             && matches!(
                 args.action,
@@ -809,45 +835,6 @@ mod tests {
         let args = parse(&["--config", "x.toml", "commit", "--counter", "3"]).unwrap();
         let e = run(&args).unwrap_err().to_string();
         assert!(e.contains("--counter goes with --print-frame"), "{e}");
-    }
-
-    #[test]
-    fn argument_errors_say_what_is_wrong() {
-        let err = |argv: &[&str]| {
-            let mut full = vec!["--config", "x.toml"];
-            full.extend_from_slice(argv);
-            parse(&full).unwrap_err().to_string()
-        };
-        assert!(err(&["start"]).contains("--track-radius"));
-        assert!(err(&["start", "--track-radius", "-1"]).contains("must be positive"));
-        assert!(err(&["start", "--track-radius", "0"]).contains("must be positive"));
-        assert!(err(&["start", "--track-radius", "70"]).contains("65.535"));
-        assert!(err(&["start", "--track-radius", "1", "--runs", "16"]).contains("16"));
-        assert!(
-            err(&[
-                "end-pose",
-                "--dx-mm",
-                "9000",
-                "--dy-mm",
-                "0",
-                "--dtheta-deg",
-                "0"
-            ])
-            .contains("9000")
-        );
-        assert!(
-            err(&[
-                "end-pose",
-                "--dx-mm",
-                "0",
-                "--dy-mm",
-                "0",
-                "--dtheta-deg",
-                "300"
-            ])
-            .contains("204.7")
-        );
-        assert!(err(&["--timeout-s", "0", "status"]).contains("timeout"));
     }
 
     #[test]
