@@ -109,6 +109,9 @@ pub fn execute(args: &RunArgs) -> anyhow::Result<()> {
     // calibration drive.
     config.check_param_file()?;
     require_keys(&config.security)?;
+    if let Some(why) = clock_unsynchronised(std::path::Path::new(TIMESYNC_MARK).exists()) {
+        warn!("{why}");
+    }
     let connector = SocketCan {
         iface: config.interface.clone(),
     };
@@ -170,6 +173,25 @@ pub fn execute(args: &RunArgs) -> anyhow::Result<()> {
     }
     info!(stats = %summary.stats, poses = summary.poses_published, "canodom stopped");
     Ok(())
+}
+
+/// The file systemd-timesyncd keeps while the clock is synchronised
+/// (systemd 239 and newer; `adjtimex` would tell any daemon's state, but
+/// needs `unsafe`, which this workspace forbids).
+pub const TIMESYNC_MARK: &str = "/run/systemd/timesync/synchronized";
+
+/// The warning for a clock not known to be synchronised, `None` when it is
+/// (`synchronised`: [`TIMESYNC_MARK`] exists). SecOC (profile 3) reads no
+/// wall clock; what does is the record: log times, recordings, and the
+/// parameter file's history.
+pub fn clock_unsynchronised(synchronised: bool) -> Option<String> {
+    (!synchronised).then(|| {
+        format!(
+            "the system clock is not known to be synchronised ({TIMESYNC_MARK} is absent: no \
+             systemd-timesyncd sync yet, or another time daemon): log times, recordings and the \
+             parameter file's history carry this clock; authentication does not depend on it"
+        )
+    })
 }
 
 /// The state file's name in systemd's state directory.
@@ -253,6 +275,13 @@ mod tests {
     use super::*;
     use std::ffi::OsStr;
     use std::path::Path;
+
+    #[test]
+    fn an_unsynchronised_clock_is_warned_of_and_names_what_it_affects() {
+        assert_eq!(clock_unsynchronised(true), None);
+        let w = clock_unsynchronised(false).unwrap_or_default();
+        assert!(w.contains(TIMESYNC_MARK) && w.contains("history"), "{w}");
+    }
 
     #[test]
     fn a_service_keeps_its_state_in_its_state_directory_by_default() {
