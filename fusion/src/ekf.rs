@@ -912,7 +912,8 @@ impl Ekf {
             // a car can.
             let clean = input.front_valid && st.axle_watch.calm();
             let geo = &self.k.geometry;
-            (st.scales).accumulate(geo, &input.wheel_m, phi, input.dt_s, clean);
+            st.scales
+                .accumulate(geo, &input.wheel_m, phi, input.dt_s, clean);
         }
         // Every wheel locked while the car slides on: the distance the
         // wheels cannot read is bridged (wheel-speed sensors, four wheels).

@@ -94,6 +94,14 @@ pub enum ConfigError {
 /// a colon-separated list when the unit names several, ours the first).
 pub const STATE_DIRECTORY_ENV: &str = "STATE_DIRECTORY";
 
+/// The unit's own state directory from [`STATE_DIRECTORY_ENV`]'s value: the
+/// first of the list, `None` when unset or empty.
+pub fn unit_state_directory(state_directory: Option<&OsStr>) -> Option<PathBuf> {
+    state_directory
+        .and_then(|dirs| std::env::split_paths(dirs).next())
+        .filter(|dir| !dir.as_os_str().is_empty())
+}
+
 /// Name of the parameter file when `[calibration] param_file` is not set.
 pub const DEFAULT_PARAM_FILE: &str = "canodom-params.toml";
 
@@ -102,10 +110,7 @@ pub const DEFAULT_PARAM_FILE: &str = "canodom-params.toml";
 /// is read-only, so a file beside the configuration could never be
 /// committed), else beside the configuration file.
 pub fn default_param_file(config_file: &Path, state_directory: Option<&OsStr>) -> PathBuf {
-    let state = state_directory
-        .and_then(|dirs| std::env::split_paths(dirs).next())
-        .filter(|dir| !dir.as_os_str().is_empty());
-    match state {
+    match unit_state_directory(state_directory) {
         Some(dir) => dir.join(DEFAULT_PARAM_FILE),
         None => beside(config_file, Path::new(DEFAULT_PARAM_FILE)),
     }

@@ -211,9 +211,8 @@ pub fn state_file_path(
     if none {
         return None;
     }
-    // systemd may list several directories, separated by ':'; the first is ours.
-    let dir = state_directory?.to_str()?.split(':').next()?;
-    (!dir.is_empty()).then(|| PathBuf::from(dir).join(STATE_FILE_NAME))
+    canodom_pipeline::config::unit_state_directory(state_directory)
+        .map(|dir| dir.join(STATE_FILE_NAME))
 }
 
 /// `--state-every-s`: a finite number of seconds > 0 (and at most a day: a

@@ -398,8 +398,8 @@ impl ScaleLearner {
         if self.windows == 0 {
             return None;
         }
-        let (fault, _) = self.likeliest();
-        let k = Fault::ALL.iter().position(|f| *f == fault).unwrap_or(0);
+        let (k, _) = self.lead();
+        let fault = Fault::ALL[k];
         let h = &self.hyps[k];
         let none = fault == Fault::None;
         Some(LearntWheelFault {
@@ -419,11 +419,12 @@ impl ScaleLearner {
 
     /// What the learner holds now.
     pub(crate) fn learnt(&self) -> WheelScales {
-        let (best, prob) = self.likeliest();
-        let k = Fault::ALL.iter().position(|f| *f == best).unwrap_or(0);
+        let (k, prob) = self.lead();
+        let best = Fault::ALL[k];
         let eps = self.hyps[k].x[0];
         let applied = best.wheel_sensitivity().map(|s| s * eps);
-        let held = (best != Fault::None && self.ln_scale != applied).then(|| self.why_held());
+        let held =
+            (best != Fault::None && self.ln_scale != applied).then(|| self.why_held(k, prob));
         let set = |v: [f64; 4]| WheelSet {
             rear_left: v[0],
             rear_right: v[1],
@@ -441,9 +442,7 @@ impl ScaleLearner {
     }
 
     /// Why the likeliest explanation's scales are not the ones applied.
-    fn why_held(&self) -> Held {
-        let (best, p) = self.likeliest();
-        let k = Fault::ALL.iter().position(|f| *f == best).unwrap_or(0);
+    fn why_held(&self, k: usize, p: f64) -> Held {
         let h = &self.hyps[k];
         if p < DECIDED {
             Held::Undecided
@@ -496,9 +495,8 @@ impl ScaleLearner {
         self.mix();
     }
 
-    /// The evidence's favourite and its probability, and the log odds of
-    /// it against the runner-up.
-    pub(crate) fn likeliest(&self) -> (Fault, f64) {
+    /// The index of the evidence's favourite and its probability.
+    fn lead(&self) -> (usize, f64) {
         let w = self.weights();
         let mut k = 0;
         for i in 1..HYPOTHESES {
@@ -506,7 +504,7 @@ impl ScaleLearner {
                 k = i;
             }
         }
-        (Fault::ALL[k], w[k])
+        (k, w[k])
     }
 
     /// The log odds of the favourite against the runner-up (for the state file).
@@ -737,14 +735,14 @@ impl ScaleLearner {
             }
         }
         self.ln_scale_var = var;
-        let (best, p) = self.likeliest();
+        let (k, p) = self.lead();
+        let best = Fault::ALL[k];
         let one_wheel = !matches!(best, Fault::None | Fault::FrontAxle);
         if p < DECIDED
             || (one_wheel && self.turned_left.min(self.turned_right) < TURN_BALANCE_PER_M)
         {
             return;
         }
-        let k = Fault::ALL.iter().position(|f| *f == best).unwrap_or(0);
         let h = &self.hyps[k];
         let eps = if Self::significant(h) { h.x[0] } else { 0.0 };
         // Below a part in 10⁷ the correction would only move the pose by
