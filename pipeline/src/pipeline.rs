@@ -447,7 +447,11 @@ impl Pipeline {
             yaw_rate_radps: 0.0,
             latched: PoseFlags::default(),
             stats: Stats::default(),
-            plausibility: Plausibility::new(params.wheelbase_m(), params.steering()),
+            plausibility: Plausibility::new(
+                params.wheelbase_m(),
+                params.rear_tread_m(),
+                params.steering(),
+            ),
             decoder_params: params,
             rear_scale: (1.0, 1.0),
             param_version: None,

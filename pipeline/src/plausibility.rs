@@ -7,7 +7,14 @@
 //! the car turns at speed, the rear wheels' turn rate with the steering's
 //! (through the configured map and wheelbase) and with the yaw-rate sensor:
 //! a sustained sign disagreement, or a magnitude far from the wheels', is a
-//! warning naming the signal and the suspicion. Pure: no clock, no I/O.
+//! warning naming the signal and the suspicion. With a yaw-rate sensor and
+//! a steering angle there are three sources of the turn, and the odd one
+//! out is the one at fault (issue #45): when the steering and the gyro
+//! agree with each other and both disagree with the rear wheels, the rear
+//! wheels are warned of (a tyre's size or pressure, a sensor's factor,
+//! named by side), not the two signals that are right. With two sources
+//! the rear wheels stay the reference, and the diagnosis says it cannot
+//! tell which one is off. Pure: no clock, no I/O.
 
 use crate::stats::{Reject, Stats};
 use crate::step::Step;
@@ -46,6 +53,14 @@ const LN_RATIO_SPAN: f64 = 4.16;
 /// histogram (1109 bins then) cost `replay` a fifth of its frames/s on a
 /// road-car log (2.71 M → 2.15 M); this, and the 416 bins, keep it to 5 %.
 const JUDGE_EVERY: u32 = 50;
+/// The least share of the rear wheels' extra turn (against the gyro, else
+/// the steering) that one growth with speed explains, for the rear wheels
+/// to be the odd one out (R² of `e = k v`).
+const MIN_EXPLAINED_BY_SPEED: f64 = 0.8;
+/// The largest difference of the two rear wheels' scales that a tyre
+/// makes (size, wear, pressure): a few per cent. Beyond, the disagreement
+/// is a configuration's, not a tyre's.
+const MAX_TYRE_SCALE: f64 = 0.03;
 /// A share of rejected frames or faulty wheel steps above this is a wrong
 /// configuration, not a noisy bus (a few percent, as the issue asks).
 const FAULT_SHARE: f64 = 0.03;
@@ -65,6 +80,9 @@ pub enum Suspicion {
     Range,
     /// The message: configured, but never on the bus.
     Message,
+    /// A wheel's scale: the rear wheels turn unlike the steering and the
+    /// yaw rate, which agree with each other.
+    Scale,
 }
 
 impl fmt::Display for Suspicion {
@@ -76,6 +94,7 @@ impl fmt::Display for Suspicion {
             Self::Kind => "kind",
             Self::Range => "range",
             Self::Message => "message",
+            Self::Scale => "scale",
         })
     }
 }
@@ -112,6 +131,20 @@ impl fmt::Display for Warning {
         }
         write!(f, "]")
     }
+}
+
+/// What the odd-one-out test decided before the signals are judged
+/// against the rear wheels.
+enum OddOneOut {
+    /// Two sources, or already judged: judge against the rear wheels.
+    NotApplicable,
+    /// Not enough turns of the steering against the gyro yet.
+    Wait,
+    /// The rear wheels were warned of.
+    Warned,
+    /// The rear wheels are not the odd one out; whether the steering was
+    /// due for judging (asked once per step: asking counts).
+    NotTheRear { steer_due: bool },
 }
 
 /// Agreement of one signal with the rear wheels while turning, per turn
@@ -210,10 +243,18 @@ impl Tally {
 #[derive(Clone, Debug)]
 pub struct Plausibility {
     wheelbase_m: f64,
+    rear_tread_m: f64,
     steering: SteeringMap,
     prev: Option<Step>,
     steer: Tally,
     yaw: Tally,
+    /// The steering's turn against the gyro's, while the gyro turns: the
+    /// third comparison, which finds the odd one out.
+    steer_yaw: Tally,
+    /// `Σ e·v`, `Σ v²` and `Σ e²`, `e` the rear turn less the reference's
+    /// (the gyro, else the steering), over steps at speed: one rear wheel's
+    /// scale error `ε` makes `e = (ε_R − ε_L) v / b`, which these fit.
+    rear_excess: [f64; 3],
     warnings: Vec<Warning>,
     judged_steer: bool,
     judged_yaw: bool,
@@ -227,13 +268,16 @@ pub struct Plausibility {
 
 impl Plausibility {
     /// A detector for a vehicle of `wheelbase_m` read through `steering`.
-    pub fn new(wheelbase_m: f64, steering: SteeringMap) -> Self {
+    pub fn new(wheelbase_m: f64, rear_tread_m: f64, steering: SteeringMap) -> Self {
         Self {
             wheelbase_m,
+            rear_tread_m,
             steering,
             prev: None,
             steer: Tally::default(),
             yaw: Tally::default(),
+            steer_yaw: Tally::default(),
+            rear_excess: [0.0; 3],
             warnings: Vec::new(),
             judged_steer: false,
             judged_yaw: false,
@@ -289,17 +333,30 @@ impl Plausibility {
             if dt > 0.0 {
                 let v = ds / dt;
                 let rear_turn = (b.heading_rad - a.heading_rad) / dt;
-                if v > MIN_SPEED_MPS
-                    && rear_turn.abs() > MIN_TURN_RADPS
-                    && v * rear_turn.abs() <= MAX_LATERAL_MPS2
-                {
-                    if let Some(u) = step.steer_signal {
-                        let phi = self.steering.angle_rad(u);
-                        self.steer.add(v * phi.tan() / self.wheelbase_m, rear_turn);
+                let steer_turn = step
+                    .steer_signal
+                    .map(|u| v * self.steering.angle_rad(u).tan() / self.wheelbase_m);
+                let at_speed = v > MIN_SPEED_MPS && v * rear_turn.abs() <= MAX_LATERAL_MPS2;
+                if at_speed && rear_turn.abs() > MIN_TURN_RADPS {
+                    if let Some(s) = steer_turn {
+                        self.steer.add(s, rear_turn);
                     }
                     if let Some(w) = step.yaw_rate_radps {
                         self.yaw.add(w, rear_turn);
                     }
+                }
+                if let (Some(s), Some(w)) = (steer_turn, step.yaw_rate_radps)
+                    && v > MIN_SPEED_MPS
+                    && w.abs() > MIN_TURN_RADPS
+                    && v * s.abs().min(w.abs()) <= MAX_LATERAL_MPS2
+                {
+                    self.steer_yaw.add(s, w);
+                }
+                if let Some(r) = step.yaw_rate_radps.or(steer_turn).filter(|_| at_speed) {
+                    let e = rear_turn - r;
+                    self.rear_excess[0] += e * v;
+                    self.rear_excess[1] += v * v;
+                    self.rear_excess[2] += e * e;
                 }
             }
         }
@@ -308,8 +365,14 @@ impl Plausibility {
     }
 
     fn judge(&mut self, t_s: f64) {
+        let three_sources = self.steer.n() > 0 && self.yaw.n() > 0;
+        let steer_due = match self.odd_one_out(t_s) {
+            OddOneOut::Wait | OddOneOut::Warned => return,
+            OddOneOut::NotTheRear { steer_due } => steer_due,
+            OddOneOut::NotApplicable => self.steer.due(),
+        };
         let steer_before = self.warnings.len();
-        if !self.judged_steer && self.steer.due() {
+        if !self.judged_steer && steer_due {
             let (share, ratio) = (self.steer.disagree_share(), self.steer.ratio());
             if share > SIGN_SHARE {
                 self.warnings.push(Warning {
@@ -361,7 +424,10 @@ impl Plausibility {
         // Judged every `JUDGE_EVERY` turning steps once enough were seen (a
         // right turn may come long after the left ones); each warns once.
         self.judged_steer |= self.warnings.len() > steer_before;
-        if !self.judged_yaw && self.yaw.due() {
+        // With three sources the gyro is judged against the rear wheels
+        // only once the odd-one-out test above has run.
+        let odd_one_tested = !three_sources || self.steer.judged_at_n > 0 || self.judged_steer;
+        if !self.judged_yaw && odd_one_tested && self.yaw.due() {
             let before = self.warnings.len();
             let (share, ratio) = (self.yaw.disagree_share(), self.yaw.ratio());
             if share > SIGN_SHARE {
@@ -397,6 +463,93 @@ impl Plausibility {
             }
             self.judged_yaw |= self.warnings.len() > before;
         }
+    }
+
+    /// With three sources, the odd-one-out test that comes before judging
+    /// the steering and the gyro against the rear wheels.
+    fn odd_one_out(&mut self, t_s: f64) -> OddOneOut {
+        let three_sources = self.steer.n() > 0 && self.yaw.n() > 0;
+        if !three_sources || self.judged_steer || self.judged_yaw {
+            return OddOneOut::NotApplicable;
+        }
+        // Which one is off needs the steering against the gyro too; a gyro
+        // that never reads a turn (a unit 57 times too small) leaves the
+        // rear wheels the reference after a while.
+        if self.steer_yaw.n() < MIN_SAMPLES && self.steer.n() < 4 * MIN_SAMPLES {
+            return OddOneOut::Wait;
+        }
+        let steer_due = self.steer.due();
+        if steer_due && self.rear_is_the_odd_one_out() {
+            self.warn_rear_wheels(t_s);
+            self.judged_steer = true;
+            self.judged_yaw = true;
+            return OddOneOut::Warned;
+        }
+        OddOneOut::NotTheRear { steer_due }
+    }
+
+    /// The steering and the gyro agree with each other (signs and
+    /// magnitudes), and both disagree with the rear wheels.
+    fn rear_is_the_odd_one_out(&self) -> bool {
+        let agree = |t: &Tally| {
+            t.disagree_share() < 1.0 - SIGN_SHARE
+                && (1.0 / SCALE_LIMIT..=SCALE_LIMIT).contains(&t.ratio())
+        };
+        let disagree = |t: &Tally| {
+            t.disagree_share() > SIGN_SHARE
+                || !(1.0 / SCALE_LIMIT..=SCALE_LIMIT).contains(&t.ratio())
+        };
+        let [ev, vv, ee] = self.rear_excess;
+        // A tyre's scale makes the rear wheels' extra turn grow with the
+        // speed, the same in straights and either turn, and small: signs
+        // left out of both the steering and the gyro make it as large as
+        // the turn (a 10 % tyre in a 30 m circle) or only in turns one way.
+        let explained = if vv > 0.0 && ee > 0.0 {
+            ev * ev / (vv * ee)
+        } else {
+            0.0
+        };
+        agree(&self.steer_yaw)
+            && disagree(&self.steer)
+            && disagree(&self.yaw)
+            && explained >= MIN_EXPLAINED_BY_SPEED
+            && self.rear_scale_difference().abs() <= MAX_TYRE_SCALE
+    }
+
+    /// `ε_R − ε_L` from the rear wheels' extra turn per metre.
+    fn rear_scale_difference(&self) -> f64 {
+        let [ev, vv, _] = self.rear_excess;
+        if vv > 0.0 {
+            ev / vv * self.rear_tread_m
+        } else {
+            0.0
+        }
+    }
+
+    /// The warning for rear wheels that turn unlike the steering and the
+    /// gyro: the side that reads more, and by how much.
+    fn warn_rear_wheels(&mut self, t_s: f64) {
+        let right_minus_left = self.rear_scale_difference();
+        let (more, less) = if right_minus_left >= 0.0 {
+            ("right", "left")
+        } else {
+            ("left", "right")
+        };
+        self.warnings.push(Warning {
+            signal: "signals.rear_left/rear_right",
+            suspicion: Suspicion::Scale,
+            flag: Some("GATE_REJECT"),
+            message: format!(
+                "the rear wheels turn unlike both the steering and the yaw rate, which agree with each other \
+                 (the steering turns {:.2} times the yaw rate): the rear wheels are the odd one out, not those \
+                 signals. The {more} rear wheel reads about {:.2} % more than the {less} one: a larger or \
+                 harder {more} tyre, a softer {less} one, or a wheel sensor's factor; check the tyres' sizes \
+                 and pressures. The `wheel scales` line names the wheel the front axle blames",
+                self.steer_yaw.ratio(),
+                100.0 * right_minus_left.abs()
+            ),
+            t_s,
+        });
     }
 
     /// Judges the statistics of the run so far: checksum, counter and
@@ -477,6 +630,34 @@ impl Plausibility {
         if what.is_empty() {
             return None;
         }
+        if self
+            .warnings
+            .iter()
+            .any(|w| w.suspicion == Suspicion::Scale)
+        {
+            return Some(format!(
+                "diagnosis: this pose is likely wrong, not merely noisy: {}. The steering and the yaw rate \
+                 agree with each other and not with the rear wheels: the fused pose leans on what they say \
+                 (each wheel's scale is learnt), but the rear-only pose is off; fix or re-measure the tyre, \
+                 or commit a calibration, before trusting the rear wheels alone.",
+                what.join(", ")
+            ));
+        }
+        if self.steer.n() == 0 || self.yaw.n() == 0 {
+            return Some(format!(
+                "diagnosis: this pose is likely wrong, not merely noisy: {} disagree with the rear wheels or the bus. \
+                 With two sources of the turn canodom cannot tell which one is off: the rear wheels are taken as \
+                 the reference here (a rear tyre's size or pressure makes the same disagreement; a yaw-rate sensor \
+                 would tell). Check the configuration of {} (each warning above says how) and the rear tyres, \
+                 and replay again before trusting the fused pose.",
+                what.join(", "),
+                if what.len() == 1 {
+                    "that signal"
+                } else {
+                    "these signals"
+                }
+            ));
+        }
         Some(format!(
             "diagnosis: this pose is likely wrong, not merely noisy: {} disagree with the rear wheels or the bus. \
              The rear wheels are the reference here; fix the configuration of {} (each warning above says how) \
@@ -531,7 +712,7 @@ mod tests {
             gain: 1f64.to_radians() / 15.0,
             offset_rad: 0.0,
         };
-        let mut p = Plausibility::new(2.7, map);
+        let mut p = Plausibility::new(2.7, 1.5, map);
         for s in circle(30.0, 10.0, f, 600) {
             p.push(&s);
         }
@@ -572,7 +753,7 @@ mod tests {
             heading += rear_rate(k) * 0.01;
             s.odometry.heading_rad = heading;
         }
-        let mut p = Plausibility::new(2.7, map);
+        let mut p = Plausibility::new(2.7, 1.5, map);
         for s in &steps {
             p.push(s);
         }
@@ -619,7 +800,7 @@ mod tests {
             gain: 1f64.to_radians() / 15.0,
             offset_rad: 0.0,
         };
-        let mut p = Plausibility::new(2.7, map);
+        let mut p = Plausibility::new(2.7, 1.5, map);
         let left = circle(30.0, 10.0, |u, w| (u, w), 400);
         let end = *left.last().unwrap();
         for s in &left {
@@ -663,10 +844,133 @@ mod tests {
         );
     }
 
+    /// Steps of a drive that alternates 20 s straights at 20 m/s with 10 s
+    /// left curves of radius 200 m, as a rear axle whose right wheel reads
+    /// `1 + eps_right` times true sees it (its turn is `(d_R − d_L)/b`), with
+    /// the steering and the gyro telling the truth.
+    fn drive_with_a_rear_tyre_off(eps_right: f64) -> Vec<Step> {
+        let (v, b, dt) = (20.0, 1.5, 0.01);
+        let (mut x, mut y, mut th) = (0.0, 0.0, 0.0);
+        (0..18_000)
+            .map(|k| {
+                let t = k as f64 * dt;
+                let true_turn = if t % 30.0 < 20.0 { 0.0 } else { v / 200.0 };
+                // The wheels' centre speed and turn, with the right wheel's scale.
+                let (d_l, d_r) = (
+                    v - true_turn * b / 2.0,
+                    (v + true_turn * b / 2.0) * (1.0 + eps_right),
+                );
+                let rear_turn = (d_r - d_l) / b;
+                let speed = 0.5 * (d_l + d_r);
+                th += rear_turn * dt;
+                x += speed * dt * th.cos();
+                y += speed * dt * th.sin();
+                let odometry = Pose {
+                    x_m: x,
+                    y_m: y,
+                    heading_rad: th,
+                };
+                let phi = (2.7 * true_turn / v).atan();
+                Step {
+                    t_s: t,
+                    t_us: (t * 1e6) as i64,
+                    fused: odometry,
+                    odometry,
+                    rear_rev: (0.0, 0.0),
+                    steer_signal: Some(phi.to_degrees() * 15.0),
+                    correction: WindowOutcome::Open,
+                    yaw_rate_radps: Some(true_turn),
+                }
+            })
+            .collect()
+    }
+
+    fn fed(steps: &[Step], with_yaw: bool) -> Plausibility {
+        let map = SteeringMap {
+            gain: 1f64.to_radians() / 15.0,
+            offset_rad: 0.0,
+        };
+        let mut p = Plausibility::new(2.7, 1.5, map);
+        for s in steps {
+            let mut s = *s;
+            if !with_yaw {
+                s.yaw_rate_radps = None;
+            }
+            p.push(&s);
+        }
+        p
+    }
+
+    #[test]
+    fn a_rear_tyre_off_is_the_odd_one_out_not_the_steering_or_the_gyro() {
+        // A right rear tyre 0.5 % large (issue #45: the rear-only pose ended
+        // 95 % off, and the steering's and the gyro's signs were blamed).
+        let steps = drive_with_a_rear_tyre_off(0.005);
+        let p = fed(&steps, true);
+        let w = p.warnings();
+        assert_eq!(w.len(), 1, "{w:?}");
+        assert_eq!(w[0].suspicion, Suspicion::Scale);
+        assert!(
+            w[0].message
+                .contains("The right rear wheel reads about 0.50 % more"),
+            "{}",
+            w[0].message
+        );
+        let d = p.diagnosis().unwrap();
+        assert!(d.contains("not with the rear wheels"), "{d}");
+        // The left one large: the left is named.
+        let p = fed(&drive_with_a_rear_tyre_off(-0.005), true);
+        assert!(
+            p.warnings()[0]
+                .message
+                .contains("The left rear wheel reads about 0.50 % more"),
+            "{:?}",
+            p.warnings()
+        );
+        // Matched tyres: quiet.
+        assert!(
+            fed(&drive_with_a_rear_tyre_off(0.0), true)
+                .warnings()
+                .is_empty()
+        );
+    }
+
+    #[test]
+    fn with_two_sources_the_diagnosis_says_it_cannot_tell_which() {
+        let p = fed(&drive_with_a_rear_tyre_off(0.005), false);
+        assert!(
+            p.warnings().iter().any(|w| w.signal == "signals.steering"),
+            "{:?}",
+            p.warnings()
+        );
+        let d = p.diagnosis().unwrap();
+        assert!(d.contains("cannot tell which one is off"), "{d}");
+    }
+
+    #[test]
+    fn a_steering_that_disagrees_with_gyro_and_wheels_is_still_named() {
+        // The steering's sign reversed: the gyro sides with the wheels.
+        let steps: Vec<Step> = drive_with_a_rear_tyre_off(0.0)
+            .into_iter()
+            .map(|mut s| {
+                s.steer_signal = s.steer_signal.map(|u| -u);
+                s
+            })
+            .collect();
+        let p = fed(&steps, true);
+        let w = p.warnings();
+        assert_eq!(w.len(), 1, "{w:?}");
+        assert_eq!(
+            (w[0].signal, w[0].suspicion),
+            ("signals.steering", Suspicion::Sign)
+        );
+    }
+
     #[test]
     fn fault_shares_above_a_few_percent_are_named() {
         let mut p = Plausibility::new(
             2.7,
+            1.5,
             SteeringMap {
                 gain: 1.0,
                 offset_rad: 0.0,
