@@ -384,8 +384,10 @@ impl Aided {
     /// `MIN_TREAD_SHARE` and the configured share. A car whose wheels turn
     /// as its body does (a kinematic drive, a light robot) then weighs them
     /// in curves as they deserve: with 10 % of every turn left to the gyro,
-    /// a bias learnt wrong on a straight could not be corrected in the
-    /// curves that followed (opendbc drives, seed 2: 1.1–1.4 % off).
+    /// the curves tell nothing of its bias. The share falls as `1/n` of
+    /// the windows, so a bias learnt wrong early is corrected only slowly
+    /// (the opendbc drives of seed 2 still end 0.9–1.3 % off, `docs/
+    /// calibration-math.md` §13).
     pub(crate) fn tread_share_sq(&self, cfg: &EkfConfig) -> f64 {
         let prior = cfg.tread_turn_sigma * cfg.tread_turn_sigma;
         let floor = (MIN_TREAD_SHARE * MIN_TREAD_SHARE).min(prior);
