@@ -104,6 +104,7 @@ async fn the_recording_and_a_viewer_get_every_published_pose() {
         foxglove: Some("127.0.0.1:0".parse().unwrap()),
         k_rear_m: config.ekf.k_rear_m,
         queue: 1 << 16,
+        forward: None,
     })
     .unwrap();
     let port = outputs.port().unwrap();
@@ -181,6 +182,7 @@ async fn a_stalled_viewer_does_not_slow_the_pipeline() {
         foxglove: Some("127.0.0.1:0".parse().unwrap()),
         k_rear_m: config.ekf.k_rear_m,
         queue: 256,
+        forward: None,
     };
     // Alternating runs without and with a client that subscribes to every
     // channel and then never reads; the best of each (the host is shared).

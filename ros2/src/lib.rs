@@ -10,6 +10,7 @@
 //! - [`node`]: the DDS participant on a thread of its own, fed through a
 //!   bounded queue that never holds up the caller.
 //! - [`replay`]: `replay --ros2`, a log published at its recorded pace.
+//! - [`fixes`]: GNSS fixes taken from a `sensor_msgs/NavSatFix` topic.
 //!
 //! # Why RustDDS
 //! Three pure-Rust stacks were looked at (Nov 2026), against what the issue
@@ -42,6 +43,7 @@
 #![deny(missing_docs)]
 
 pub mod config;
+pub mod fixes;
 pub mod msg;
 pub mod node;
 pub mod replay;

@@ -37,6 +37,7 @@ pub const MATCH_GRACE: Duration = Duration::from_millis(300);
 pub const LINGER: Duration = Duration::from_millis(300);
 
 /// A message already in CDR, its 4-byte encapsulation header first.
+#[derive(Clone, Debug, PartialEq, Eq)]
 pub struct RawCdr(pub Vec<u8>);
 
 /// Hands [`RawCdr`]'s bytes to RustDDS as they are (it writes the
@@ -275,6 +276,29 @@ impl Node {
                 "the DDS participant did not start within 20 s".into(),
             )),
         }
+    }
+
+    /// The node the configuration's `[ros2]` section asks for: `None` when
+    /// it is absent or not `enabled`.
+    ///
+    /// # Errors
+    /// The section is not valid, or DDS could not start (the daemon warns
+    /// and goes on without ROS 2).
+    pub fn from_config(config: &canodom_pipeline::config::Config) -> Result<Option<Self>> {
+        let section = crate::config::Ros2Config::from_section(config.ros2.as_ref())?;
+        if !section.enabled {
+            return Ok(None);
+        }
+        Self::start(&section.resolve()?, config.ekf.k_rear_m).map(Some)
+    }
+
+    /// The node as the live outputs' hook: each pose they take is handed
+    /// over without waiting; the node stops when the outputs drop the hook.
+    pub fn into_forward(self) -> canodom_export::live::Forward {
+        let node = Arc::new(self);
+        Arc::new(move |sample, params| {
+            node.publish_pose(sample, params);
+        })
     }
 
     /// Hands the step `sample`, taken with parameters `params`, to the DDS

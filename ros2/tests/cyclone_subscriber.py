@@ -47,7 +47,17 @@ os.environ["CYCLONEDDS_URI"] = cyclone_uri()
 from cyclonedds.core import Policy, Qos  # noqa: E402
 from cyclonedds.domain import DomainParticipant  # noqa: E402
 from cyclonedds.idl import IdlStruct  # noqa: E402
-from cyclonedds.idl.types import array, float64, int32, sequence, uint8, uint32  # noqa: E402
+from cyclonedds.idl.types import (  # noqa: E402
+    array,
+    float64,
+    int8,
+    int32,
+    sequence,
+    uint8,
+    uint16,
+    uint32,
+)
+from cyclonedds.pub import DataWriter  # noqa: E402
 from cyclonedds.sub import DataReader  # noqa: E402
 from cyclonedds.topic import Topic  # noqa: E402
 from cyclonedds.util import duration  # noqa: E402
@@ -157,6 +167,23 @@ class DiagnosticStatus(IdlStruct, typename="diagnostic_msgs::msg::dds_::Diagnost
 class DiagnosticArray(IdlStruct, typename="diagnostic_msgs::msg::dds_::DiagnosticArray_"):
     header: Header
     status: sequence[DiagnosticStatus]
+
+
+@dataclass
+class NavSatStatus(IdlStruct, typename="sensor_msgs::msg::dds_::NavSatStatus_"):
+    status: int8
+    service: uint16
+
+
+@dataclass
+class NavSatFix(IdlStruct, typename="sensor_msgs::msg::dds_::NavSatFix_"):
+    header: Header
+    status: NavSatStatus
+    latitude: float64
+    longitude: float64
+    altitude: float64
+    position_covariance: array[float64, 9]
+    position_covariance_type: uint8
 
 
 def ros2_qos(reliable: bool, depth: int) -> Qos:
@@ -342,6 +369,102 @@ def run(args, qos_name: str, speed: float, rows: dict, folder: Path) -> list:
     return failures
 
 
+def fixes_from_ros2(args, folder: Path) -> list:
+    """Cyclone publishes the RAV4 truth's first 30 s as NavSatFix at 1 Hz;
+    `canodom ros2-fixes` writes them as a CSV; `calibrate --fixes` gives the
+    same estimate from it as from the same fixes written straight to a file."""
+    failures = []
+    d = Path(args.config).parent
+    truth = list(csv.DictReader((d / "truth.csv").open()))
+    t0 = float(truth[0]["t_unix_s"])
+    picked = [r for k, r in enumerate(truth) if k % 20 == 0 and float(r["t_unix_s"]) - t0 <= 30]
+    # Local metres to WGS-84 near an arbitrary origin (east x, north y): the
+    # two paths share the latitudes and longitudes, whatever their accuracy.
+    lat0, lon0, r = 37.4, -122.1, 6_378_137.0
+    fixes = []
+    for row in picked:
+        t = float(row["t_unix_s"])
+        sec = int(t)
+        nanosec = int(round((t - sec) * 1e9))
+        lat = lat0 + math.degrees(float(row["y_m"]) / r)
+        lon = lon0 + math.degrees(float(row["x_m"]) / (r * math.cos(math.radians(lat0))))
+        fixes.append((sec, nanosec, lat, lon, 12.5))
+    direct = folder / "fixes-direct.csv"
+    with direct.open("w") as f:
+        f.write("t_unix_s,lat_deg,lon_deg,alt_m\n")
+        for sec, ns, lat, lon, alt in fixes:
+            f.write(f"{sec}.{ns:09d},{lat:.9f},{lon:.9f},{alt:.3f}\n")
+    via_ros2 = folder / "fixes-ros2.csv"
+    config = config_with(
+        Path(args.config),
+        f'[ros2]\ndomain_id = {args.domain}\ndiscovery = "localhost"\nfix_topic = "/fix"',
+        folder,
+    )
+    log = open(folder / "ros2-fixes.log", "w+")
+    proc = subprocess.Popen(
+        [args.canodom, "ros2-fixes", "--config", str(config), "--out", str(via_ros2),
+         "--count", str(len(fixes)), "--seconds", "60"],
+        stderr=log,
+    )
+    dp = DomainParticipant(args.domain)
+    writer = DataWriter(dp, Topic(dp, "rt/fix", NavSatFix), qos=ros2_qos(True, 100))
+    until = time.monotonic() + 30
+    while writer.get_publication_matched_status().current_count < 1 and time.monotonic() < until:
+        time.sleep(0.05)
+    time.sleep(0.3)
+    for sec, ns, lat, lon, alt in fixes:
+        writer.write(NavSatFix(
+            header=Header(stamp=Time(sec=sec, nanosec=ns), frame_id="gnss"),
+            status=NavSatStatus(status=0, service=1),
+            latitude=lat, longitude=lon, altitude=alt,
+            position_covariance=[0.25, 0, 0, 0, 0.25, 0, 0, 0, 1.0],
+            position_covariance_type=2,
+        ))
+        time.sleep(0.005)
+    try:
+        proc.wait(timeout=60)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+    log.seek(0)
+    print("\n== NavSatFix from Cyclone DDS to calibrate --fixes")
+    for line in log.read().splitlines():
+        if "ros2-fixes:" in line:
+            print("   canodom:", line.strip())
+    del writer, dp
+    got = via_ros2.read_text() if via_ros2.exists() else ""
+    want = direct.read_text()
+    print(f"  {len(fixes)} fixes published; the CSV written from ROS 2 "
+          f"{'equals' if got == want else 'differs from'} the one written directly")
+    if got != want:
+        failures.append("fixes: the CSV from ROS 2 differs from the fixes published")
+        return failures
+    # The drive's first 30 s, as the README's example calibrates it.
+    first = folder / "first.log"
+    with open(args.log) as src, first.open("w") as dst:
+        for line in src:
+            if float(line[1:18]) - t0 < 30:
+                dst.write(line)
+    estimates = []
+    for name, fixes_csv in (("direct", direct), ("ros2", via_ros2)):
+        out = subprocess.run(
+            [args.canodom, "calibrate", "--config", str(d / "config_yaw.toml"), "--fixes",
+             str(fixes_csv), "--out", str(folder / f"params-{name}.toml"), str(first)],
+            capture_output=True, text=True,
+        )
+        if out.returncode != 0:
+            failures.append(f"calibrate --fixes {name} exited {out.returncode}: {out.stderr[-2000:]}")
+            return failures
+        estimates.append(out.stdout)
+    same = estimates[0] == estimates[1]
+    print(f"  calibrate --fixes: the estimate from ROS 2's fixes "
+          f"{'is the same as' if same else 'differs from'} the file's")
+    for line in estimates[1].splitlines()[:12]:
+        print("   ", line)
+    if not same:
+        failures.append("fixes: calibrate gives another estimate from ROS 2's fixes")
+    return failures
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--canodom", required=True, help="the canodom binary")
@@ -356,10 +479,11 @@ def main() -> int:
         rows = reference(args, folder)
         failures = run(args, "default", args.speed, rows, folder)
         failures += run(args, "sensor_data", args.sensor_speed, rows, folder)
+        failures += fixes_from_ros2(args, folder)
     print()
     for f in failures:
         print("FAIL:", f)
-    checks = 2
+    checks = 3
     print(f"{0 if failures else checks} passed, {1 if failures else 0} failed")
     return 1 if failures else 0
 

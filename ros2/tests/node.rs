@@ -131,3 +131,78 @@ fn a_full_queue_drops_and_counts_instead_of_waiting() {
         "{n} hand-overs took {took:?}"
     );
 }
+
+#[test]
+fn fixes_published_on_ros2_reach_the_subscriber_as_csv_lines() {
+    use canodom_export::cdr::RosTime;
+    use canodom_ros2::fixes::{FixSubscriber, csv_line};
+    const DOMAIN: u16 = 152;
+    let mut config = localhost(DOMAIN);
+    config.fix_topic = Some("rt/fix".to_owned());
+    let fixes = FixSubscriber::start(&config).expect("DDS starts on loopback");
+    // A GNSS driver's publisher: sensor-data QoS, another participant.
+    let participant = DomainParticipantBuilder::new(DOMAIN)
+        .with_only_networks([std::net::IpAddr::V4(std::net::Ipv4Addr::LOCALHOST)])
+        .same_host_loopback(true)
+        .build()
+        .expect("a second participant");
+    let qos = QosPolicyBuilder::new()
+        .reliability(Reliability::BestEffort)
+        .durability(Durability::Volatile)
+        .history(History::KeepLast { depth: 5 })
+        .build();
+    let topic = participant
+        .create_topic(
+            "rt/fix".to_owned(),
+            msg::NAV_SAT_FIX_TYPE.to_owned(),
+            &qos,
+            TopicKind::NoKey,
+        )
+        .expect("topic");
+    let publisher = participant.create_publisher(&qos).expect("publisher");
+    let writer = publisher
+        .create_datawriter_no_key::<RawCdr, RawCdrAdapter>(&topic, Some(qos))
+        .expect("writer");
+    let fix = |k: u32, status: i8| msg::NavSatFix {
+        stamp: RosTime {
+            sec: 1_533_245_256 + k as i32,
+            nanosec: 500_000_000,
+        },
+        frame_id: "gnss".to_owned(),
+        status,
+        service: 1,
+        latitude: 37.4 + f64::from(k) * 1e-5,
+        longitude: -122.1,
+        altitude: 12.5,
+        position_covariance: [0.0; 9],
+        position_covariance_type: 0,
+    };
+    // Discovery first: publish until one arrives (best effort), then the rest.
+    let until = Instant::now() + Duration::from_secs(30);
+    let first = loop {
+        let mut buf = Vec::new();
+        msg::encode_nav_sat_fix(&fix(0, 0), &mut buf);
+        writer.write(RawCdr(buf), None).expect("write");
+        if let Some(f) = fixes.recv_timeout(Duration::from_millis(200)) {
+            break f;
+        }
+        assert!(Instant::now() < until, "no fix arrived over loopback");
+    };
+    assert_eq!(first, fix(0, 0));
+    assert_eq!(
+        csv_line(&first),
+        "1533245256.500000000,37.400000000,-122.100000000,12.500"
+    );
+    while fixes.recv_timeout(Duration::from_millis(100)).is_some() {}
+    for (k, status) in [(1, 0), (2, -1), (3, 2)] {
+        let mut buf = Vec::new();
+        msg::encode_nav_sat_fix(&fix(k, status), &mut buf);
+        writer.write(RawCdr(buf), None).expect("write");
+    }
+    let got: Vec<u32> = std::iter::from_fn(|| fixes.recv_timeout(Duration::from_secs(2)))
+        .map(|f| (f.stamp.sec - 1_533_245_256) as u32)
+        .collect();
+    // The fix without a position (status -1) is counted, not passed on.
+    assert_eq!(got, vec![1, 3]);
+    assert_eq!(fixes.stats().no_fix, 1);
+}
