@@ -454,8 +454,14 @@ def fixes_from_ros2(args, folder: Path) -> list:
         if out.returncode != 0:
             failures.append(f"calibrate --fixes {name} exited {out.returncode}: {out.stderr[-2000:]}")
             return failures
-        estimates.append(out.stdout)
+        # The files' own names aside (each output names its parameter file).
+        estimates.append(out.stdout.replace(str(fixes_csv), "FIXES")
+                         .replace(f"params-{name}", "params"))
     same = estimates[0] == estimates[1]
+    if not same:
+        import difflib
+        print("\n".join(difflib.unified_diff(
+            estimates[0].splitlines(), estimates[1].splitlines(), "direct", "ros2", lineterm="")))
     print(f"  calibrate --fixes: the estimate from ROS 2's fixes "
           f"{'is the same as' if same else 'differs from'} the file's")
     for line in estimates[1].splitlines()[:12]:
