@@ -206,3 +206,66 @@ fn fixes_published_on_ros2_reach_the_subscriber_as_csv_lines() {
     assert_eq!(got, vec![1, 3]);
     assert_eq!(fixes.stats().no_fix, 1);
 }
+
+/// Latency from [`Node::publish_pose`] to a reader's `take` in another
+/// participant of the same process (loopback), at 100 Hz: a measurement,
+/// run with `cargo test -p canodom-ros2 --release --test node -- --ignored
+/// --nocapture`. The CAN-frame-to-pose part is the pipeline's (not here).
+#[test]
+#[ignore = "a measurement, not a check"]
+fn latency_from_hand_over_to_a_reader() {
+    const DOMAIN: u16 = 154;
+    let (samples, params, k_rear_m) = steps(50);
+    let node = Node::start(&localhost(DOMAIN), k_rear_m).expect("DDS starts on loopback");
+    let participant = DomainParticipantBuilder::new(DOMAIN)
+        .with_only_networks([std::net::IpAddr::V4(std::net::Ipv4Addr::LOCALHOST)])
+        .same_host_loopback(true)
+        .build()
+        .expect("a second participant");
+    let qos = QosPolicyBuilder::new()
+        .reliability(Reliability::Reliable {
+            max_blocking_time: rustdds::Duration::from_millis(100),
+        })
+        .durability(Durability::Volatile)
+        .history(History::KeepLast { depth: 10 })
+        .build();
+    let topic = participant
+        .create_topic(
+            "rt/odom".to_owned(),
+            msg::ODOMETRY_TYPE.to_owned(),
+            &qos,
+            TopicKind::NoKey,
+        )
+        .expect("topic");
+    let mut reader = participant
+        .create_subscriber(&qos)
+        .expect("subscriber")
+        .create_datareader_no_key::<RawCdr, RawCdrAdapter>(&topic, Some(qos))
+        .expect("reader");
+    assert!(node.wait_for_subscribers(1, Duration::from_secs(30)));
+    let mut latencies = Vec::new();
+    for k in 0..500 {
+        let sent = Instant::now();
+        node.publish_pose(&samples[k % samples.len()], &params);
+        loop {
+            if let Ok(Some(_)) = reader.take_next_sample() {
+                latencies.push(sent.elapsed());
+                break;
+            }
+            if sent.elapsed() > Duration::from_secs(1) {
+                break;
+            }
+            std::hint::spin_loop();
+        }
+        std::thread::sleep(Duration::from_millis(10).saturating_sub(sent.elapsed()));
+    }
+    latencies.sort();
+    let at = |q: f64| latencies[((latencies.len() - 1) as f64 * q) as usize];
+    println!(
+        "hand-over to reader: {} of 500 received, p50 {:?}, p99 {:?}, max {:?}",
+        latencies.len(),
+        at(0.5),
+        at(0.99),
+        latencies.last().copied().unwrap_or_default()
+    );
+}
