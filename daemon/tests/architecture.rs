@@ -87,6 +87,37 @@ fn the_recordings_crate_leaves_the_runtime_to_the_daemon() {
     }
 }
 
+#[test]
+fn the_dds_stack_stays_in_the_ros2_crate() {
+    // ROS 2 (#43): only the binary uses `canodom-ros2`, and only it names
+    // the DDS stack, so the libraries and the Python package build without
+    // it; like export, it runs on a thread of its own, not on tokio.
+    for member in members() {
+        let text = std::fs::read_to_string(root().join(&member).join("Cargo.toml")).unwrap();
+        let manifest: toml::Table = text.parse().unwrap();
+        let Some(deps) = manifest.get("dependencies").and_then(toml::Value::as_table) else {
+            continue;
+        };
+        if member != "daemon" {
+            assert!(
+                !deps.contains_key("canodom-ros2"),
+                "{member} depends on canodom-ros2: only the daemon may"
+            );
+        }
+        if member != "ros2" {
+            for dds in ["rustdds", "ros2-client", "dust_dds"] {
+                assert!(!deps.contains_key(dds), "{member} depends on {dds}");
+            }
+        }
+    }
+    let text = std::fs::read_to_string(root().join("ros2/Cargo.toml")).unwrap();
+    let manifest: toml::Table = text.parse().unwrap();
+    let deps = manifest["dependencies"].as_table().unwrap();
+    for forbidden in ["tokio", "tokio-util", "socketcan"] {
+        assert!(!deps.contains_key(forbidden), "ros2 depends on {forbidden}");
+    }
+}
+
 /// The modules of one crate's `src/`, by path (`cmd::calibrate`), with their
 /// non-test, non-comment text.
 fn modules(member: &str) -> BTreeMap<String, String> {

@@ -190,6 +190,7 @@ async fn a_driven_session_commits_the_true_parameters_and_writes_them_back() {
         foxglove: None,
         k_rear_m: config.ekf.k_rear_m,
         queue: 1 << 16,
+        forward: None,
     })
     .unwrap();
     let observers = Observers {

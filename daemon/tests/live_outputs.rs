@@ -104,6 +104,7 @@ async fn the_recording_and_a_viewer_get_every_published_pose() {
         foxglove: Some("127.0.0.1:0".parse().unwrap()),
         k_rear_m: config.ekf.k_rear_m,
         queue: 1 << 16,
+        forward: None,
     })
     .unwrap();
     let port = outputs.port().unwrap();
@@ -181,6 +182,7 @@ async fn a_stalled_viewer_does_not_slow_the_pipeline() {
         foxglove: Some("127.0.0.1:0".parse().unwrap()),
         k_rear_m: config.ekf.k_rear_m,
         queue: 256,
+        forward: None,
     };
     // Alternating runs without and with a client that subscribes to every
     // channel and then never reads; the best of each (the host is shared).
@@ -216,4 +218,79 @@ async fn a_stalled_viewer_does_not_slow_the_pipeline() {
         ratio < 1.5,
         "the stalled client slowed the pipeline {ratio:.2}x"
     );
+}
+
+#[tokio::test]
+async fn ros2_subscribers_get_every_published_pose_as_odometry() {
+    // `[ros2] enabled` (#43): the node hangs off the live outputs. A RustDDS
+    // reader of the test's own on loopback (domain 153) counts the samples.
+    use canodom_ros2::node::{Node, RawCdr, RawCdrAdapter};
+    use rustdds::policy::{Durability, History, Reliability};
+    let config = config();
+    let ros2 = canodom_ros2::config::Ros2Config {
+        enabled: true,
+        domain_id: Some(153),
+        discovery: Some(canodom_ros2::config::DiscoveryRange::Localhost),
+        queue: 1 << 16,
+        ..Default::default()
+    }
+    .resolve_with(|_| None)
+    .unwrap();
+    let node = Arc::new(Node::start(&ros2, config.ekf.k_rear_m).unwrap());
+    let participant = rustdds::DomainParticipantBuilder::new(153)
+        .with_only_networks([std::net::IpAddr::V4(std::net::Ipv4Addr::LOCALHOST)])
+        .same_host_loopback(true)
+        .build()
+        .unwrap();
+    let qos = rustdds::QosPolicyBuilder::new()
+        .reliability(Reliability::Reliable {
+            max_blocking_time: rustdds::Duration::from_millis(100),
+        })
+        .durability(Durability::Volatile)
+        .history(History::KeepLast { depth: 1 << 16 })
+        .build();
+    let topic = participant
+        .create_topic(
+            "rt/odom".into(),
+            canodom_ros2::msg::ODOMETRY_TYPE.into(),
+            &qos,
+            rustdds::TopicKind::NoKey,
+        )
+        .unwrap();
+    let mut reader = participant
+        .create_subscriber(&qos)
+        .unwrap()
+        .create_datareader_no_key::<RawCdr, RawCdrAdapter>(&topic, Some(qos))
+        .unwrap();
+    assert!(node.wait_for_subscribers(1, Duration::from_secs(30)));
+    let forward_node = Arc::clone(&node);
+    let (tap, outputs) = LiveOutputs::start(LiveOptions {
+        record: None,
+        foxglove: None,
+        k_rear_m: config.ekf.k_rear_m,
+        queue: 1 << 16,
+        forward: Some(Arc::new(move |s, p| {
+            forward_node.publish_pose(s, p);
+        })),
+    })
+    .unwrap();
+    let (_, published, lost) = drive_with(&config, tap, CancellationToken::new()).await;
+    let report = outputs.join().unwrap();
+    assert_eq!(lost, 0);
+    assert_eq!(report.poses, published);
+    // Read while the node is up: RustDDS forgets a gone writer's samples.
+    let mut received = 0u64;
+    let until = Instant::now() + Duration::from_secs(20);
+    while received < published && Instant::now() < until {
+        match reader.take_next_sample() {
+            Ok(Some(_)) => received += 1,
+            Ok(None) => std::thread::sleep(Duration::from_millis(10)),
+            Err(e) => panic!("reading: {e:?}"),
+        }
+    }
+    let node = Arc::into_inner(node).expect("the outputs dropped their hook");
+    let stats = node.finish();
+    assert_eq!((stats.odometry, stats.dropped), (published, 0));
+    assert!(published > 100, "{published} poses");
+    assert_eq!(received, published);
 }

@@ -83,8 +83,12 @@ impl Tap {
     }
 }
 
+/// Where every queued pose also goes, on the live thread: the ROS 2 node
+/// (#43). It must not block (the node's `publish_pose` queues or drops).
+pub type Forward = Arc<dyn Fn(&StepSample, &VehicleParams) + Send + Sync>;
+
 /// What the live outputs do.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone)]
 pub struct LiveOptions {
     /// Record to these files.
     pub record: Option<RecorderOptions>,
@@ -94,6 +98,20 @@ pub struct LiveOptions {
     pub k_rear_m: f64,
     /// Poses queued at most between the pipeline and the outputs.
     pub queue: usize,
+    /// Hands each pose on as well (ROS 2).
+    pub forward: Option<Forward>,
+}
+
+impl std::fmt::Debug for LiveOptions {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("LiveOptions")
+            .field("record", &self.record)
+            .field("foxglove", &self.foxglove)
+            .field("k_rear_m", &self.k_rear_m)
+            .field("queue", &self.queue)
+            .field("forward", &self.forward.is_some())
+            .finish()
+    }
 }
 
 /// What the live outputs did, when they stopped.
@@ -251,6 +269,9 @@ fn serve(
         })
     });
     for packet in inbox {
+        if let Some(forward) = &options.forward {
+            forward(&packet.sample, &packet.params);
+        }
         if let Some(rec) = recorder.as_mut()
             && let Err(e) = rec.write(&packet.sample, &packet.params, &packet.frames)
         {

@@ -331,6 +331,8 @@ pub struct Config {
     pub calibration: CalibrationConfig,
     /// Authentication of commands and write-back (`[security]`).
     pub security: crate::security::SecurityConfig,
+    /// The `[ros2]` section as written (#43), read by `canodom-ros2`.
+    pub ros2: Option<toml::Table>,
 }
 
 impl Config {

@@ -41,6 +41,8 @@ pub enum Command {
     Config(config_init::ConfigArgs),
     /// SecOC key files: derive each party's keys from a master key.
     Keys(keys::KeysArgs),
+    /// GNSS fixes from a ROS 2 `sensor_msgs/NavSatFix` topic into a CSV for `calibrate --fixes`.
+    Ros2Fixes(canodom_ros2::fixes::FixesArgs),
 }
 
 impl Command {
@@ -60,6 +62,9 @@ impl Command {
             Self::Calib(a) => calib::execute(&a),
             Self::Config(a) => config_init::execute(&a),
             Self::Keys(a) => keys::execute(&a),
+            Self::Ros2Fixes(a) => canodom_ros2::fixes::execute(&a)
+                .map(drop)
+                .map_err(Into::into),
         }
     }
 }

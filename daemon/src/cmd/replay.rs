@@ -73,6 +73,9 @@ pub struct ReplayArgs {
     /// (default: beside --out, `<out stem>-truth/`, else `replay-truth/`).
     #[arg(long, requires = "truth", value_name = "DIR")]
     pub truth_report: Option<PathBuf>,
+    /// `--ros2`: the drive published on ROS 2 at its pace (#43).
+    #[command(flatten)]
+    pub ros2: canodom_ros2::replay::Ros2ReplayArgs,
 }
 
 /// `--params`: the current set of a parameter file, if one is given.
@@ -113,6 +116,11 @@ pub fn execute(args: &ReplayArgs) -> anyhow::Result<()> {
     let config = Config::load(&args.config)?;
     super::dbc_warnings(&config.db, args.strict)?;
     let params = load_params(args, &config)?;
+    if args.ros2.ros2 {
+        let log = (args.log.as_path(), args.interface.as_deref());
+        canodom_ros2::replay::execute(&args.ros2, &config, params.as_ref(), log)?;
+        return Ok(());
+    }
     let truth = match &args.truth {
         None => None,
         Some(path) => {

@@ -129,7 +129,15 @@ pub fn execute(args: &RunArgs) -> anyhow::Result<()> {
             path,
             every: Duration::from_secs_f64(args.state_every_s),
         });
-    let live = (args.record.is_some() || args.foxglove.is_some())
+    // `[ros2]` (#43): a DDS failure is a warning, and the pipeline never waits on it.
+    let ros2 = canodom_ros2::node::Node::from_config(&config).unwrap_or_else(|e| {
+        warn!(error = %e, "ROS 2 not started: the daemon goes on without it");
+        None
+    });
+    if let Some(node) = &ros2 {
+        info!(node = %node.describe, "ROS 2: publishing odometry, /tf and /diagnostics");
+    }
+    let live = (args.record.is_some() || args.foxglove.is_some() || ros2.is_some())
         .then(|| {
             let record = args.record.clone().map(|path| RecorderOptions {
                 max_bytes: args.record_max_mb.map(|mb| mb << 20),
@@ -142,6 +150,7 @@ pub fn execute(args: &RunArgs) -> anyhow::Result<()> {
                 foxglove: args.foxglove,
                 k_rear_m,
                 queue: 256,
+                forward: ros2.map(canodom_ros2::node::Node::into_forward),
             })
         })
         .transpose()?;

@@ -27,6 +27,10 @@ pub(super) struct RawConfig {
     /// `None` without a `[security]` section (secure defaults differ: #33).
     #[serde(default)]
     pub(super) security: Option<crate::security::RawSecurity>,
+    /// `[ros2]` (#43), kept as written: `canodom-ros2` reads it, so that the
+    /// DDS stack stays out of this crate.
+    #[serde(default)]
+    pub(super) ros2: Option<toml::Table>,
 }
 
 #[derive(Debug, Deserialize)]

@@ -398,3 +398,16 @@ fn param_file_check_names_key_path_and_one_os_reason() {
         assert!(std::error::Error::source(&e).is_none(), "printed once: {s}");
     }
 }
+
+#[test]
+fn the_ros2_section_is_kept_as_written_for_the_ros2_crate() {
+    // #43: pipeline does not read `[ros2]` (canodom-ros2 does), but must not
+    // refuse it as an unknown section.
+    let c = Config::from_toml(RC_CAR, &path()).unwrap();
+    assert_eq!(c.ros2, None);
+    let text = format!("{RC_CAR}\n[ros2]\nenabled = true\ndomain_id = 7\n");
+    let c = Config::from_toml(&text, &path()).unwrap();
+    let section = c.ros2.unwrap();
+    assert_eq!(section["enabled"].as_bool(), Some(true));
+    assert_eq!(section["domain_id"].as_integer(), Some(7));
+}

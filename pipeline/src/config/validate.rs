@@ -572,6 +572,7 @@ impl Validator<'_> {
                 },
             })?,
             calibration,
+            ros2: raw.ros2,
         })
     }
 }

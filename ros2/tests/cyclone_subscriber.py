@@ -1,0 +1,498 @@
+#!/usr/bin/env python3
+"""Interoperability of `canodom replay --ros2` with Eclipse Cyclone DDS (issue #43).
+
+A Cyclone DDS participant (PyPI `cyclonedds`, the DDS ROS 2 ships by default)
+with the ROS 2 message definitions as IDL subscribes to `/odom` (a reliable and
+a best-effort reader), `/tf` and `/diagnostics` on a domain of its own, over
+loopback only: unicast discovery with 127.0.0.1 as the one peer, multicast
+off, so nothing is sent but to 127.0.0.1. It starts `canodom replay --ros2` of
+a drive, then checks what arrived against `canodom replay`'s CSV of the same
+drive: every step, at the log's rate, with the CSV's pose (x, y, heading).
+
+Run as CI runs it (ros2/tests/cyclone.sh makes the venv):
+    python ros2/tests/cyclone_subscriber.py --canodom target/debug/canodom \
+        --config data/comma2k19-rav4/config.toml --log data/comma2k19-rav4/drive.log
+Exit 0 when every check passes; the measurements go to stdout.
+"""
+
+import argparse
+import csv
+import math
+import os
+import re
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+
+def cyclone_uri() -> str:
+    """Loopback only, no multicast, discovery by unicast to 127.0.0.1's well-known ports."""
+    return (
+        "<CycloneDDS><Domain Id='any'><General><Interfaces>"
+        "<NetworkInterface address='127.0.0.1'/></Interfaces>"
+        "<AllowMulticast>false</AllowMulticast></General>"
+        "<Discovery><Peers><Peer address='127.0.0.1'/></Peers>"
+        "<ParticipantIndex>auto</ParticipantIndex>"
+        "<MaxAutoParticipantIndex>20</MaxAutoParticipantIndex></Discovery>"
+        "</Domain></CycloneDDS>"
+    )
+
+
+# The environment must hold the configuration before the library starts a domain.
+os.environ["CYCLONEDDS_URI"] = cyclone_uri()
+
+from cyclonedds.core import Policy, Qos  # noqa: E402
+from cyclonedds.domain import DomainParticipant  # noqa: E402
+from cyclonedds.idl import IdlStruct  # noqa: E402
+from cyclonedds.idl.types import (  # noqa: E402
+    array,
+    float64,
+    int8,
+    int32,
+    sequence,
+    uint8,
+    uint16,
+    uint32,
+)
+from cyclonedds.pub import DataWriter  # noqa: E402
+from cyclonedds.sub import DataReader  # noqa: E402
+from cyclonedds.topic import Topic  # noqa: E402
+from cyclonedds.util import duration  # noqa: E402
+
+
+# ROS 2 message definitions as IDL (the names rosidl gives them on DDS).
+@dataclass
+class Time(IdlStruct, typename="builtin_interfaces::msg::dds_::Time_"):
+    sec: int32
+    nanosec: uint32
+
+
+@dataclass
+class Header(IdlStruct, typename="std_msgs::msg::dds_::Header_"):
+    stamp: Time
+    frame_id: str
+
+
+@dataclass
+class Point(IdlStruct, typename="geometry_msgs::msg::dds_::Point_"):
+    x: float64
+    y: float64
+    z: float64
+
+
+@dataclass
+class Vector3(IdlStruct, typename="geometry_msgs::msg::dds_::Vector3_"):
+    x: float64
+    y: float64
+    z: float64
+
+
+@dataclass
+class Quaternion(IdlStruct, typename="geometry_msgs::msg::dds_::Quaternion_"):
+    x: float64
+    y: float64
+    z: float64
+    w: float64
+
+
+@dataclass
+class Pose(IdlStruct, typename="geometry_msgs::msg::dds_::Pose_"):
+    position: Point
+    orientation: Quaternion
+
+
+@dataclass
+class PoseWithCovariance(IdlStruct, typename="geometry_msgs::msg::dds_::PoseWithCovariance_"):
+    pose: Pose
+    covariance: array[float64, 36]
+
+
+@dataclass
+class Twist(IdlStruct, typename="geometry_msgs::msg::dds_::Twist_"):
+    linear: Vector3
+    angular: Vector3
+
+
+@dataclass
+class TwistWithCovariance(IdlStruct, typename="geometry_msgs::msg::dds_::TwistWithCovariance_"):
+    twist: Twist
+    covariance: array[float64, 36]
+
+
+@dataclass
+class Odometry(IdlStruct, typename="nav_msgs::msg::dds_::Odometry_"):
+    header: Header
+    child_frame_id: str
+    pose: PoseWithCovariance
+    twist: TwistWithCovariance
+
+
+@dataclass
+class Transform(IdlStruct, typename="geometry_msgs::msg::dds_::Transform_"):
+    translation: Vector3
+    rotation: Quaternion
+
+
+@dataclass
+class TransformStamped(IdlStruct, typename="geometry_msgs::msg::dds_::TransformStamped_"):
+    header: Header
+    child_frame_id: str
+    transform: Transform
+
+
+@dataclass
+class TFMessage(IdlStruct, typename="tf2_msgs::msg::dds_::TFMessage_"):
+    transforms: sequence[TransformStamped]
+
+
+@dataclass
+class KeyValue(IdlStruct, typename="diagnostic_msgs::msg::dds_::KeyValue_"):
+    key: str
+    value: str
+
+
+@dataclass
+class DiagnosticStatus(IdlStruct, typename="diagnostic_msgs::msg::dds_::DiagnosticStatus_"):
+    level: uint8
+    name: str
+    message: str
+    hardware_id: str
+    values: sequence[KeyValue]
+
+
+@dataclass
+class DiagnosticArray(IdlStruct, typename="diagnostic_msgs::msg::dds_::DiagnosticArray_"):
+    header: Header
+    status: sequence[DiagnosticStatus]
+
+
+@dataclass
+class NavSatStatus(IdlStruct, typename="sensor_msgs::msg::dds_::NavSatStatus_"):
+    status: int8
+    service: uint16
+
+
+@dataclass
+class NavSatFix(IdlStruct, typename="sensor_msgs::msg::dds_::NavSatFix_"):
+    header: Header
+    status: NavSatStatus
+    latitude: float64
+    longitude: float64
+    altitude: float64
+    position_covariance: array[float64, 9]
+    position_covariance_type: uint8
+
+
+def ros2_qos(reliable: bool, depth: int) -> Qos:
+    """ROS 2's default profile (reliable) or its sensor-data profile (best effort)."""
+    return Qos(
+        Policy.Reliability.Reliable(duration(seconds=1))
+        if reliable
+        else Policy.Reliability.BestEffort,
+        Policy.Durability.Volatile,
+        Policy.History.KeepLast(depth),
+    )
+
+
+def stamp_us(header: Header) -> int:
+    return header.stamp.sec * 1_000_000 + header.stamp.nanosec // 1000
+
+
+def wrap(a: float) -> float:
+    return math.atan2(math.sin(a), math.cos(a))
+
+
+def config_with(config: Path, section: str, folder: Path) -> Path:
+    """A copy of `config` with `section` appended, its DBC path made absolute."""
+    text = config.read_text()
+
+    def absolute(m: re.Match) -> str:
+        return f'dbc = "{(config.parent / m.group(1)).resolve()}"'
+
+    text = re.sub(r'^dbc\s*=\s*"([^"]+)"', absolute, text, flags=re.M)
+    out = folder / "config.toml"
+    out.write_text(text + "\n" + section + "\n")
+    return out
+
+
+def reference(args, folder: Path) -> dict:
+    """`canodom replay`'s CSV rows by their time on the log's clock (µs)."""
+    out = folder / "reference.csv"
+    subprocess.run(
+        [args.canodom, "replay", "--config", args.config, args.log, "--out", out],
+        check=True,
+        stderr=subprocess.DEVNULL,
+    )
+    rows = {}
+    with out.open() as f:
+        for row in csv.DictReader(f):
+            t_us = round(float(row["t_unix_s"]) * 1e6)
+            rows[t_us] = (float(row["x_m"]), float(row["y_m"]), float(row["heading_rad"]))
+    return rows
+
+
+def run(args, qos_name: str, speed: float, rows: dict, folder: Path) -> list:
+    """One replay published with `qos_name`, received by every reader; the failures."""
+    failures = []
+    dp = DomainParticipant(args.domain)
+    odom_topic = Topic(dp, "rt/odom", Odometry)
+    readers = {
+        "reliable": DataReader(dp, odom_topic, qos=ros2_qos(True, 100)),
+        "best_effort": DataReader(dp, odom_topic, qos=ros2_qos(False, 100)),
+    }
+    tf_reader = DataReader(dp, Topic(dp, "rt/tf", TFMessage), qos=ros2_qos(True, 100))
+    diag_reader = DataReader(
+        dp, Topic(dp, "rt/diagnostics", DiagnosticArray), qos=ros2_qos(True, 10)
+    )
+    # The section's domain and discovery: the environment's are checked by the other run.
+    config = config_with(
+        Path(args.config),
+        f'[ros2]\nqos = "{qos_name}"\ndomain_id = {args.domain}\ndiscovery = "localhost"',
+        folder,
+    )
+    env = dict(os.environ)
+    env.pop("CYCLONEDDS_URI", None)
+    # The best-effort reader matches either writer; wait for both readers where both can match.
+    want = 2 if qos_name == "default" else 1
+    cmd = [
+        args.canodom, "replay", "--config", str(config), args.log, "--ros2",
+        "--ros2-wait", str(want), "--ros2-speed", str(speed),
+    ]
+    started = time.monotonic()
+    # Its log to a file: a pipe nobody reads while it runs would fill and stall it.
+    log = open(folder / f"replay-{qos_name}.log", "w+")
+    proc = subprocess.Popen(cmd, env=env, stderr=log, text=True)
+    received = {name: [] for name in readers}
+    tfs, diags = [], []
+    while True:
+        done = proc.poll() is not None
+        for name, reader in readers.items():
+            for s in reader.take(N=256):
+                received[name].append((time.monotonic(), s))
+        tfs.extend(tf_reader.take(N=256))
+        diags.extend(diag_reader.take(N=64))
+        if done:
+            # What the last writes put on the wire is in by now (the node lingers for acks).
+            time.sleep(0.5)
+            for name, reader in readers.items():
+                for s in reader.take(N=256):
+                    received[name].append((time.monotonic(), s))
+            tfs.extend(tf_reader.take(N=256))
+            diags.extend(diag_reader.take(N=64))
+            break
+        time.sleep(0.005)
+    log.seek(0)
+    stderr = log.read()
+    log.close()
+    # Samples only: Cyclone also hands over the writer's going away (InvalidSample).
+    received = {n: [(t, s) for t, s in v if isinstance(s, Odometry)] for n, v in received.items()}
+    tfs = [m for m in tfs if isinstance(m, TFMessage)]
+    diags = [m for m in diags if isinstance(m, DiagnosticArray)]
+    if proc.returncode != 0:
+        failures.append(f"canodom replay --ros2 exited {proc.returncode}: {stderr}")
+    steps = len(rows)
+    log_s = (max(rows) - min(rows)) / 1e6 if rows else 0.0
+    print(f"\n== /odom writer QoS {qos_name}, pace x{speed}: {steps} steps over {log_s:.3f} s of log "
+          f"(the log's rate x{speed}: {steps / log_s * speed if log_s else 0:.2f} Hz), run {time.monotonic() - started:.1f} s")
+    for line in stderr.splitlines():
+        if "replay:" in line:
+            print("   canodom:", line.strip())
+    for name, samples in received.items():
+        should = qos_name == "default" or name == "best_effort"
+        n = len(samples)
+        if n == 0:
+            print(f"  {name:11} reader: 0 samples" + ("" if should else " (as DDS wants: a reliable reader does not match a best-effort writer)"))
+            if should:
+                failures.append(f"{qos_name}: the {name} reader received nothing")
+            continue
+        span = samples[-1][0] - samples[0][0]
+        rate = (n - 1) / span if span > 0 else float("nan")
+        max_pos, max_head, missing = 0.0, 0.0, 0
+        frames = set()
+        got = {stamp_us(s.header) for _, s in samples}
+        lost = sorted(set(rows) - got)
+        if lost:
+            t0 = min(rows)
+            print(f"  {name:11} reader: steps not received (s after the first): "
+                  f"{[round((t - t0) / 1e6, 3) for t in lost[:10]]}")
+        for _, s in samples:
+            key = stamp_us(s.header)
+            frames.add((s.header.frame_id, s.child_frame_id))
+            if key not in rows:
+                missing += 1
+                continue
+            x, y, h = rows[key]
+            p = s.pose.pose.position
+            q = s.pose.pose.orientation
+            max_pos = max(max_pos, abs(p.x - x), abs(p.y - y))
+            max_head = max(max_head, abs(wrap(2 * math.atan2(q.z, q.w) - h)))
+        print(f"  {name:11} reader: {n} of {steps} samples, {rate:.2f} Hz received, "
+              f"max |dx|,|dy| {max_pos:.3g} m, max heading diff {max_head:.3g} rad, "
+              f"stamps not in the CSV {missing}, frames {sorted(frames)}")
+        if not should:
+            failures.append(f"{qos_name}: the {name} reader received {n} samples, expected none")
+        if missing:
+            failures.append(f"{qos_name}/{name}: {missing} stamps are no CSV step's")
+        if max_pos > 1e-9 or max_head > 1e-9:
+            failures.append(f"{qos_name}/{name}: poses differ from the CSV by {max_pos}, {max_head}")
+        # Reliable over loopback: every step. Best effort may lose some (UDP), not most.
+        least = steps if (name == "reliable") else int(0.95 * steps)
+        if n < least:
+            failures.append(f"{qos_name}/{name}: {n} of {steps} steps received (want >= {least})")
+        expected_rate = steps / log_s * speed if log_s else 0
+        if name == "reliable" and expected_rate and abs(rate / expected_rate - 1) > 0.05:
+            failures.append(f"{qos_name}/{name}: rate {rate:.2f} Hz, the log's is {expected_rate:.2f} Hz")
+    transforms = [t for m in tfs for t in m.transforms]
+    print(f"  /tf: {len(tfs)} messages; frames "
+          f"{sorted({(t.header.frame_id, t.child_frame_id) for t in transforms})}")
+    if transforms:
+        t = transforms[-1]
+        print(f"  last /tf: {t.header.frame_id} -> {t.child_frame_id} at "
+              f"{t.header.stamp.sec}.{t.header.stamp.nanosec:09d}: translation "
+              f"({t.transform.translation.x:.4f}, {t.transform.translation.y:.4f}), "
+              f"rotation z,w ({t.transform.rotation.z:.6f}, {t.transform.rotation.w:.6f})")
+    if len(tfs) < steps:
+        failures.append(f"{qos_name}: /tf {len(tfs)} of {steps} messages")
+    print(f"  /diagnostics: {len(diags)} messages (1 Hz over {log_s / speed:.1f} s)")
+    if diags:
+        d = diags[len(diags) // 2]
+        print(f"  one /diagnostics at {d.header.stamp.sec}.{d.header.stamp.nanosec:09d}:")
+        for st in d.status:
+            vals = ", ".join(f"{kv.key}={kv.value}" for kv in st.values)
+            print(f"    [{st.level}] {st.name}: {st.message} ({st.hardware_id}) {vals}")
+    if len(diags) < int(log_s / speed) - 2:
+        failures.append(f"{qos_name}: {len(diags)} /diagnostics over {log_s / speed:.1f} s")
+    del readers, tf_reader, diag_reader, dp
+    return failures
+
+
+def fixes_from_ros2(args, folder: Path) -> list:
+    """Cyclone publishes the RAV4 truth's first 30 s as NavSatFix at 1 Hz;
+    `canodom ros2-fixes` writes them as a CSV; `calibrate --fixes` gives the
+    same estimate from it as from the same fixes written straight to a file."""
+    failures = []
+    d = Path(args.config).parent
+    truth = list(csv.DictReader((d / "truth.csv").open()))
+    t0 = float(truth[0]["t_unix_s"])
+    picked = [r for k, r in enumerate(truth) if k % 20 == 0 and float(r["t_unix_s"]) - t0 <= 30]
+    # Local metres to WGS-84 near an arbitrary origin (east x, north y): the
+    # two paths share the latitudes and longitudes, whatever their accuracy.
+    lat0, lon0, r = 37.4, -122.1, 6_378_137.0
+    fixes = []
+    for row in picked:
+        t = float(row["t_unix_s"])
+        sec = int(t)
+        nanosec = int(round((t - sec) * 1e9))
+        lat = lat0 + math.degrees(float(row["y_m"]) / r)
+        lon = lon0 + math.degrees(float(row["x_m"]) / (r * math.cos(math.radians(lat0))))
+        fixes.append((sec, nanosec, lat, lon, 12.5))
+    direct = folder / "fixes-direct.csv"
+    with direct.open("w") as f:
+        f.write("t_unix_s,lat_deg,lon_deg,alt_m\n")
+        for sec, ns, lat, lon, alt in fixes:
+            f.write(f"{sec}.{ns:09d},{lat:.9f},{lon:.9f},{alt:.3f}\n")
+    via_ros2 = folder / "fixes-ros2.csv"
+    config = config_with(
+        Path(args.config),
+        f'[ros2]\ndomain_id = {args.domain}\ndiscovery = "localhost"\nfix_topic = "/fix"',
+        folder,
+    )
+    log = open(folder / "ros2-fixes.log", "w+")
+    proc = subprocess.Popen(
+        [args.canodom, "ros2-fixes", "--config", str(config), "--out", str(via_ros2),
+         "--count", str(len(fixes)), "--seconds", "60"],
+        stderr=log,
+    )
+    dp = DomainParticipant(args.domain)
+    writer = DataWriter(dp, Topic(dp, "rt/fix", NavSatFix), qos=ros2_qos(True, 100))
+    until = time.monotonic() + 30
+    while writer.get_publication_matched_status().current_count < 1 and time.monotonic() < until:
+        time.sleep(0.05)
+    time.sleep(0.3)
+    for sec, ns, lat, lon, alt in fixes:
+        writer.write(NavSatFix(
+            header=Header(stamp=Time(sec=sec, nanosec=ns), frame_id="gnss"),
+            status=NavSatStatus(status=0, service=1),
+            latitude=lat, longitude=lon, altitude=alt,
+            position_covariance=[0.25, 0, 0, 0, 0.25, 0, 0, 0, 1.0],
+            position_covariance_type=2,
+        ))
+        time.sleep(0.005)
+    try:
+        proc.wait(timeout=60)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+    log.seek(0)
+    print("\n== NavSatFix from Cyclone DDS to calibrate --fixes")
+    for line in log.read().splitlines():
+        if "ros2-fixes:" in line:
+            print("   canodom:", line.strip())
+    del writer, dp
+    got = via_ros2.read_text() if via_ros2.exists() else ""
+    want = direct.read_text()
+    print(f"  {len(fixes)} fixes published; the CSV written from ROS 2 "
+          f"{'equals' if got == want else 'differs from'} the one written directly")
+    if got != want:
+        failures.append("fixes: the CSV from ROS 2 differs from the fixes published")
+        return failures
+    # The drive's first 30 s, as the README's example calibrates it.
+    first = folder / "first.log"
+    with open(args.log) as src, first.open("w") as dst:
+        for line in src:
+            if float(line[1:18]) - t0 < 30:
+                dst.write(line)
+    estimates = []
+    for name, fixes_csv in (("direct", direct), ("ros2", via_ros2)):
+        out = subprocess.run(
+            [args.canodom, "calibrate", "--config", str(d / "config_yaw.toml"), "--fixes",
+             str(fixes_csv), "--out", str(folder / f"params-{name}.toml"), str(first)],
+            capture_output=True, text=True,
+        )
+        if out.returncode != 0:
+            failures.append(f"calibrate --fixes {name} exited {out.returncode}: {out.stderr[-2000:]}")
+            return failures
+        # The files' own names aside (each output names its parameter file).
+        estimates.append(out.stdout.replace(str(fixes_csv), "FIXES")
+                         .replace(f"params-{name}", "params"))
+    same = estimates[0] == estimates[1]
+    if not same:
+        import difflib
+        print("\n".join(difflib.unified_diff(
+            estimates[0].splitlines(), estimates[1].splitlines(), "direct", "ros2", lineterm="")))
+    print(f"  calibrate --fixes: the estimate from ROS 2's fixes "
+          f"{'is the same as' if same else 'differs from'} the file's")
+    for line in estimates[1].splitlines()[:12]:
+        print("   ", line)
+    if not same:
+        failures.append("fixes: calibrate gives another estimate from ROS 2's fixes")
+    return failures
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--canodom", required=True, help="the canodom binary")
+    p.add_argument("--config", required=True)
+    p.add_argument("--log", required=True)
+    p.add_argument("--domain", type=int, default=77, help="a DDS domain of the test's own")
+    p.add_argument("--speed", type=float, default=1.0, help="the default-QoS run's pace")
+    p.add_argument("--sensor-speed", type=float, default=2.0, help="the sensor-data run's pace")
+    args = p.parse_args()
+    with tempfile.TemporaryDirectory() as d:
+        folder = Path(d)
+        rows = reference(args, folder)
+        failures = run(args, "default", args.speed, rows, folder)
+        failures += run(args, "sensor_data", args.sensor_speed, rows, folder)
+        failures += fixes_from_ros2(args, folder)
+    print()
+    for f in failures:
+        print("FAIL:", f)
+    checks = 3
+    print(f"{0 if failures else checks} passed, {1 if failures else 0} failed")
+    return 1 if failures else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
