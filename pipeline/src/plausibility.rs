@@ -133,6 +133,15 @@ impl fmt::Display for Warning {
     }
 }
 
+/// "that signal" or "these signals", for `n` of them.
+fn signals_word(n: usize) -> &'static str {
+    if n == 1 {
+        "that signal"
+    } else {
+        "these signals"
+    }
+}
+
 /// What the odd-one-out test decided before the signals are judged
 /// against the rear wheels.
 enum OddOneOut {
@@ -651,11 +660,7 @@ impl Plausibility {
                  would tell). Check the configuration of {} (each warning above says how) and the rear tyres, \
                  and replay again before trusting the fused pose.",
                 what.join(", "),
-                if what.len() == 1 {
-                    "that signal"
-                } else {
-                    "these signals"
-                }
+                signals_word(what.len())
             ));
         }
         Some(format!(
@@ -663,11 +668,7 @@ impl Plausibility {
              The rear wheels are the reference here; fix the configuration of {} (each warning above says how) \
              and replay again before trusting the fused pose.",
             what.join(", "),
-            if what.len() == 1 {
-                "that signal"
-            } else {
-                "these signals"
-            }
+            signals_word(what.len())
         ))
     }
 }
