@@ -367,15 +367,14 @@ impl Aided {
         }
     }
 
-    /// One scalar measurement `z = h(x) + v` with innovation `nu`, sparse
-    /// Jacobian `h` (index, value) and variance `r`; considered states are
-    /// not updated. Returns the squared normalised innovation, or `None`
-    /// when it is beyond the gate (nothing changed then).
-    /// `H P Hᵀ` of a sparse row.
-    fn hph(&self, h: &[(usize, f64)]) -> f64 {
-        h.iter()
-            .map(|(i, hi)| hi * h.iter().map(|(j, hj)| self.p[*i][*j] * hj).sum::<f64>())
-            .sum()
+    /// `P Hᵀ` of a sparse row `h` (index, value), and `H P Hᵀ`.
+    fn projected(&self, h: &[(usize, f64)]) -> ([f64; N], f64) {
+        let mut ph = [0.0; N];
+        for (k, v) in ph.iter_mut().enumerate() {
+            *v = h.iter().map(|(j, hj)| self.p[k][*j] * hj).sum();
+        }
+        let hph = h.iter().map(|(j, hj)| hj * ph[*j]).sum();
+        (ph, hph)
     }
 
     /// The squared share of a window's turn the wheels miss beyond the
@@ -396,12 +395,13 @@ impl Aided {
             .clamp(floor, prior)
     }
 
+    /// One scalar measurement `z = h(x) + v` with innovation `nu`, sparse
+    /// Jacobian `h` (index, value) and variance `r`; considered states are
+    /// not updated. Returns the squared normalised innovation, or `None`
+    /// when it is beyond the gate (nothing changed then).
     fn update(&mut self, nu: f64, h: &[(usize, f64)], r: f64, gate_sigma: f64) -> Option<f64> {
-        let mut ph = [0.0; N];
-        for (k, v) in ph.iter_mut().enumerate() {
-            *v = h.iter().map(|(j, hj)| self.p[k][*j] * hj).sum();
-        }
-        let s = h.iter().map(|(j, hj)| hj * ph[*j]).sum::<f64>() + r;
+        let (ph, hph) = self.projected(h);
+        let s = hph + r;
         if !(s > 0.0 && s.is_finite()) {
             return None;
         }
@@ -715,7 +715,6 @@ fn close_window(cfg: &EkfConfig, ib: f64, st: &mut State) {
         let dist = a.win_distance_m;
         let predicted = turn * (1.0 + a.x[TREAD]) - a.x[RATIO] * dist * ib;
         let nu = a.win_wheel_turn_rad - predicted;
-        let unexplained_turn = a.tread_share_sq(cfg).sqrt() * turn;
         let unexplained_distance = cfg.ratio_walk * dist * ib;
         // A standing car's readings share one rounding offset: the state
         // `r` carries it, not `R` (`rounding_bound_radps` sets its prior).
@@ -741,14 +740,14 @@ fn close_window(cfg: &EkfConfig, ib: f64, st: &mut State) {
             + unexplained_distance * unexplained_distance
             + slip * slip
             + lag * lag;
-        let r = r_other + unexplained_turn * unexplained_turn;
+        let r = r_other + a.tread_share_sq(cfg) * turn * turn;
         let h = [
             (TH, 1.0 + a.x[TREAD]),
             (CLONE, -(1.0 + a.x[TREAD])),
             (TREAD, turn),
             (RATIO, -dist * ib),
         ];
-        let hph = a.hph(&h);
+        let (_, hph) = a.projected(&h);
         let res = a.update(nu, &h, r, cfg.yaw_gate_sigma);
         if res.is_some() && !a.win_all_still && turn.abs() >= TREAD_EVIDENCE_MIN_TURN_RAD {
             let cap = MAX_TREAD_EVIDENCE * cfg.tread_turn_sigma * cfg.tread_turn_sigma;
