@@ -133,6 +133,12 @@ impl fmt::Display for Warning {
     }
 }
 
+/// A magnitude ratio that tyre slip and a steering ratio a few per cent
+/// off can make (`SCALE_LIMIT`).
+fn plausible_ratio(ratio: f64) -> bool {
+    (1.0 / SCALE_LIMIT..=SCALE_LIMIT).contains(&ratio)
+}
+
 /// "that signal" or "these signals", for `n` of them.
 fn signals_word(n: usize) -> &'static str {
     if n == 1 {
@@ -374,7 +380,7 @@ impl Plausibility {
     }
 
     fn judge(&mut self, t_s: f64) {
-        let three_sources = self.steer.n() > 0 && self.yaw.n() > 0;
+        let three_sources = self.three_sources();
         let steer_due = match self.odd_one_out(t_s) {
             OddOneOut::Wait | OddOneOut::Warned => return,
             OddOneOut::NotTheRear { steer_due } => steer_due,
@@ -418,7 +424,7 @@ impl Plausibility {
                     ),
                     t_s,
                 });
-            } else if !(1.0 / SCALE_LIMIT..=SCALE_LIMIT).contains(&ratio) {
+            } else if !plausible_ratio(ratio) {
                 self.warnings.push(Warning {
                     signal: "signals.steering",
                     suspicion: Suspicion::Unit,
@@ -452,7 +458,7 @@ impl Plausibility {
                     ),
                     t_s,
                 });
-            } else if !(1.0 / SCALE_LIMIT..=SCALE_LIMIT).contains(&ratio) {
+            } else if !plausible_ratio(ratio) {
                 let hint = if (40.0..80.0).contains(&ratio) {
                     " (about 57: rad/s read as deg/s? `unit = \"deg/s\"`)"
                 } else if (1.0 / 80.0..1.0 / 40.0).contains(&ratio) {
@@ -477,8 +483,7 @@ impl Plausibility {
     /// With three sources, the odd-one-out test that comes before judging
     /// the steering and the gyro against the rear wheels.
     fn odd_one_out(&mut self, t_s: f64) -> OddOneOut {
-        let three_sources = self.steer.n() > 0 && self.yaw.n() > 0;
-        if !three_sources || self.judged_steer || self.judged_yaw {
+        if !self.three_sources() || self.judged_steer || self.judged_yaw {
             return OddOneOut::NotApplicable;
         }
         // Which one is off needs the steering against the gyro too; a gyro
@@ -497,17 +502,17 @@ impl Plausibility {
         OddOneOut::NotTheRear { steer_due }
     }
 
+    /// Both the steering and the gyro were compared with the rear wheels:
+    /// three sources of the turn, so the odd one out can be found.
+    fn three_sources(&self) -> bool {
+        self.steer.n() > 0 && self.yaw.n() > 0
+    }
+
     /// The steering and the gyro agree with each other (signs and
     /// magnitudes), and both disagree with the rear wheels.
     fn rear_is_the_odd_one_out(&self) -> bool {
-        let agree = |t: &Tally| {
-            t.disagree_share() < 1.0 - SIGN_SHARE
-                && (1.0 / SCALE_LIMIT..=SCALE_LIMIT).contains(&t.ratio())
-        };
-        let disagree = |t: &Tally| {
-            t.disagree_share() > SIGN_SHARE
-                || !(1.0 / SCALE_LIMIT..=SCALE_LIMIT).contains(&t.ratio())
-        };
+        let agree = |t: &Tally| t.disagree_share() < 1.0 - SIGN_SHARE && plausible_ratio(t.ratio());
+        let disagree = |t: &Tally| t.disagree_share() > SIGN_SHARE || !plausible_ratio(t.ratio());
         let [ev, vv, ee] = self.rear_excess;
         // A tyre's scale makes the rear wheels' extra turn grow with the
         // speed, the same in straights and either turn, and small: signs
@@ -652,7 +657,7 @@ impl Plausibility {
                 what.join(", ")
             ));
         }
-        if self.steer.n() == 0 || self.yaw.n() == 0 {
+        if !self.three_sources() {
             return Some(format!(
                 "diagnosis: this pose is likely wrong, not merely noisy: {} disagree with the rear wheels or the bus. \
                  With two sources of the turn canodom cannot tell which one is off: the rear wheels are taken as \
@@ -679,6 +684,31 @@ mod tests {
     use canodom_fusion::Pose;
     use canodom_fusion::ekf::WindowOutcome;
 
+    /// The detector of every test: a 2.7 m wheelbase, a 1.5 m rear tread, a
+    /// steering-wheel signal in degrees at a ratio of 15.
+    fn detector() -> Plausibility {
+        let map = SteeringMap {
+            gain: 1f64.to_radians() / 15.0,
+            offset_rad: 0.0,
+        };
+        Plausibility::new(2.7, 1.5, map)
+    }
+
+    /// A step at `t_s` with the rear-axle pose `odometry` (also the fused
+    /// one), the steering signal `steer` and the yaw rate `yaw_radps`.
+    fn step_at(t_s: f64, odometry: Pose, steer: f64, yaw_radps: f64) -> Step {
+        Step {
+            t_s,
+            t_us: (t_s * 1e6) as i64,
+            fused: odometry,
+            odometry,
+            rear_rev: (0.0, 0.0),
+            steer_signal: Some(steer),
+            correction: WindowOutcome::Open,
+            yaw_rate_radps: Some(yaw_radps),
+        }
+    }
+
     /// Steps of a left circle of radius `r` at `v`, the steering signal and
     /// yaw rate as `f` reports them.
     fn circle(r: f64, v: f64, f: impl Fn(f64, f64) -> (f64, f64), n: usize) -> Vec<Step> {
@@ -694,26 +724,13 @@ mod tests {
                 };
                 let phi = (2.7 / r).atan();
                 let (u, yaw) = f(phi.to_degrees() * 15.0, w);
-                Step {
-                    t_s: t,
-                    t_us: (t * 1e6) as i64,
-                    fused: odometry,
-                    odometry,
-                    rear_rev: (0.0, 0.0),
-                    steer_signal: Some(u),
-                    correction: WindowOutcome::Open,
-                    yaw_rate_radps: Some(yaw),
-                }
+                step_at(t, odometry, u, yaw)
             })
             .collect()
     }
 
     fn run(f: impl Fn(f64, f64) -> (f64, f64)) -> Plausibility {
-        let map = SteeringMap {
-            gain: 1f64.to_radians() / 15.0,
-            offset_rad: 0.0,
-        };
-        let mut p = Plausibility::new(2.7, 1.5, map);
+        let mut p = detector();
         for s in circle(30.0, 10.0, f, 600) {
             p.push(&s);
         }
@@ -735,10 +752,6 @@ mod tests {
     /// wheels" at 3 s.
     #[test]
     fn a_wheel_that_locks_or_spins_in_a_turn_does_not_warn() {
-        let map = SteeringMap {
-            gain: 1f64.to_radians() / 15.0,
-            offset_rad: 0.0,
-        };
         let (r, v, tread) = (30.0, 10.0, 1.5);
         let mut steps = circle(r, v, |u, w| (u, w), 600);
         // The rear pair's heading rate: a lock of the inner wheel for
@@ -754,7 +767,7 @@ mod tests {
             heading += rear_rate(k) * 0.01;
             s.odometry.heading_rad = heading;
         }
-        let mut p = Plausibility::new(2.7, 1.5, map);
+        let mut p = detector();
         for s in &steps {
             p.push(s);
         }
@@ -797,11 +810,7 @@ mod tests {
     #[test]
     fn a_magnitude_without_its_sign_is_named() {
         // A left then a right circle: the magnitude agrees only in the left.
-        let map = SteeringMap {
-            gain: 1f64.to_radians() / 15.0,
-            offset_rad: 0.0,
-        };
-        let mut p = Plausibility::new(2.7, 1.5, map);
+        let mut p = detector();
         let left = circle(30.0, 10.0, |u, w| (u, w), 400);
         let end = *left.last().unwrap();
         for s in &left {
@@ -872,26 +881,13 @@ mod tests {
                     heading_rad: th,
                 };
                 let phi = (2.7 * true_turn / v).atan();
-                Step {
-                    t_s: t,
-                    t_us: (t * 1e6) as i64,
-                    fused: odometry,
-                    odometry,
-                    rear_rev: (0.0, 0.0),
-                    steer_signal: Some(phi.to_degrees() * 15.0),
-                    correction: WindowOutcome::Open,
-                    yaw_rate_radps: Some(true_turn),
-                }
+                step_at(t, odometry, phi.to_degrees() * 15.0, true_turn)
             })
             .collect()
     }
 
     fn fed(steps: &[Step], with_yaw: bool) -> Plausibility {
-        let map = SteeringMap {
-            gain: 1f64.to_radians() / 15.0,
-            offset_rad: 0.0,
-        };
-        let mut p = Plausibility::new(2.7, 1.5, map);
+        let mut p = detector();
         for s in steps {
             let mut s = *s;
             if !with_yaw {
