@@ -651,9 +651,9 @@ impl Plausibility {
         {
             return Some(format!(
                 "diagnosis: this pose is likely wrong, not merely noisy: {}. The steering and the yaw rate \
-                 agree with each other and not with the rear wheels: the fused pose leans on what they say \
-                 (each wheel's scale is learnt), but the rear-only pose is off; fix or re-measure the tyre, \
-                 or commit a calibration, before trusting the rear wheels alone.",
+                 agree with each other and not with the rear wheels: the fused pose takes its heading from the \
+                 yaw rate, but the rear-only pose is off; fix or re-measure the tyre, or commit a calibration, \
+                 before trusting the rear wheels alone.",
                 what.join(", ")
             ));
         }
