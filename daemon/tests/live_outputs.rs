@@ -237,11 +237,9 @@ async fn ros2_subscribers_get_every_published_pose_as_odometry() {
     .resolve_with(|_| None)
     .unwrap();
     let node = Arc::new(Node::start(&ros2, config.ekf.k_rear_m).unwrap());
-    let participant = rustdds::DomainParticipantBuilder::new(153)
-        .with_only_networks([std::net::IpAddr::V4(std::net::Ipv4Addr::LOCALHOST)])
-        .same_host_loopback(true)
-        .build()
-        .unwrap();
+    let participant =
+        canodom_ros2::node::participant(153, canodom_ros2::config::DiscoveryRange::Localhost)
+            .unwrap();
     let qos = rustdds::QosPolicyBuilder::new()
         .reliability(Reliability::Reliable {
             max_blocking_time: rustdds::Duration::from_millis(100),

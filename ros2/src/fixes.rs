@@ -7,12 +7,12 @@
 //! publisher and a reliable one alike. A fix without a position
 //! (`status.status` −1, NaN latitude or longitude) is counted and left out.
 
-use crate::config::{DiscoveryRange, Resolved};
+use crate::config::Resolved;
 use crate::msg::{self, NavSatFix};
-use crate::node::{RawCdr, RawCdrAdapter};
+use crate::node::{RawCdr, RawCdrAdapter, dds, participant};
 use crate::{Error, Result};
 use rustdds::policy::{Durability, History, Reliability};
-use rustdds::{DomainParticipantBuilder, QosPolicyBuilder, TopicKind};
+use rustdds::{QosPolicyBuilder, TopicKind};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::mpsc::{self, Receiver, TrySendError};
@@ -96,18 +96,8 @@ impl FixSubscriber {
         let thread = std::thread::Builder::new()
             .name("ros2-fixes".into())
             .spawn(move || {
-                let dds =
-                    |what: &str, e: &dyn std::fmt::Display| Error::Dds(format!("{what}: {e}"));
                 let setup = || -> Result<_> {
-                    let mut builder = DomainParticipantBuilder::new(domain);
-                    if discovery == DiscoveryRange::Localhost {
-                        builder = builder
-                            .with_only_networks([std::net::IpAddr::V4(
-                                std::net::Ipv4Addr::LOCALHOST,
-                            )])
-                            .same_host_loopback(true);
-                    }
-                    let participant = builder.build().map_err(|e| dds("participant", &e))?;
+                    let participant = participant(domain, discovery)?;
                     let qos = QosPolicyBuilder::new()
                         .reliability(Reliability::BestEffort)
                         .durability(Durability::Volatile)

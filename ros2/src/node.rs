@@ -175,10 +175,15 @@ struct Writers {
     _participant: DomainParticipant,
 }
 
-fn create(config: &Resolved) -> Result<Writers> {
-    let dds = |what: &str, e: &dyn std::fmt::Display| Error::Dds(format!("{what}: {e}"));
-    let mut builder = DomainParticipantBuilder::new(config.domain_id);
-    if config.discovery == DiscoveryRange::Localhost {
+/// A DDS participant on `domain_id` with ROS 2's discovery `range`: the
+/// node's, the fix reader's and the tests' peers are all made here.
+///
+/// # Errors
+/// [`Error::Dds`] when the stack cannot open its sockets (no network, the
+/// domain's ports in use).
+pub fn participant(domain_id: u16, range: DiscoveryRange) -> Result<DomainParticipant> {
+    let mut builder = DomainParticipantBuilder::new(domain_id);
+    if range == DiscoveryRange::Localhost {
         // Loopback only: no multicast socket (Linux's `lo` has no MULTICAST
         // flag), locators advertised 127.0.0.1 only, and discovery announced
         // to the well-known unicast ports on 127.0.0.1.
@@ -186,9 +191,18 @@ fn create(config: &Resolved) -> Result<Writers> {
             .with_only_networks([std::net::IpAddr::V4(std::net::Ipv4Addr::LOCALHOST)])
             .same_host_loopback(true);
     }
-    let participant = builder
+    builder
         .build()
-        .map_err(|e| dds("creating the participant", &e))?;
+        .map_err(|e| dds("creating the participant", &e))
+}
+
+/// An error of the DDS stack while doing `what`.
+pub(crate) fn dds(what: &str, e: &dyn std::fmt::Display) -> Error {
+    Error::Dds(format!("{what}: {e}"))
+}
+
+fn create(config: &Resolved) -> Result<Writers> {
+    let participant = participant(config.domain_id, config.discovery)?;
     let publisher = participant
         .create_publisher(&QosPolicies::qos_none())
         .map_err(|e| dds("creating the publisher", &e))?;

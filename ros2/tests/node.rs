@@ -8,9 +8,9 @@ use canodom_pipeline::config::Config;
 use canodom_pipeline::pipeline::Pipeline;
 use canodom_ros2::config::{DiscoveryRange, Ros2Config};
 use canodom_ros2::msg::{self, Frames};
-use canodom_ros2::node::{Node, RawCdr, RawCdrAdapter};
+use canodom_ros2::node::{Node, RawCdr, RawCdrAdapter, participant};
 use rustdds::policy::{Durability, History, Reliability};
-use rustdds::{DomainParticipantBuilder, QosPolicyBuilder, TopicKind};
+use rustdds::{QosPolicyBuilder, TopicKind};
 use std::path::Path;
 use std::time::{Duration, Instant};
 
@@ -45,23 +45,23 @@ fn localhost(domain: u16) -> canodom_ros2::config::Resolved {
     .expect("valid")
 }
 
-#[test]
-fn a_subscriber_receives_the_recordings_odometry() {
-    const DOMAIN: u16 = 150;
-    let (samples, params, k_rear_m) = steps(50);
-    let node = Node::start(&localhost(DOMAIN), k_rear_m).expect("DDS starts on loopback");
-
-    let participant = DomainParticipantBuilder::new(DOMAIN)
-        .with_only_networks([std::net::IpAddr::V4(std::net::Ipv4Addr::LOCALHOST)])
-        .same_host_loopback(true)
-        .build()
-        .expect("a second participant");
+/// A reader of `rt/odom` in a participant of its own on `domain` (loopback),
+/// reliable, keeping the last `depth` samples; the participant must live as
+/// long as the reader.
+fn odom_reader(
+    domain: u16,
+    depth: i32,
+) -> (
+    rustdds::DomainParticipant,
+    rustdds::no_key::DataReader<RawCdr, RawCdrAdapter>,
+) {
+    let participant = participant(domain, DiscoveryRange::Localhost).expect("a second participant");
     let qos = QosPolicyBuilder::new()
         .reliability(Reliability::Reliable {
             max_blocking_time: rustdds::Duration::from_millis(100),
         })
         .durability(Durability::Volatile)
-        .history(History::KeepLast { depth: 100 })
+        .history(History::KeepLast { depth })
         .build();
     let topic = participant
         .create_topic(
@@ -71,10 +71,21 @@ fn a_subscriber_receives_the_recordings_odometry() {
             TopicKind::NoKey,
         )
         .expect("topic");
-    let subscriber = participant.create_subscriber(&qos).expect("subscriber");
-    let mut reader = subscriber
+    let reader = participant
+        .create_subscriber(&qos)
+        .expect("subscriber")
         .create_datareader_no_key::<RawCdr, RawCdrAdapter>(&topic, Some(qos))
         .expect("reader");
+    (participant, reader)
+}
+
+#[test]
+fn a_subscriber_receives_the_recordings_odometry() {
+    const DOMAIN: u16 = 150;
+    let (samples, params, k_rear_m) = steps(50);
+    let node = Node::start(&localhost(DOMAIN), k_rear_m).expect("DDS starts on loopback");
+
+    let (_participant, mut reader) = odom_reader(DOMAIN, 100);
     assert!(
         node.wait_for_subscribers(1, Duration::from_secs(30)),
         "the reader was not discovered over loopback"
@@ -141,11 +152,7 @@ fn fixes_published_on_ros2_reach_the_subscriber_as_csv_lines() {
     config.fix_topic = Some("rt/fix".to_owned());
     let fixes = FixSubscriber::start(&config).expect("DDS starts on loopback");
     // A GNSS driver's publisher: sensor-data QoS, another participant.
-    let participant = DomainParticipantBuilder::new(DOMAIN)
-        .with_only_networks([std::net::IpAddr::V4(std::net::Ipv4Addr::LOCALHOST)])
-        .same_host_loopback(true)
-        .build()
-        .expect("a second participant");
+    let participant = participant(DOMAIN, DiscoveryRange::Localhost).expect("a second participant");
     let qos = QosPolicyBuilder::new()
         .reliability(Reliability::BestEffort)
         .durability(Durability::Volatile)
@@ -217,31 +224,7 @@ fn latency_from_hand_over_to_a_reader() {
     const DOMAIN: u16 = 154;
     let (samples, params, k_rear_m) = steps(50);
     let node = Node::start(&localhost(DOMAIN), k_rear_m).expect("DDS starts on loopback");
-    let participant = DomainParticipantBuilder::new(DOMAIN)
-        .with_only_networks([std::net::IpAddr::V4(std::net::Ipv4Addr::LOCALHOST)])
-        .same_host_loopback(true)
-        .build()
-        .expect("a second participant");
-    let qos = QosPolicyBuilder::new()
-        .reliability(Reliability::Reliable {
-            max_blocking_time: rustdds::Duration::from_millis(100),
-        })
-        .durability(Durability::Volatile)
-        .history(History::KeepLast { depth: 10 })
-        .build();
-    let topic = participant
-        .create_topic(
-            "rt/odom".to_owned(),
-            msg::ODOMETRY_TYPE.to_owned(),
-            &qos,
-            TopicKind::NoKey,
-        )
-        .expect("topic");
-    let mut reader = participant
-        .create_subscriber(&qos)
-        .expect("subscriber")
-        .create_datareader_no_key::<RawCdr, RawCdrAdapter>(&topic, Some(qos))
-        .expect("reader");
+    let (_participant, mut reader) = odom_reader(DOMAIN, 10);
     assert!(node.wait_for_subscribers(1, Duration::from_secs(30)));
     let mut latencies = Vec::new();
     for k in 0..500 {
