@@ -14,13 +14,13 @@
 //! sender; this task handles everything still queued, waits for a store in
 //! flight (a commit is stored whole or not at all), and returns.
 
-use crate::live_calib::{LiveCalibration, Output};
 use canodom_calib::calibrator::{Job, JobOutcome};
 use canodom_calib::session::Phase;
 use canodom_calib::standstill::Standstill;
 use canodom_can::bus::{BusError, FrameSink};
 use canodom_can::frame::CanFrame;
 use canodom_can::time::Timestamp;
+use canodom_live::{LiveCalibration, Output};
 use canodom_params::persist::{ParamFile, ParamValues};
 use canodom_pipeline::gate::SecurityGate;
 use std::path::PathBuf;

@@ -7,7 +7,7 @@
 //! Layout:
 //! - [`cmd`]: the subcommands (run, decode, replay, calibrate, simulate, demo, calib).
 //! - [`server`]: the async daemon (link, odometry and calibration tasks), generic over the transport.
-//! - [`live_calib`]: the live calibration on the wire: CAN commands in, the calibrator's outputs as frames.
+//! - the live calibration on the wire (CAN commands in, the calibrator's outputs as frames) is the `canodom-live` crate.
 //! - [`calib_task`]: the calibration task: the live calibration, its stores and jobs off the frame path.
 //! - [`state_file`]: the state `run --state-file` keeps (periodically, durably) and what a start restores.
 //! - [`summary`]: what the run loop hands back, and what the state file is written from.
@@ -16,7 +16,6 @@
 
 pub mod calib_task;
 pub mod cmd;
-pub mod live_calib;
 pub mod progress;
 pub mod sd_notify;
 pub mod server;

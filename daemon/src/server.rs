@@ -25,7 +25,6 @@
 //! received is lost.
 
 use crate::calib_task::{CalibInput, CalibTask, OdometryLinks, lock, still_at};
-use crate::live_calib::LiveCalibration;
 use crate::sd_notify::Notifier;
 use canodom_can::bus::{
     BusError, BusEvent, FrameSink, FrameSource, IdFilter, InProcessBus, Received,
@@ -33,6 +32,7 @@ use canodom_can::bus::{
 use canodom_can::frame::{CanFrame, ErrorSeverity, FrameId};
 use canodom_can::time::Timestamp;
 use canodom_dbc::{Checksum, Database, SignalHandle};
+use canodom_live::LiveCalibration;
 use canodom_pipeline::config::{Config, FixSignals};
 use canodom_pipeline::gate::{Admit, SecurityGate};
 use canodom_pipeline::pipeline::{Outcome, Pipeline, Step};

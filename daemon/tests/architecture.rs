@@ -88,6 +88,22 @@ fn the_recordings_crate_leaves_the_runtime_to_the_daemon() {
 }
 
 #[test]
+fn the_live_calibration_is_a_state_machine() {
+    // The wire side of the calibrator takes bus timestamps and returns
+    // frames and effects to carry out: no runtime, no socket, no clock.
+    let text = std::fs::read_to_string(root().join("live/Cargo.toml")).unwrap();
+    let manifest: toml::Table = text.parse().unwrap();
+    let deps = manifest["dependencies"].as_table().unwrap();
+    for forbidden in ["tokio", "tokio-util", "socketcan", "canodom-ros2"] {
+        assert!(!deps.contains_key(forbidden), "live depends on {forbidden}");
+    }
+    let code = std::fs::read_to_string(root().join("live/src/lib.rs")).unwrap();
+    for clock in ["SystemTime::now", "Instant::now"] {
+        assert!(!code.contains(clock), "live reads the clock ({clock})");
+    }
+}
+
+#[test]
 fn the_dds_stack_stays_in_the_ros2_crate() {
     // ROS 2 (#43): only the binary uses `canodom-ros2`, and only it names
     // the DDS stack, so the libraries and the Python package build without

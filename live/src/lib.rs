@@ -661,7 +661,10 @@ mod tests {
     type Stored = Arc<Mutex<Vec<ParamFile>>>;
 
     fn config() -> Config {
-        let p = std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/examples/rc_car.toml"));
+        let p = std::path::Path::new(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../daemon/examples/rc_car.toml"
+        ));
         Config::load(p).unwrap()
     }
 
