@@ -193,7 +193,8 @@ fn main() -> Bench<()> {
     let frames = &all[..n];
     println!(
         "load: the RAV4 log's {log_rate:.0} frames/s run x{speed:.2} = {frames_per_s:.0} frames/s; \
-         {n} frames (~{seconds} s); machine load {}",
+         {n} frames ({:.1} s); machine load {}",
+        n as f64 / frames_per_s,
         std::fs::read_to_string("/proc/loadavg")
             .unwrap_or_default()
             .trim()
@@ -222,6 +223,15 @@ fn main() -> Bench<()> {
         .stdin(Stdio::piped())
         .stdout(Stdio::piped())
         .spawn()?;
+    // Its lines are read as they come: a pipe left unread fills (64 KiB,
+    // ~1,600 lines) and would hold the reader up.
+    let out = child.stdout.take().ok_or("the reader's stdout")?;
+    let collect = std::thread::spawn(move || {
+        std::io::BufReader::new(out)
+            .lines()
+            .map_while(Result::ok)
+            .collect::<Vec<String>>()
+    });
     let node = Node::start(&resolved, config.ekf.k_rear_m)?;
     if !node.wait_for_subscribers(1, Duration::from_secs(30)) {
         let _ = child.kill();
@@ -231,12 +241,9 @@ fn main() -> Bench<()> {
     let stats = node.finish();
     std::thread::sleep(Duration::from_millis(500));
     drop(child.stdin.take());
-    let mut lines = Vec::new();
-    if let Some(out) = child.stdout.take() {
-        for line in std::io::BufReader::new(out).lines() {
-            lines.push(line?);
-        }
-    }
+    let lines = collect
+        .join()
+        .map_err(|_| "the reader's collector panicked")?;
     child.wait()?;
     let mut latencies_ms: Vec<f64> = lines
         .iter()
