@@ -159,6 +159,58 @@ fn percentile(sorted: &[f64], p: f64) -> f64 {
     sorted[((sorted.len() - 1) as f64 * p).round() as usize]
 }
 
+/// The paced run with the node on and a reader in another process: the run,
+/// the node's counts and each received step's latency (ms).
+fn with_node(
+    config: &Config,
+    frames: &[(canodom_can::time::Timestamp, canodom_can::frame::CanFrame)],
+    speed: f64,
+) -> Bench<(Run, canodom_ros2::node::NodeStats, Vec<f64>)> {
+    let resolved = Ros2Config {
+        enabled: true,
+        domain_id: Some(DOMAIN),
+        discovery: Some(DiscoveryRange::Localhost),
+        ..Ros2Config::default()
+    }
+    .resolve_with(|_| None)?;
+    let mut child = Command::new(std::env::current_exe()?)
+        .args(["reader", &DOMAIN.to_string()])
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .spawn()?;
+    // Its lines are read as they come: a pipe left unread fills (64 KiB,
+    // ~1,600 lines) and would hold the reader up.
+    let out = child.stdout.take().ok_or("the reader's stdout")?;
+    let collect = std::thread::spawn(move || {
+        std::io::BufReader::new(out)
+            .lines()
+            .map_while(Result::ok)
+            .collect::<Vec<String>>()
+    });
+    let node = Node::start(&resolved, config.ekf.k_rear_m)?;
+    if !node.wait_for_subscribers(1, Duration::from_secs(30)) {
+        let _ = child.kill();
+        return Err("the reader did not match in 30 s".into());
+    }
+    let on = paced(config, frames, speed, Some(&node))?;
+    let stats = node.finish();
+    std::thread::sleep(Duration::from_millis(500));
+    drop(child.stdin.take());
+    let lines = collect
+        .join()
+        .map_err(|_| "the reader's collector panicked")?;
+    child.wait()?;
+    let latencies_ms: Vec<f64> = lines
+        .iter()
+        .filter_map(|l| {
+            let mut it = l.split_whitespace().map(|v| v.parse::<i128>().ok());
+            let (stamp, arrival) = (it.next()??, it.next()??);
+            on.fed.get(&stamp).map(|fed| (arrival - fed) as f64 / 1e6)
+        })
+        .collect();
+    Ok((on, stats, latencies_ms))
+}
+
 fn main() -> Bench<()> {
     let args: Vec<String> = std::env::args().collect();
     if args.get(1).map(String::as_str) == Some("reader") {
@@ -211,48 +263,7 @@ fn main() -> Bench<()> {
         100.0 * off.cpu_ns as f64 / 1e9 / off.wall_s
     );
 
-    let resolved = Ros2Config {
-        enabled: true,
-        domain_id: Some(DOMAIN),
-        discovery: Some(DiscoveryRange::Localhost),
-        ..Ros2Config::default()
-    }
-    .resolve_with(|_| None)?;
-    let mut child = Command::new(std::env::current_exe()?)
-        .args(["reader", &DOMAIN.to_string()])
-        .stdin(Stdio::piped())
-        .stdout(Stdio::piped())
-        .spawn()?;
-    // Its lines are read as they come: a pipe left unread fills (64 KiB,
-    // ~1,600 lines) and would hold the reader up.
-    let out = child.stdout.take().ok_or("the reader's stdout")?;
-    let collect = std::thread::spawn(move || {
-        std::io::BufReader::new(out)
-            .lines()
-            .map_while(Result::ok)
-            .collect::<Vec<String>>()
-    });
-    let node = Node::start(&resolved, config.ekf.k_rear_m)?;
-    if !node.wait_for_subscribers(1, Duration::from_secs(30)) {
-        let _ = child.kill();
-        return Err("the reader did not match in 30 s".into());
-    }
-    let on = paced(&config, frames, speed, Some(&node))?;
-    let stats = node.finish();
-    std::thread::sleep(Duration::from_millis(500));
-    drop(child.stdin.take());
-    let lines = collect
-        .join()
-        .map_err(|_| "the reader's collector panicked")?;
-    child.wait()?;
-    let mut latencies_ms: Vec<f64> = lines
-        .iter()
-        .filter_map(|l| {
-            let mut it = l.split_whitespace().map(|v| v.parse::<i128>().ok());
-            let (stamp, arrival) = (it.next()??, it.next()??);
-            on.fed.get(&stamp).map(|fed| (arrival - fed) as f64 / 1e6)
-        })
-        .collect();
+    let (on, stats, mut latencies_ms) = with_node(&config, frames, speed)?;
     latencies_ms.sort_by(f64::total_cmp);
     println!(
         "[ros2] on:  {} frames in {:.2} s ({:.0}/s), {} steps; CPU {:.3} s = {:.1} % of a core; \

@@ -401,7 +401,12 @@ mod tests {
             writers: vec![[2; 16]],
         };
         let mut jazzy = Vec::new();
-        encode_participant_entities([1; 16], &[node.clone()], GidBytes::Sixteen, &mut jazzy);
+        encode_participant_entities(
+            [1; 16],
+            std::slice::from_ref(&node),
+            GidBytes::Sixteen,
+            &mut jazzy,
+        );
         let mut want = vec![0, 1, 0, 0];
         want.extend([1; 16]);
         want.extend(1u32.to_le_bytes()); // one node
