@@ -52,7 +52,7 @@
 //! as DDS wants, does not match. Fast DDS 2.9 (Debian's libfastrtps, a C++
 //! subscriber, `ros2/tests/fastdds.sh`, same loopback setup): its reliable
 //! and best-effort readers get all 4,974 steps at 4x the pace, poses equal
-//! to the CSV's; its test takes ~26 s with the apt install and g++.
+//! to the CSV's; its test takes 26 s (g++, the replay at 4x) plus ~5 s of apt.
 //!
 //! At full CAN load (`cargo bench --bench load`: the RAV4 frames fed at
 //! 4,000 frames/s, a 500 kbit/s bus of 8-byte frames, 370 poses/s, through
