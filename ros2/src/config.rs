@@ -70,6 +70,10 @@ pub struct Ros2Config {
     /// Poses queued for the DDS thread at most; more are dropped and counted
     /// (default 64).
     pub queue: usize,
+    /// Bytes of a GID on ROS 2's graph topic `ros_discovery_info`: 16 for
+    /// Iron and later (Jazzy, the default), 24 for Humble. Only the tools'
+    /// view of the node (`ros2 node list`) depends on it, not the topics.
+    pub graph_gid_bytes: u8,
 }
 
 impl Default for Ros2Config {
@@ -88,6 +92,7 @@ impl Default for Ros2Config {
             base_frame: "base_link".to_owned(),
             qos: QosProfile::Default,
             queue: 64,
+            graph_gid_bytes: 16,
         }
     }
 }
@@ -117,6 +122,8 @@ pub struct Resolved {
     pub qos: QosProfile,
     /// The queue's capacity.
     pub queue: usize,
+    /// A GID's size on the graph topic.
+    pub graph_gid_bytes: crate::msg::GidBytes,
 }
 
 /// Whether `name` is a valid ROS 2 name segment list (letters, digits, `_`, `/`).
@@ -244,6 +251,15 @@ impl Ros2Config {
                 )));
             }
         }
+        let graph_gid_bytes = match self.graph_gid_bytes {
+            16 => crate::msg::GidBytes::Sixteen,
+            24 => crate::msg::GidBytes::TwentyFour,
+            other => {
+                return Err(Error::Config(format!(
+                    "[ros2] graph_gid_bytes {other}: ROS 2 has 16 (Iron and later) or 24 (Humble)"
+                )));
+            }
+        };
         if self.queue == 0 {
             return Err(Error::Config(
                 "[ros2] queue must hold at least 1 pose".into(),
@@ -268,6 +284,7 @@ impl Ros2Config {
             },
             qos: self.qos,
             queue: self.queue,
+            graph_gid_bytes,
         })
     }
 }

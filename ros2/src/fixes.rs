@@ -6,6 +6,12 @@
 //! The reader is best effort: it matches a GNSS driver's sensor-data
 //! publisher and a reliable one alike. A fix without a position
 //! (`status.status` −1, NaN latitude or longitude) is counted and left out.
+//!
+//! The fix's covariance, when its type is known, goes into the CSV as a
+//! fifth column `horiz_std_m` (empty when unknown): the geodetic CSV's
+//! reader ignores columns it does not know, so `calibrate` reads the file
+//! as before. The calibration does not weigh fixes by it yet: its `Fix`
+//! has no σ (every fix counts the same), which is the gap left.
 
 use crate::config::Resolved;
 use crate::msg::{self, NavSatFix};
@@ -63,8 +69,27 @@ pub fn has_position(fix: &NavSatFix) -> bool {
     fix.status >= 0 && fix.latitude.is_finite() && fix.longitude.is_finite()
 }
 
+/// `sensor_msgs/NavSatFix`'s `COVARIANCE_TYPE_UNKNOWN`.
+pub const COVARIANCE_TYPE_UNKNOWN: u8 = 0;
+
+/// The fix's horizontal standard deviation (m): the root of the mean of
+/// its east and north variances (`position_covariance[0]` and `[4]`, ENU
+/// as REP-145 has it), whether the driver gave the diagonal only
+/// (`DIAGONAL_KNOWN`), the whole matrix or an approximation from the DOP
+/// (`APPROXIMATED`). `None` when the type is unknown or the variances are
+/// not finite and non-negative.
+pub fn horizontal_std_m(fix: &NavSatFix) -> Option<f64> {
+    if fix.position_covariance_type == COVARIANCE_TYPE_UNKNOWN {
+        return None;
+    }
+    let (east, north) = (fix.position_covariance[0], fix.position_covariance[4]);
+    let ok = |v: f64| v.is_finite() && v >= 0.0;
+    (ok(east) && ok(north)).then(|| (0.5 * (east + north)).sqrt())
+}
+
 /// `fix` as a line of the geodetic CSV `calibrate --fixes` reads
-/// (`t_unix_s,lat_deg,lon_deg,alt_m`; an unknown altitude as 0).
+/// (`t_unix_s,lat_deg,lon_deg,alt_m,horiz_std_m`; an unknown altitude as 0,
+/// an unknown σ as an empty field).
 pub fn csv_line(fix: &NavSatFix) -> String {
     let t = f64::from(fix.stamp.sec) + f64::from(fix.stamp.nanosec) * 1e-9;
     let alt = if fix.altitude.is_finite() {
@@ -72,11 +97,17 @@ pub fn csv_line(fix: &NavSatFix) -> String {
     } else {
         0.0
     };
-    format!("{t:.9},{:.9},{:.9},{alt:.3}", fix.latitude, fix.longitude)
+    let std = horizontal_std_m(fix)
+        .map(|s| format!("{s:.3}"))
+        .unwrap_or_default();
+    format!(
+        "{t:.9},{:.9},{:.9},{alt:.3},{std}",
+        fix.latitude, fix.longitude
+    )
 }
 
 /// The CSV's header line.
-pub const CSV_HEADER: &str = "t_unix_s,lat_deg,lon_deg,alt_m";
+pub const CSV_HEADER: &str = "t_unix_s,lat_deg,lon_deg,alt_m,horiz_std_m";
 
 impl FixSubscriber {
     /// Subscribes to `config.fix_topic` on its own participant and thread.
@@ -211,7 +242,7 @@ pub struct FixesArgs {
     /// The topic, overriding `[ros2] fix_topic` (a ROS 2 name: `/fix`).
     #[arg(long)]
     pub topic: Option<String>,
-    /// Where the CSV goes (`t_unix_s,lat_deg,lon_deg,alt_m`).
+    /// Where the CSV goes (`t_unix_s,lat_deg,lon_deg,alt_m,horiz_std_m`).
     #[arg(long)]
     pub out: std::path::PathBuf,
     /// Stop this many seconds after the start.

@@ -187,6 +187,73 @@ pub fn encode_diagnostics(stamp: RosTime, frame_id: &str, status: &[Status], buf
     }
 }
 
+/// DDS type name of `rmw_dds_common/msg/ParticipantEntitiesInfo`, the
+/// message of ROS 2's graph topic [`GRAPH_TOPIC`].
+pub const PARTICIPANT_ENTITIES_INFO_TYPE: &str =
+    "rmw_dds_common::msg::dds_::ParticipantEntitiesInfo_";
+
+/// The DDS topic on which every ROS 2 participant says which nodes it holds
+/// and which readers and writers each node owns: what `ros2 node list` and
+/// `ros2 topic info -v` read (rmw's names are not prefixed `rt/`).
+pub const GRAPH_TOPIC: &str = "ros_discovery_info";
+
+/// A node's entry on the graph topic: its name and namespace and the GUIDs
+/// (16 bytes, the DDS GUID as rmw takes it) of its readers and writers.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct NodeEntities {
+    /// The node's namespace, absolute (`/` for none).
+    pub namespace: String,
+    /// The node's name.
+    pub name: String,
+    /// Its readers' GUIDs.
+    pub readers: Vec<[u8; 16]>,
+    /// Its writers' GUIDs.
+    pub writers: Vec<[u8; 16]>,
+}
+
+/// Appends a CDR `rmw_dds_common/msg/ParticipantEntitiesInfo` to `buf`:
+/// the participant's GUID and its nodes.
+///
+/// A GID is `char[gid_bytes] data`: 16 bytes since Iron (Jazzy, Kilted,
+/// Rolling: the DDS GUID), 24 in Humble (the GUID then zeros); rmw copies
+/// the GUID in either way, so only the padding differs.
+pub fn encode_participant_entities(
+    participant: [u8; 16],
+    nodes: &[NodeEntities],
+    gid_bytes: GidBytes,
+    buf: &mut Vec<u8>,
+) {
+    let mut w = Writer::new(buf);
+    let gid = |w: &mut Writer<'_>, g: &[u8; 16]| {
+        w.buf.extend_from_slice(g);
+        w.buf
+            .resize(w.buf.len() + (gid_bytes as usize - g.len()), 0);
+    };
+    gid(&mut w, &participant);
+    w.u32(nodes.len() as u32);
+    for n in nodes {
+        w.string(&n.namespace);
+        w.string(&n.name);
+        w.u32(n.readers.len() as u32);
+        for r in &n.readers {
+            gid(&mut w, r);
+        }
+        w.u32(n.writers.len() as u32);
+        for g in &n.writers {
+            gid(&mut w, g);
+        }
+    }
+}
+
+/// The size of a GID on ROS 2's graph topic, which differs by distribution.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum GidBytes {
+    /// `char[16]`: Iron and later (Jazzy, Kilted, Rolling).
+    Sixteen = 16,
+    /// `uint8[24]`: Humble and earlier.
+    TwentyFour = 24,
+}
+
 /// A `sensor_msgs/msg/NavSatFix`.
 #[derive(Clone, Debug, PartialEq)]
 pub struct NavSatFix {
@@ -322,6 +389,43 @@ mod tests {
     use super::*;
     use canodom_export::encode::{MessageSink, StepEncoder, Topic};
     use canodom_export::sample::FrameBuffer;
+
+    /// rmw_dds_common's layout: GID, then per node namespace, name, reader
+    /// GIDs, writer GIDs; a Humble GID is the same 16 bytes and 8 zeros.
+    #[test]
+    fn graph_message_is_rmw_dds_commons_layout() {
+        let node = NodeEntities {
+            namespace: "/".into(),
+            name: "cn".into(),
+            readers: vec![],
+            writers: vec![[2; 16]],
+        };
+        let mut jazzy = Vec::new();
+        encode_participant_entities(
+            [1; 16],
+            std::slice::from_ref(&node),
+            GidBytes::Sixteen,
+            &mut jazzy,
+        );
+        let mut want = vec![0, 1, 0, 0];
+        want.extend([1; 16]);
+        want.extend(1u32.to_le_bytes()); // one node
+        want.extend(2u32.to_le_bytes()); // "/" and its NUL
+        want.extend(b"/\0\0\0"); // padded to 4 for the next length
+        want.extend(3u32.to_le_bytes());
+        want.extend(b"cn\0\0");
+        want.extend(0u32.to_le_bytes()); // no readers
+        want.extend(1u32.to_le_bytes());
+        want.extend([2; 16]);
+        assert_eq!(jazzy, want);
+
+        let mut humble = Vec::new();
+        encode_participant_entities([1; 16], &[node], GidBytes::TwentyFour, &mut humble);
+        assert_eq!(humble.len(), jazzy.len() + 16);
+        assert_eq!(&humble[4..20], &[1; 16]);
+        assert_eq!(&humble[20..28], &[0; 8]);
+        assert_eq!(&humble[humble.len() - 24..humble.len() - 8], &[2; 16]);
+    }
 
     /// A sample as a replay's step gives it (values chosen, not computed).
     fn sample() -> StepSample {

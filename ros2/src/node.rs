@@ -7,9 +7,13 @@
 //! handed over, `diagnostic_msgs/DiagnosticArray` once a second (link,
 //! filter, pose quality, calibration, and the node's own drops).
 //!
-//! Not (yet) done: the `ros_discovery_info` topic through which `ros2 node
-//! list` names a node; ROS 2 tools see the topics (`ros2 topic list`,
-//! `ros2 topic echo`) but not the node's name.
+//! The node shows itself to ROS 2's tools as rmw does: one sample on
+//! `ros_discovery_info` (reliable, transient-local, keep last 1, so a tool
+//! started later still gets it) naming the participant's GUID and, for the
+//! node, its name, namespace and its writers' GUIDs; `ros2 node list` and
+//! `ros2 topic info -v` read that. Not done: the participant's user data
+//! `enclave=/;` that rmw sets (RustDDS 0.15 has no participant user data;
+//! rmw reads the enclave only for security, a node without one is listed).
 
 use crate::config::{DiscoveryRange, QosProfile, Resolved};
 use crate::msg::{self, Level, Status};
@@ -20,7 +24,7 @@ use rustdds::no_key::{DataWriter, SerializerAdapter};
 use rustdds::policy::{Durability, History, Reliability};
 use rustdds::{
     DataWriterStatus, DomainParticipant, DomainParticipantBuilder, QosPolicies, QosPolicyBuilder,
-    RepresentationIdentifier, StatusEvented, TopicKind,
+    RTPSEntity, RepresentationIdentifier, StatusEvented, TopicKind,
 };
 use std::sync::Arc;
 use std::sync::atomic::{AtomicI32, AtomicU64, Ordering};
@@ -171,6 +175,8 @@ struct Writers {
     odom: Writer,
     tf: Writer,
     diagnostics: Writer,
+    /// `ros_discovery_info`: written once, kept for late joiners.
+    graph: Writer,
     // Last: fields drop in order, and the writers go before their participant.
     _participant: DomainParticipant,
 }
@@ -218,16 +224,53 @@ fn create(config: &Resolved) -> Result<Writers> {
         QosProfile::Default => qos(true, 10),
         QosProfile::SensorData => qos(false, 5),
     };
+    let odom = writer(&config.odom_topic, msg::ODOMETRY_TYPE, odom_qos)?;
+    let tf = writer(&config.tf_topic, msg::TF_TYPE, qos(true, 100))?;
+    let diagnostics = writer(
+        &config.diagnostics_topic,
+        msg::DIAGNOSTICS_TYPE,
+        qos(true, 10),
+    )?;
+    // rmw's graph topic QoS: reliable, transient-local, keep last 1.
+    let graph_qos = QosPolicyBuilder::new()
+        .reliability(Reliability::Reliable {
+            max_blocking_time: rustdds::Duration::from_millis(100),
+        })
+        .durability(Durability::TransientLocal)
+        .history(History::KeepLast { depth: 1 })
+        .build();
+    let graph = writer(
+        msg::GRAPH_TOPIC,
+        msg::PARTICIPANT_ENTITIES_INFO_TYPE,
+        graph_qos,
+    )?;
+    let mut buf = Vec::with_capacity(256);
+    msg::encode_participant_entities(
+        participant.guid().to_bytes(),
+        &[graph_entry(config, &[&odom, &tf, &diagnostics])],
+        config.graph_gid_bytes,
+        &mut buf,
+    );
+    graph
+        .write(RawCdr(buf), None)
+        .map_err(|e| dds("writing ros_discovery_info", &e))?;
     Ok(Writers {
-        odom: writer(&config.odom_topic, msg::ODOMETRY_TYPE, odom_qos)?,
-        tf: writer(&config.tf_topic, msg::TF_TYPE, qos(true, 100))?,
-        diagnostics: writer(
-            &config.diagnostics_topic,
-            msg::DIAGNOSTICS_TYPE,
-            qos(true, 10),
-        )?,
+        odom,
+        tf,
+        diagnostics,
+        graph,
         _participant: participant,
     })
+}
+
+/// The node's entry on ROS 2's graph topic: its name, namespace and writers.
+fn graph_entry(config: &Resolved, writers: &[&Writer]) -> msg::NodeEntities {
+    msg::NodeEntities {
+        namespace: config.namespace.clone(),
+        name: config.node_name.clone(),
+        readers: Vec::new(),
+        writers: writers.iter().map(|w| w.guid().to_bytes()).collect(),
+    }
 }
 
 impl Node {
@@ -253,7 +296,12 @@ impl Node {
                     // best-effort samples leave within this, and reliable
                     // subscribers get to acknowledge theirs.
                     std::thread::sleep(LINGER);
-                    for w in [&writers.odom, &writers.tf, &writers.diagnostics] {
+                    for w in [
+                        &writers.odom,
+                        &writers.tf,
+                        &writers.diagnostics,
+                        &writers.graph,
+                    ] {
                         let _ = w.wait_for_acknowledgments(Duration::from_secs(1));
                     }
                 }

@@ -44,6 +44,7 @@ def cyclone_uri() -> str:
 # The environment must hold the configuration before the library starts a domain.
 os.environ["CYCLONEDDS_URI"] = cyclone_uri()
 
+from cyclonedds.builtin import BuiltinDataReader, BuiltinTopicDcpsPublication  # noqa: E402
 from cyclonedds.core import Policy, Qos  # noqa: E402
 from cyclonedds.domain import DomainParticipant  # noqa: E402
 from cyclonedds.idl import IdlStruct  # noqa: E402
@@ -184,6 +185,28 @@ class NavSatFix(IdlStruct, typename="sensor_msgs::msg::dds_::NavSatFix_"):
     altitude: float64
     position_covariance: array[float64, 9]
     position_covariance_type: uint8
+
+
+# ROS 2's graph topic (rmw_dds_common): Gid is char[16] since Iron (Jazzy), as canodom's default.
+@dataclass
+class Gid(IdlStruct, typename="rmw_dds_common::msg::dds_::Gid_"):
+    data: array[uint8, 16]
+
+
+@dataclass
+class NodeEntitiesInfo(IdlStruct, typename="rmw_dds_common::msg::dds_::NodeEntitiesInfo_"):
+    node_namespace: str
+    node_name: str
+    reader_gid_seq: sequence[Gid]
+    writer_gid_seq: sequence[Gid]
+
+
+@dataclass
+class ParticipantEntitiesInfo(
+    IdlStruct, typename="rmw_dds_common::msg::dds_::ParticipantEntitiesInfo_"
+):
+    gid: Gid
+    node_entities_info_seq: sequence[NodeEntitiesInfo]
 
 
 def ros2_qos(reliable: bool, depth: int) -> Qos:
@@ -369,6 +392,91 @@ def run(args, qos_name: str, speed: float, rows: dict, folder: Path) -> list:
     return failures
 
 
+def ros_graph(args, folder: Path) -> list:
+    """What `ros2 node list` / `ros2 topic info -v` read: canodom's sample on
+    `ros_discovery_info` names the node and its writers by GUID; the GUIDs must
+    be those DDS discovery reports for the `rt/...` writers of the same participant.
+    A second graph reader made once the node runs checks the sample is kept for
+    late joiners (transient-local), as tools start after the node."""
+    failures = []
+    dp = DomainParticipant(args.domain)
+    graph_qos = Qos(
+        Policy.Reliability.Reliable(duration(seconds=1)),
+        Policy.Durability.TransientLocal,
+        Policy.History.KeepLast(1),
+    )
+    graph_topic = Topic(dp, "ros_discovery_info", ParticipantEntitiesInfo)
+    early = DataReader(dp, graph_topic, qos=graph_qos)
+    odom = DataReader(dp, Topic(dp, "rt/car1/odom", Odometry), qos=ros2_qos(True, 100))
+    publications = BuiltinDataReader(dp, BuiltinTopicDcpsPublication)
+    config = config_with(
+        Path(args.config),
+        f'[ros2]\ndomain_id = {args.domain}\ndiscovery = "localhost"\nnode_name = "canodom_graph"\n'
+        'namespace = "/car1"',
+        folder,
+    )
+    env = dict(os.environ)
+    env.pop("CYCLONEDDS_URI", None)
+    log = open(folder / "replay-graph.log", "w+")
+    proc = subprocess.Popen(
+        [args.canodom, "replay", "--config", str(config), args.log, "--ros2",
+         "--ros2-wait", "1", "--ros2-speed", "20"],
+        env=env, stderr=log, text=True,
+    )
+    infos, endpoints, late, late_infos, odoms = [], [], None, [], 0
+    while True:
+        done = proc.poll() is not None
+        infos.extend(s for s in early.take(N=16) if isinstance(s, ParticipantEntitiesInfo))
+        endpoints.extend(publications.take(N=64))
+        got = [s for s in odom.take(N=256) if isinstance(s, Odometry)]
+        odoms += len(got)
+        if late is None and odoms > 0:
+            # The node has been up a while: a tool started now.
+            late = DataReader(dp, graph_topic, qos=graph_qos)
+        if late is not None:
+            late_infos.extend(s for s in late.take(N=16) if isinstance(s, ParticipantEntitiesInfo))
+        if done:
+            break
+        time.sleep(0.01)
+    log.close()
+    print("\n== ROS 2 graph (ros_discovery_info, what `ros2 node list` reads)")
+    ours = [e for e in endpoints if e.topic_name == "rt/car1/odom"]
+    if not ours:
+        failures.append("graph: DDS discovery reported no rt/car1/odom writer")
+        return failures
+    odom_ep = ours[0]
+    participant = odom_ep.participant_key.bytes
+    print(f"  DDS discovery: writer of {odom_ep.topic_name} ({odom_ep.type_name}) GUID {odom_ep.key.bytes.hex()}, "
+          f"participant {participant.hex()}")
+    mine = [i for i in infos if bytes(i.gid.data) == participant]
+    if not mine:
+        failures.append(f"graph: no ros_discovery_info sample with the participant's GID "
+                        f"(received {len(infos)} from {[bytes(i.gid.data).hex() for i in infos]})")
+        return failures
+    info = mine[-1]
+    nodes = [(n.node_namespace, n.node_name) for n in info.node_entities_info_seq]
+    print(f"  ros_discovery_info: participant GID {bytes(info.gid.data).hex()}, nodes {nodes}")
+    if nodes != [("/car1", "canodom_graph")]:
+        failures.append(f"graph: nodes {nodes}, expected [('/car1', 'canodom_graph')]")
+    node = info.node_entities_info_seq[0] if info.node_entities_info_seq else None
+    writer_gids = {bytes(g.data) for g in node.writer_gid_seq} if node else set()
+    by_topic = {e.topic_name: e.key.bytes for e in endpoints if e.participant_key.bytes == participant}
+    for topic in ("rt/car1/odom", "rt/tf", "rt/diagnostics"):
+        guid = by_topic.get(topic)
+        ok = guid is not None and guid in writer_gids
+        print(f"  writer {topic}: DDS GUID {guid.hex() if guid else None}, in the node's writer GIDs: {ok}")
+        if not ok:
+            failures.append(f"graph: the {topic} writer's GUID is not among the node's writer GIDs")
+    late_mine = [i for i in late_infos if bytes(i.gid.data) == participant]
+    print(f"  a graph reader made after the node started: {len(late_mine)} sample(s) (transient-local)")
+    if not late_mine:
+        failures.append("graph: a late-joining ros_discovery_info reader got nothing")
+    if proc.returncode != 0:
+        failures.append(f"graph: canodom replay --ros2 exited {proc.returncode}")
+    del early, late, odom, publications, dp
+    return failures
+
+
 def fixes_from_ros2(args, folder: Path) -> list:
     """Cyclone publishes the RAV4 truth's first 30 s as NavSatFix at 1 Hz;
     `canodom ros2-fixes` writes them as a CSV; `calibrate --fixes` gives the
@@ -391,9 +499,10 @@ def fixes_from_ros2(args, folder: Path) -> list:
         fixes.append((sec, nanosec, lat, lon, 12.5))
     direct = folder / "fixes-direct.csv"
     with direct.open("w") as f:
-        f.write("t_unix_s,lat_deg,lon_deg,alt_m\n")
+        # horiz_std_m: the published covariance's east/north 0.25 m² is σ 0.5 m.
+        f.write("t_unix_s,lat_deg,lon_deg,alt_m,horiz_std_m\n")
         for sec, ns, lat, lon, alt in fixes:
-            f.write(f"{sec}.{ns:09d},{lat:.9f},{lon:.9f},{alt:.3f}\n")
+            f.write(f"{sec}.{ns:09d},{lat:.9f},{lon:.9f},{alt:.3f},0.500\n")
     via_ros2 = folder / "fixes-ros2.csv"
     config = config_with(
         Path(args.config),
@@ -412,7 +521,15 @@ def fixes_from_ros2(args, folder: Path) -> list:
     while writer.get_publication_matched_status().current_count < 1 and time.monotonic() < until:
         time.sleep(0.05)
     time.sleep(0.3)
-    for sec, ns, lat, lon, alt in fixes:
+    for k, (sec, ns, lat, lon, alt) in enumerate(fixes):
+        if k == 5:
+            # A receiver without a fix (status -1): not a position, left out.
+            writer.write(NavSatFix(
+                header=Header(stamp=Time(sec=sec, nanosec=max(ns - 1000, 0)), frame_id="gnss"),
+                status=NavSatStatus(status=-1, service=1),
+                latitude=0.0, longitude=0.0, altitude=0.0,
+                position_covariance=[0.0] * 9, position_covariance_type=0,
+            ))
         writer.write(NavSatFix(
             header=Header(stamp=Time(sec=sec, nanosec=ns), frame_id="gnss"),
             status=NavSatStatus(status=0, service=1),
@@ -433,7 +550,7 @@ def fixes_from_ros2(args, folder: Path) -> list:
     del writer, dp
     got = via_ros2.read_text() if via_ros2.exists() else ""
     want = direct.read_text()
-    print(f"  {len(fixes)} fixes published; the CSV written from ROS 2 "
+    print(f"  {len(fixes)} fixes and one without a fix (status -1) published; the CSV written from ROS 2 "
           f"{'equals' if got == want else 'differs from'} the one written directly")
     if got != want:
         failures.append("fixes: the CSV from ROS 2 differs from the fixes published")
@@ -486,10 +603,11 @@ def main() -> int:
         failures = run(args, "default", args.speed, rows, folder)
         failures += run(args, "sensor_data", args.sensor_speed, rows, folder)
         failures += fixes_from_ros2(args, folder)
+        failures += ros_graph(args, folder)
     print()
     for f in failures:
         print("FAIL:", f)
-    checks = 3
+    checks = 4
     print(f"{0 if failures else checks} passed, {1 if failures else 0} failed")
     return 1 if failures else 0
 

@@ -198,7 +198,7 @@ fn fixes_published_on_ros2_reach_the_subscriber_as_csv_lines() {
     assert_eq!(first, fix(0, 0));
     assert_eq!(
         csv_line(&first),
-        "1533245256.500000000,37.400000000,-122.100000000,12.500"
+        "1533245256.500000000,37.400000000,-122.100000000,12.500,"
     );
     while fixes.recv_timeout(Duration::from_millis(100)).is_some() {}
     for (k, status) in [(1, 0), (2, -1), (3, 2)] {
@@ -212,6 +212,34 @@ fn fixes_published_on_ros2_reach_the_subscriber_as_csv_lines() {
     // The fix without a position (status -1) is counted, not passed on.
     assert_eq!(got, vec![1, 3]);
     assert_eq!(fixes.stats().no_fix, 1);
+}
+
+#[test]
+fn a_known_covariance_becomes_the_fixs_horizontal_sigma() {
+    use canodom_export::cdr::RosTime;
+    use canodom_ros2::fixes::{csv_line, horizontal_std_m};
+    let mut fix = msg::NavSatFix {
+        stamp: RosTime {
+            sec: 1_533_245_256,
+            nanosec: 0,
+        },
+        frame_id: "gnss".to_owned(),
+        status: 0,
+        service: 1,
+        latitude: 37.4,
+        longitude: -122.1,
+        altitude: 12.5,
+        // East 4 m², north 1 m², up 9 m² (DIAGONAL_KNOWN).
+        position_covariance: [4.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 9.0],
+        position_covariance_type: 2,
+    };
+    assert_eq!(horizontal_std_m(&fix), Some(2.5f64.sqrt()));
+    assert!(csv_line(&fix).ends_with(",12.500,1.581"));
+    fix.position_covariance_type = 0;
+    assert_eq!(horizontal_std_m(&fix), None);
+    fix.position_covariance_type = 1;
+    fix.position_covariance[0] = f64::NAN;
+    assert_eq!(horizontal_std_m(&fix), None);
 }
 
 /// Latency from [`Node::publish_pose`] to a reader's `take` in another
