@@ -58,6 +58,11 @@ GYRO = {"scale_max": 0.005, "noise_dps": (0.05, 0.15)}
 # Each wheel's radius error beyond the common one, within ±spread_max (see
 # draw_sensor_errors for what it does to the rear wheels' heading, and --wheel-spread-max).
 WHEELS = {"spread_max": 0.00025}
+# Long drives (--minutes): the route is chained, turn after straight as for a short drive,
+# until the time its segments plan (length / speed) reaches this many minutes; None keeps
+# the ~1.1 km drives. The draws of a short drive are unchanged (the same seed gives the
+# same drive), a long drive only draws more segments after them.
+ROUTE = {"minutes": None}
 
 HERE = Path(__file__).resolve().parent
 REPO = HERE.parent.parent
@@ -126,7 +131,9 @@ def make_plan(rng: np.random.Generator, veh: Vehicle):
     segs.append(Segment(first_len, 0.0, float(rng.uniform(9.0, 13.0))))
     total = first_len
     turn_dir = 1.0 if rng.random() < 0.5 else -1.0
-    while total < target_m:
+    planned_s = first_len / segs[0].speed_mps
+    minutes = ROUTE["minutes"]
+    while total < target_m or (minutes is not None and planned_s < 60.0 * minutes):
         # A turn: speed, lateral acceleration (<= 3.8 m/s^2), angle.
         v_turn = float(rng.uniform(5.5, 12.0))
         a_lat = float(rng.uniform(1.2, 3.4))
@@ -139,12 +146,16 @@ def make_plan(rng: np.random.Generator, veh: Vehicle):
         arc = max(5.0, angle * radius - ramp)
         segs.append(Segment(arc, turn_dir * kappa, v_turn, ramp))
         total += arc + ramp
+        planned_s += (arc + ramp) / v_turn
         # A straight or a gentle bend at a higher speed.
         if rng.random() < 0.75:
             length = float(rng.uniform(40.0, 160.0))
             k2 = 0.0 if rng.random() < 0.6 else float(rng.uniform(-1, 1)) / 250.0
             segs.append(Segment(length, k2, float(rng.uniform(9.0, 16.0)), float(rng.uniform(8.0, 15.0))))
             total += length
+            planned_s += length / segs[-1].speed_mps
+    if minutes is not None:
+        target_m = total
     # Trim so the route ends near the target.
     excess = total - target_m
     if excess > 0 and segs[-1].length_m - excess > 10:
@@ -405,6 +416,9 @@ def simulate(veh: Vehicle, seed: int, dt_max: float | None = None, control_dt: f
     dt_max = DT_MAX_S if dt_max is None else dt_max
     rng = np.random.default_rng(seed)
     segs, events, v0, straight_s, target_m = make_plan(rng, veh)
+    if ROUTE["minutes"] is not None:
+        # The driver slows for events and stops: leave room beyond the planned time.
+        t_limit = max(t_limit, 60.0 * ROUTE["minutes"] * 1.6 + 60.0)
     route = Route(segs)
     standing_s = straight_s if v0 == 0.0 else 0.0
     driver = Driver(p, route, events, v0, standing_s)
@@ -628,7 +642,8 @@ def stats(sim: dict, veh: Vehicle, err: SensorErrors) -> dict:
 def write_drive(veh: Vehicle, seed: int, out_dir: Path, compress: bool = True) -> dict:
     t_wall = time.time()
     cache = os.environ.get("MB_SIM_CACHE")
-    cached = Path(cache) / f"{veh.key}-{seed}.pkl" if cache else None
+    long_tag = f"-{ROUTE['minutes']:g}min" if ROUTE["minutes"] is not None else ""
+    cached = Path(cache) / f"{veh.key}-{seed}{long_tag}.pkl" if cache else None
     if cached is not None and cached.exists():
         sim = pickle.loads(cached.read_bytes())
     else:
@@ -662,6 +677,7 @@ def write_drive(veh: Vehicle, seed: int, out_dir: Path, compress: bool = True) -
         "events_setting": dict(EVENTS),
         "gyro_setting": dict(GYRO),
         "wheels_setting": dict(WHEELS),
+        "route_setting": dict(ROUTE),
         "model": "commonroad-vehicle-models 3.0.2 vehicle_dynamics_mb",
         "sensor_errors": dataclasses.asdict(err),
         "plan": sim["plan"],
@@ -739,7 +755,14 @@ def main(argv=None) -> int:
     ap.add_argument("--wheel-spread-max", type=float, default=WHEELS["spread_max"], metavar="REL",
                     help="each wheel's radius error beyond the common one is drawn within ±REL "
                     "(default %(default)s; 0 for wheels that differ in nothing but the common error)")
+    ap.add_argument("--minutes", type=float, default=None, metavar="MIN",
+                    help="a long drive: chain route segments until the plan lasts MIN minutes "
+                    "(e.g. 20; default: the ~1.1 km drive). Cost: the simulation's CPU grows with "
+                    "the drive's length; set MB_SIM_CACHE to keep the simulation and re-encode sensors")
     args = ap.parse_args(argv)
+    if args.minutes is not None and not 1.0 <= args.minutes <= 120.0:
+        ap.error(f"--minutes {args.minutes}: expected 1 <= MIN <= 120")
+    ROUTE.update(minutes=args.minutes)
     lo, hi = args.yaw_noise_dps
     if not 0.0 <= args.yaw_scale_max < 0.5:
         ap.error(f"--yaw-scale-max {args.yaw_scale_max}: expected 0 <= REL < 0.5")
