@@ -255,7 +255,7 @@ fn session(
     let mut reader = BufReader::new(stream);
     let mut line = String::new();
     let mut last_status = Instant::now();
-    let mut malformed_logged = Instant::now() - Duration::from_secs(60);
+    let mut malformed_logged: Option<Instant> = None;
     while !shared.stop.load(Ordering::Relaxed) {
         match reader.read_line(&mut line) {
             Ok(0) => {
@@ -281,9 +281,9 @@ fn session(
                     Ok(_) => {}
                     // One bad line is not a reason to drop the connection; logged at most every 10 s.
                     Err(e) => {
-                        if malformed_logged.elapsed() > Duration::from_secs(10) {
+                        if malformed_logged.is_none_or(|t| t.elapsed() > Duration::from_secs(10)) {
                             tracing::warn!(error = %e, "gpsd: line ignored");
-                            malformed_logged = Instant::now();
+                            malformed_logged = Some(Instant::now());
                         }
                         status.last_error = Some(e.to_string());
                     }

@@ -162,7 +162,7 @@ pub fn parse_iso8601_utc(text: &str) -> Result<f64, Error> {
     let body = text.strip_suffix('Z').ok_or_else(bad)?;
     let (date, time) = body.split_once('T').ok_or_else(bad)?;
     let mut d = date.splitn(3, '-');
-    let mut field = |it: &mut std::str::SplitN<'_, char>, lo: i64, hi: i64| {
+    let field = |it: &mut std::str::SplitN<'_, char>, lo: i64, hi: i64| {
         it.next()
             .filter(|s| !s.is_empty() && s.bytes().all(|b| b.is_ascii_digit()))
             .and_then(|s| s.parse::<i64>().ok())
