@@ -134,6 +134,41 @@ fn the_dds_stack_stays_in_the_ros2_crate() {
     }
 }
 
+#[test]
+fn the_gnss_crate_stands_alone_with_its_io_in_the_client() {
+    // Live GNSS (#46): `gnss` uses no workspace crate (so never the daemon)
+    // and no runtime, and its decoding, acceptance, backoff and status are
+    // pure: only `client` touches sockets and threads.
+    let text = std::fs::read_to_string(root().join("gnss/Cargo.toml")).unwrap();
+    let manifest: toml::Table = text.parse().unwrap();
+    let deps = manifest["dependencies"].as_table().unwrap();
+    for dep in deps.keys() {
+        assert!(!dep.starts_with("canodom"), "gnss depends on {dep}");
+        assert!(
+            !["tokio", "tokio-util", "socketcan"].contains(&dep.as_str()),
+            "gnss depends on {dep}"
+        );
+    }
+    for (module, text) in modules("gnss") {
+        if module == "client" {
+            continue;
+        }
+        for io in [
+            "std::net",
+            "std::thread",
+            "std::fs",
+            "TcpStream",
+            "Instant::now",
+            "SystemTime",
+        ] {
+            assert!(
+                !text.contains(io),
+                "gnss::{module} uses {io}: only gnss::client does I/O"
+            );
+        }
+    }
+}
+
 /// The modules of one crate's `src/`, by path (`cmd::calibrate`), with their
 /// non-test, non-comment text.
 fn modules(member: &str) -> BTreeMap<String, String> {

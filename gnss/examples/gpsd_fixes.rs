@@ -1,0 +1,50 @@
+//! Prints the fixes a gpsd delivers through [`canodom_gnss::GpsdClient`], one CSV
+//! line each (`fix,gnss_time_unix_s,lat_deg,lon_deg,sigma_m`), and status
+//! changes (`status,connected,reconnects,accepted`), for `gnss/tests/gpsfake.sh`.
+//!
+//! Usage: `gpsd_fixes ADDRESS SECONDS [MAX_ERROR_M]` (default 25 m, gpsd's 95 % estimate).
+
+use canodom_gnss::{Event, GpsdClient, GpsdClientConfig};
+use std::time::{Duration, Instant};
+
+fn main() -> Result<(), Box<dyn std::error::Error>> {
+    tracing_subscriber_init();
+    let mut args = std::env::args().skip(1);
+    let address = args.next().ok_or("usage: gpsd_fixes ADDRESS SECONDS")?;
+    let seconds: f64 = args
+        .next()
+        .ok_or("usage: gpsd_fixes ADDRESS SECONDS")?
+        .parse()?;
+    let max_error_m: f64 = args.next().map_or(Ok(25.0), |a| a.parse())?;
+    let start = Instant::now();
+    let client = GpsdClient::spawn(GpsdClientConfig::new(&address, max_error_m)?, start)?;
+    let mut last_connected = None;
+    while start.elapsed().as_secs_f64() < seconds {
+        match client.recv_timeout(Duration::from_millis(200)) {
+            Some(Event::Fix(f)) => println!(
+                "fix,{:.3},{:.9},{:.9},{}",
+                f.gnss_time_unix_s.unwrap_or(f64::NAN),
+                f.lat_deg,
+                f.lon_deg,
+                f.sigma_m.map_or(String::new(), |s| format!("{s:.3}"))
+            ),
+            Some(Event::Status(s)) if last_connected != Some(s.connected) => {
+                println!(
+                    "status,{},{},{},refused={:?},last_error_m={:?}",
+                    s.connected, s.reconnects, s.accepted, s.refused, s.last_error_m
+                );
+                last_connected = Some(s.connected);
+            }
+            _ => {}
+        }
+    }
+    Ok(())
+}
+
+/// The client's log (connects, losses, reconnects) to stderr, where the script reads it.
+fn tracing_subscriber_init() {
+    tracing_subscriber::fmt()
+        .with_writer(std::io::stderr)
+        .with_ansi(false)
+        .init();
+}
