@@ -84,9 +84,10 @@ const MIN_TREAD_SHARE: f64 = 0.002;
 /// A window turns enough to tell the share at this turn, rad (0.04 rad/s
 /// over a 0.5 s window).
 const TREAD_EVIDENCE_MIN_TURN_RAD: f64 = 0.02;
-/// One window's evidence is capped at this many times the configured
-/// share's square: a slip the tests missed must not hold the rest up.
-const MAX_TREAD_EVIDENCE: f64 = 4.0;
+/// One window's evidence (on the tread share or the model errors) is capped
+/// at this many times the configured variance: a slip the tests missed
+/// must not hold the rest up.
+const MAX_WINDOW_EVIDENCE: f64 = 4.0;
 
 /// How many windows the configured size of the wheels' model errors
 /// (unequal slip with acceleration, the gyro's lag, an unexplained share
@@ -418,9 +419,16 @@ impl Aided {
 
     /// One scalar measurement `z = h(x) + v` with innovation `nu`, sparse
     /// Jacobian `h` (index, value) and variance `r`; considered states are
-    /// not updated. Returns the squared normalised innovation, or `None`
-    /// when it is beyond the gate (nothing changed then).
-    fn update(&mut self, nu: f64, h: &[(usize, f64)], r: f64, gate_sigma: f64) -> Option<f64> {
+    /// not updated. Returns the squared normalised innovation and the
+    /// prior `H P Hᵀ`, or `None` when it is beyond the gate (nothing
+    /// changed then).
+    fn update(
+        &mut self,
+        nu: f64,
+        h: &[(usize, f64)],
+        r: f64,
+        gate_sigma: f64,
+    ) -> Option<(f64, f64)> {
         let (ph, hph) = self.projected(h);
         let s = hph + r;
         if !(s > 0.0 && s.is_finite()) {
@@ -449,7 +457,7 @@ impl Aided {
         }
         let (s_th, c_th) = self.x[TH].sin_cos();
         self.cs = (c_th, s_th);
-        Some(d2)
+        Some((d2, hph))
     }
 }
 
@@ -768,20 +776,23 @@ fn close_window(cfg: &EkfConfig, ib: f64, st: &mut State) {
             (TREAD, turn),
             (RATIO, -dist * ib),
         ];
-        let (_, hph) = a.projected(&h);
         let res = a.update(nu, &h, r, cfg.yaw_gate_sigma);
-        if res.is_some() && !a.win_all_still && turn.abs() >= TREAD_EVIDENCE_MIN_TURN_RAD {
-            let cap = MAX_TREAD_EVIDENCE * cfg.tread_turn_sigma * cfg.tread_turn_sigma;
-            a.tread_evidence
-                .add(((nu * nu - hph - r_other) / (turn * turn)).clamp(0.0, cap));
-        }
-        if res.is_some() && !a.win_all_still && r_model > r_wheel + r_share {
-            a.model_evidence
-                .add(((nu * nu - hph - r_wheel - r_share) / r_model).clamp(0.0, 4.0));
+        if let Some((_, hph)) = res
+            && !a.win_all_still
+        {
+            if turn.abs() >= TREAD_EVIDENCE_MIN_TURN_RAD {
+                let prior = cfg.tread_turn_sigma * cfg.tread_turn_sigma;
+                a.tread_evidence
+                    .add((nu * nu - hph - r_other) / (turn * turn), prior);
+            }
+            if r_model > r_wheel + r_share {
+                a.model_evidence
+                    .add((nu * nu - hph - r_wheel - r_share) / r_model, 1.0);
+            }
         }
         #[allow(clippy::single_match_else)]
         match res {
-            Some(d2) => {
+            Some((d2, _)) => {
                 straight_prior(cfg, ib, a);
                 st.last_mahalanobis_sq = d2;
                 st.stats.accepted += 1;
@@ -880,8 +891,10 @@ struct Evidence {
 }
 
 impl Evidence {
-    fn add(&mut self, excess: f64) {
-        self.sum += excess;
+    /// One window's `excess`, clamped to 0 ..= `MAX_WINDOW_EVIDENCE` times
+    /// the configured variance `prior`.
+    fn add(&mut self, excess: f64, prior: f64) {
+        self.sum += excess.clamp(0.0, MAX_WINDOW_EVIDENCE * prior);
         self.n += 1.0;
     }
 
@@ -1005,24 +1018,24 @@ mod tests {
         );
         // Windows whose wheels missed 1 % of the turn.
         for _ in 0..2000 {
-            a.tread_evidence.add(1e-4);
+            a.tread_evidence.add(1e-4, prior);
         }
         let share = a.tread_share_sq(&cfg).sqrt();
         assert!(share > 0.01 && share < 0.011, "{share}");
         // Wheels that turn exactly as the body: the floor, not 0.
         let mut exact = Aided::new(&cfg);
         for _ in 0..2000 {
-            exact.tread_evidence.add(0.0);
+            exact.tread_evidence.add(0.0, prior);
         }
         assert!(exact.tread_share_sq(&cfg).sqrt() < 0.005);
         for _ in 0..1_000_000 {
-            exact.tread_evidence.add(0.0);
+            exact.tread_evidence.add(0.0, prior);
         }
         assert!((exact.tread_share_sq(&cfg).sqrt() - MIN_TREAD_SHARE).abs() < 1e-12);
         // Windows that show more than the configuration: never above it.
         let mut loose = Aided::new(&cfg);
         for _ in 0..1000 {
-            loose.tread_evidence.add(4.0 * prior);
+            loose.tread_evidence.add(4.0 * prior, prior);
         }
         assert!((loose.tread_share_sq(&cfg) - prior).abs() < 1e-15);
     }
@@ -1036,7 +1049,7 @@ mod tests {
         );
         // Windows whose wheels carry a quarter of the configured errors.
         for _ in 0..3000 {
-            a.model_evidence.add(0.25);
+            a.model_evidence.add(0.25, 1.0);
         }
         assert!(
             (a.model_scale() - 0.25).abs() < 0.001,
@@ -1046,13 +1059,13 @@ mod tests {
         // Kinematic wheels: the floor, not 0.
         let mut exact = Aided::new(&road_car());
         for _ in 0..100_000 {
-            exact.model_evidence.add(0.0);
+            exact.model_evidence.add(0.0, 1.0);
         }
         assert!((exact.model_scale() - MIN_MODEL_SCALE).abs() < 1e-12);
         // More than configured: never above it.
         let mut loose = Aided::new(&road_car());
         for _ in 0..100 {
-            loose.model_evidence.add(4.0);
+            loose.model_evidence.add(4.0, 1.0);
         }
         assert!((loose.model_scale() - 1.0).abs() < 1e-15);
     }
