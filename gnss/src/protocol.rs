@@ -142,54 +142,22 @@ fn parse_tpv(line: &str, obj: &Map<String, Value>) -> Result<Tpv, Error> {
     })
 }
 
-/// Days from 1970-01-01 to a proleptic Gregorian date (H. Hinnant's algorithm).
-fn days_from_civil(year: i64, month: i64, day: i64) -> i64 {
-    let y = if month <= 2 { year - 1 } else { year };
-    let era = y.div_euclid(400);
-    let yoe = y - era * 400;
-    let mp = (month + 9) % 12;
-    let doy = (153 * mp + 2) / 5 + day - 1;
-    let doe = yoe * 365 + yoe / 4 - yoe / 100 + doy;
-    era * 146_097 + doe - 719_468
-}
-
-/// Parses gpsd's `YYYY-MM-DDTHH:MM:SS[.fff]Z` into seconds since the Unix epoch.
+/// Parses gpsd's `YYYY-MM-DDTHH:MM:SS[.fff]Z` into seconds since the Unix
+/// epoch (a leap second `:60` as the second after `:59`), with chrono's
+/// RFC 3339 parser held to what gpsd writes: UTC as `Z`, an upper-case `T`,
+/// at most nanoseconds.
 ///
 /// # Errors
-/// [`Error::BadTime`] for anything else (no time zone but `Z` is written by gpsd).
+/// [`Error::BadTime`] for anything else.
 pub fn parse_iso8601_utc(text: &str) -> Result<f64, Error> {
     let bad = || Error::BadTime(text.chars().take(64).collect());
     let body = text.strip_suffix('Z').ok_or_else(bad)?;
-    let (date, time) = body.split_once('T').ok_or_else(bad)?;
-    let mut d = date.splitn(3, '-');
-    let field = |it: &mut std::str::SplitN<'_, char>, lo: i64, hi: i64| {
-        it.next()
-            .filter(|s| !s.is_empty() && s.bytes().all(|b| b.is_ascii_digit()))
-            .and_then(|s| s.parse::<i64>().ok())
-            .filter(|v| (lo..=hi).contains(v))
-    };
-    let year = field(&mut d, 0, 9999).ok_or_else(bad)?;
-    let month = field(&mut d, 1, 12).ok_or_else(bad)?;
-    let day = field(&mut d, 1, 31).ok_or_else(bad)?;
-    let mut t = time.splitn(3, ':');
-    let hour = field(&mut t, 0, 23).ok_or_else(bad)?;
-    let minute = field(&mut t, 0, 59).ok_or_else(bad)?;
-    let sec_text = t.next().ok_or_else(bad)?;
-    let (whole, frac) = sec_text.split_once('.').unwrap_or((sec_text, ""));
-    if whole.len() != 2
-        || !whole.bytes().all(|b| b.is_ascii_digit())
-        || !frac.bytes().all(|b| b.is_ascii_digit())
-        || frac.len() > 9
-    {
+    let fraction_digits = body.split_once('.').map_or(0, |(_, f)| f.len());
+    if body.as_bytes().get(10) != Some(&b'T') || fraction_digits > 9 {
         return Err(bad());
     }
-    // A leap second is written as :60.
-    let seconds: f64 = sec_text.parse().map_err(|_| bad())?;
-    if !(0.0..61.0).contains(&seconds) {
-        return Err(bad());
-    }
-    let days = days_from_civil(year, month, day);
-    Ok((days * 86_400 + hour * 3_600 + minute * 60) as f64 + seconds)
+    let time = chrono::DateTime::parse_from_rfc3339(text).map_err(|_| bad())?;
+    Ok(time.timestamp() as f64 + f64::from(time.timestamp_subsec_nanos()) / 1e9)
 }
 
 #[cfg(test)]
@@ -272,6 +240,20 @@ mod tests {
         );
         assert!(parse_iso8601_utc("2000-03-01T00:00:00").is_err());
         assert!(parse_iso8601_utc("2000-13-01T00:00:00Z").is_err());
+        // A leap second, and what gpsd never writes.
+        assert_eq!(
+            parse_iso8601_utc("2016-12-31T23:59:60.5Z").ok(),
+            Some(1_483_228_800.5)
+        );
+        for other in [
+            "2024-05-01T12:00:01+01:00",
+            "2024-05-01 12:00:01Z",
+            "2024-05-01t12:00:01Z",
+            "2024-05-01T12:00:01.1234567891Z",
+            "2024-05-01T12:00:1Z",
+        ] {
+            assert!(parse_iso8601_utc(other).is_err(), "{other}");
+        }
     }
 
     proptest! {
@@ -282,19 +264,10 @@ mod tests {
 
         #[test]
         fn times_round_trip(secs in 0i64..4_102_444_800, millis in 0u32..1000) {
-            // Format with the inverse of days_from_civil (civil_from_days).
-            let days = secs.div_euclid(86_400);
-            let rem = secs.rem_euclid(86_400);
-            let z = days + 719_468;
-            let era = z.div_euclid(146_097);
-            let doe = z - era * 146_097;
-            let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
-            let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-            let mp = (5 * doy + 2) / 153;
-            let d = doy - (153 * mp + 2) / 5 + 1;
-            let m = if mp < 10 { mp + 3 } else { mp - 9 };
-            let y = yoe + era * 400 + i64::from(m <= 2);
-            let text = format!("{y:04}-{m:02}-{d:02}T{:02}:{:02}:{:02}.{millis:03}Z", rem / 3600, rem / 60 % 60, rem % 60);
+            let text = chrono::DateTime::from_timestamp(secs, millis * 1_000_000)
+                .expect("a time of this century")
+                .format("%Y-%m-%dT%H:%M:%S%.3fZ")
+                .to_string();
             let parsed = parse_iso8601_utc(&text).expect("formatted time");
             prop_assert!((parsed - (secs as f64 + f64::from(millis) / 1000.0)).abs() < 1e-6, "{text}");
         }
