@@ -229,19 +229,19 @@ pub fn encode_participant_entities(
         w.buf
             .resize(w.buf.len() + (gid_bytes as usize - g.len()), 0);
     };
+    let gids = |w: &mut Writer<'_>, list: &[[u8; 16]]| {
+        w.u32(list.len() as u32);
+        for g in list {
+            gid(w, g);
+        }
+    };
     gid(&mut w, &participant);
     w.u32(nodes.len() as u32);
     for n in nodes {
         w.string(&n.namespace);
         w.string(&n.name);
-        w.u32(n.readers.len() as u32);
-        for r in &n.readers {
-            gid(&mut w, r);
-        }
-        w.u32(n.writers.len() as u32);
-        for g in &n.writers {
-            gid(&mut w, g);
-        }
+        gids(&mut w, &n.readers);
+        gids(&mut w, &n.writers);
     }
 }
 
