@@ -98,6 +98,13 @@ const MODEL_PRIOR_WINDOWS: f64 = 3.0;
 /// taken to have.
 const MIN_MODEL_SCALE: f64 = 0.01;
 
+/// The least number of samples with a gyro reading, all on one step,
+/// that show a gyro whose noise does not dither its rounding: 0.3 s of an
+/// 80 Hz pipeline, about 15 fresh readings of a 50 Hz gyro. A gyro whose
+/// noise does dither it (σ ≥ 0.4 q: the rounding bound is below 5 % of
+/// `q/π`) reads 15 times on one step in under 3 % of its standstills.
+const MIN_ROUNDING_READINGS: f64 = 24.0;
+
 /// Number of states.
 pub(crate) const N: usize = 10;
 /// Indices into the state vector.
@@ -155,6 +162,8 @@ pub(crate) struct Aided {
     /// difference of their turns.
     win_gyro_first: f64,
     win_gyro_last: f64,
+    /// How many of the window's gyro readings lie off its first one's step.
+    win_gyro_off_step: f64,
     /// The rear axle centre's speed at the window's start, m/s.
     win_v0_mps: f64,
     /// The window's largest |tan φ| (steering, less its learnt offset).
@@ -209,6 +218,7 @@ impl Aided {
             win_gyro_sum: 0.0,
             win_gyro_sq: 0.0,
             win_gyro_first: 0.0,
+            win_gyro_off_step: 0.0,
             win_gyro_last: 0.0,
             win_v0_mps: 0.0,
             win_steer_max: 0.0,
@@ -326,6 +336,7 @@ impl Aided {
         self.win_gyro_n = 0.0;
         self.win_gyro_sum = 0.0;
         self.win_gyro_sq = 0.0;
+        self.win_gyro_off_step = 0.0;
         self.win_steer_max = 0.0;
         self.x[CLONE] = self.x[TH];
         for k in 0..N {
@@ -719,6 +730,9 @@ pub(crate) fn step(
             a.win_gyro_first = g;
         }
         a.win_gyro_last = g;
+        if (g - a.win_gyro_first).abs() > 0.5 * cfg.yaw_quantum_radps {
+            a.win_gyro_off_step += 1.0;
+        }
         a.win_gyro_n += 1.0;
         a.win_gyro_sum += g;
         a.win_gyro_sq += g * g;
@@ -734,7 +748,16 @@ fn close_window(cfg: &EkfConfig, ib: f64, st: &mut State) {
     let a = &mut st.aided;
     st.stats.corrections += 1;
     let outcome = if a.win_all_still && a.still_s < cfg.still_min_s {
-        // Wheels at 0 too briefly to rule out a crawl below their floor.
+        // Wheels at 0 too briefly to rule out a crawl below their floor:
+        // no measurement of the bias. But readings that all sit on one
+        // step of the sensor show a gyro whose noise does not dither its
+        // rounding, whatever the car did: its rounding bound is the whole
+        // `q/π` (`seed_rounding`). Readings that differ say less, since a
+        // crawl's rate may have moved them; they wait for a standstill or
+        // a straight.
+        if a.win_gyro_n >= MIN_ROUNDING_READINGS && a.win_gyro_off_step == 0.0 {
+            seed_rounding(cfg, a);
+        }
         WindowOutcome::NoFront
     } else if a.win_unusable {
         st.stats.rejected_used_front += 1;
@@ -949,6 +972,45 @@ mod tests {
             a.win_gyro_sq += g * g;
         }
         a
+    }
+
+    /// A window of `readings` (rad/s) while every wheel read 0 for `stand_s`.
+    fn closed_standstill(cfg: &EkfConfig, readings: &[f64], stand_s: f64) -> Aided {
+        let mut st = State::origin();
+        st.aided = with_readings(readings);
+        st.aided.win_gyro_first = readings[0];
+        st.aided.win_gyro_off_step = readings
+            .iter()
+            .filter(|g| (*g - readings[0]).abs() > 0.5 * cfg.yaw_quantum_radps)
+            .count() as f64;
+        st.aided.win_t_s = stand_s;
+        st.aided.still_s = stand_s;
+        close_window(cfg, 1.0 / 1.5, &mut st);
+        st.aided
+    }
+
+    #[test]
+    fn a_standstill_too_short_for_the_bias_still_shows_an_undithered_gyro() {
+        let mut cfg = road_car();
+        let q = 0.244f64.to_radians();
+        cfg.yaw_quantum_radps = q;
+        let short = 0.5 * cfg.still_min_s;
+        // A second standing (the opendbc drives start so): no bias
+        // measured, but readings all on one step give the rounding its
+        // whole bound (unseeded, the Toyota's turns counted their rounding
+        // as white noise and a drive ended 2.2 % off).
+        let one_step = closed_standstill(&cfg, &[-0.072f64.to_radians(); 40], short);
+        assert_eq!(one_step.x[BIAS], 0.0);
+        assert!((one_step.p[ROUND][ROUND].sqrt() - q / std::f64::consts::PI).abs() < 1e-12);
+        assert!((one_step.rounding_radps - q / std::f64::consts::PI).abs() < 1e-12);
+        // One reading a step off: the noise may dither it, or a crawl moved
+        // it; nothing is seeded.
+        let mut r = vec![-0.072f64.to_radians(); 40];
+        r[17] = 0.172f64.to_radians();
+        assert_eq!(closed_standstill(&cfg, &r, short).p[ROUND][ROUND], 0.0);
+        // Too few readings to tell.
+        let few = closed_standstill(&cfg, &[-0.072f64.to_radians(); 10], short);
+        assert_eq!(few.p[ROUND][ROUND], 0.0);
     }
 
     #[test]
