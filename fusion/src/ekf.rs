@@ -464,6 +464,40 @@ impl State {
         }
     }
 
+    /// This filter without the yaw-rate sensor, for a gyro found at fault
+    /// (its sign or unit wrong), restarted at `pose` (the rear wheels'
+    /// odometry at that instant): the wheels-only filter carries on from
+    /// there as if no gyro had been configured. Neither the aided pose nor
+    /// what the aided filter learnt against that gyro (bias, rear ratio,
+    /// effective tread) is kept: a sign-flipped Toyota gyro has turned the
+    /// heading the wrong way for the seconds it took to find it, and kept
+    /// in the aided filter without its readings its fitted terms ended 66 %
+    /// of an opendbc drive off. The covariance is the aided one's (the
+    /// wheels' own drift is not less); the wheels' own learning is kept;
+    /// the open correction window is dropped.
+    #[must_use]
+    pub fn without_yaw_rate(&self, pose: Pose) -> Self {
+        let Ok(handed_over) = Self::new(pose, self.covariance()) else {
+            // A non-finite pose or covariance: keep the filter as it is (the
+            // next step's numerical check reports a broken state).
+            return *self;
+        };
+        Self {
+            stats: self.stats,
+            slip_counts: self.slip_counts,
+            slip_flags: self.slip_flags,
+            last_mahalanobis_sq: self.last_mahalanobis_sq,
+            steer_offset_rad: self.steer_offset_rad,
+            steer_offset_var: self.steer_offset_var,
+            front_scale: self.front_scale,
+            front_scale_var: self.front_scale_var,
+            scales: self.scales.rebased(),
+            applied_ln_scale: self.applied_ln_scale,
+            applied_factor: self.applied_factor,
+            ..handed_over
+        }
+    }
+
     /// The pose estimate, heading wrapped to (−π, π].
     pub fn pose(&self) -> Pose {
         if self.aided_on {

@@ -770,10 +770,8 @@ impl Pipeline {
             self.steer_rad = Some(phi);
             self.steer_signal = steer_signal;
         }
-        match yaw_reading {
-            Some((w, true)) => self.yaw_saturated(w, t_s, &mut reasons),
-            Some((w, false)) => self.yaw_radps = Some(w / self.yaw_scale),
-            None => {}
+        if let Some(reading) = yaw_reading {
+            self.take_yaw(reading, t_s, &mut reasons);
         }
         if front {
             let fl = self.wheel(Wheel::FrontLeft, t_s, raws.front_left, &mut reasons);
@@ -806,6 +804,26 @@ impl Pipeline {
             && let Some(raw) = d.handle.raw(data)
         {
             self.reversing = d.is_reverse(raw);
+        }
+    }
+
+    /// A yaw-rate reading (rad/s, and whether it is at its range's end).
+    fn take_yaw(&mut self, (w_radps, saturated): (f64, bool), t_s: f64, reasons: &mut Reasons) {
+        if self.plausibility.yaw_rate_at_fault() {
+            // A gyro found at fault would turn the heading the wrong way (or
+            // 57 times too far) for the rest of the drive: the filter goes
+            // on with the wheels and the steering, from the rear wheels'
+            // pose (the aided one followed the gyro until it was found).
+            let state = &mut self.states[self.current];
+            if state.yaw_aided() {
+                *state = state.without_yaw_rate(self.odometry.pose());
+            }
+            self.yaw_radps = None;
+            Self::remark(&mut self.stats, reasons, Reject::YawImplausible);
+        } else if saturated {
+            self.yaw_saturated(w_radps, t_s, reasons);
+        } else {
+            self.yaw_radps = Some(w_radps / self.yaw_scale);
         }
     }
 

@@ -452,7 +452,8 @@ impl Plausibility {
                     flag: None,
                     message: format!(
                         "the yaw rate turns the other way than the rear wheels in {:.0} % of their {} turns: \
-                         a sign bit left out, or `yaw_rate_sign = -1` needed",
+                         a sign bit left out, or `yaw_rate_sign = -1` needed; its readings are not used from here on \
+                         (counted as yaw_implausible)",
                         100.0 * share,
                         if self.yaw.disagree[0] > self.yaw.disagree[1] { "left" } else { "right" },
                     ),
@@ -471,13 +472,24 @@ impl Plausibility {
                     suspicion: Suspicion::Unit,
                     flag: None,
                     message: format!(
-                        "the yaw rate is {ratio:.2} times the rear wheels' turn{hint}"
+                        "the yaw rate is {ratio:.2} times the rear wheels' turn{hint}; its readings are not used \
+                         from here on (counted as yaw_implausible)"
                     ),
                     t_s,
                 });
             }
             self.judged_yaw |= self.warnings.len() > before;
         }
+    }
+
+    /// The yaw-rate sensor was warned of for its sign or its unit: the
+    /// pipeline stops giving its readings to the filter (a range warning
+    /// is not this: the readings in range are right).
+    pub fn yaw_rate_at_fault(&self) -> bool {
+        self.warnings.iter().any(|w| {
+            w.signal == "signals.yaw_rate"
+                && matches!(w.suspicion, Suspicion::Sign | Suspicion::Unit)
+        })
     }
 
     /// With three sources, the odd-one-out test that comes before judging

@@ -39,11 +39,15 @@ pub enum Reject {
     /// its DBC signal's range: the sensor may be saturated, so the reading
     /// is not given to the filter (the rest of the frame is used).
     YawSaturated,
+    /// The yaw-rate sensor was found at fault (its sign or unit disagrees
+    /// with the rear wheels and, with a steering angle, with the steering
+    /// too): its readings are no longer given to the filter.
+    YawImplausible,
 }
 
 impl Reject {
     /// Every reason, in the order statistics print them.
-    pub const ALL: [Self; 13] = [
+    pub const ALL: [Self; 14] = [
         Self::UnknownId,
         Self::NotData,
         Self::Truncated,
@@ -57,6 +61,7 @@ impl Reject {
         Self::GateReject,
         Self::FilterError,
         Self::YawSaturated,
+        Self::YawImplausible,
     ];
 
     /// Short snake-case name for logs.
@@ -75,6 +80,7 @@ impl Reject {
             Self::GateReject => "gate_reject",
             Self::FilterError => "filter_error",
             Self::YawSaturated => "yaw_saturated",
+            Self::YawImplausible => "yaw_implausible",
         }
     }
 }

@@ -175,6 +175,78 @@ fn a_yaw_rate_at_its_dbc_range_is_not_used_and_warned_of_by_name() {
     );
 }
 
+/// A second of the Hyundai preset's messages at 50 Hz on a left circle at
+/// `speed_mps` and `yaw_dps`, the steering at the angle that circle takes,
+/// the gyro reading `gyro_dps`. The last step's (fused, rear-only) headings.
+fn hyundai_circle_second(
+    bus: &mut Bus<'_>,
+    speed_mps: f64,
+    yaw_dps: f64,
+    gyro_dps: f64,
+) -> Option<(f64, f64)> {
+    let s = bus.config.signals;
+    let p = bus.config.params;
+    let kph = 3.6 * speed_mps;
+    let half = yaw_dps.to_radians() * p.rear_tread_m() / 2.0 * 3.6;
+    let road_wheel_rad = (yaw_dps.to_radians() * p.wheelbase_m() / speed_mps).atan();
+    let map = p.steering();
+    let steer = (road_wheel_rad - map.offset_rad) / map.gain;
+    let yaw = s.yaw_rate.unwrap().signal.form;
+    let mut last = None;
+    for _ in 0..50 {
+        bus.t_us += 20_000;
+        bus.send("SAS11", &[(s.steering.form, steer)]);
+        bus.send("ESP12", &[(yaw, gyro_dps)]);
+        if let Outcome::Step(step, _) = bus.send(
+            "WHL_SPD11",
+            &[
+                (s.wheels.rear_left.form, kph - half),
+                (s.wheels.rear_right.form, kph + half),
+                (s.wheels.front_left.form, kph - half),
+                (s.wheels.front_right.form, kph + half),
+            ],
+        ) {
+            last = Some((step.fused.heading_rad, step.odometry.heading_rad));
+        }
+    }
+    last
+}
+
+#[test]
+fn a_gyro_of_the_wrong_sign_is_named_and_the_wheels_carry_on_without_it() {
+    let c = config("hyundai.toml", |t| t);
+    let mut bus = Bus::new(&c);
+    bus.gear("LVR12.CF_Lvr_Gear", false);
+    // A 23 m circle at 8 m/s: the wheels and the steering turn left, the
+    // gyro (its sign configured the other way) right.
+    let mut headings = None;
+    for _ in 0..12 {
+        headings = hyundai_circle_second(&mut bus, 8.0, 20.0, -20.0);
+    }
+    let warnings = bus.pipeline.plausibility_warnings();
+    let w = warnings
+        .iter()
+        .find(|w| w.signal == "signals.yaw_rate")
+        .unwrap_or_else(|| panic!("no gyro warning: {warnings:?}"));
+    assert_eq!(w.suspicion, Suspicion::Sign, "{w}");
+    assert!(w.message.contains("not used from here on"), "{w}");
+    assert!(
+        warnings.iter().all(|w| w.signal == "signals.yaw_rate"),
+        "the steering and the wheels were right: {warnings:?}"
+    );
+    assert!(bus.pipeline.stats().get(Reject::YawImplausible) > 0);
+    // From the warning on, the fused heading is the wheels': 240° of turn
+    // in 12 s, where the gyro said −240°.
+    let (fused, rear) = headings.unwrap();
+    assert!(rear.to_degrees() > 200.0, "{}", rear.to_degrees());
+    assert!(
+        (fused - rear).abs().to_degrees() < 1.0,
+        "fused {:.1}°, rear wheels {:.1}°",
+        fused.to_degrees(),
+        rear.to_degrees()
+    );
+}
+
 /// Each gyro its DBC carries, read from the preset's DBC (the line added
 /// where the preset leaves it off, as `[signals] yaw_rate` would say it).
 #[test]

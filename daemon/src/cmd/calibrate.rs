@@ -186,10 +186,15 @@ fn input_faults(pipeline: &Pipeline) -> u64 {
     Reject::ALL
         .iter()
         .filter(|r| {
-            // A saturated yaw rate is no fault of the wheels this fits.
+            // A saturated or distrusted yaw rate is no fault of the wheels
+            // this fits.
             !matches!(
                 r,
-                Reject::UnknownId | Reject::NotData | Reject::GateReject | Reject::YawSaturated
+                Reject::UnknownId
+                    | Reject::NotData
+                    | Reject::GateReject
+                    | Reject::YawSaturated
+                    | Reject::YawImplausible
             )
         })
         .map(|&r| pipeline.stats().get(r))
