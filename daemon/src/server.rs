@@ -306,7 +306,7 @@ pub async fn run<C: Connector>(
     let link_handle = tracker.spawn(link.run());
     let odom_commands = OdomCommands::new(own.database(), config.calibration.arming_code)
         .map_err(canodom_protocol::pose_frames::PoseEncodeError::from)?;
-    let (calib, links) = CalibTask::new(
+    let (mut calib, links) = CalibTask::new(
         live,
         Arc::clone(&security),
         sink_rx.clone(),
@@ -314,6 +314,18 @@ pub async fn run<C: Connector>(
         config.calibration.param_file.clone(),
         report_root(&config.calibration.param_file),
     );
+    // `[gnss]`: a source that cannot start is a warning; the daemon goes on.
+    let gnss = config.gnss.as_ref().and_then(|g| {
+        crate::gnss_task::Forwarder::start(&config, g, links.clock.subscribe(), token.clone())
+            .inspect_err(
+                |e| warn!(error = %e, "GNSS source not started: the daemon goes on without it"),
+            )
+            .ok()
+    });
+    let gnss_handle = gnss.map(|(forwarder, gnss_links)| {
+        calib.gnss = Some(gnss_links.fixes);
+        tracker.spawn_blocking(move || forwarder.run())
+    });
     let calib_handle = tracker.spawn(calib.run());
     let (state_out, state_handle) = match &observers.state_file {
         None => (None, None),
@@ -377,6 +389,9 @@ pub async fn run<C: Connector>(
         .map_err(|e| RunError::Task(e.to_string()))?;
     if let Some(handle) = state_handle {
         summary.state_file = handle.await.map_err(|e| RunError::Task(e.to_string()))?;
+    }
+    if let Some(handle) = gnss_handle {
+        summary.gnss = Some(handle.await.map_err(|e| RunError::Task(e.to_string()))?);
     }
     summary.connections = connections;
     summary.outages = outages.load(Ordering::Relaxed);
@@ -894,6 +909,7 @@ impl<Tx: FrameSink + Clone> OdometryTask<Tx> {
             params: self.pipeline.params_in_use(),
             param_identity: self.pipeline.param_identity(),
             state_file: None,
+            gnss: None,
         }
     }
 

@@ -18,6 +18,7 @@ mod dbc_tools;
 mod drive_session;
 mod follow_session;
 mod gnss_drive;
+mod gnss_live;
 mod install;
 mod live_outputs;
 mod log_refusal;
