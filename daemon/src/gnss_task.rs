@@ -63,6 +63,23 @@ pub struct GnssSummary {
     pub last_latency_s: Option<f64>,
 }
 
+impl GnssSummary {
+    /// The state the diagnostics show (ROS 2 `/diagnostics`).
+    pub fn state(&self) -> canodom_export::sample::GnssState {
+        let s = &self.status;
+        canodom_export::sample::GnssState {
+            connected: s.connected,
+            fixes_per_s: s.fixes_per_s,
+            last_error_m: s.last_error_m,
+            accepted: s.accepted,
+            refused: s.refused,
+            forwarded: self.forwarded,
+            dropped: self.dropped + self.before_bus + s.dropped,
+            reconnects: s.reconnects,
+        }
+    }
+}
+
 /// The bus time of an instant `receipt`: the last frame's bus timestamp
 /// plus the time from that frame's arrival to `receipt` (minus, when
 /// `receipt` came first). `None` before the first frame.

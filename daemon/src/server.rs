@@ -322,10 +322,15 @@ pub async fn run<C: Connector>(
             )
             .ok()
     });
-    let gnss_handle = gnss.map(|(forwarder, gnss_links)| {
-        calib.gnss = Some(gnss_links.fixes);
-        tracker.spawn_blocking(move || forwarder.run())
-    });
+    let (gnss_handle, gnss_status) = gnss
+        .map(|(forwarder, gnss_links)| {
+            calib.gnss = Some(gnss_links.fixes);
+            (
+                tracker.spawn_blocking(move || forwarder.run()),
+                gnss_links.status,
+            )
+        })
+        .unzip();
     let calib_handle = tracker.spawn(calib.run());
     let (state_out, state_handle) = match &observers.state_file {
         None => (None, None),
@@ -363,6 +368,7 @@ pub async fn run<C: Connector>(
         links,
         calib_cmd_id,
         calib_ack_id,
+        gnss: gnss_status,
     };
     let pipeline_handle = tracker.spawn(task.run());
     tracker.close();
@@ -787,6 +793,8 @@ struct OdometryTask<Tx> {
     links: OdometryLinks,
     calib_cmd_id: FrameId,
     calib_ack_id: FrameId,
+    /// The live GNSS source's latest summary, for the diagnostics (never waited on).
+    gnss: Option<watch::Receiver<Option<crate::gnss_task::GnssSummary>>>,
 }
 
 impl<Tx: FrameSink + Clone> OdometryTask<Tx> {
@@ -1117,7 +1125,17 @@ impl<Tx: FrameSink + Clone> OdometryTask<Tx> {
         }
         self.plausibility_logged = warnings.len();
         if let Some(tap) = &mut self.observers.tap {
-            tap.pose(&self.pipeline, pose, self.links.phase.borrow().as_str());
+            let gnss = self.gnss.as_ref().and_then(|g| {
+                g.borrow()
+                    .as_ref()
+                    .map(crate::gnss_task::GnssSummary::state)
+            });
+            tap.pose(
+                &self.pipeline,
+                pose,
+                self.links.phase.borrow().as_str(),
+                gnss,
+            );
         }
         let Ok(frames) = self.encoder.encode(&pose) else {
             return;
