@@ -182,7 +182,11 @@ enum Source {
 }
 
 impl Source {
-    fn start(config: &Config, gnss: &GnssConfig, epoch: Instant) -> Result<Self, String> {
+    fn start(
+        gnss: &GnssConfig,
+        ros2: Option<&toml::Table>,
+        epoch: Instant,
+    ) -> Result<Self, String> {
         match &gnss.source {
             GnssSource::Gpsd { address } => {
                 let client_config =
@@ -193,10 +197,9 @@ impl Source {
             }
             GnssSource::Ros2 { topic } => {
                 let err = |e: canodom_ros2::Error| e.to_string();
-                let mut resolved =
-                    canodom_ros2::config::Ros2Config::from_section(config.ros2.as_ref())
-                        .and_then(|c| c.resolve())
-                        .map_err(err)?;
+                let mut resolved = canodom_ros2::config::Ros2Config::from_section(ros2)
+                    .and_then(|c| c.resolve())
+                    .map_err(err)?;
                 resolved.fix_topic =
                     Some(canodom_ros2::config::dds_topic(&resolved.namespace, topic).map_err(err)?);
                 let subscriber = FixSubscriber::start(&resolved).map_err(err)?;
@@ -223,7 +226,11 @@ impl Source {
 
 /// The GNSS source and where its fixes go (see the module doc).
 pub struct Forwarder {
-    source: Source,
+    /// What to start (on the blocking pool: a DDS participant takes up to
+    /// seconds to come up, which the service's start must not wait for).
+    gnss: GnssConfig,
+    /// `[ros2]` as written: the domain and discovery of a ROS 2 source.
+    ros2: Option<toml::Table>,
     epoch: Instant,
     fixes: mpsc::Sender<CalibInput>,
     clock: BusClock,
@@ -242,29 +249,24 @@ pub struct GnssLinks {
 }
 
 impl Forwarder {
-    /// Starts the source of `gnss`; `clock` is the odometry task's bus
-    /// clock, `token` the daemon's shutdown.
-    ///
-    /// # Errors
-    /// The source could not start (a message for the log).
-    pub fn start(
+    /// The forwarder of `gnss` (its source starts in [`Self::run`]);
+    /// `clock` is the odometry task's bus clock, `token` the daemon's shutdown.
+    pub fn new(
         config: &Config,
         gnss: &GnssConfig,
         clock: BusClock,
         token: CancellationToken,
-    ) -> Result<(Self, GnssLinks), String> {
-        let epoch = Instant::now();
-        let source = Source::start(config, gnss, epoch)?;
+    ) -> (Self, GnssLinks) {
         let name = match &gnss.source {
             GnssSource::Gpsd { address } => format!("gpsd {address}"),
             GnssSource::Ros2 { topic } => format!("ros2 {topic}"),
         };
-        info!(source = %name, max_error_m = gnss.max_error_m, "GNSS: fixes go to the calibration");
         let (fixes, fixes_rx) = mpsc::channel(FIX_QUEUE);
         let (status, status_rx) = watch::channel(None);
         let forwarder = Self {
-            source,
-            epoch,
+            gnss: gnss.clone(),
+            ros2: config.ros2.clone(),
+            epoch: Instant::now(),
             fixes,
             clock,
             status,
@@ -274,21 +276,32 @@ impl Forwarder {
                 ..GnssSummary::default()
             },
         };
-        Ok((
+        (
             forwarder,
             GnssLinks {
                 fixes: fixes_rx,
                 status: status_rx,
             },
-        ))
+        )
     }
 
     /// Forwards until the shutdown token is cancelled or the calibration
     /// task is gone (blocking: run it on the blocking pool); the summary,
     /// with the source's final status.
     pub fn run(mut self) -> GnssSummary {
+        let mut source = match Source::start(&self.gnss, self.ros2.as_ref(), self.epoch) {
+            Ok(source) => source,
+            Err(e) => {
+                warn!(source = %self.summary.source, error = %e,
+                    "GNSS source not started: the daemon goes on without it");
+                self.summary.status.last_error = Some(e);
+                return self.summary;
+            }
+        };
+        info!(source = %self.summary.source, max_error_m = self.gnss.max_error_m,
+            "GNSS: fixes go to the calibration");
         while !self.token.is_cancelled() {
-            let Some(event) = self.source.next(POLL) else {
+            let Some(event) = source.next(POLL) else {
                 continue;
             };
             if !self.handle(event) {
@@ -297,9 +310,10 @@ impl Forwarder {
         }
         // What the source still queued goes on too: the calibration task
         // drains its inputs before it stops, as the odometry task does.
-        let rest = match &mut self.source {
+        let rest = match &mut source {
             Source::Gpsd(client) => client.finish(),
-            Source::Ros2(_) => Vec::new(),
+            // Its counts as of the last fix (a status goes out once a second).
+            Source::Ros2(source) => vec![Event::Status(source.status.clone())],
         };
         let mut open = true;
         for event in rest {

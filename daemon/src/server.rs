@@ -314,16 +314,18 @@ pub async fn run<C: Connector>(
         config.calibration.param_file.clone(),
         report_root(&config.calibration.param_file),
     );
-    // `[gnss]`: a source that cannot start is a warning; the daemon goes on.
-    let gnss = config.gnss.as_ref().and_then(|g| {
-        crate::gnss_task::Forwarder::start(&config, g, links.clock.subscribe(), token.clone())
-            .inspect_err(
-                |e| warn!(error = %e, "GNSS source not started: the daemon goes on without it"),
-            )
-            .ok()
-    });
-    let (gnss_handle, gnss_status) = gnss
-        .map(|(forwarder, gnss_links)| {
+    // `[gnss]`: its source starts on the blocking pool (a failure is a
+    // warning there, and the daemon goes on).
+    let (gnss_handle, gnss_status) = config
+        .gnss
+        .as_ref()
+        .map(|g| {
+            let (forwarder, gnss_links) = crate::gnss_task::Forwarder::new(
+                &config,
+                g,
+                links.clock.subscribe(),
+                token.clone(),
+            );
             calib.gnss = Some(gnss_links.fixes);
             (
                 tracker.spawn_blocking(move || forwarder.run()),
