@@ -6,8 +6,10 @@
 //! The CAN pipeline never waits on it: the odometry task does not touch it,
 //! and the fixes reach the calibration task over a channel of their own,
 //! bounded, filled with `try_send` (a full channel drops the fix and counts
-//! it); the sources themselves queue with drop-oldest. A source that cannot
-//! start is a warning and the daemon runs on without it.
+//! it); the sources queue too, counted when full (gpsd's client drops the
+//! oldest, the ROS 2 subscription the newest). The source starts on the
+//! blocking pool (a DDS participant takes up to seconds), and one that
+//! cannot start is a warning: the daemon runs on without it.
 //!
 //! Time: a fix is stamped when it arrives, on the bus clock — the last CAN
 //! frame's timestamp plus the time since that frame arrived, as the
@@ -308,8 +310,8 @@ impl Forwarder {
                 break;
             }
         }
-        // What the source still queued goes on too: the calibration task
-        // drains its inputs before it stops, as the odometry task does.
+        // What the source still queued is handed on while the calibration
+        // task still takes fixes; once it has stopped, counted as dropped.
         let rest = match &mut source {
             Source::Gpsd(client) => client.finish(),
             // Its counts as of the last fix (a status goes out once a second).
