@@ -78,6 +78,7 @@ impl GnssSummary {
             forwarded: self.forwarded,
             dropped: self.dropped + self.before_bus + s.dropped,
             reconnects: s.reconnects,
+            last_latency_s: self.last_latency_s,
         }
     }
 }
@@ -417,6 +418,35 @@ mod tests {
             bus_time(Some((t, later)), at),
             Some(Timestamp::from_micros(1_699_999_999_750_000))
         );
+    }
+
+    #[test]
+    fn the_diagnostics_state_counts_every_fix_not_used_as_dropped() {
+        let summary = GnssSummary {
+            status: SourceStatus {
+                connected: true,
+                fixes_per_s: 1.0,
+                last_error_m: Some(57.0),
+                accepted: 10,
+                refused: [1, 0, 4],
+                dropped: 2,
+                reconnects: 3,
+                ..SourceStatus::default()
+            },
+            received: 8,
+            forwarded: 5,
+            dropped: 2,
+            before_bus: 1,
+            last_latency_s: Some(0.2),
+            ..GnssSummary::default()
+        };
+        let s = summary.state();
+        assert!(s.connected);
+        assert_eq!((s.accepted, s.refused, s.forwarded), (10, [1, 0, 4], 5));
+        // The client's queue, the calibration's channel, before the bus.
+        assert_eq!(s.dropped, 5);
+        assert_eq!((s.last_error_m, s.last_latency_s), (Some(57.0), Some(0.2)));
+        assert_eq!(s.reconnects, 3);
     }
 
     #[test]

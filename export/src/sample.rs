@@ -62,6 +62,10 @@ pub struct GnssState {
     pub dropped: u64,
     /// Reconnect attempts (gpsd).
     pub reconnects: u64,
+    /// The last fix's bus receipt time minus its GNSS time, seconds: the
+    /// receiver's and gpsd's latency when the bus clock is the realtime
+    /// clock (SocketCAN), for the latency estimate #46 asks for.
+    pub last_latency_s: Option<f64>,
 }
 
 /// The pipeline's counts carried by the quality channel.

@@ -661,6 +661,7 @@ fn gnss_status(g: &canodom_export::sample::GnssState, hardware_id: String) -> St
             ("forwarded", g.forwarded.to_string()),
             ("dropped", g.dropped.to_string()),
             ("reconnects", g.reconnects.to_string()),
+            ("last_latency_s", opt(g.last_latency_s)),
         ]
         .into_iter()
         .map(|(k, v)| (k.to_owned(), v))
@@ -684,6 +685,7 @@ mod tests {
             forwarded: 16,
             dropped: 0,
             reconnects: 7,
+            last_latency_s: Some(0.25),
         };
         let s = gnss_status(&g, "canodom/test".into());
         assert_eq!((s.level, s.message.as_str()), (Level::Ok, "1.0 fixes/s"));
@@ -697,6 +699,7 @@ mod tests {
         assert_eq!(value(&s, "refused_error_too_large").as_deref(), Some("8"));
         assert_eq!(value(&s, "refused_no_fix").as_deref(), Some("1"));
         assert_eq!(value(&s, "reconnects").as_deref(), Some("7"));
+        assert_eq!(value(&s, "last_latency_s").as_deref(), Some("0.25"));
         g.fixes_per_s = 0.0;
         assert_eq!(gnss_status(&g, String::new()).level, Level::Warn);
         g.connected = false;
