@@ -1,5 +1,5 @@
 //! `[gnss] source = "ros2"` (#43 item 2, #46): NavSatFix messages published
-//! by a DDS participant of the test's own (loopback, domain 153, unicast
+//! by a DDS participant of the test's own (loopback, domain 155, unicast
 //! discovery to 127.0.0.1 only) reach the daemon's calibration, judged by
 //! the same rule as gpsd's reports: a fix whose covariance states a 95 %
 //! error beyond `max_error_m` is refused and counted, one without a
@@ -20,7 +20,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 use tokio_util::sync::CancellationToken;
 
-const DOMAIN: u16 = 153;
+const DOMAIN: u16 = 155;
 
 /// Fix `k`: σ 1.5 m, except every 5th, σ 60 m (a 95 % radius of 147 m).
 fn fix(k: u32) -> NavSatFix {
