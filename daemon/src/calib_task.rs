@@ -107,6 +107,9 @@ pub struct CalibTask<Tx> {
     pub param_file: PathBuf,
     /// Where reports of committed sets go (one folder per version).
     pub report_root: PathBuf,
+    /// Fixes of a live GNSS source (`[gnss]`), on a channel of their own so
+    /// that they never take room the odometry task's inputs need.
+    pub gnss: Option<mpsc::Receiver<CalibInput>>,
 }
 
 /// The odometry task's ends of the channels to the calibration task.
@@ -153,6 +156,7 @@ impl<Tx: FrameSink + Clone> CalibTask<Tx> {
             link_lost,
             param_file,
             report_root,
+            gnss: None,
         };
         let links = OdometryLinks {
             inputs: inputs_tx,
@@ -184,6 +188,16 @@ impl<Tx: FrameSink + Clone> CalibTask<Tx> {
                         }
                     }
                     None => break,
+                },
+                fix = next_fix(&mut self.gnss), if self.gnss.is_some() => match fix {
+                    Some(input) => {
+                        let out = self.handle(input);
+                        if let Some(h) = self.carry_out(out).await {
+                            effect = Some(h);
+                        }
+                    }
+                    // The source stopped: the calibration goes on without it.
+                    None => self.gnss = None,
                 },
                 _ = tick.tick() => {
                     if let Some(now) = self.now() {
@@ -344,6 +358,14 @@ pub(crate) async fn send_all<Tx: FrameSink>(
         }
     }
     true
+}
+
+/// The next fix of the GNSS source (never without one).
+async fn next_fix(gnss: &mut Option<mpsc::Receiver<CalibInput>>) -> Option<CalibInput> {
+    match gnss {
+        Some(rx) => rx.recv().await,
+        None => std::future::pending().await,
+    }
 }
 
 /// The effect in flight, when it finishes (never without one).

@@ -9,6 +9,7 @@
 //! - [`server`]: the async daemon (link, odometry and calibration tasks), generic over the transport.
 //! - the live calibration on the wire (CAN commands in, the calibrator's outputs as frames) is the `canodom-live` crate.
 //! - [`calib_task`]: the calibration task: the live calibration, its stores and jobs off the frame path.
+//! - [`gnss_task`]: the live GNSS source (`[gnss]`: gpsd or a ROS 2 topic), its fixes to the calibration task.
 //! - [`state_file`]: the state `run --state-file` keeps (periodically, durably) and what a start restores.
 //! - [`summary`]: what the run loop hands back, and what the state file is written from.
 //! - [`sd_notify`]: systemd readiness and watchdog notifications.
@@ -16,6 +17,7 @@
 
 pub mod calib_task;
 pub mod cmd;
+pub mod gnss_task;
 pub mod progress;
 pub mod sd_notify;
 pub mod server;

@@ -306,7 +306,7 @@ pub async fn run<C: Connector>(
     let link_handle = tracker.spawn(link.run());
     let odom_commands = OdomCommands::new(own.database(), config.calibration.arming_code)
         .map_err(canodom_protocol::pose_frames::PoseEncodeError::from)?;
-    let (calib, links) = CalibTask::new(
+    let (mut calib, links) = CalibTask::new(
         live,
         Arc::clone(&security),
         sink_rx.clone(),
@@ -314,6 +314,25 @@ pub async fn run<C: Connector>(
         config.calibration.param_file.clone(),
         report_root(&config.calibration.param_file),
     );
+    // `[gnss]`: its source starts on the blocking pool (a failure is a
+    // warning there, and the daemon goes on).
+    let (gnss_handle, gnss_status) = config
+        .gnss
+        .as_ref()
+        .map(|g| {
+            let (forwarder, gnss_links) = crate::gnss_task::Forwarder::new(
+                &config,
+                g,
+                links.clock.subscribe(),
+                token.clone(),
+            );
+            calib.gnss = Some(gnss_links.fixes);
+            (
+                tracker.spawn_blocking(move || forwarder.run()),
+                gnss_links.status,
+            )
+        })
+        .unzip();
     let calib_handle = tracker.spawn(calib.run());
     let (state_out, state_handle) = match &observers.state_file {
         None => (None, None),
@@ -351,6 +370,7 @@ pub async fn run<C: Connector>(
         links,
         calib_cmd_id,
         calib_ack_id,
+        gnss: gnss_status,
     };
     let pipeline_handle = tracker.spawn(task.run());
     tracker.close();
@@ -377,6 +397,9 @@ pub async fn run<C: Connector>(
         .map_err(|e| RunError::Task(e.to_string()))?;
     if let Some(handle) = state_handle {
         summary.state_file = handle.await.map_err(|e| RunError::Task(e.to_string()))?;
+    }
+    if let Some(handle) = gnss_handle {
+        summary.gnss = Some(handle.await.map_err(|e| RunError::Task(e.to_string()))?);
     }
     summary.connections = connections;
     summary.outages = outages.load(Ordering::Relaxed);
@@ -772,6 +795,8 @@ struct OdometryTask<Tx> {
     links: OdometryLinks,
     calib_cmd_id: FrameId,
     calib_ack_id: FrameId,
+    /// The live GNSS source's latest summary, for the diagnostics (never waited on).
+    gnss: Option<watch::Receiver<Option<crate::gnss_task::GnssSummary>>>,
 }
 
 impl<Tx: FrameSink + Clone> OdometryTask<Tx> {
@@ -894,6 +919,7 @@ impl<Tx: FrameSink + Clone> OdometryTask<Tx> {
             params: self.pipeline.params_in_use(),
             param_identity: self.pipeline.param_identity(),
             state_file: None,
+            gnss: None,
         }
     }
 
@@ -1101,7 +1127,17 @@ impl<Tx: FrameSink + Clone> OdometryTask<Tx> {
         }
         self.plausibility_logged = warnings.len();
         if let Some(tap) = &mut self.observers.tap {
-            tap.pose(&self.pipeline, pose, self.links.phase.borrow().as_str());
+            let gnss = self.gnss.as_ref().and_then(|g| {
+                g.borrow()
+                    .as_ref()
+                    .map(crate::gnss_task::GnssSummary::state)
+            });
+            tap.pose(
+                &self.pipeline,
+                pose,
+                self.links.phase.borrow().as_str(),
+                gnss,
+            );
         }
         let Ok(frames) = self.encoder.encode(&pose) else {
             return;

@@ -30,4 +30,7 @@ pub struct Summary {
     pub param_identity: ParamIdentity,
     /// How the last write of the state file went (`None`: no state file).
     pub state_file: Option<Result<(), String>>,
+    /// What the live GNSS source did (`None`: no `[gnss]`; a source that did
+    /// not start has its error in `status.last_error`).
+    pub gnss: Option<crate::gnss_task::GnssSummary>,
 }

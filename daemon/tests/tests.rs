@@ -18,6 +18,8 @@ mod dbc_tools;
 mod drive_session;
 mod follow_session;
 mod gnss_drive;
+mod gnss_live;
+mod gnss_ros2;
 mod install;
 mod live_outputs;
 mod log_refusal;

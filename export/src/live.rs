@@ -58,13 +58,15 @@ impl Tap {
     }
 
     /// Queues the pose `output` just published by `pipeline` with the
-    /// frames since the previous one and the guided calibration's
-    /// `calibration_phase`; never waits (a full queue drops it).
+    /// frames since the previous one, the guided calibration's
+    /// `calibration_phase` and the live GNSS source's state; never waits
+    /// (a full queue drops it).
     pub fn pose(
         &mut self,
         pipeline: &Pipeline,
         output: PoseOutput,
         calibration_phase: &'static str,
+        gnss: Option<crate::sample::GnssState>,
     ) {
         let Some(step) = pipeline.last_step() else {
             return;
@@ -72,6 +74,7 @@ impl Tap {
         let packet = Packet {
             sample: StepSample {
                 calibration_phase,
+                gnss,
                 ..StepSample::of(pipeline, &step, output)
             },
             params: *pipeline.params(),

@@ -36,6 +36,36 @@ pub struct StepSample {
     /// The guided calibration's phase at this step (`idle`, `recording`, …:
     /// `canodom_calib::session::Phase::as_str`); a replay has no session.
     pub calibration_phase: &'static str,
+    /// The live GNSS source's state (`[gnss]`, #46); `None` without one
+    /// (and in a replay).
+    pub gnss: Option<GnssState>,
+}
+
+/// A live GNSS source's state as the diagnostics show it (#46): the
+/// daemon's summary of its source, in plain values (this crate does not
+/// know the source's crate).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct GnssState {
+    /// Connected (gpsd), or fixes arriving (a ROS 2 topic).
+    pub connected: bool,
+    /// Accepted fixes per second over the source's last few seconds.
+    pub fixes_per_s: f64,
+    /// The last report's 95 % horizontal error estimate, metres.
+    pub last_error_m: Option<f64>,
+    /// Fixes accepted so far.
+    pub accepted: u64,
+    /// Reports refused so far: no fix, no position, error estimate beyond the limit.
+    pub refused: [u64; 3],
+    /// Fixes handed to the calibration.
+    pub forwarded: u64,
+    /// Fixes dropped (a full queue, or before the first CAN frame).
+    pub dropped: u64,
+    /// Reconnect attempts (gpsd).
+    pub reconnects: u64,
+    /// The last fix's bus receipt time minus its GNSS time, seconds: the
+    /// receiver's and gpsd's latency when the bus clock is the realtime
+    /// clock (SocketCAN), for the latency estimate #46 asks for.
+    pub last_latency_s: Option<f64>,
 }
 
 /// The pipeline's counts carried by the quality channel.
@@ -102,6 +132,7 @@ impl StepSample {
             correction: step.correction,
             counts: Counts::from(pipeline.stats()),
             calibration_phase: "idle",
+            gnss: None,
         }
     }
 }

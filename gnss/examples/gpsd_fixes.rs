@@ -2,7 +2,7 @@
 //! line each (`fix,gnss_time_unix_s,lat_deg,lon_deg,sigma_m`), and status
 //! changes (`status,connected,reconnects,accepted`), for `gnss/tests/gpsfake.sh`.
 //!
-//! Usage: `gpsd_fixes ADDRESS SECONDS [MAX_ERROR_M]` (default 25 m, gpsd's 95 % estimate).
+//! Usage: `gpsd_fixes ADDRESS SECONDS [MAX_ERROR_M]` (default `DEFAULT_MAX_ERROR_M`, gpsd's 95 % estimate).
 
 use canodom_gnss::{Event, GpsdClient, GpsdClientConfig};
 use std::time::{Duration, Instant};
@@ -15,7 +15,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .next()
         .ok_or("usage: gpsd_fixes ADDRESS SECONDS")?
         .parse()?;
-    let max_error_m: f64 = args.next().map_or(Ok(25.0), |a| a.parse())?;
+    let max_error_m: f64 = args
+        .next()
+        .map_or(Ok(canodom_gnss::client::DEFAULT_MAX_ERROR_M), |a| a.parse())?;
     let start = Instant::now();
     let client = GpsdClient::spawn(GpsdClientConfig::new(&address, max_error_m)?, start)?;
     let mut last_connected = None;

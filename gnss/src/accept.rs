@@ -141,6 +141,27 @@ impl Acceptance {
     }
 }
 
+/// Tells when what becomes of the reports changes (accepted, or refused for
+/// another reason), so the log says so once per change rather than per fix.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct OutcomeChanges {
+    /// Whether a report was judged yet.
+    seen: bool,
+    /// The last report's refusal (`None`: accepted).
+    last: Option<Refusal>,
+}
+
+impl OutcomeChanges {
+    /// Records the outcome of one report (`None`: accepted); true when it
+    /// differs from the previous one's, and for the first report.
+    pub fn changed(&mut self, refusal: Option<Refusal>) -> bool {
+        let changed = !self.seen || self.last != refusal;
+        self.seen = true;
+        self.last = refusal;
+        changed
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -188,6 +209,21 @@ mod tests {
             (fix.gnss_time_unix_s, fix.receipt_time_s),
             (Some(100.0), 7.0)
         );
+    }
+
+    #[test]
+    fn outcome_changes_are_told_once() {
+        let mut c = OutcomeChanges::default();
+        let seq = [
+            None,
+            None,
+            Some(Refusal::ErrorTooLarge),
+            Some(Refusal::ErrorTooLarge),
+            Some(Refusal::NoFix),
+            None,
+        ];
+        let told: Vec<bool> = seq.iter().map(|r| c.changed(*r)).collect();
+        assert_eq!(told, [true, false, true, false, true, true]);
     }
 
     #[test]

@@ -36,6 +36,11 @@ impl Backoff {
         delay
     }
 
+    /// The longest wait.
+    pub fn max(&self) -> Duration {
+        self.max
+    }
+
     /// After a good connection (one that delivered a report), start over.
     pub fn reset(&mut self) {
         self.next = self.first;

@@ -8,7 +8,7 @@
 //! [`Backoff`], never a failure.
 
 use crate::Error;
-use crate::accept::{Acceptance, Fix};
+use crate::accept::{Acceptance, Fix, OutcomeChanges, Refusal};
 use crate::backoff::Backoff;
 use crate::protocol::{self, Message, WATCH_COMMAND};
 use crate::status::{RateWindow, SourceStatus};
@@ -22,10 +22,20 @@ use std::time::{Duration, Instant};
 
 /// The default gpsd address.
 pub const DEFAULT_ADDRESS: &str = "localhost:2947";
-/// The default limit on gpsd's 95 % error estimate, metres: a consumer
-/// receiver shows 3–8 m in the open; beyond 25 m (urban canyon, a cold start)
-/// a fix says little about a car's metre-scale calibration.
-pub const DEFAULT_MAX_ERROR_M: f64 = 25.0;
+/// The default limit on gpsd's 95 % error estimate, metres.
+///
+/// For a receiver that speaks NMEA only, gpsd has no error estimate of the
+/// receiver's own and derives `eph = HDOP × 19 m` (gpsd 3.22's UERE without
+/// DGPS), with no `epx`/`epy`. Measured under gpsfake (`tests/gpsfake.sh`):
+/// NMEA of HDOP 3.0, as `sim/multibody/fixes.py` writes for fixes of
+/// σ 1.5 m, arrives as `eph` 57 m; the former 25 m refused every such fix
+/// (it passes HDOP ≤ 1.3 only). 120 m passes HDOP ≤ 6.3, ordinary fixes of
+/// a consumer receiver (σ 1–3 m on that scale), and refuses poor geometry
+/// (HDOP 10–20 in an urban canyon: `eph` 190–380 m). A receiver reporting its
+/// own estimate (GST, u-blox binary: `epx`/`epy` of a few metres) is hardly
+/// limited by it; configure a lower limit for one. The daemon's `[gnss]
+/// max_error_m` default is the same value (a test of the daemon checks).
+pub const DEFAULT_MAX_ERROR_M: f64 = 120.0;
 
 /// What the client needs to run.
 #[derive(Debug, Clone)]
@@ -162,13 +172,26 @@ impl GpsdClient {
     }
 }
 
-impl Drop for GpsdClient {
-    fn drop(&mut self) {
+impl GpsdClient {
+    /// Stops the thread and returns what it still queued: the last fixes
+    /// and its final status (whose counts then cover every fix it sent).
+    pub fn finish(&mut self) -> Vec<Event> {
+        self.halt();
+        self.drain()
+    }
+
+    fn halt(&mut self) {
         self.shared.stop.store(true, Ordering::Relaxed);
         if let Some(t) = self.thread.take() {
             // The thread checks `stop` at least every read timeout (200 ms).
             let _ = t.join();
         }
+    }
+}
+
+impl Drop for GpsdClient {
+    fn drop(&mut self) {
+        self.halt();
     }
 }
 
@@ -201,12 +224,23 @@ fn run(config: &GpsdClientConfig, shared: &Shared, epoch: Instant) {
     let mut acceptance = Acceptance::new(config.max_error_m);
     let mut rate = RateWindow::default();
     let mut status = SourceStatus::default();
+    let mut outcomes = OutcomeChanges::default();
     let mut attempts = 0u64;
+    // Set once a loss (or the first failed attempt) and the reconnect after it
+    // are logged: later failed attempts go to debug, so a gpsd that stays down
+    // writes two lines, not one per attempt. Cleared by a connection.
+    let mut quiet = false;
     while !shared.stop.load(Ordering::Relaxed) {
         if attempts > 0 {
             status.reconnects += 1;
             let delay = backoff.next_delay();
-            tracing::info!(address = %config.address, delay_s = delay.as_secs_f64(), reconnects = status.reconnects, "gpsd: reconnecting");
+            if quiet {
+                tracing::debug!(address = %config.address, delay_s = delay.as_secs_f64(), reconnects = status.reconnects, "gpsd: reconnecting");
+            } else {
+                tracing::info!(address = %config.address, delay_s = delay.as_secs_f64(), reconnects = status.reconnects,
+                    "gpsd: reconnecting in {:.1} s (then backing off to {:.0} s)", delay.as_secs_f64(), config.backoff.max().as_secs_f64());
+                quiet = true;
+            }
             sleep_unless_stopped(shared, delay);
             if shared.stop.load(Ordering::Relaxed) {
                 break;
@@ -217,19 +251,37 @@ fn run(config: &GpsdClientConfig, shared: &Shared, epoch: Instant) {
             config,
             shared,
             epoch,
-            &mut acceptance,
-            &mut rate,
-            &mut status,
-            &mut backoff,
+            &mut Session {
+                acceptance: &mut acceptance,
+                rate: &mut rate,
+                status: &mut status,
+                backoff: &mut backoff,
+                outcomes: &mut outcomes,
+            },
         );
-        status.connected = false;
+        if std::mem::replace(&mut status.connected, false) {
+            quiet = false;
+        }
         status.fixes_per_s = 0.0;
         if let Err(e) = outcome {
-            tracing::warn!(address = %config.address, error = %e, "gpsd: connection lost or refused");
+            if quiet {
+                tracing::debug!(address = %config.address, error = %e, "gpsd: still unreachable");
+            } else {
+                tracing::warn!(address = %config.address, error = %e, "gpsd: connection lost or refused");
+            }
             status.last_error = Some(e.to_string());
         }
         status.dropped = shared.push(Event::Status(status.clone()), config.queue_len);
     }
+}
+
+/// What one connection updates, kept across connections.
+struct Session<'a> {
+    acceptance: &'a mut Acceptance,
+    rate: &'a mut RateWindow,
+    status: &'a mut SourceStatus,
+    backoff: &'a mut Backoff,
+    outcomes: &'a mut OutcomeChanges,
 }
 
 /// One connection: `?WATCH`, then reports until it fails or the client stops.
@@ -237,10 +289,7 @@ fn session(
     config: &GpsdClientConfig,
     shared: &Shared,
     epoch: Instant,
-    acceptance: &mut Acceptance,
-    rate: &mut RateWindow,
-    status: &mut SourceStatus,
-    backoff: &mut Backoff,
+    st: &mut Session<'_>,
 ) -> Result<(), Error> {
     let io = |source| Error::Io {
         address: config.address.clone(),
@@ -249,9 +298,9 @@ fn session(
     let mut stream = connect(&config.address).map_err(io)?;
     stream.set_read_timeout(Some(READ_TIMEOUT)).map_err(io)?;
     stream.write_all(WATCH_COMMAND.as_bytes()).map_err(io)?;
-    status.connected = true;
+    st.status.connected = true;
     tracing::info!(address = %config.address, "gpsd: connected");
-    status.dropped = shared.push(Event::Status(status.clone()), config.queue_len);
+    st.status.dropped = shared.push(Event::Status(st.status.clone()), config.queue_len);
     let mut reader = BufReader::new(stream);
     let mut line = String::new();
     let mut last_status = Instant::now();
@@ -268,14 +317,19 @@ fn session(
                 let now_s = epoch.elapsed().as_secs_f64();
                 match protocol::parse_line(&line) {
                     Ok(Message::Tpv(tpv)) => {
-                        backoff.reset();
-                        status.last_error_m = Acceptance::error_estimate_m(&tpv);
-                        if let Ok(fix) = acceptance.judge(&tpv, now_s) {
-                            rate.push(now_s);
-                            status.dropped = shared.push(Event::Fix(fix), config.queue_len);
+                        st.backoff.reset();
+                        let estimate = Acceptance::error_estimate_m(&tpv);
+                        st.status.last_error_m = estimate;
+                        let verdict = st.acceptance.judge(&tpv, now_s);
+                        if st.outcomes.changed(verdict.err()) {
+                            log_outcome(verdict.err(), estimate, config.max_error_m);
                         }
-                        status.accepted = acceptance.accepted;
-                        status.refused = acceptance.refused;
+                        if let Ok(fix) = verdict {
+                            st.rate.push(now_s);
+                            st.status.dropped = shared.push(Event::Fix(fix), config.queue_len);
+                        }
+                        st.status.accepted = st.acceptance.accepted;
+                        st.status.refused = st.acceptance.refused;
                     }
                     Ok(Message::Version { release }) => tracing::info!(release, "gpsd: version"),
                     Ok(_) => {}
@@ -285,7 +339,7 @@ fn session(
                             tracing::warn!(error = %e, "gpsd: line ignored");
                             malformed_logged = Some(Instant::now());
                         }
-                        status.last_error = Some(e.to_string());
+                        st.status.last_error = Some(e.to_string());
                     }
                 }
                 line.clear();
@@ -296,12 +350,26 @@ fn session(
             Err(e) => return Err(io(e)),
         }
         if last_status.elapsed() >= Duration::from_secs(1) {
-            status.fixes_per_s = rate.rate(epoch.elapsed().as_secs_f64());
-            status.dropped = shared.push(Event::Status(status.clone()), config.queue_len);
+            st.status.fixes_per_s = st.rate.rate(epoch.elapsed().as_secs_f64());
+            st.status.dropped = shared.push(Event::Status(st.status.clone()), config.queue_len);
             last_status = Instant::now();
         }
     }
     Ok(())
+}
+
+/// The log line of a change in what becomes of the TPV reports (not one per fix).
+fn log_outcome(refusal: Option<Refusal>, estimate_m: Option<f64>, max_error_m: f64) {
+    match refusal {
+        None => tracing::info!(error_estimate_m = ?estimate_m, "gpsd: fixes accepted"),
+        Some(Refusal::ErrorTooLarge) => tracing::warn!(
+            reason = Refusal::ErrorTooLarge.name(),
+            error_estimate_m = ?estimate_m,
+            max_error_m,
+            "gpsd: fixes refused: the 95 % error estimate exceeds max_error_m"
+        ),
+        Some(r) => tracing::warn!(reason = r.name(), "gpsd: fixes refused: {}", r.name()),
+    }
 }
 
 #[cfg(test)]

@@ -20,7 +20,7 @@ pub mod client;
 pub mod protocol;
 pub mod status;
 
-pub use accept::{Acceptance, Fix, Refusal};
+pub use accept::{Acceptance, Fix, OutcomeChanges, Refusal};
 pub use backoff::Backoff;
 pub use client::{Event, GpsdClient, GpsdClientConfig};
 pub use protocol::{Message, Tpv};

@@ -12,10 +12,12 @@
 //! and `[output]` (own frames' base id, pose rate), and `[calibration]` (the
 //! live session over CAN: command id, arming code, parameter file, bounds,
 //! uncertainty limits, write-back timing; see [`CalibrationConfig`]), and
-//! `[security]` (the SecOC key and freshness; see [`crate::security`]).
+//! `[security]` (the SecOC key and freshness; see [`crate::security`]), and
+//! `[gnss]` (a live GNSS source, gpsd or a ROS 2 topic; see [`GnssConfig`]).
 
 mod calibration;
 mod ekf;
+mod gnss;
 mod raw;
 mod validate;
 mod validator;
@@ -26,6 +28,7 @@ use canodom_fusion::ekf::EkfConfig;
 use canodom_fusion::wheel::SpeedUnit;
 use canodom_fusion::{VehicleParams, WheelSet};
 use canodom_protocol::own_dbc::BaseId;
+pub use gnss::{DEFAULT_GPSD_ADDRESS, DEFAULT_MAX_ERROR_M, GnssConfig, GnssSource};
 use raw::RawConfig;
 use std::ffi::OsStr;
 use std::path::{Path, PathBuf};
@@ -333,6 +336,8 @@ pub struct Config {
     pub security: crate::security::SecurityConfig,
     /// The `[ros2]` section as written (#43), read by `canodom-ros2`.
     pub ros2: Option<toml::Table>,
+    /// A live GNSS source (`[gnss]`, #46); `None` without the section.
+    pub gnss: Option<GnssConfig>,
 }
 
 impl Config {

@@ -461,6 +461,7 @@ mod tests {
             correction: canodom_fusion::ekf::WindowOutcome::Open,
             counts: canodom_export::sample::Counts::default(),
             calibration_phase: "idle",
+            gnss: None,
         }
     }
 

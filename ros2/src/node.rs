@@ -536,7 +536,7 @@ fn diagnostics(
 ) -> Vec<Status> {
     let f = s.output.flags;
     let c = s.counts;
-    let hw = format!("canodom/{}", config.node_name);
+    let hw = hw_id(config);
     let kv = |pairs: &[(&str, String)]| -> Vec<(String, String)> {
         pairs
             .iter()
@@ -546,7 +546,7 @@ fn diagnostics(
     let yes = |b: bool| if b { "true" } else { "false" }.to_owned();
     let ((link_level, link_message), (pose_level, pose_message)) = levels(f);
     let dropped = shared.dropped.load(Ordering::Relaxed);
-    vec![
+    let mut status = vec![
         Status {
             level: link_level,
             name: "canodom: CAN link".into(),
@@ -622,5 +622,93 @@ fn diagnostics(
                 ),
             ]),
         },
-    ]
+    ];
+    if let Some(g) = &s.gnss {
+        status.push(gnss_status(g, hw_id(config)));
+    }
+    status
+}
+
+fn hw_id(config: &Resolved) -> String {
+    format!("canodom/{}", config.node_name)
+}
+
+/// The live GNSS source's status (#46): a warning while it is not
+/// connected or refuses what it gets, an error never (the odometry goes on).
+fn gnss_status(g: &canodom_export::sample::GnssState, hardware_id: String) -> Status {
+    let [no_fix, no_position, too_large] = g.refused;
+    let (level, message) = if !g.connected {
+        (Level::Warn, "not connected".to_owned())
+    } else if g.fixes_per_s > 0.0 {
+        (Level::Ok, format!("{:.1} fixes/s", g.fixes_per_s))
+    } else {
+        (Level::Warn, "connected, no fix accepted lately".to_owned())
+    };
+    let opt = |v: Option<f64>| v.map_or_else(String::new, |v| v.to_string());
+    Status {
+        level,
+        name: "canodom: gnss".into(),
+        message,
+        hardware_id,
+        values: [
+            ("connected", g.connected.to_string()),
+            ("fixes_per_s", g.fixes_per_s.to_string()),
+            ("last_error_m", opt(g.last_error_m)),
+            ("accepted", g.accepted.to_string()),
+            ("refused_no_fix", no_fix.to_string()),
+            ("refused_no_position", no_position.to_string()),
+            ("refused_error_too_large", too_large.to_string()),
+            ("forwarded", g.forwarded.to_string()),
+            ("dropped", g.dropped.to_string()),
+            ("reconnects", g.reconnects.to_string()),
+            ("last_latency_s", opt(g.last_latency_s)),
+        ]
+        .into_iter()
+        .map(|(k, v)| (k.to_owned(), v))
+        .collect(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use canodom_export::sample::GnssState;
+
+    #[test]
+    fn the_gnss_status_says_connected_rate_and_refusals_by_reason() {
+        let mut g = GnssState {
+            connected: true,
+            fixes_per_s: 1.0,
+            last_error_m: Some(57.0),
+            accepted: 16,
+            refused: [1, 0, 8],
+            forwarded: 16,
+            dropped: 0,
+            reconnects: 7,
+            last_latency_s: Some(0.25),
+        };
+        let s = gnss_status(&g, "canodom/test".into());
+        assert_eq!((s.level, s.message.as_str()), (Level::Ok, "1.0 fixes/s"));
+        let value = |s: &Status, k: &str| {
+            s.values
+                .iter()
+                .find(|(key, _)| key == k)
+                .map(|(_, v)| v.clone())
+        };
+        assert_eq!(value(&s, "last_error_m").as_deref(), Some("57"));
+        assert_eq!(value(&s, "refused_error_too_large").as_deref(), Some("8"));
+        assert_eq!(value(&s, "refused_no_fix").as_deref(), Some("1"));
+        assert_eq!(value(&s, "reconnects").as_deref(), Some("7"));
+        assert_eq!(value(&s, "last_latency_s").as_deref(), Some("0.25"));
+        g.fixes_per_s = 0.0;
+        assert_eq!(gnss_status(&g, String::new()).level, Level::Warn);
+        g.connected = false;
+        g.last_error_m = None;
+        let s = gnss_status(&g, String::new());
+        assert_eq!(
+            (s.level, s.message.as_str()),
+            (Level::Warn, "not connected")
+        );
+        assert_eq!(value(&s, "last_error_m").as_deref(), Some(""));
+    }
 }

@@ -29,7 +29,10 @@ are taken from its folder; without param_file the file is canodom-params.toml in
 $STATE_DIRECTORY when systemd sets it (StateDirectory=), else beside the configuration. \
 Under systemd the state (what the filter learnt: wheel scales, steering offset, gyro bias) is \
 kept in $STATE_DIRECTORY/canodom-state.json unless --state-file or --no-state-file says otherwise, \
-so a restart resumes what the car taught it."
+so a restart resumes what the car taught it.\n\n\
+With [gnss] (README: GNSS on the vehicle) it reads gpsd or a ROS 2 NavSatFix topic and hands \
+each accepted fix to the calibration on the bus clock; the CAN pipeline never waits on it, and \
+a gpsd that is down or restarts is retried with backoff."
 )]
 pub struct RunArgs {
     /// The configuration file.

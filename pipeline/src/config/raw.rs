@@ -31,6 +31,9 @@ pub(super) struct RawConfig {
     /// DDS stack stays out of this crate.
     #[serde(default)]
     pub(super) ros2: Option<toml::Table>,
+    /// `[gnss]` (#46): a live GNSS source; off without it.
+    #[serde(default)]
+    pub(super) gnss: Option<super::gnss::RawGnss>,
 }
 
 #[derive(Debug, Deserialize)]

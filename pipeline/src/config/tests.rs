@@ -411,3 +411,108 @@ fn the_ros2_section_is_kept_as_written_for_the_ros2_crate() {
     assert_eq!(section["enabled"].as_bool(), Some(true));
     assert_eq!(section["domain_id"].as_integer(), Some(7));
 }
+
+#[test]
+fn the_gnss_section_is_off_unless_written_and_fills_its_defaults() {
+    let c = Config::from_toml(RC_CAR, &path()).unwrap();
+    assert_eq!(c.gnss, None);
+    let c = Config::from_toml(&format!("{RC_CAR}\n[gnss]\nsource = \"gpsd\"\n"), &path()).unwrap();
+    assert_eq!(
+        c.gnss,
+        Some(GnssConfig {
+            source: GnssSource::Gpsd {
+                address: DEFAULT_GPSD_ADDRESS.to_owned()
+            },
+            max_error_m: DEFAULT_MAX_ERROR_M,
+        })
+    );
+    let text = format!(
+        "{RC_CAR}\n[gnss]\nsource = \"gpsd\"\naddress = \"[::1]:2948\"\nmax_error_m = 30.5\n"
+    );
+    let c = Config::from_toml(&text, &path()).unwrap();
+    assert_eq!(
+        c.gnss,
+        Some(GnssConfig {
+            source: GnssSource::Gpsd {
+                address: "[::1]:2948".to_owned()
+            },
+            max_error_m: 30.5,
+        })
+    );
+    let text = format!("{RC_CAR}\n[gnss]\nsource = \"ros2\"\ntopic = \"/gnss/fix\"\n");
+    let c = Config::from_toml(&text, &path()).unwrap();
+    assert_eq!(
+        c.gnss,
+        Some(GnssConfig {
+            source: GnssSource::Ros2 {
+                topic: "/gnss/fix".to_owned()
+            },
+            max_error_m: DEFAULT_MAX_ERROR_M,
+        })
+    );
+}
+
+#[test]
+fn every_bad_gnss_key_is_named() {
+    for (section, key, expected) in [
+        ("source = \"serial\"", "gnss.source", "\"gpsd\" or \"ros2\""),
+        (
+            "source = \"gpsd\"\naddress = \"localhost\"",
+            "gnss.address",
+            "HOST:PORT",
+        ),
+        (
+            "source = \"gpsd\"\naddress = \":2947\"",
+            "gnss.address",
+            "HOST:PORT",
+        ),
+        (
+            "source = \"gpsd\"\naddress = \"gps:0\"",
+            "gnss.address",
+            "HOST:PORT",
+        ),
+        (
+            "source = \"gpsd\"\ntopic = \"/fix\"",
+            "gnss.topic",
+            "source = \"ros2\"",
+        ),
+        (
+            "source = \"gpsd\"\nmax_error_m = 0.0",
+            "gnss.max_error_m",
+            "> 0",
+        ),
+        (
+            "source = \"gpsd\"\nmax_error_m = nan",
+            "gnss.max_error_m",
+            "> 0",
+        ),
+        ("source = \"ros2\"", "gnss.topic", "NavSatFix"),
+        (
+            "source = \"ros2\"\ntopic = \"/9fix\"",
+            "gnss.topic",
+            "NavSatFix",
+        ),
+        (
+            "source = \"ros2\"\ntopic = \"/fix\"\naddress = \"a:1\"",
+            "gnss.address",
+            "source = \"gpsd\"",
+        ),
+        (
+            "source = \"ros2\"\ntopic = \"/fix\"\nmax_error_m = -3.0",
+            "gnss.max_error_m",
+            "> 0",
+        ),
+    ] {
+        let e = invalid(&format!("{RC_CAR}\n[gnss]\n{section}\n"));
+        assert!(e.contains(&format!("key `{key}`")), "{section}: {e}");
+        assert!(e.contains(expected), "{section}: {e}");
+        assert!(e.contains("x.toml"), "{section}: {e}");
+    }
+    // Unknown keys and a missing source are toml's to name.
+    let e = invalid(&format!(
+        "{RC_CAR}\n[gnss]\nsource = \"gpsd\"\nport = 2947\n"
+    ));
+    assert!(e.contains("port"), "{e}");
+    let e = invalid(&format!("{RC_CAR}\n[gnss]\naddress = \"a:1\"\n"));
+    assert!(e.contains("source"), "{e}");
+}

@@ -572,6 +572,7 @@ impl Validator<'_> {
                 },
             })?,
             calibration,
+            gnss: self.gnss(raw.gnss.as_ref())?,
             ros2: raw.ros2,
         })
     }
