@@ -25,6 +25,7 @@ mod live_outputs;
 mod log_refusal;
 mod messages;
 mod rav4;
+mod replay_fixes;
 mod replay_mcap;
 mod run_loop;
 mod state_file;

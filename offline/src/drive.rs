@@ -185,8 +185,24 @@ pub fn fit_drive(
     what: &str,
     options: &DriveOptions,
 ) -> Result<DriveFit> {
-    let first = drive.samples.first().map_or(0.0, |s| s.t_s);
-    let last = drive.samples.last().map_or(0.0, |s| s.t_s);
+    fit_samples(config, base, &drive.samples, all_fixes, what, options)
+}
+
+/// [`fit_drive`] on a drive's samples (all of them, or those up to a time:
+/// [`crate::online`]).
+///
+/// # Errors
+/// [`Error::Calibration`] when the fit fails (too few fixes in the samples' time, ...).
+pub fn fit_samples(
+    config: &Config,
+    base: ParamValues,
+    samples: &[DriveSample],
+    all_fixes: &[Fix],
+    what: &str,
+    options: &DriveOptions,
+) -> Result<DriveFit> {
+    let first = samples.first().map_or(0.0, |s| s.t_s);
+    let last = samples.last().map_or(0.0, |s| s.t_s);
     let fixes: Vec<Fix> = all_fixes
         .iter()
         .copied()
@@ -196,7 +212,7 @@ pub fn fit_drive(
         rear_tread_m: base.rear_tread_m,
         wheelbase_m: config.params.wheelbase_m(),
     };
-    let mut calibration = calibrate_drive_with(&drive.samples, &fixes, &model, options)
+    let mut calibration = calibrate_drive_with(samples, &fixes, &model, options)
         .map_err(|e| Error::Calibration(format!("calibration of {what} failed: {e}")))?;
     let refused = apply_gate(
         &mut calibration,

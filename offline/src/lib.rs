@@ -7,10 +7,12 @@
 //! - [`log`]: a log opened by path and its format judged from its content.
 //! - [`replay`]: the daemon's pipeline over a log: CSV text, MCAP, or rows as values.
 //! - [`drive`]: a drive's filter steps as samples, and its calibration against position fixes.
+//! - [`online`]: that calibration refitted as fixes come, for `replay --fixes`.
 
 pub mod drive;
 pub mod fixes;
 pub mod log;
+pub mod online;
 pub mod replay;
 
 use std::path::Path;

@@ -56,6 +56,9 @@ pub struct ReplayOptions<'a> {
     pub keep_track: bool,
     /// The log's name, in the warnings about its malformed lines.
     pub log_name: Option<&'a str>,
+    /// Parameter sets taken into use as the replay reaches their times (in
+    /// time order): what `replay --fixes` learnt, from when it learnt it.
+    pub switches: &'a [(Timestamp, canodom_params::persist::ParamSet)],
 }
 
 impl ReplayOptions<'_> {
@@ -321,6 +324,7 @@ pub fn replay_log(
         // can encode any batch.
         let mut encoder = mcap.as_ref().map(McapOut::encoder);
         // Named, so profiles and `top -H` tell the threads apart.
+        let mut switcher = Switcher::new(options.switches);
         let filter = std::thread::Builder::new()
             .name("filter".into())
             .spawn_scoped(scope, move || {
@@ -331,7 +335,7 @@ pub fn replay_log(
                     batch.text.clear();
                     batch.samples.clear();
                     batch.encoded = false;
-                    filter_batch(&mut pipeline, &mut batch, samples);
+                    filter_batch(&mut pipeline, &mut batch, samples, &mut switcher);
                     batch.params = Some(*pipeline.params());
                     if samples {
                         carry_tail(&mut batch, &mut carry);
@@ -353,7 +357,7 @@ pub fn replay_log(
                         waiting = filter_in.recv().ok();
                     }
                 }
-                pipeline
+                (pipeline, switcher.failed)
             })?;
         let fed = feed(
             &mut reader,
@@ -365,10 +369,13 @@ pub fn replay_log(
         );
         // Ends the filter thread's loop, whether feeding ended or failed.
         drop(to_filter);
-        let mut pipeline = filter
+        let (mut pipeline, switch_failed) = filter
             .join()
             .unwrap_or_else(|panic| std::panic::resume_unwind(panic));
         let (malformed, by_reason) = fed?;
+        if let Some(why) = switch_failed {
+            return Err(Error::Calibration(why));
+        }
         if let Some(m) = mcap {
             m.finish()?.flush()?;
         }
@@ -381,10 +388,60 @@ pub fn replay_log(
     })
 }
 
+/// Takes [`ReplayOptions::switches`] into use as the frames reach their times.
+struct Switcher<'a> {
+    switches: &'a [(Timestamp, canodom_params::persist::ParamSet)],
+    next: usize,
+    /// Why a set could not be taken into use (the replay then fails).
+    failed: Option<String>,
+}
+
+impl<'a> Switcher<'a> {
+    fn new(switches: &'a [(Timestamp, canodom_params::persist::ParamSet)]) -> Self {
+        Self {
+            switches,
+            next: 0,
+            failed: None,
+        }
+    }
+
+    /// Takes every set due by `at` into use before the frame at `at`.
+    fn before(&mut self, pipeline: &mut Pipeline, at: Option<Timestamp>) {
+        let Some(at) = at else { return };
+        while let Some((due, set)) = self.switches.get(self.next) {
+            if *due > at {
+                break;
+            }
+            self.next += 1;
+            if let Err(e) = pipeline.apply_params(Some((set.version, &set.values))) {
+                self.failed.get_or_insert(format!(
+                    "the set learnt at {:.3} s (version {}) was refused by the filter: {e}",
+                    due.as_micros() as f64 / 1e6,
+                    set.version
+                ));
+            }
+        }
+    }
+}
+
+/// A record's timestamp.
+fn entry_time(entry: &Entry, others: &[(Timestamp, CanFrame)]) -> Option<Timestamp> {
+    match entry {
+        Entry::Classic(c) => Some(c.timestamp),
+        Entry::Other(i) => others.get(*i).map(|(t, _)| *t),
+    }
+}
+
 /// Runs one batch's records through the pipeline, a row per filter step
 /// with the pose sample `run` would publish at that frame.
-fn filter_batch(pipeline: &mut Pipeline, batch: &mut Batch, samples: bool) {
+fn filter_batch(
+    pipeline: &mut Pipeline,
+    batch: &mut Batch,
+    samples: bool,
+    switcher: &mut Switcher<'_>,
+) {
     for (k, entry) in batch.records.iter().enumerate() {
+        switcher.before(pipeline, entry_time(entry, &batch.others));
         let (at, step) = match entry {
             Entry::Classic(c) => (
                 c.timestamp,
@@ -635,6 +692,7 @@ pub fn replay_rows(
     let mut rows = Vec::new();
     let (mut malformed, mut by_reason) = (0, MalformedCounts::default());
     let prefix = options.warning_prefix();
+    let mut switcher = Switcher::new(options.switches);
     loop {
         let at_end = fill_batch(
             &mut reader,
@@ -644,11 +702,14 @@ pub fn replay_rows(
             (&mut *diag, &prefix),
         )?;
         batch.rows.clear();
-        filter_batch(&mut pipeline, &mut batch, false);
+        filter_batch(&mut pipeline, &mut batch, false, &mut switcher);
         rows.extend_from_slice(&batch.rows);
         if at_end {
             break;
         }
+    }
+    if let Some(why) = switcher.failed {
+        return Err(Error::Calibration(why));
     }
     let summary = summary_of(&mut pipeline, &reader, (malformed, by_reason), None);
     Ok((rows, summary))

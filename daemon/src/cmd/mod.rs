@@ -11,6 +11,7 @@ pub mod decode;
 pub mod demo;
 pub mod keys;
 pub mod replay;
+pub mod replay_fixes;
 pub mod run;
 pub mod simulate;
 

@@ -20,7 +20,8 @@ pub use canodom_offline::replay::{
 #[command(
     after_help = "Example:\n  canodom simulate --config rc_car.toml --log drive.log --truth truth.csv\n  \
 canodom replay --config rc_car.toml drive.log --out pose.csv\n  canodom replay --config rc_car.toml drive.log --out drive.mcap   # Foxglove, ROS 2\n  \
-canodom replay --config car.toml --params params.toml drive.log --out pose.csv\n\n\
+canodom replay --config car.toml --params params.toml drive.log --out pose.csv\n  \
+canodom replay --config car.toml drive.log --fixes fixes.nmea --learnt-out learnt.csv --out pose.csv\n\n\
 The CSV has one row per filter step (one per rear-wheel frame): seconds since the first input \
 frame, the fused pose, then rear-wheel-only odometry; both start at (0, 0, 0) at the first \
 wheel sample, headings are unwrapped (total turn, radians). The last column says what the \
@@ -73,6 +74,22 @@ pub struct ReplayArgs {
     /// (default: beside --out, `<out stem>-truth/`, else `replay-truth/`).
     #[arg(long, requires = "truth", value_name = "DIR")]
     pub truth_report: Option<PathBuf>,
+    /// Position fixes of the drive (NMEA 0183, a `t_unix_s,lat_deg,lon_deg`
+    /// CSV or a local-metres CSV, as `calibrate --fixes` reads them): the
+    /// car is calibrated against them as it drives (refitted every
+    /// --fixes-every-s of fixes over all driven so far, judged by
+    /// `[calibration]`'s gate), and each set learnt is taken into use from
+    /// the time it was learnt: the pose shows what the car would have done.
+    #[arg(long, value_name = "FILE", conflicts_with = "ros2")]
+    pub fixes: Option<PathBuf>,
+    /// With --fixes: seconds of fixes between two refits.
+    #[arg(long, requires = "fixes", default_value_t = canodom_offline::online::DEFAULT_EVERY_S)]
+    pub fixes_every_s: f64,
+    /// With --fixes: write what was learnt at each refit (every parameter
+    /// with its σ, whether it passed the gate, whether the set was taken
+    /// into use) to this CSV.
+    #[arg(long, requires = "fixes", value_name = "CSV")]
+    pub learnt_out: Option<PathBuf>,
     /// `--ros2`: the drive published on ROS 2 at its pace (#43).
     #[command(flatten)]
     pub ros2: canodom_ros2::replay::Ros2ReplayArgs,
@@ -108,6 +125,56 @@ fn load_params(
     })
 }
 
+/// `--truth`: the reference trajectory, if one is given.
+///
+/// # Errors
+/// An unreadable or malformed file, naming it.
+fn read_truth(args: &ReplayArgs) -> anyhow::Result<Option<Vec<canodom_calib::drive::Fix>>> {
+    Ok(match &args.truth {
+        None => None,
+        Some(path) => {
+            let text = std::fs::read_to_string(path).map_err(|e| {
+                anyhow::anyhow!("{}: cannot read the reference: {e}", path.display())
+            })?;
+            Some(canodom_calib::drive::parse_fixes(
+                &text,
+                &path.display().to_string(),
+            )?)
+        }
+    })
+}
+
+/// `--fixes`: the sets learnt as the fixes come, with their times (none
+/// without `--fixes`).
+///
+/// # Errors
+/// As [`super::replay_fixes::learn`].
+fn learn_from_fixes(
+    args: &ReplayArgs,
+    config: &Config,
+    params: Option<&canodom_params::persist::ParamSet>,
+) -> anyhow::Result<
+    Vec<(
+        canodom_can::time::Timestamp,
+        canodom_params::persist::ParamSet,
+    )>,
+> {
+    Ok(match &args.fixes {
+        Some(path) => super::replay_fixes::learn(
+            &super::replay_fixes::FixesArgs {
+                path,
+                log: &args.log,
+                interface: args.interface.as_deref(),
+                every_s: args.fixes_every_s,
+                learnt_out: args.learnt_out.as_deref(),
+            },
+            config,
+            params,
+        )?,
+        None => Vec::new(),
+    })
+}
+
 /// Runs `replay`.
 ///
 /// # Errors
@@ -121,18 +188,8 @@ pub fn execute(args: &ReplayArgs) -> anyhow::Result<()> {
         canodom_ros2::replay::execute(&args.ros2, &config, params.as_ref(), log)?;
         return Ok(());
     }
-    let truth = match &args.truth {
-        None => None,
-        Some(path) => {
-            let text = std::fs::read_to_string(path).map_err(|e| {
-                anyhow::anyhow!("{}: cannot read the reference: {e}", path.display())
-            })?;
-            Some(canodom_calib::drive::parse_fixes(
-                &text,
-                &path.display().to_string(),
-            )?)
-        }
-    };
+    let truth = read_truth(args)?;
+    let switches = learn_from_fixes(args, &config, params.as_ref())?;
     let mut input = super::open_input(&args.log, "replay")?;
     let started = std::time::Instant::now();
     let (sink, mcap) = open_output(args, &config)?;
@@ -146,6 +203,7 @@ pub fn execute(args: &ReplayArgs) -> anyhow::Result<()> {
             interface: args.interface.as_deref(),
             keep_track: truth.is_some(),
             log_name: Some(&args.log.display().to_string()),
+            switches: &switches,
         },
         &mut input,
         &mut w,

@@ -1,0 +1,197 @@
+//! Calibration while the car drives (#46 item 2, first form): the drive's
+//! calibration against position fixes ([`crate::drive::fit_samples`]) refitted
+//! as fixes come, each refit over everything driven so far, and the set it
+//! learnt taken into use from the moment it was learnt. `replay --fixes`
+//! runs it over a recorded drive, so a user sees offline what the car would
+//! have learnt and where its pose would have ended.
+//!
+//! A sliding refit rather than a recursive filter: the drive fit already
+//! handles what fixes do (jumps, outages, their latency, what a drive
+//! cannot tell) and is judged by the same gate as `calibrate --fixes`; a
+//! refit of a 10-minute drive costs well under a second, once every
+//! `every_s` of fixes. The pose never jumps: a new set changes how the
+//! wheels and the gyro are read from then on, not where the car is.
+
+use crate::drive::{DriveLog, fit_samples};
+use canodom_calib::drive::{DriveOptions, Fix};
+use canodom_calib::drive_gate::misfits;
+use canodom_params::persist::ParamValues;
+use canodom_pipeline::config::Config;
+use std::fmt::Write as _;
+
+/// The least fix time between two refits, s: the default of `replay
+/// --fixes-every-s`. Two minutes of 1 Hz fixes pin the speed scale to
+/// about 0.1 % (σ 1.5 m over a kilometre); refitting more often adds cost,
+/// not information.
+pub const DEFAULT_EVERY_S: f64 = 120.0;
+
+/// One refit of the online calibration.
+#[derive(Clone, Debug)]
+pub struct Epoch {
+    /// When it was made: the time of the last fix it used (the log's clock, s).
+    pub t_s: f64,
+    /// Fixes it used.
+    pub fixes: usize,
+    /// The set it learnt: the values in use with every estimate that
+    /// passed the gate applied (`None` when the fit failed).
+    pub values: Option<ParamValues>,
+    /// Each estimate as (name, value, σ, told by the drive and passed the
+    /// gate), for the
+    /// learnt-parameters CSV.
+    pub estimates: Vec<(&'static str, f64, f64, bool)>,
+    /// Why the learnt set is not taken into use, when it is not: the fit
+    /// failed, misfits the fixes, leaves the configured bounds, or nothing
+    /// passed the gate.
+    pub refused: Option<String>,
+}
+
+impl Epoch {
+    /// The set to take into use from `t_s` on, when there is one.
+    pub fn accepted(&self) -> Option<&ParamValues> {
+        if self.refused.is_some() {
+            None
+        } else {
+            self.values.as_ref()
+        }
+    }
+}
+
+/// Refits the drive every `every_s` of fixes (and once at the last fix),
+/// each over the samples and fixes up to that time, starting from `base`
+/// (the values in use when the drive was recorded).
+pub fn learn(
+    config: &Config,
+    base: ParamValues,
+    drive: &DriveLog,
+    fixes: &[Fix],
+    options: &DriveOptions,
+    every_s: f64,
+) -> Vec<Epoch> {
+    let (Some(first), Some(last)) = (drive.samples.first(), drive.samples.last()) else {
+        return Vec::new();
+    };
+    let inside: Vec<Fix> = fixes
+        .iter()
+        .copied()
+        .filter(|f| f.t_s >= first.t_s && f.t_s <= last.t_s)
+        .collect();
+    let (Some(f0), Some(f_end)) = (inside.first(), inside.last()) else {
+        return Vec::new();
+    };
+    let mut times = Vec::new();
+    let mut t = f0.t_s + every_s;
+    while t < f_end.t_s {
+        times.push(t);
+        t += every_s;
+    }
+    times.push(f_end.t_s);
+    times
+        .into_iter()
+        .map(|t_s| {
+            let upto = drive.samples.partition_point(|s| s.t_s <= t_s);
+            let used: Vec<Fix> = inside.iter().copied().filter(|f| f.t_s <= t_s).collect();
+            epoch(config, base, &drive.samples[..upto], &used, options, t_s)
+        })
+        .collect()
+}
+
+/// One refit at `t_s`.
+fn epoch(
+    config: &Config,
+    base: ParamValues,
+    samples: &[canodom_calib::drive::DriveSample],
+    fixes: &[Fix],
+    options: &DriveOptions,
+    t_s: f64,
+) -> Epoch {
+    let what = format!("the drive up to t={t_s:.1} s");
+    let fit = match fit_samples(config, base, samples, fixes, &what, options) {
+        Ok(fit) => fit,
+        Err(e) => {
+            return Epoch {
+                t_s,
+                fixes: fixes.len(),
+                values: None,
+                estimates: Vec::new(),
+                refused: Some(e.to_string()),
+            };
+        }
+    };
+    let cal = &fit.calibration;
+    // The gate marks what it refused as not told: `observable` is "passed".
+    let mut estimates = vec![
+        (
+            "speed_scale",
+            cal.speed_scale.value,
+            cal.speed_scale.sigma,
+            cal.speed_scale.observable,
+        ),
+        (
+            "rear_ratio",
+            cal.rear_ratio.value,
+            cal.rear_ratio.sigma,
+            cal.rear_ratio.observable,
+        ),
+        (
+            "rear_tread",
+            cal.rear_tread.value,
+            cal.rear_tread.sigma,
+            cal.rear_tread.observable,
+        ),
+        (
+            "fixes_latency_s",
+            cal.fixes_latency_s.value,
+            cal.fixes_latency_s.sigma,
+            cal.fixes_latency_s.observable,
+        ),
+    ];
+    for (name, e) in [
+        ("steer_offset_rad", cal.steer_offset_rad),
+        ("steer_gain", cal.steer_gain),
+        ("yaw_bias_radps", cal.yaw_bias_radps),
+        ("yaw_scale", cal.yaw_scale),
+    ] {
+        if let Some(e) = e {
+            estimates.push((name, e.value, e.sigma, e.observable));
+        }
+    }
+    let found = misfits(cal);
+    let refused = if !found.is_empty() {
+        Some(canodom_calib::drive_gate::misfit_refusal(&found))
+    } else if let Some(why) = &fit.out_of_bounds {
+        Some(format!("outside the configured bounds: {why}"))
+    } else if fit.values == base {
+        Some("nothing passed the quality gate".to_owned())
+    } else {
+        None
+    };
+    Epoch {
+        t_s,
+        fixes: fixes.len(),
+        values: Some(fit.values),
+        estimates,
+        refused,
+    }
+}
+
+/// The learnt-parameters CSV: a row per refit and estimate.
+pub const LEARNT_CSV_HEADER: &str = "t_unix_s,fixes,parameter,value,sigma,passed,taken_into_use";
+
+/// The learnt-parameters CSV's rows for `epochs`.
+pub fn learnt_csv(epochs: &[Epoch]) -> String {
+    let mut out = format!("{LEARNT_CSV_HEADER}\n");
+    for e in epochs {
+        let used = u8::from(e.accepted().is_some());
+        for (name, value, sigma, passed) in &e.estimates {
+            // Writing to a String cannot fail.
+            let _ = writeln!(
+                out,
+                "{:.3},{},{name},{value:.9},{sigma:.9},{},{used}",
+                e.t_s,
+                e.fixes,
+                u8::from(*passed)
+            );
+        }
+    }
+    out
+}
