@@ -266,7 +266,8 @@ pub fn execute(
             r.parameter, r.reason
         );
     }
-    let found = misfits(&cal);
+    let gate = canodom_offline::drive::drive_gate(&config.calibration, base.rear_tread_m);
+    let found = misfits(&cal, &gate);
     if !found.is_empty() {
         bail!("{}", misfit_refusal(&found));
     }
@@ -276,7 +277,7 @@ pub fn execute(
     if values == base {
         bail!(
             "nothing passed the quality gate ([calibration] max_*_std, max_fix_residual_m, \
-             max_down_weighted_share); the parameter file is left as it was"
+             max_fix_sigma_m, max_down_weighted_share); the parameter file is left as it was"
         );
     }
     let created = std::time::SystemTime::now()
@@ -347,6 +348,9 @@ mod tests {
             latency_given: false,
             down_weighted: Vec::new(),
             weighted_rms_m: [Some(0.1), Some(0.1), None],
+            own_fit_rms_m: [Some(0.1), Some(0.1), None],
+            fixes_sigma_m: 0.08,
+            fixes_sigma_stated: false,
             refused: Vec::new(),
         };
         let v = calibrated_values(&base, &cal);
@@ -377,6 +381,10 @@ mod tests {
                 && text.contains("stored: steering_gain 0.001000 -> 0.001000 road-wheel rad"),
             "{text}"
         );
-        assert!(misfits(&cal).is_empty(), "0.1 m at the fixes is a fit");
+        let gate = canodom_calib::drive_gate::DriveGate::default();
+        assert!(
+            misfits(&cal, &gate).is_empty(),
+            "0.1 m at the fixes is a fit"
+        );
     }
 }
