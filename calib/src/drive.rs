@@ -809,10 +809,9 @@ impl<'a> Problem<'a> {
         // best leaves no more (a refit that fails or lands worse keeps them).
         for (src, own) in own_fit_rms_m.iter_mut().enumerate() {
             if let Some(r) = own.filter(|r| !r.is_finite() || *r > crate::drive_gate::MISFIT_RMS_M)
+                && let Ok(alone) = self.alone_rms_m(&fit, src)
             {
-                if let Ok(alone) = self.alone_rms_m(&fit, src) {
-                    *own = Some(alone.min(r));
-                }
+                *own = Some(alone.min(r));
             }
         }
         Ok(DriveCalibration {

@@ -109,13 +109,10 @@ impl DriveGate {
     }
 }
 
-/// Applies `gate` to `cal`: every estimate that fails it is marked not
-/// observable, so [`calibrated_values`] keeps the previous value; the
-/// refusals say which and why (empty: everything the drive told passes).
-///
-/// [`calibrated_values`]: crate::drive::calibrated_values
-pub fn apply_gate(cal: &mut DriveCalibration, gate: &DriveGate) -> Vec<GateRefusal> {
-    let mut refusals = Vec::new();
+/// Why the fit as a whole is not plausible (None: it is): its residual
+/// beyond what the fixes' noise and the allowance explain, or too many
+/// fixes down-weighted.
+fn whole_refusal(cal: &DriveCalibration, gate: &DriveGate) -> Option<String> {
     let best_rms = cal
         .weighted_rms_m
         .iter()
@@ -125,9 +122,7 @@ pub fn apply_gate(cal: &mut DriveCalibration, gate: &DriveGate) -> Vec<GateRefus
     let share = cal.down_weighted.len() as f64 / cal.fixes_used.max(1) as f64;
     let limit = gate.residual_limit_m(cal, gate.max_residual_m);
     // A NaN residual fails too.
-    let whole = if best_rms.partial_cmp(&limit) != Some(std::cmp::Ordering::Less)
-        && best_rms != limit
-    {
+    if best_rms.partial_cmp(&limit) != Some(std::cmp::Ordering::Less) && best_rms != limit {
         Some(format!(
             "the fit's residual at the fixes is {best_rms:.2} m (weighted RMS of the best source), \
              above the {limit:.2} m that the fixes' noise ({}) and max_fix_residual_m's {:.2} m \
@@ -146,7 +141,17 @@ pub fn apply_gate(cal: &mut DriveCalibration, gate: &DriveGate) -> Vec<GateRefus
         ))
     } else {
         None
-    };
+    }
+}
+
+/// Applies `gate` to `cal`: every estimate that fails it is marked not
+/// observable, so [`calibrated_values`] keeps the previous value; the
+/// refusals say which and why (empty: everything the drive told passes).
+///
+/// [`calibrated_values`]: crate::drive::calibrated_values
+pub fn apply_gate(cal: &mut DriveCalibration, gate: &DriveGate) -> Vec<GateRefusal> {
+    let mut refusals = Vec::new();
+    let whole = whole_refusal(cal, gate);
     let deg = 180.0 / PI;
     let entries: [(&'static str, Option<&mut Estimate>, f64, &str, f64); 7] = [
         (
@@ -237,7 +242,6 @@ pub const MISFIT_RMS_M: f64 = 5.0;
 /// and [`MISFIT_RMS_M`] explain (`gate` caps the noise): (source, the
 /// `[signals]` keys to check, residual RMS m).
 pub fn misfits(cal: &DriveCalibration, gate: &DriveGate) -> Vec<(&'static str, &'static str, f64)> {
-    let limit = gate.residual_limit_m(cal, MISFIT_RMS_M);
     const SOURCES: [(&str, &str); 3] = [
         (
             "rear wheels",
@@ -249,6 +253,7 @@ pub fn misfits(cal: &DriveCalibration, gate: &DriveGate) -> Vec<(&'static str, &
             "signals.steering (its sign and unit), steering_kind, vehicle.steering_ratio",
         ),
     ];
+    let limit = gate.residual_limit_m(cal, MISFIT_RMS_M);
     SOURCES
         .iter()
         // The robust RMS (a receiver's jumps, down-weighted by the fit, are

@@ -337,7 +337,7 @@ fn parse_nmea(text: &str, name: &str) -> Result<Vec<Fix>> {
     let err = |m: String| Error::Calibration(format!("{name}: {m} (read as {format})"));
     let mut sentences: Vec<Sentence> = Vec::new();
     // GST's σ by time of day: a receiver sends it before or after the epoch's GGA.
-    let mut gst_sigma: std::collections::HashMap<NaiveTime, f64> = Default::default();
+    let mut gst_sigma = std::collections::HashMap::<NaiveTime, f64>::new();
     let (mut other, mut invalid, mut bad) = (0_usize, 0_usize, Vec::<String>::new());
     for (i, raw) in text.lines().enumerate() {
         let line = raw.trim();

@@ -122,14 +122,7 @@ pub fn report_text(cal: &DriveCalibration, base: &ParamValues, new: &ParamValues
         line(&mut s, name, estimate, unit, k);
     }
     tread_and_latency(&mut s, cal, base, new);
-    let names = ["rear wheels", "yaw rate", "steering"];
-    let residuals: Vec<String> = names
-        .iter()
-        .zip(cal.residual_rms_m)
-        .zip(cal.weighted_rms_m)
-        .filter_map(|((n, r), w)| Some(format!("{n} {:.3} m ({:.3} m weighted)", r?, w?)))
-        .collect();
-    let _ = writeln!(s, "  residual RMS at the fixes: {}", residuals.join(", "));
+    residual_lines(&mut s, cal);
     if cal.down_weighted.is_empty() {
         let _ = writeln!(s, "  down-weighted fixes: none");
     } else {
@@ -160,6 +153,36 @@ pub fn report_text(cal: &DriveCalibration, base: &ParamValues, new: &ParamValues
         base.steering_gain, new.steering_gain, base.steering_offset_rad, new.steering_offset_rad
     );
     s
+}
+
+/// The report's lines of the residuals at the fixes and the fixes' noise.
+fn residual_lines(s: &mut String, cal: &DriveCalibration) {
+    let names = ["rear wheels", "yaw rate", "steering"];
+    let residuals: Vec<String> = names
+        .iter()
+        .zip(cal.residual_rms_m)
+        .zip(cal.weighted_rms_m.iter().zip(cal.own_fit_rms_m))
+        .filter_map(|((n, r), (w, own))| {
+            let w = (*w)?;
+            // A source the misfit check judged on its own refit says so.
+            let alone = own
+                .filter(|o| *o != w)
+                .map(|o| format!(", {o:.3} m fitted alone"))
+                .unwrap_or_default();
+            Some(format!("{n} {:.3} m ({w:.3} m weighted{alone})", r?))
+        })
+        .collect();
+    let _ = writeln!(*s, "  residual RMS at the fixes: {}", residuals.join(", "));
+    let _ = writeln!(
+        *s,
+        "  the fixes' noise: σ {:.3} m per axis ({})",
+        cal.fixes_sigma_m,
+        if cal.fixes_sigma_stated {
+            "as the fixes state it"
+        } else {
+            "estimated from the residuals; none stated"
+        }
+    );
 }
 
 /// The report's lines of the rear tread and the fixes' latency.
@@ -379,6 +402,10 @@ mod tests {
             text.contains("steering offset (road-wheel)")
                 && text.contains("× the one in use")
                 && text.contains("stored: steering_gain 0.001000 -> 0.001000 road-wheel rad"),
+            "{text}"
+        );
+        assert!(
+            text.contains("the fixes' noise: σ 0.080 m per axis (estimated from the residuals"),
             "{text}"
         );
         let gate = canodom_calib::drive_gate::DriveGate::default();
