@@ -79,7 +79,9 @@ mod result;
 mod robust;
 mod uncertainty;
 
-pub use inputs::{DriveModel, DriveSample, Fix, FixRow, FixRowsError, fix_rows, parse_fixes};
+pub use inputs::{
+    DriveModel, DriveSample, Fix, FixRow, FixRowsError, SIGMA_COLUMN, fix_rows, parse_fixes,
+};
 pub use options::{DriveOptions, FixesLatency, Loss, PriorSigmas};
 pub use result::{DownWeighted, DriveCalibration, Estimate, GateRefusal, calibrated_values};
 
@@ -166,6 +168,19 @@ const HEADING_RIDGE: f64 = 1e-2;
 /// metres at most) it moves nothing.
 const POSITION_RIDGE: f64 = 1e-6;
 
+/// The median σ the fixes state, metres (None when none states one): the
+/// reference of the fit's per-fix scales, and the σ of a fix that states
+/// none among fixes that do.
+fn stated_sigma_m(fixes: &[Fix]) -> Option<f64> {
+    let mut stated: Vec<f64> = fixes.iter().filter_map(|f| f.sigma_m).collect();
+    stated.sort_by(f64::total_cmp);
+    stated.get(stated.len() / 2).copied()
+}
+
+/// The median of χ² with two degrees of freedom, 2 ln 2: the median of a
+/// fix's squared horizontal residual is this times σ² per axis.
+const MEDIAN_CHI2_2: f64 = 2.0 * std::f64::consts::LN_2;
+
 fn wrap(a: f64) -> f64 {
     let w = a.rem_euclid(2.0 * PI);
     if w > PI { w - 2.0 * PI } else { w }
@@ -182,8 +197,12 @@ struct Row {
     segment: usize,
     /// 0 x, 1 y, 2 heading.
     component: usize,
+    /// The fix's stated σ relative to the reference (`Problem::fix_scale`;
+    /// 1 for a heading row): the row is whitened by the group's σ times it.
+    scale: f64,
 }
 
+#[derive(Clone)]
 struct Problem<'a> {
     prep: Prepared,
     fixes: &'a [Fix],
@@ -198,6 +217,10 @@ struct Problem<'a> {
     latency_bound_s: f64,
     /// The rear wheels' turning over the used samples, left and right.
     turns_rad: [f64; 2],
+    /// Each fix's stated σ relative to the median stated σ (1 for a fix
+    /// that states none, and for all when none does): a group's σ is fitted
+    /// for a fix of the reference σ and scaled by this for each fix.
+    fix_scale: Vec<f64>,
 }
 
 #[derive(Clone)]
@@ -289,7 +312,15 @@ impl<'a> Problem<'a> {
             });
         }
         let turns_rad = turns(&prep, &segments, model.rear_tread_m);
+        let fix_scale = match stated_sigma_m(fixes) {
+            Some(reference) => fixes
+                .iter()
+                .map(|f| f.sigma_m.map_or(1.0, |s| s / reference))
+                .collect(),
+            None => vec![1.0; fixes.len()],
+        };
         Ok(Self {
+            fix_scale,
             prep,
             fixes,
             model: *model,
@@ -433,9 +464,11 @@ impl<'a> Problem<'a> {
                     }
                 }
                 let (sn, cs) = th0.sin_cos();
-                let (sp, sh) = (fit.sigma[src * 2], fit.sigma[src * 2 + 1]);
+                let sh = fit.sigma[src * 2 + 1];
                 for (j, rj) in rel.iter().enumerate() {
                     let fix = &self.fixes[seg.fixes[j]];
+                    let scale = self.fix_scale[seg.fixes[j]];
+                    let sp = fit.sigma[src * 2] * scale;
                     let px = x0 + cs * rj[0] - sn * rj[1];
                     let py = y0 + sn * rj[0] + cs * rj[1];
                     let mut jx = Vec::new();
@@ -466,6 +499,7 @@ impl<'a> Problem<'a> {
                             raw,
                             segment: si,
                             component,
+                            scale,
                         });
                     }
                     if let Some(h) = fix.heading_rad {
@@ -485,6 +519,7 @@ impl<'a> Problem<'a> {
                             raw,
                             segment: si,
                             component: 2,
+                            scale: 1.0,
                         });
                     }
                 }
@@ -618,7 +653,7 @@ impl<'a> Problem<'a> {
                     .filter(|r| r.group == group)
                     .fold((0.0, 0.0), |(n, s), r| {
                         let w = fit.weights[r.fix][group];
-                        (n + w, s + w * r.raw * r.raw)
+                        (n + w, s + w * (r.raw / r.scale).powi(2))
                     });
             fit.sigma[group] = if heading {
                 if n < 5.0 {
@@ -764,7 +799,25 @@ impl<'a> Problem<'a> {
                 (ssr / n.max(1e-9)).sqrt()
             })
         });
+        let (fixes_sigma_m, fixes_sigma_stated) = self.fixes_sigma(&fit, &rows, &weighted_rms_m);
+        // A source past the misfit check's smallest limit is judged on its
+        // own best fit: the joint fit's shared values (speed scale,
+        // latency) are a compromise between the sources, and a source the
+        // compromise leaves far off may still be one that its own values fit.
+        let mut own_fit_rms_m = weighted_rms_m;
+        // The joint values are one set of that source's values, so its own
+        // best leaves no more (a refit that fails or lands worse keeps them).
+        for (src, own) in own_fit_rms_m.iter_mut().enumerate() {
+            if let Some(r) = own.filter(|r| !r.is_finite() || *r > crate::drive_gate::MISFIT_RMS_M)
+                && let Ok(alone) = self.alone_rms_m(&fit, src)
+            {
+                *own = Some(alone.min(r));
+            }
+        }
         Ok(DriveCalibration {
+            own_fit_rms_m,
+            fixes_sigma_m,
+            fixes_sigma_stated,
             rear_tread: est(TREAD),
             turns_rad: self.turns_rad,
             fixes_latency_s: match self.options.latency {
@@ -790,6 +843,77 @@ impl<'a> Problem<'a> {
             distance_m: self.distance_m(&fit),
             residual_rms_m,
         })
+    }
+
+    /// Source `src`'s weighted RMS position residual, metres, when its
+    /// reckoning alone is fitted to the fixes (the other sources off), from
+    /// the joint fit `fit`: what no parameter values of that source can
+    /// remove.
+    fn alone_rms_m(&self, fit: &Fit, src: usize) -> Result<f64> {
+        let mut alone = self.clone();
+        alone.active = [false; 3];
+        alone.active[src] = true;
+        let mut own = fit.clone();
+        for (i, fixed) in own.fixed.iter_mut().enumerate() {
+            *fixed |= !alone.source_uses(i);
+        }
+        alone.fit(&mut own)?;
+        let (n, ssr) = alone
+            .rows(&own, f64::INFINITY, false)
+            .iter()
+            .filter(|r| r.group == src * 2)
+            .fold((0.0_f64, 0.0_f64), |(n, s), r| {
+                let w = own.weights[r.fix][src * 2];
+                (n + 0.5 * w, s + w * r.raw * r.raw)
+            });
+        Ok((ssr / n.max(1e-9)).sqrt())
+    }
+
+    /// The fixes' 1σ error per axis, metres, and whether their source
+    /// stated it. Stated: the RMS of the σ of the used fixes that the best
+    /// fitting source kept (a fix stating none counted at the median stated
+    /// σ). Not stated: estimated from that source's residuals, robustly,
+    /// `√(median e² / (2 ln 2))` over the fixes it kept (`e` a fix's
+    /// horizontal residual): the median and the kept fixes only, so that
+    /// neither a receiver's jumps nor a stretch the reckoning gets wrong
+    /// passes for the fixes' own noise.
+    fn fixes_sigma(
+        &self,
+        fit: &Fit,
+        rows: &[Row],
+        weighted_rms_m: &[Option<f64>; 3],
+    ) -> (f64, bool) {
+        let best = (0..3)
+            .filter_map(|src| weighted_rms_m[src].map(|r| (src, r)))
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+            .map_or(REAR, |(src, _)| src);
+        let group = best * 2;
+        let mut e2: Vec<(usize, f64)> = Vec::new();
+        for r in rows.iter().filter(|r| r.group == group) {
+            match e2.last_mut() {
+                Some((f, e)) if *f == r.fix => *e += r.raw * r.raw,
+                _ => e2.push((r.fix, r.raw * r.raw)),
+            }
+        }
+        let kept: Vec<(usize, f64)> = e2
+            .iter()
+            .copied()
+            .filter(|&(f, _)| fit.weights[f][group] >= robust::DOWN_WEIGHTED)
+            .collect();
+        let kept = if kept.is_empty() { e2 } else { kept };
+        if let Some(reference) = stated_sigma_m(self.fixes) {
+            let n = kept.len().max(1) as f64;
+            let mean2 = kept
+                .iter()
+                .map(|&(f, _)| self.fixes[f].sigma_m.unwrap_or(reference).powi(2))
+                .sum::<f64>()
+                / n;
+            return (mean2.sqrt(), true);
+        }
+        let mut sorted: Vec<f64> = kept.iter().map(|e| e.1).collect();
+        sorted.sort_by(f64::total_cmp);
+        let median = sorted.get(sorted.len() / 2).copied().unwrap_or(0.0);
+        ((median / MEDIAN_CHI2_2).sqrt(), false)
     }
 
     /// Whether the drive turned enough each way to tell the tread.
@@ -822,3 +946,5 @@ impl<'a> Problem<'a> {
 
 #[cfg(test)]
 mod tests;
+#[cfg(test)]
+mod tests_sigma;

@@ -24,19 +24,27 @@ pub struct DriveGate {
     pub yaw_scale: f64,
     /// Largest σ of the rear tread correction (relative).
     pub rear_tread: f64,
-    /// Largest weighted RMS position residual at the fixes of the best
-    /// source, metres: past it the reckoning and the fixes disagree beyond
-    /// any receiver's noise (a wrong configuration, a wrong log) and nothing
-    /// is committed.
+    /// The reckoning's own error at the fixes that a right configuration
+    /// may leave beyond the fixes' noise, metres (weighted RMS of the best
+    /// source, added in quadrature to what the noise explains, see
+    /// [`DriveGate::residual_limit_m`]): past the sum the reckoning and the
+    /// fixes disagree (a wrong configuration, a wrong log) and nothing is
+    /// committed.
     pub max_residual_m: f64,
+    /// The largest 1σ per axis of the fixes, metres, that the residual gate
+    /// and the misfit check allow for: a σ the fixes state or the fit
+    /// estimates above it is taken as this, so noisy fixes, or residuals
+    /// that only look like noise, cannot excuse any residual.
+    pub max_fix_sigma_m: f64,
     /// Largest share of fixes the robust loss may down-weight: past it the
     /// "outliers" are the rule and nothing is committed.
     pub max_down_weighted_share: f64,
 }
 
 impl Default for DriveGate {
-    /// 0.2 %, 0.2 %, 0.5°, 2 %, 0.05°/s, 0.25 %, 0.5 %; 2 m; a quarter of the
-    /// fixes: `[calibration]`'s defaults (pipeline::config), which a live or
+    /// 0.2 %, 0.2 %, 0.5°, 2 %, 0.05°/s, 0.25 %, 0.5 %; 2 m over the
+    /// noise of fixes of σ up to 3 m; a quarter of the fixes:
+    /// `[calibration]`'s defaults (pipeline::config), which a live or
     /// offline commit uses.
     fn default() -> Self {
         Self {
@@ -48,18 +56,63 @@ impl Default for DriveGate {
             yaw_scale: 0.0025,
             rear_tread: 0.005,
             max_residual_m: 2.0,
+            max_fix_sigma_m: 3.0,
             max_down_weighted_share: 0.25,
         }
     }
 }
 
-/// Applies `gate` to `cal`: every estimate that fails it is marked not
-/// observable, so [`calibrated_values`] keeps the previous value; the
-/// refusals say which and why (empty: everything the drive told passes).
-///
-/// [`calibrated_values`]: crate::drive::calibrated_values
-pub fn apply_gate(cal: &mut DriveCalibration, gate: &DriveGate) -> Vec<GateRefusal> {
-    let mut refusals = Vec::new();
+impl DriveGate {
+    /// The fixes' σ per axis the gate allows for, metres: `cal`'s, at most
+    /// [`DriveGate::max_fix_sigma_m`].
+    pub fn noise_sigma_m(&self, cal: &DriveCalibration) -> f64 {
+        // A NaN σ allows nothing.
+        let s = cal.fixes_sigma_m;
+        if s.is_finite() {
+            s.clamp(0.0, self.max_fix_sigma_m)
+        } else {
+            0.0
+        }
+    }
+
+    /// The largest weighted RMS residual at the fixes, metres, that the
+    /// fixes' noise and `allowance_m` of the reckoning's own error explain:
+    /// `√(2σ² + allowance²)`, σ the fixes' per axis
+    /// ([`DriveGate::noise_sigma_m`]). The residual is horizontal (both
+    /// axes), so noise of σ per axis leaves `2σ²` of it squared; the
+    /// reckoning's error is independent of the receiver's noise, so the two
+    /// add in quadrature. Fixes of σ 1.5 m leave ~2.1 m after a right fit:
+    /// the limit is then 2.9 m with the default 2 m, 4.7 m at σ 3 m.
+    pub fn residual_limit_m(&self, cal: &DriveCalibration, allowance_m: f64) -> f64 {
+        let sigma = self.noise_sigma_m(cal);
+        2.0_f64
+            .mul_add(sigma * sigma, allowance_m * allowance_m)
+            .sqrt()
+    }
+
+    /// The fixes' noise as a refusal states it.
+    fn noise_text(&self, cal: &DriveCalibration) -> String {
+        let how = if cal.fixes_sigma_stated {
+            "stated by the fixes"
+        } else {
+            "estimated from the residuals"
+        };
+        let sigma = self.noise_sigma_m(cal);
+        if sigma < cal.fixes_sigma_m || !cal.fixes_sigma_m.is_finite() {
+            format!(
+                "σ {:.2} m per axis {how}, taken as max_fix_sigma_m {sigma:.2} m",
+                cal.fixes_sigma_m
+            )
+        } else {
+            format!("σ {sigma:.2} m per axis {how}")
+        }
+    }
+}
+
+/// Why the fit as a whole is not plausible (None: it is): its residual
+/// beyond what the fixes' noise and the allowance explain, or too many
+/// fixes down-weighted.
+fn whole_refusal(cal: &DriveCalibration, gate: &DriveGate) -> Option<String> {
     let best_rms = cal
         .weighted_rms_m
         .iter()
@@ -67,10 +120,14 @@ pub fn apply_gate(cal: &mut DriveCalibration, gate: &DriveGate) -> Vec<GateRefus
         .copied()
         .fold(f64::INFINITY, f64::min);
     let share = cal.down_weighted.len() as f64 / cal.fixes_used.max(1) as f64;
-    let whole = if best_rms > gate.max_residual_m {
+    let limit = gate.residual_limit_m(cal, gate.max_residual_m);
+    // A NaN residual fails too.
+    if best_rms.partial_cmp(&limit) != Some(std::cmp::Ordering::Less) && best_rms != limit {
         Some(format!(
             "the fit's residual at the fixes is {best_rms:.2} m (weighted RMS of the best source), \
-             above {:.2} m: the reckoning and the fixes disagree (configuration, log or fixes wrong?)",
+             above the {limit:.2} m that the fixes' noise ({}) and max_fix_residual_m's {:.2} m \
+             explain: the reckoning and the fixes disagree (configuration, log or fixes wrong?)",
+            gate.noise_text(cal),
             gate.max_residual_m
         ))
     } else if share > gate.max_down_weighted_share {
@@ -84,7 +141,17 @@ pub fn apply_gate(cal: &mut DriveCalibration, gate: &DriveGate) -> Vec<GateRefus
         ))
     } else {
         None
-    };
+    }
+}
+
+/// Applies `gate` to `cal`: every estimate that fails it is marked not
+/// observable, so [`calibrated_values`] keeps the previous value; the
+/// refusals say which and why (empty: everything the drive told passes).
+///
+/// [`calibrated_values`]: crate::drive::calibrated_values
+pub fn apply_gate(cal: &mut DriveCalibration, gate: &DriveGate) -> Vec<GateRefusal> {
+    let mut refusals = Vec::new();
+    let whole = whole_refusal(cal, gate);
     let deg = 180.0 / PI;
     let entries: [(&'static str, Option<&mut Estimate>, f64, &str, f64); 7] = [
         (
@@ -162,17 +229,19 @@ pub fn apply_gate(cal: &mut DriveCalibration, gate: &DriveGate) -> Vec<GateRefus
     refusals
 }
 
-/// Residual RMS at the fixes, metres, above which a heading source's fit is
-/// a misfit: consumer GNSS fixes are 1–3 m RMS and a surveyed route better,
-/// so beyond 5 m no parameter values explain the drive and the
-/// configuration (a sign, a unit, a wheel or steering kind) is what is
-/// wrong. Committing such a fit would store parameters that only look
-/// calibrated.
+/// Residual RMS at the fixes beyond the fixes' own noise, metres, above
+/// which a heading source's fit is a misfit (the limit is
+/// [`DriveGate::residual_limit_m`] with this allowance: 5.4 m for fixes of
+/// σ 1.5 m, 6.6 m at σ 3 m): the residuals are the fitted parameters', so
+/// beyond it no parameter values explain the drive and the configuration
+/// (a sign, a unit, a wheel or steering kind) is what is wrong. Committing
+/// such a fit would store parameters that only look calibrated.
 pub const MISFIT_RMS_M: f64 = 5.0;
 
-/// The heading sources whose fit leaves more than [`MISFIT_RMS_M`] at the
-/// fixes: (source, the `[signals]` keys to check, residual RMS m).
-pub fn misfits(cal: &DriveCalibration) -> Vec<(&'static str, &'static str, f64)> {
+/// The heading sources whose fit leaves more at the fixes than their noise
+/// and [`MISFIT_RMS_M`] explain (`gate` caps the noise): (source, the
+/// `[signals]` keys to check, residual RMS m).
+pub fn misfits(cal: &DriveCalibration, gate: &DriveGate) -> Vec<(&'static str, &'static str, f64)> {
     const SOURCES: [(&str, &str); 3] = [
         (
             "rear wheels",
@@ -184,13 +253,14 @@ pub fn misfits(cal: &DriveCalibration) -> Vec<(&'static str, &'static str, f64)>
             "signals.steering (its sign and unit), steering_kind, vehicle.steering_ratio",
         ),
     ];
+    let limit = gate.residual_limit_m(cal, MISFIT_RMS_M);
     SOURCES
         .iter()
-        // The robust RMS: a receiver's jumps, down-weighted by the fit, are
-        // not a misfit of the configuration.
-        .zip(cal.weighted_rms_m)
+        // The robust RMS (a receiver's jumps, down-weighted by the fit, are
+        // not a misfit of the configuration) of the source's own best fit.
+        .zip(cal.own_fit_rms_m)
         .filter_map(|(&(source, keys), rms)| {
-            rms.filter(|&r| r > MISFIT_RMS_M || !r.is_finite())
+            rms.filter(|&r| r > limit || !r.is_finite())
                 .map(|r| (source, keys, r))
         })
         .collect()
@@ -206,8 +276,8 @@ pub fn misfit_refusal(found: &[(&str, &str, f64)]) -> String {
         })
         .collect();
     format!(
-        "not committed: a misfit: {}. More than {MISFIT_RMS_M} m is beyond what the fixes' own \
-         error explains: no parameter values fit this drive, so the configuration is likely wrong \
+        "not committed: a misfit: {}. More than {MISFIT_RMS_M} m beyond what the fixes' own \
+         error explains, after the fit: no parameter values fit this drive, so the configuration is likely wrong \
          (`canodom replay` names what it suspects). This is not a parameter the drive does not \
          tell: such a parameter is held at its value (\"held\" above) and the rest is committed",
         each.join("; ")
@@ -246,9 +316,13 @@ mod misfit_tests {
             latency_given: false,
             down_weighted: Vec::new(),
             weighted_rms_m: [Some(1.2), Some(74.0), Some(MISFIT_RMS_M)],
+            own_fit_rms_m: [Some(1.2), Some(74.0), Some(MISFIT_RMS_M)],
+            fixes_sigma_m: 0.8,
+            fixes_sigma_stated: false,
             refused: Vec::new(),
         };
-        let found = misfits(&cal);
+        let gate = DriveGate::default();
+        let found = misfits(&cal, &gate);
         assert_eq!(found.len(), 1, "{found:?}");
         assert_eq!(found[0].0, "yaw rate");
         let text = misfit_refusal(&found);
@@ -259,9 +333,9 @@ mod misfit_tests {
             "{text}"
         );
         let nan = DriveCalibration {
-            weighted_rms_m: [Some(f64::NAN), None, None],
+            own_fit_rms_m: [Some(f64::NAN), None, None],
             ..cal
         };
-        assert_eq!(misfits(&nan)[0].0, "rear wheels");
+        assert_eq!(misfits(&nan, &gate)[0].0, "rear wheels");
     }
 }

@@ -161,6 +161,7 @@ impl DriveRecorder {
                 x_m,
                 y_m,
                 heading_rad: None,
+                sigma_m: None,
             });
         }
     }

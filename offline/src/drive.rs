@@ -146,6 +146,7 @@ pub fn drive_gate(c: &canodom_pipeline::config::CalibrationConfig, rear_tread_m:
         yaw_scale: c.max_yaw_scale_std,
         rear_tread: c.max_tread_std_m / rear_tread_m,
         max_residual_m: c.max_fix_residual_m,
+        max_fix_sigma_m: c.max_fix_sigma_m,
         max_down_weighted_share: c.max_down_weighted_share,
     }
 }

@@ -10,6 +10,11 @@
 //!   logs use; a sentence with an invalid fix is left out, other sentences
 //!   (GSV, VTG, ...) are counted and skipped.
 //!
+//! Each fix's 1σ horizontal error per axis ([`Fix::sigma_m`]) as its source
+//! states it: a CSV's `horiz_std_m` column; in NMEA, the GST sentence of the
+//! same epoch (the receiver's own error estimate), else GGA's HDOP times
+//! [`HDOP_UERE_M`]. Without any, the fit estimates it from its residuals.
+//!
 //! The two sentences are read here by hand, and why: the `nmea` crate (0.7
 //! and 0.8) declares `serde_with ~3.9`/`~3.11` as an optional dependency,
 //! which Cargo's resolver counts even unused and which conflicts with
@@ -25,6 +30,15 @@
 use crate::{Error, Result};
 use canodom_calib::drive::{Fix, FixRow, FixRowsError, fix_rows};
 use chrono::{NaiveDate, NaiveTime, Timelike as _};
+
+/// The 1σ error per horizontal axis, metres, of a consumer receiver's fix
+/// at HDOP 1, by which GGA's HDOP becomes a σ when no GST sentence states
+/// one (`σ = HDOP × HDOP_UERE_M`). From u-blox's NEO-M8 data sheet
+/// (UBX-15031086): 2.5 m CEP horizontal (GPS + GLONASS, 24 h static, open
+/// sky, where HDOP is near 1); CEP is 1.1774 σ for a circular normal error,
+/// so σ ≈ 2.1 m per axis. A receiver with SBAS or RTK does better and says
+/// so in GST; this is what a plain receiver's HDOP alone supports.
+pub const HDOP_UERE_M: f64 = 2.1;
 
 /// What a fixes file held.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -86,6 +100,7 @@ struct Geodetic {
     lat_deg: f64,
     lon_deg: f64,
     alt_m: f64,
+    sigma_m: Option<f64>,
 }
 
 /// East/north metres around the first fix (its altitude as the plane's).
@@ -114,6 +129,7 @@ fn to_local(geo: &[Geodetic]) -> Vec<Fix> {
                 x_m: e,
                 y_m: n,
                 heading_rad: None,
+                sigma_m: g.sigma_m,
             }
         })
         .collect()
@@ -151,6 +167,7 @@ fn parse_geodetic_csv(text: &str, name: &str) -> Result<Vec<Fix>> {
             lat_deg: r.values[1],
             lon_deg: r.values[2],
             alt_m: r.optional.unwrap_or(0.0),
+            sigma_m: r.sigma_m,
         })
         .collect();
     Ok(to_local(&geo))
@@ -165,6 +182,8 @@ struct Sentence {
     lat_deg: f64,
     lon_deg: f64,
     alt_m: Option<f64>,
+    /// GGA's horizontal dilution of precision.
+    hdop: Option<f64>,
 }
 
 /// What one NMEA sentence holds.
@@ -175,6 +194,8 @@ enum Read {
     NoFix,
     /// A fix (its line still 0).
     Fix(Sentence),
+    /// A GST sentence: the receiver's 1σ error per horizontal axis at a time of day.
+    Gst(NaiveTime, f64),
 }
 
 /// One sentence, its checksum checked.
@@ -204,6 +225,7 @@ fn sentence_fix(line: &str) -> std::result::Result<Read, String> {
     let (time, lat, ns, lon, ew) = match kind {
         "GGA" => (field(1), field(2), field(3), field(4), field(5)),
         "RMC" => (field(1), field(3), field(4), field(5), field(6)),
+        "GST" => return gst(&fields),
         _ => return Ok(Read::Other),
     };
     let valid = match kind {
@@ -233,6 +255,16 @@ fn sentence_fix(line: &str) -> std::result::Result<Read, String> {
         };
     let lat_deg = angle(lat, 2, ns, "N", "S")?;
     let lon_deg = angle(lon, 3, ew, "E", "W")?;
+    // An HDOP of 0 is a receiver that does not compute it: no σ.
+    let hdop = match (kind, field(8)) {
+        ("GGA", h) if !h.is_empty() => h
+            .parse::<f64>()
+            .ok()
+            .filter(|h| h.is_finite() && *h >= 0.0)
+            .ok_or_else(|| format!("HDOP {h:?} is not a number ≥ 0"))
+            .map(|h| (h > 0.0).then_some(h))?,
+        _ => None,
+    };
     let (date, alt_m) = if kind == "RMC" {
         let d = field(9);
         let date = NaiveDate::parse_from_str(d, "%d%m%y")
@@ -259,13 +291,53 @@ fn sentence_fix(line: &str) -> std::result::Result<Read, String> {
         lat_deg,
         lon_deg,
         alt_m,
+        hdop,
     }))
+}
+
+/// A GST sentence (`$--GST,time,rms,major,minor,orient,lat_err,lon_err,alt_err`):
+/// the 1σ error per horizontal axis, `√((σ_lat² + σ_lon²)/2)`, or from the
+/// error ellipse's axes when the latitude and longitude errors are empty (the
+/// same trace). A GST without either is skipped as an unknown sentence.
+fn gst(fields: &[&str]) -> std::result::Result<Read, String> {
+    let field = |k: usize| fields.get(k).copied().unwrap_or("");
+    let time = field(1);
+    let number = |k: usize| -> std::result::Result<Option<f64>, String> {
+        let text = field(k);
+        if text.is_empty() {
+            return Ok(None);
+        }
+        text.parse::<f64>()
+            .ok()
+            .filter(|v| v.is_finite() && *v >= 0.0)
+            .map(Some)
+            .ok_or_else(|| format!("GST field {k} {text:?} is not a σ in metres"))
+    };
+    let pair = match (number(6)?, number(7)?) {
+        (Some(a), Some(b)) => Some((a, b)),
+        _ => number(3)?.zip(number(4)?),
+    };
+    let (Some((a, b)), false) = (pair, time.is_empty()) else {
+        return Ok(Read::Other);
+    };
+    let time = NaiveTime::parse_from_str(time, "%H%M%S%.f")
+        .or_else(|_| NaiveTime::parse_from_str(time, "%H%M%S"))
+        .map_err(|_| format!("time {time:?} is not hhmmss.ss"))?;
+    let sigma = a.hypot(b) / std::f64::consts::SQRT_2;
+    // A σ of 0 is a receiver that does not know (as a driver's empty covariance).
+    Ok(if sigma > 0.0 {
+        Read::Gst(time, sigma)
+    } else {
+        Read::Other
+    })
 }
 
 fn parse_nmea(text: &str, name: &str) -> Result<Vec<Fix>> {
     let format = FixesFormat::Nmea.name();
     let err = |m: String| Error::Calibration(format!("{name}: {m} (read as {format})"));
     let mut sentences: Vec<Sentence> = Vec::new();
+    // GST's σ by time of day: a receiver sends it before or after the epoch's GGA.
+    let mut gst_sigma = std::collections::HashMap::<NaiveTime, f64>::new();
     let (mut other, mut invalid, mut bad) = (0_usize, 0_usize, Vec::<String>::new());
     for (i, raw) in text.lines().enumerate() {
         let line = raw.trim();
@@ -283,6 +355,9 @@ fn parse_nmea(text: &str, name: &str) -> Result<Vec<Fix>> {
             Ok(Read::Fix(mut s)) => {
                 s.line = i + 1;
                 sentences.push(s);
+            }
+            Ok(Read::Gst(time, sigma)) => {
+                gst_sigma.insert(time, sigma);
             }
             Ok(Read::NoFix) => invalid += 1,
             Ok(Read::Other) => other += 1,
@@ -321,6 +396,10 @@ fn parse_nmea(text: &str, name: &str) -> Result<Vec<Fix>> {
         let when = date.and_time(s.time).and_utc();
         let t_s = when.timestamp() as f64 + f64::from(s.time.nanosecond() % 1_000_000_000) * 1e-9;
         altitude = s.alt_m.or(altitude);
+        let sigma_m = gst_sigma
+            .get(&s.time)
+            .copied()
+            .or(s.hdop.map(|h| h * HDOP_UERE_M));
         // One fix an epoch: GGA and RMC of the same instant are one.
         match geo.last_mut() {
             Some(last) if (last.t_s - t_s).abs() < 1e-6 => {
@@ -328,6 +407,7 @@ fn parse_nmea(text: &str, name: &str) -> Result<Vec<Fix>> {
                     (last.lat_deg, last.lon_deg, last.alt_m) =
                         (s.lat_deg, s.lon_deg, altitude.unwrap_or(0.0));
                 }
+                last.sigma_m = last.sigma_m.or(sigma_m);
             }
             Some(last) if t_s < last.t_s => {
                 return Err(err(format!(
@@ -340,6 +420,7 @@ fn parse_nmea(text: &str, name: &str) -> Result<Vec<Fix>> {
                 lat_deg: s.lat_deg,
                 lon_deg: s.lon_deg,
                 alt_m: altitude.unwrap_or(0.0),
+                sigma_m,
             }),
         }
     }
@@ -383,6 +464,64 @@ mod tests {
         assert!(fixes[1].x_m.abs() < 1e-6, "{:?}", fixes[1]);
         // 0.001' of latitude at 48.15° on WGS-84: 1.8532 m.
         assert!((fixes[1].y_m - 1.8532).abs() < 1e-3, "{:?}", fixes[1]);
+    }
+
+    #[test]
+    fn nmea_sigma_from_gst_when_present_else_from_hdop() {
+        // Epoch 1: GGA HDOP 0.8 and a GST of σ_lat 1.2 m, σ_lon 1.6 m (sent
+        // after the GGA); epoch 2: HDOP 1.5, no GST; epoch 3: GST before
+        // the GGA, its lat/lon errors empty, the ellipse's axes 2 and 1 m.
+        let text = [
+            sentence("GPGGA,120640.20,4809.0000000,N,01134.8000000,E,1,09,0.8,520.0,M,47.0,M,,"),
+            sentence("GPGST,120640.20,2.0,1.7,1.1,30.0,1.2,1.6,2.5"),
+            sentence("GPRMC,120640.20,A,4809.0000000,N,01134.8000000,E,20.0,90.0,151123,,,A"),
+            sentence("GPGGA,120641.20,4809.0010000,N,01134.8000000,E,1,09,1.5,520.0,M,47.0,M,,"),
+            sentence("GPRMC,120641.20,A,4809.0010000,N,01134.8000000,E,20.0,90.0,151123,,,A"),
+            sentence("GNGST,120642.20,2.0,2.0,1.0,30.0,,,"),
+            sentence("GPGGA,120642.20,4809.0020000,N,01134.8000000,E,1,09,0.9,520.0,M,47.0,M,,"),
+            sentence("GPRMC,120642.20,A,4809.0020000,N,01134.8000000,E,20.0,90.0,151123,,,A"),
+        ]
+        .join("\r\n");
+        let (fixes, _) = parse_fixes_any(&text, "f.nmea").unwrap();
+        let sigma: Vec<Option<f64>> = fixes.iter().map(|f| f.sigma_m).collect();
+        let close = |got: Option<f64>, want: f64| got.is_some_and(|g| (g - want).abs() < 1e-9);
+        // √((1.2² + 1.6²)/2) = √2 m.
+        assert!(close(sigma[0], 2.0_f64.sqrt()), "{sigma:?}");
+        assert!(close(sigma[1], 1.5 * HDOP_UERE_M), "{sigma:?}");
+        // √((2² + 1²)/2) = √2.5 m.
+        assert!(close(sigma[2], 2.5_f64.sqrt()), "{sigma:?}");
+        // Without HDOP or GST a fix states none; a bad HDOP is named.
+        let plain = [
+            sentence("GPGGA,120640.20,4809.0,N,01134.8,E,1,09,,520.0,M,47.0,M,,"),
+            sentence("GPRMC,120640.20,A,4809.0,N,01134.8,E,20.0,90.0,151123,,,A"),
+        ]
+        .join("\n");
+        assert_eq!(parse_fixes_any(&plain, "f").unwrap().0[0].sigma_m, None);
+        let bad = sentence("GPGGA,120640.20,4809.0,N,01134.8,E,1,09,x,520.0,M,47.0,M,,");
+        let e = parse_fixes_any(&bad, "f").unwrap_err().to_string();
+        assert!(e.contains("HDOP") && e.contains("line 1"), "{e}");
+    }
+
+    #[test]
+    fn csv_sigma_from_the_horiz_std_m_column() {
+        // What `canodom ros2-fixes` writes: empty when the covariance is unknown.
+        let text = "t_unix_s,lat_deg,lon_deg,alt_m,horiz_std_m\n\
+                    10,48.15,11.58,520,1.250\n11,48.15001,11.58,520,\n12,48.15002,11.58,520,0\n";
+        let (fixes, _) = parse_fixes_any(text, "g.csv").unwrap();
+        let sigma: Vec<Option<f64>> = fixes.iter().map(|f| f.sigma_m).collect();
+        assert_eq!(sigma, [Some(1.25), None, None]);
+        let (local, format) =
+            parse_fixes_any("t_unix_s,x_m,y_m,horiz_std_m\n1,0,0,2.5\n", "l.csv").unwrap();
+        assert_eq!(format, FixesFormat::LocalCsv);
+        assert_eq!(local[0].sigma_m, Some(2.5));
+        let e = parse_fixes_any("t_unix_s,x_m,y_m,horiz_std_m\n1,0,0,-1\n", "l.csv")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("l.csv:2") && e.contains("horiz_std_m"), "{e}");
+        let e = parse_fixes_any("t_unix_s,x_m,y_m,horiz_std_m\n1,0,0,abc\n", "l.csv")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("l.csv:2") && e.contains("not a number"), "{e}");
     }
 
     #[test]

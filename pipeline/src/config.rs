@@ -287,9 +287,16 @@ pub struct CalibrationConfig {
     pub max_yaw_bias_std_radps: f64,
     /// Largest yaw-rate scale standard deviation a drive's commit accepts (default 0.01).
     pub max_yaw_scale_std: f64,
-    /// Largest residual at the fixes (weighted RMS) a drive's fit may have
-    /// for anything to be committed, m (default 2).
+    /// The residual at the fixes (weighted RMS) a drive's fit may leave
+    /// beyond what the fixes' own noise explains, for anything to be
+    /// committed, m (default 2): the limit is `√(2σ² + this²)`, σ the fixes'
+    /// per axis (stated by them, else estimated from the residuals; at most
+    /// `max_fix_sigma_m`). Before issue #46 it was the limit itself.
     pub max_fix_residual_m: f64,
+    /// The largest σ per axis of the fixes, m, that the residual gate allows
+    /// for (default 3: a consumer receiver without corrections is 1–3 m);
+    /// a larger stated or estimated σ is taken as this.
+    pub max_fix_sigma_m: f64,
     /// Largest share of a drive's fixes the fit may down-weight for anything
     /// to be committed (default 0.25).
     pub max_down_weighted_share: f64,

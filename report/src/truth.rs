@@ -367,6 +367,7 @@ mod tests {
                     x_m: 100.0 - 20.0 + 20.0 * a.cos(),
                     y_m: 50.0 + 20.0 * a.sin(),
                     heading_rad: with_heading.then_some(std::f64::consts::FRAC_PI_2 + a),
+                    sigma_m: None,
                 }
             })
             .collect()
@@ -438,6 +439,7 @@ mod tests {
                 x_m: 1.0,
                 y_m: 2.0,
                 heading_rad: None,
+                sigma_m: None,
             })
             .collect();
         let e = TruthComparison::build(&still, &track(1.0), None)

@@ -9,9 +9,8 @@
 //!
 //! The fix's covariance, when its type is known, goes into the CSV as a
 //! fifth column `horiz_std_m` (empty when unknown): the geodetic CSV's
-//! reader ignores columns it does not know, so `calibrate` reads the file
-//! as before. The calibration does not weigh fixes by it yet: its `Fix`
-//! has no σ (every fix counts the same), which is the gap left.
+//! reader takes it as each fix's σ (`Fix::sigma_m`): `calibrate` weighs
+//! the fixes by it and its quality gate allows the residual it explains.
 
 use crate::config::Resolved;
 use crate::msg::{self, NavSatFix};

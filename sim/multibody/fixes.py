@@ -17,10 +17,13 @@ makes them from a drive's `truth.csv` (the rear-axle midpoint at 50 Hz on the lo
 Written to --out:
 - `fixes.csv`: `t_unix_s,x_m,y_m`, local metres in the truth's frame (what `canodom calibrate
   --fixes` has always read);
-- `fixes_geo.csv`: `t_unix_s,lat_deg,lon_deg,alt_m`, the same fixes placed on the WGS-84
-  ellipsoid around --origin (truth's x east, y north), converted with pymap3d;
-- `fixes.nmea`: the same fixes as NMEA 0183 GGA and RMC sentences with their UTC times and
-  checksums, written by pynmea2 (a tool this project did not write);
+- `fixes_geo.csv`: `t_unix_s,lat_deg,lon_deg,alt_m,horiz_std_m`, the same fixes placed on the
+  WGS-84 ellipsoid around --origin (truth's x east, y north), converted with pymap3d, with
+  --sigma-m as each fix's stated σ (what `canodom ros2-fixes` writes from a known covariance);
+- `fixes.nmea`: the same fixes as NMEA 0183 GGA, GST and RMC sentences with their UTC times
+  and checksums, written by pynmea2 (a tool this project did not write): GST states --sigma-m
+  as the latitude and longitude errors, GGA's HDOP is --sigma-m / HDOP_UERE_M (canodom's
+  constant for a receiver that sends no GST); `--no-gst` leaves GST out;
 - `fixes.json`: what was drawn (the jumps' times and offsets, the origin, the settings).
 """
 from __future__ import annotations
@@ -88,8 +91,13 @@ def nmea_lon(lon_deg: float) -> tuple[str, str]:
     return f"{d:03d}{(a - d) * 60.0:010.7f}", "E" if lon_deg >= 0 else "W"
 
 
-def nmea_lines(t, lat, lon, alt, sigma_m: float) -> list[str]:
-    """GGA and RMC for each fix, through pynmea2 (its own field layout and checksum)."""
+# canodom's σ per axis at HDOP 1 (offline/src/fixes.rs HDOP_UERE_M), so that a reader of the
+# HDOP alone finds the σ the fixes were drawn with.
+HDOP_UERE_M = 2.1
+
+
+def nmea_lines(t, lat, lon, alt, sigma_m: float, gst: bool = True) -> list[str]:
+    """GGA (GST) and RMC for each fix, through pynmea2 (its own field layout and checksum)."""
     import pynmea2
 
     out = []
@@ -98,7 +106,7 @@ def nmea_lines(t, lat, lon, alt, sigma_m: float) -> list[str]:
         hms = when.strftime("%H%M%S") + f".{when.microsecond // 10000:02d}"
         la, ns = nmea_lat(float(lat[i]))
         lo, ew = nmea_lon(float(lon[i]))
-        hdop = f"{max(0.6, sigma_m / 0.5):.1f}"
+        hdop = f"{max(0.5, sigma_m / HDOP_UERE_M):.2f}"
         gga = pynmea2.GGA("GP", "GGA", (hms, la, ns, lo, ew, "1", "09", hdop, f"{alt[i]:.3f}", "M",
                                          "47.0", "M", "", ""))
         if i + 1 < len(t):
@@ -106,6 +114,10 @@ def nmea_lines(t, lat, lon, alt, sigma_m: float) -> list[str]:
         else:
             j0, j1 = max(0, i - 1), i
         out.append(str(gga))
+        if gst:
+            s = f"{sigma_m:.2f}"
+            out.append(str(pynmea2.GST("GP", "GST", (hms, f"{sigma_m * 1.4142:.2f}", s, s, "0.0", s, s,
+                                                     f"{1.5 * sigma_m:.2f}"))))
         # Course and speed over ground from the neighbouring fixes (what a receiver reports).
         import pymap3d
 
@@ -119,7 +131,7 @@ def nmea_lines(t, lat, lon, alt, sigma_m: float) -> list[str]:
     return out
 
 
-def write_all(out: Path, t, x, y, record: dict, origin=(48.1500, 11.5800, 520.0)) -> None:
+def write_all(out: Path, t, x, y, record: dict, origin=(48.1500, 11.5800, 520.0), gst: bool = True) -> None:
     import pymap3d
 
     out.mkdir(parents=True, exist_ok=True)
@@ -129,10 +141,11 @@ def write_all(out: Path, t, x, y, record: dict, origin=(48.1500, 11.5800, 520.0)
             f.write(f"{ti:.3f},{xi:.4f},{yi:.4f}\n")
     lat, lon, alt = pymap3d.enu2geodetic(np.asarray(x), np.asarray(y), np.zeros(len(x)), *origin)
     with open(out / "fixes_geo.csv", "w") as f:
-        f.write("t_unix_s,lat_deg,lon_deg,alt_m\n")
+        f.write("t_unix_s,lat_deg,lon_deg,alt_m,horiz_std_m\n")
         for ti, a, b, c in zip(t, lat, lon, alt):
-            f.write(f"{ti:.3f},{a:.9f},{b:.9f},{c:.3f}\n")
-    (out / "fixes.nmea").write_text("\r\n".join(nmea_lines(t, lat, lon, alt, record["sigma_m"])) + "\r\n")
+            f.write(f"{ti:.3f},{a:.9f},{b:.9f},{c:.3f},{record['sigma_m']:.3f}\n")
+    lines = nmea_lines(t, lat, lon, alt, record["sigma_m"], gst)
+    (out / "fixes.nmea").write_text("\r\n".join(lines) + "\r\n")
     (out / "fixes.json").write_text(json.dumps(record | {"origin": list(origin)}, indent=1) + "\n")
 
 
@@ -148,13 +161,14 @@ def main(argv=None) -> int:
     ap.add_argument("--jumps", type=int, default=2)
     ap.add_argument("--jump-m", type=float, default=15.0)
     ap.add_argument("--clean", action="store_true", help="no noise, latency or jumps")
+    ap.add_argument("--no-gst", action="store_true", help="no GST sentences: the σ only from GGA's HDOP")
     ap.add_argument("--origin", type=float, nargs=3, default=(48.15, 11.58, 520.0),
                     metavar=("LAT", "LON", "ALT"), help="where the truth's origin lies on the globe")
     a = ap.parse_args(argv)
     truth = read_truth(a.drive / "truth.csv")
     t, x, y, record = make_fixes(truth, seed=a.seed, window_s=a.window_s, rate_hz=a.rate_hz, sigma_m=a.sigma_m,
                                  latency_s=a.latency_s, jumps=a.jumps, jump_m=a.jump_m, clean=a.clean)
-    write_all(a.out, t, x, y, record, tuple(a.origin))
+    write_all(a.out, t, x, y, record, tuple(a.origin), gst=not a.no_gst)
     print(f"{a.out}: {len(t)} fixes, jumps at {[j['t_unix_s'] for j in record['jumps']]}", file=sys.stderr)
     return 0
 

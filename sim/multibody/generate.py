@@ -58,6 +58,10 @@ GYRO = {"scale_max": 0.005, "noise_dps": (0.05, 0.15)}
 # Each wheel's radius error beyond the common one, within ±spread_max (see
 # draw_sensor_errors for what it does to the rear wheels' heading, and --wheel-spread-max).
 WHEELS = {"spread_max": 0.00025}
+# One tyre larger than the others by a share (a new tyre beside worn ones, a pressure
+# difference; --tyre-large): {"wheel": "RL", "rel": 0.003}, or None. Applied after the
+# seed's draws, so a drive differs from its twin only in that wheel's speed frames.
+TYRE = {"large": None}
 # Long drives (--minutes): the route is chained, turn after straight as for a short drive,
 # until the time its segments plan (length / speed) reaches this many minutes; None keeps
 # the ~1.1 km drives. The draws of a short drive are unchanged (the same seed gives the
@@ -511,7 +515,12 @@ def draw_sensor_errors(rng: np.random.Generator, veh: Vehicle, seed: int) -> Sen
 def _wheel_scales(rng: np.random.Generator) -> dict:
     common = rng.uniform(-0.003, 0.003)
     spread = WHEELS["spread_max"]
-    return {w: float(1.0 + common + rng.uniform(-spread, spread)) for w in ("FL", "FR", "RL", "RR")}
+    scales = {w: float(1.0 + common + rng.uniform(-spread, spread)) for w in ("FL", "FR", "RL", "RR")}
+    if TYRE["large"] is not None:
+        # A tyre larger by rel turns 1 + rel times slower for the same distance; the ECU
+        # turns its spin into a speed with the nominal radius, so it reads 1/(1 + rel).
+        scales[TYRE["large"]["wheel"]] /= 1.0 + TYRE["large"]["rel"]
+    return scales
 
 
 def frame_times(rng: np.random.Generator, t_end: float, period: float) -> np.ndarray:
@@ -677,6 +686,7 @@ def write_drive(veh: Vehicle, seed: int, out_dir: Path, compress: bool = True) -
         "events_setting": dict(EVENTS),
         "gyro_setting": dict(GYRO),
         "wheels_setting": dict(WHEELS),
+        "tyre_setting": dict(TYRE),
         "route_setting": dict(ROUTE),
         "model": "commonroad-vehicle-models 3.0.2 vehicle_dynamics_mb",
         "sensor_errors": dataclasses.asdict(err),
@@ -755,6 +765,9 @@ def main(argv=None) -> int:
     ap.add_argument("--wheel-spread-max", type=float, default=WHEELS["spread_max"], metavar="REL",
                     help="each wheel's radius error beyond the common one is drawn within ±REL "
                     "(default %(default)s; 0 for wheels that differ in nothing but the common error)")
+    ap.add_argument("--tyre-large", nargs=2, default=None, metavar=("WHEEL", "REL"),
+                    help="one tyre (FL, FR, RL or RR) larger than its draw by REL (e.g. RL 0.003): "
+                    "its wheel-speed frames read 1/(1 + REL) of its draw")
     ap.add_argument("--minutes", type=float, default=None, metavar="MIN",
                     help="a long drive: chain route segments until the plan lasts MIN minutes "
                     "(e.g. 20; default: the ~1.1 km drive). Cost: the simulation's CPU grows with "
@@ -773,6 +786,15 @@ def main(argv=None) -> int:
     if args.harsh:
         EVENTS.update(HARSH_EVENTS)
     GYRO.update(scale_max=args.yaw_scale_max, noise_dps=(lo, hi))
+    if args.tyre_large is not None:
+        wheel, rel = args.tyre_large
+        try:
+            rel = float(rel)
+        except ValueError:
+            ap.error(f"--tyre-large {wheel} {rel}: REL must be a number")
+        if wheel not in ("FL", "FR", "RL", "RR") or not -0.05 < rel < 0.05:
+            ap.error(f"--tyre-large {wheel} {rel}: expected FL|FR|RL|RR and -0.05 < REL < 0.05")
+        TYRE.update(large={"wheel": wheel, "rel": rel})
     WHEELS.update(spread_max=args.wheel_spread_max)
     vs = vehicles()
     for key in args.vehicle:

@@ -39,10 +39,21 @@ pub struct Fix {
     pub y_m: f64,
     /// The vehicle's heading (CCW from +x), when the source gives one.
     pub heading_rad: Option<f64>,
+    /// The fix's 1σ horizontal error per axis, metres, when its source
+    /// states it (a CSV's `horiz_std_m`, NMEA GST, HDOP). The fit weighs the
+    /// fixes by it and the quality gate allows the residual it explains;
+    /// when no fix states it, both take it from the fit's own residuals.
+    pub sigma_m: Option<f64>,
 }
 
+/// The optional column of a fixes CSV that states each fix's 1σ horizontal
+/// error per axis, metres (what `canodom ros2-fixes` writes from a
+/// `NavSatFix`'s known covariance); an empty field is a fix without one.
+pub const SIGMA_COLUMN: &str = "horiz_std_m";
+
 /// Reads a fixes CSV: a header naming `t_unix_s`, `x_m`, `y_m` and
-/// optionally `heading_rad` (any order, other columns ignored), then one fix
+/// optionally `heading_rad` and [`SIGMA_COLUMN`] (any order, other columns
+/// ignored), then one fix
 /// a line; times on the log's clock (Unix seconds, as candump -L writes).
 /// `name` names the file in errors.
 ///
@@ -78,6 +89,7 @@ pub fn parse_fixes(text: &str, name: &str) -> Result<Vec<Fix>> {
             x_m: r.values[1],
             y_m: r.values[2],
             heading_rad: r.optional,
+            sigma_m: r.sigma_m,
         })
         .collect())
 }
@@ -92,6 +104,9 @@ pub struct FixRow {
     pub values: [f64; 3],
     /// The optional column's value, when the header has it.
     pub optional: Option<f64>,
+    /// The fix's stated σ per axis ([`SIGMA_COLUMN`]), when the header has
+    /// the column and the line a value in it.
+    pub sigma_m: Option<f64>,
 }
 
 /// Why [`fix_rows`] refused a text.
@@ -117,9 +132,11 @@ pub enum FixRowsError {
 
 /// The rows of a CSV of fixes whose header names its columns (any order,
 /// others ignored): three `required` columns, the first the time, and one
-/// `optional`; every value a finite number, the times increasing, and each
-/// row passed to `check` (its refusal is that line's error). The one reader
-/// of the local-metre and the latitude/longitude CSVs.
+/// `optional`, and [`SIGMA_COLUMN`] when present; every value a finite
+/// number (a σ positive, or empty for none, or 0, which receivers' drivers
+/// write for "not known"), the times increasing, and each row passed to
+/// `check` (its refusal is that line's error). The one reader of the
+/// local-metre and the latitude/longitude CSVs.
 ///
 /// # Errors
 /// [`FixRowsError`], naming the line.
@@ -149,6 +166,7 @@ pub fn fix_rows(
         });
     };
     let extra = column(optional);
+    let sigma_at = column(SIGMA_COLUMN);
     let mut rows: Vec<FixRow> = Vec::new();
     for (i, line) in lines {
         let bad = |reason: String| FixRowsError::Line {
@@ -176,6 +194,18 @@ pub fn fix_rows(
                 number(c, required[2])?,
             ],
             optional: extra.map(|e| number(e, optional)).transpose()?,
+            sigma_m: match sigma_at {
+                Some(k) if !fields.get(k).is_none_or(|f| f.is_empty()) => {
+                    let v = number(k, SIGMA_COLUMN)?;
+                    if v < 0.0 {
+                        return Err(bad(format!(
+                            "{SIGMA_COLUMN} {v} is negative (a σ in metres, or empty)"
+                        )));
+                    }
+                    (v > 0.0).then_some(v)
+                }
+                _ => None,
+            },
         };
         check(&row).map_err(bad)?;
         if rows

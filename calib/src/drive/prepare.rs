@@ -7,6 +7,7 @@ use super::options::DriveOptions;
 use crate::error::{Error, Result};
 
 /// Inputs checked and arranged for the reckonings.
+#[derive(Clone)]
 pub(super) struct Prepared {
     pub(super) t: Vec<f64>,
     pub(super) dl: Vec<f64>,
@@ -58,6 +59,7 @@ pub(super) fn held(values: impl Iterator<Item = Option<f64>>) -> Option<Vec<f64>
 
 /// One segment: fixes `fixes` (indices into the fix list, at least three),
 /// the sample range its reckoning needs and each fix's interpolation.
+#[derive(Clone)]
 pub(super) struct Segment {
     pub(super) fixes: Vec<usize>,
     /// First sample of the reckoning (at or before the first fix, less the
@@ -99,9 +101,17 @@ pub(super) fn check(samples: &[DriveSample], fixes: &[Fix]) -> Result<()> {
             ("x_m", Some(f.x_m)),
             ("y_m", Some(f.y_m)),
             ("heading_rad", f.heading_rad),
+            ("sigma_m", f.sigma_m),
         ];
         let previous_s = index.checked_sub(1).map(|i| fixes[i].t_s);
         check_row("fix", index, &fields, f.t_s, previous_s)?;
+        if let Some(sigma) = f.sigma_m.filter(|s| *s <= 0.0) {
+            return Err(Error::InvalidArgument {
+                name: "fix sigma_m",
+                value: sigma,
+                reason: "a fix's stated σ must be positive (None when not known)",
+            });
+        }
         if f.t_s < first_s || f.t_s > last_s {
             return Err(Error::FixOutsideSamples {
                 index,

@@ -79,6 +79,21 @@ pub struct DriveCalibration {
     /// The weighted RMS position residual of each source (what the fixes it
     /// kept say), metres; None for a source without data.
     pub weighted_rms_m: [Option<f64>; 3],
+    /// Each source's weighted RMS position residual, metres, judged by the
+    /// misfit check: the joint fit's (`weighted_rms_m`), or, for a source
+    /// that leaves more than [`MISFIT_RMS_M`](crate::drive_gate::MISFIT_RMS_M)
+    /// there, its reckoning's alone with its own parameters refitted (the
+    /// other sources off): what no values of that source remove.
+    pub own_fit_rms_m: [Option<f64>; 3],
+    /// The fixes' 1σ horizontal error per axis, metres: the RMS of what
+    /// their source stated ([`Fix::sigma_m`](super::Fix::sigma_m)) over the
+    /// fixes the fit kept, or, when no fix states one, estimated from the
+    /// residuals of the source that fits best (the median, so that jumps
+    /// and a stretch the reckoning gets wrong do not pass for noise). The
+    /// quality gate allows the residual this explains.
+    pub fixes_sigma_m: f64,
+    /// Whether `fixes_sigma_m` is what the fixes' source stated (else estimated).
+    pub fixes_sigma_stated: bool,
     /// What the quality gate (`drive_gate`) refused, and why (empty
     /// before it ran or when everything passed).
     pub refused: Vec<GateRefusal>,

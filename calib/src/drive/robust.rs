@@ -9,7 +9,7 @@ use super::{Fit, HEADING_SIGMA_FLOOR_RAD, N_GROUP, POS_SIGMA_FLOOR_M, Problem, R
 /// Cauchy's constant (95 % asymptotic efficiency on Gaussian residuals).
 const CAUCHY_C: f64 = 2.385;
 /// A fix whose weight falls below this in every source is named as down-weighted.
-const DOWN_WEIGHTED: f64 = 0.5;
+pub(super) const DOWN_WEIGHTED: f64 = 0.5;
 
 impl Problem<'_> {
     /// The robust loss's weights from the residuals at `fit` (iteratively
@@ -23,11 +23,15 @@ impl Problem<'_> {
         }
         let rows = self.rows(fit, horizon_s, false);
         for group in 0..N_GROUP {
+            // Each fix's residual in units of its stated σ (relative to the
+            // reference): a fix its receiver calls noisier is not a jump for
+            // the scatter it was told to have.
             let mut e2: Vec<(usize, f64)> = Vec::new();
             for r in rows.iter().filter(|r| r.group == group) {
+                let e = (r.raw / r.scale).powi(2);
                 match e2.last_mut() {
-                    Some((f, e)) if *f == r.fix => *e += r.raw * r.raw,
-                    _ => e2.push((r.fix, r.raw * r.raw)),
+                    Some((f, acc)) if *f == r.fix => *acc += e,
+                    _ => e2.push((r.fix, e)),
                 }
             }
             if e2.len() < 5 {

@@ -33,18 +33,18 @@ fn fixes_parse_by_header_name_and_errors_name_the_line() {
 use proptest::prelude::*;
 
 const DEG: f64 = PI / 180.0;
-const MODEL: DriveModel = DriveModel {
+pub(super) const MODEL: DriveModel = DriveModel {
     rear_tread_m: 1.55,
     wheelbase_m: 2.7,
 };
 
 /// The true vehicle against the values in use, in the estimator's terms.
 #[derive(Debug, Clone, Copy)]
-struct Truth {
-    g: [f64; N_GLOBAL],
+pub(super) struct Truth {
+    pub(super) g: [f64; N_GLOBAL],
 }
 
-const TRUTH: Truth = Truth {
+pub(super) const TRUTH: Truth = Truth {
     g: [1.012, 1.0015, 0.5 * DEG, 0.95, 0.4 * DEG, 1.02, 0.2, 1.015],
 };
 
@@ -53,7 +53,7 @@ const TRUTH: Truth = Truth {
 /// what odometry with the values in use would read; a fix every second
 /// from the true pose (every fifth with a heading), stamped the truth's
 /// latency later; the rear wheels on the truth's effective tread.
-fn drive(
+pub(super) fn drive(
     truth: Truth,
     duration_s: f64,
     kappa: impl Fn(f64) -> f64,
@@ -79,6 +79,7 @@ fn drive(
         x_m: 3.0,
         y_m: -2.0,
         heading_rad: Some(0.3),
+        sigma_m: None,
     }]
     .into_iter()
     .filter(|f| f.t_s >= 0.0)
@@ -114,13 +115,14 @@ fn drive(
                 x_m: x,
                 y_m: y,
                 heading_rad: (k % 250 == 0).then_some(th),
+                sigma_m: None,
             });
         }
     }
     (samples, fixes)
 }
 
-fn winding(dist: f64) -> f64 {
+pub(super) fn winding(dist: f64) -> f64 {
     0.04 * (2.0 * PI * dist / 150.0).sin() + 0.01
 }
 
@@ -330,6 +332,7 @@ fn segments_respect_their_limits_and_drop_what_is_too_short() {
         x_m: 0.0,
         y_m: 0.0,
         heading_rad: None,
+        sigma_m: None,
     };
     // 1 Hz for 130 s: 60 + 60 + 11 fixes.
     let fixes: Vec<Fix> = (0..=130).map(|k| fix(f64::from(k))).collect();

@@ -102,7 +102,7 @@ impl Problem<'_> {
                     let Ok(j) = seg.fixes.binary_search(&row.fix) else {
                         continue;
                     };
-                    let unit = 1.0 / fit.sigma[row.group];
+                    let unit = 1.0 / (fit.sigma[row.group] * row.scale);
                     for &(c, v) in &row.jac {
                         per_fix[j][row.component][local(c)] += v * unit;
                     }

@@ -155,6 +155,7 @@ fn record(
                 x_m: s.true_pose.x_m + FIX_SIGMA_M * noise.next(),
                 y_m: s.true_pose.y_m + FIX_SIGMA_M * noise.next(),
                 heading_rad: None,
+                sigma_m: None,
             });
         }
     }

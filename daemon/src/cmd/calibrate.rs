@@ -50,8 +50,10 @@ yaw-rate sensor's bias and scale, the effective rear tread (from turns both ways
 latency (within ±--fixes-latency-bound-s, or given with --fixes-latency-s) are fitted over the whole \
 drive with a robust loss: a receiver's jumps are down-weighted and listed, each estimate has its \
 standard deviation; what the drive cannot tell is held and said so. Each value is committed only if \
-its standard deviation is within [calibration]'s max_*_std and the fit is plausible \
-(max_fix_residual_m, max_down_weighted_share), else the previous value is kept and the reason \
+its standard deviation is within [calibration]'s max_*_std and the fit is plausible (its residual \
+at the fixes within what their noise explains plus max_fix_residual_m, the noise as the fixes state \
+it — a horiz_std_m column, NMEA GST or HDOP — else estimated, at most max_fix_sigma_m; at most \
+max_down_weighted_share of the fixes down-weighted), else the previous value is kept and the reason \
 printed. The result goes to the parameter file --out (created if missing, history kept, bounds \
 checked), which `replay --params` and `run` (param_file) use.")]
 pub struct CalibrateArgs {

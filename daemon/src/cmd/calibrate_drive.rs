@@ -122,14 +122,7 @@ pub fn report_text(cal: &DriveCalibration, base: &ParamValues, new: &ParamValues
         line(&mut s, name, estimate, unit, k);
     }
     tread_and_latency(&mut s, cal, base, new);
-    let names = ["rear wheels", "yaw rate", "steering"];
-    let residuals: Vec<String> = names
-        .iter()
-        .zip(cal.residual_rms_m)
-        .zip(cal.weighted_rms_m)
-        .filter_map(|((n, r), w)| Some(format!("{n} {:.3} m ({:.3} m weighted)", r?, w?)))
-        .collect();
-    let _ = writeln!(s, "  residual RMS at the fixes: {}", residuals.join(", "));
+    residual_lines(&mut s, cal);
     if cal.down_weighted.is_empty() {
         let _ = writeln!(s, "  down-weighted fixes: none");
     } else {
@@ -160,6 +153,36 @@ pub fn report_text(cal: &DriveCalibration, base: &ParamValues, new: &ParamValues
         base.steering_gain, new.steering_gain, base.steering_offset_rad, new.steering_offset_rad
     );
     s
+}
+
+/// The report's lines of the residuals at the fixes and the fixes' noise.
+fn residual_lines(s: &mut String, cal: &DriveCalibration) {
+    let names = ["rear wheels", "yaw rate", "steering"];
+    let residuals: Vec<String> = names
+        .iter()
+        .zip(cal.residual_rms_m)
+        .zip(cal.weighted_rms_m.iter().zip(cal.own_fit_rms_m))
+        .filter_map(|((n, r), (w, own))| {
+            let w = (*w)?;
+            // A source the misfit check judged on its own refit says so.
+            let alone = own
+                .filter(|o| *o != w)
+                .map(|o| format!(", {o:.3} m fitted alone"))
+                .unwrap_or_default();
+            Some(format!("{n} {:.3} m ({w:.3} m weighted{alone})", r?))
+        })
+        .collect();
+    let _ = writeln!(*s, "  residual RMS at the fixes: {}", residuals.join(", "));
+    let _ = writeln!(
+        *s,
+        "  the fixes' noise: σ {:.3} m per axis ({})",
+        cal.fixes_sigma_m,
+        if cal.fixes_sigma_stated {
+            "as the fixes state it"
+        } else {
+            "estimated from the residuals; none stated"
+        }
+    );
 }
 
 /// The report's lines of the rear tread and the fixes' latency.
@@ -266,7 +289,8 @@ pub fn execute(
             r.parameter, r.reason
         );
     }
-    let found = misfits(&cal);
+    let gate = canodom_offline::drive::drive_gate(&config.calibration, base.rear_tread_m);
+    let found = misfits(&cal, &gate);
     if !found.is_empty() {
         bail!("{}", misfit_refusal(&found));
     }
@@ -276,7 +300,7 @@ pub fn execute(
     if values == base {
         bail!(
             "nothing passed the quality gate ([calibration] max_*_std, max_fix_residual_m, \
-             max_down_weighted_share); the parameter file is left as it was"
+             max_fix_sigma_m, max_down_weighted_share); the parameter file is left as it was"
         );
     }
     let created = std::time::SystemTime::now()
@@ -347,6 +371,9 @@ mod tests {
             latency_given: false,
             down_weighted: Vec::new(),
             weighted_rms_m: [Some(0.1), Some(0.1), None],
+            own_fit_rms_m: [Some(0.1), Some(0.1), None],
+            fixes_sigma_m: 0.08,
+            fixes_sigma_stated: false,
             refused: Vec::new(),
         };
         let v = calibrated_values(&base, &cal);
@@ -377,6 +404,14 @@ mod tests {
                 && text.contains("stored: steering_gain 0.001000 -> 0.001000 road-wheel rad"),
             "{text}"
         );
-        assert!(misfits(&cal).is_empty(), "0.1 m at the fixes is a fit");
+        assert!(
+            text.contains("the fixes' noise: σ 0.080 m per axis (estimated from the residuals"),
+            "{text}"
+        );
+        let gate = canodom_calib::drive_gate::DriveGate::default();
+        assert!(
+            misfits(&cal, &gate).is_empty(),
+            "0.1 m at the fixes is a fit"
+        );
     }
 }

@@ -100,6 +100,7 @@ impl Validator<'_> {
                 .positive("calibration.max_yaw_scale_std", c.max_yaw_scale_std)?,
             max_fix_residual_m: self
                 .positive("calibration.max_fix_residual_m", c.max_fix_residual_m)?,
+            max_fix_sigma_m: self.positive("calibration.max_fix_sigma_m", c.max_fix_sigma_m)?,
             max_down_weighted_share: self.positive(
                 "calibration.max_down_weighted_share",
                 c.max_down_weighted_share,

@@ -197,6 +197,7 @@ pub(super) struct RawCalibration {
     pub(super) max_yaw_bias_std_dps: f64,
     pub(super) max_yaw_scale_std: f64,
     pub(super) max_fix_residual_m: f64,
+    pub(super) max_fix_sigma_m: f64,
     pub(super) max_down_weighted_share: f64,
     pub(super) ack_timeout_ms: u64,
     pub(super) writeback_retries: u32,
@@ -243,7 +244,16 @@ impl Default for RawCalibration {
             // 0.005): a scale surer than the nominal one, or none (at 0.01 a
             // 0.9 %-sure scale made the multi-body BMW's rest 1.26 % off, not 0.78 %).
             max_yaw_scale_std: 0.0025,
+            // Allowed beyond the fixes' noise (issue #46): the reckoning's own
+            // error over a 60 s segment that no parameter removes (a tyre's
+            // slip in a curve, its radius under load), 0.2 % of the ~900 m
+            // such a segment drives at town-to-country speeds — below the
+            // 0.5 % the odometry is to keep, far below the tens of metres a
+            // wrong sign or unit leaves.
             max_fix_residual_m: 2.0,
+            // The noisiest fixes a calibration is meant for: a consumer
+            // receiver without corrections, σ 1–3 m per axis (issue #46).
+            max_fix_sigma_m: 3.0,
             max_down_weighted_share: 0.25,
             ack_timeout_ms: 500,
             writeback_retries: 3,
