@@ -155,7 +155,10 @@ fn epoch(
             estimates.push((name, e.value, e.sigma, e.observable));
         }
     }
-    let found = misfits(cal);
+    let found = misfits(
+        cal,
+        &crate::drive::drive_gate(&config.calibration, base.rear_tread_m),
+    );
     let refused = if !found.is_empty() {
         Some(canodom_calib::drive_gate::misfit_refusal(&found))
     } else if let Some(why) = &fit.out_of_bounds {
