@@ -570,10 +570,17 @@ impl Calibrator {
 
     /// A position fix from the bus: a local x and y in metres, or
     /// (`geodetic`) latitude and longitude in degrees; kept while a drive
-    /// is recorded.
-    pub fn on_fix(&mut self, t_s: f64, first: f64, second: f64, geodetic: bool) {
+    /// is recorded; `sigma_m` the 1σ per axis its source states, if it does.
+    pub fn on_fix(
+        &mut self,
+        t_s: f64,
+        first: f64,
+        second: f64,
+        geodetic: bool,
+        sigma_m: Option<f64>,
+    ) {
         if let Some(drive) = self.drive.as_mut() {
-            drive.fix(t_s, first, second, geodetic);
+            drive.fix(t_s, first, second, geodetic, sigma_m);
         }
     }
 

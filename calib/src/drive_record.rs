@@ -142,7 +142,10 @@ impl DriveRecorder {
     /// A position fix: a local x and y in metres, or (`geodetic`) latitude
     /// and longitude in degrees (turned into metres around the first fix).
     /// Fixes that are not finite or not later than the last are dropped.
-    pub fn fix(&mut self, t_s: f64, first: f64, second: f64, geodetic: bool) {
+    /// `sigma_m`: the 1σ error per axis the source states (gpsd's
+    /// `epx`/`epy`, a `NavSatFix` covariance), used by the fit's weights
+    /// and gates; a σ that is not finite and positive counts as unstated.
+    pub fn fix(&mut self, t_s: f64, first: f64, second: f64, geodetic: bool, sigma_m: Option<f64>) {
         if self.closed || !(first.is_finite() && second.is_finite()) {
             return;
         }
@@ -161,7 +164,7 @@ impl DriveRecorder {
                 x_m,
                 y_m,
                 heading_rad: None,
-                sigma_m: None,
+                sigma_m: sigma_m.filter(|s| s.is_finite() && *s > 0.0),
             });
         }
     }
@@ -243,7 +246,7 @@ mod tests {
             }
         }
         for k in 0..5 {
-            d.fix(f64::from(k) * 0.3, f64::from(k), 0.0, false);
+            d.fix(f64::from(k) * 0.3, f64::from(k), 0.0, false, None);
         }
         let model = DriveModel {
             rear_tread_m: 0.25,
@@ -266,17 +269,29 @@ mod tests {
     }
 
     #[test]
+    fn a_fixs_stated_sigma_is_kept_and_a_meaningless_one_is_unstated() {
+        let mut d = DriveRecorder::default();
+        d.fix(1.0, 0.0, 0.0, false, Some(1.5));
+        d.fix(2.0, 1.0, 0.0, false, None);
+        d.fix(3.0, 2.0, 0.0, false, Some(f64::NAN));
+        d.fix(4.0, 3.0, 0.0, false, Some(-1.0));
+        d.fix(5.0, 4.0, 0.0, false, Some(0.0));
+        let sigmas: Vec<Option<f64>> = d.fixes.iter().map(|f| f.sigma_m).collect();
+        assert_eq!(sigmas, [Some(1.5), None, None, None, None]);
+    }
+
+    #[test]
     fn steps_are_binned_and_fixes_outside_the_drive_left_out() {
         let mut d = DriveRecorder::default();
-        d.fix(-1.0, 0.0, 0.0, false);
+        d.fix(-1.0, 0.0, 0.0, false, None);
         for k in 0..=100 {
             d.step(&step(f64::from(k) * 0.01));
         }
         for k in 0..5 {
-            d.fix(f64::from(k) * 0.2, f64::from(k), 0.0, false);
+            d.fix(f64::from(k) * 0.2, f64::from(k), 0.0, false, None);
         }
-        d.fix(0.5, 9.0, 9.0, false); // not later than the last: dropped
-        d.fix(0.9, f64::NAN, 0.0, false); // not finite: dropped
+        d.fix(0.5, 9.0, 9.0, false, None); // not later than the last: dropped
+        d.fix(0.9, f64::NAN, 0.0, false, None); // not finite: dropped
         let base = ParamValues::plain(0.25, 0.09);
         let model = DriveModel {
             rear_tread_m: 0.25,
@@ -311,8 +326,8 @@ mod tests {
     #[test]
     fn geodetic_fixes_become_metres_around_the_first() {
         let mut d = DriveRecorder::default();
-        d.fix(0.0, 48.0, 11.0, true);
-        d.fix(1.0, 48.001, 11.0, true);
+        d.fix(0.0, 48.0, 11.0, true, None);
+        d.fix(1.0, 48.001, 11.0, true, None);
         let north = d.fixes[1].y_m;
         assert!((north - 111.19).abs() < 0.1, "{north}");
         assert!(d.fixes[1].x_m.abs() < 1e-9);

@@ -52,6 +52,8 @@ pub enum CalibInput {
         second: f64,
         /// Whether the fix is latitude/longitude.
         geodetic: bool,
+        /// The 1σ error per axis its source states (gpsd, ROS 2), metres.
+        sigma_m: Option<f64>,
     },
     /// The input path refused or faulted a wheel frame.
     Fault(Timestamp, u8),
@@ -226,8 +228,9 @@ impl<Tx: FrameSink + Clone> CalibTask<Tx> {
                 first,
                 second,
                 geodetic,
+                sigma_m,
             } => {
-                self.live.on_fix(t, first, second, geodetic);
+                self.live.on_fix(t, first, second, geodetic, sigma_m);
                 Vec::new()
             }
             CalibInput::Fault(t, code) => {

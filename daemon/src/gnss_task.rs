@@ -374,6 +374,7 @@ impl Forwarder {
             first: fix.lat_deg,
             second: fix.lon_deg,
             geodetic: true,
+            sigma_m: fix.sigma_m,
         };
         match self.fixes.try_send(input) {
             Ok(()) => {

@@ -1036,6 +1036,8 @@ impl<Tx: FrameSink + Clone> OdometryTask<Tx> {
                             first,
                             second,
                             geodetic,
+                            // The bus's fixes state no error.
+                            sigma_m: None,
                         })
                         .await;
                     }

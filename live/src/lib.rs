@@ -195,9 +195,18 @@ impl LiveCalibration {
     }
 
     /// A position fix from the bus: a local x and y in metres, or (`geodetic`)
-    /// latitude and longitude in degrees. Recorded while a drive is.
-    pub fn on_fix(&mut self, t: Timestamp, first: f64, second: f64, geodetic: bool) {
-        self.calibrator.on_fix(seconds(t), first, second, geodetic);
+    /// latitude and longitude in degrees, with the 1σ per axis its source
+    /// states (gpsd, ROS 2; none from the bus). Recorded while a drive is.
+    pub fn on_fix(
+        &mut self,
+        t: Timestamp,
+        first: f64,
+        second: f64,
+        geodetic: bool,
+        sigma_m: Option<f64>,
+    ) {
+        self.calibrator
+            .on_fix(seconds(t), first, second, geodetic, sigma_m);
     }
 
     /// The input path refused or faulted a wheel frame (`code`: the
@@ -748,7 +757,7 @@ mod tests {
             self.inner.on_fault(t, code);
         }
         fn on_fix(&mut self, t: Timestamp, first: f64, second: f64, geodetic: bool) {
-            self.inner.on_fix(t, first, second, geodetic);
+            self.inner.on_fix(t, first, second, geodetic, None);
         }
         fn instruction(&self) -> Instruction {
             self.inner.calibrator.instruction()
