@@ -126,6 +126,16 @@ pub fn calibrate_drive_with(
 
 /// Global parameters: speed scale, rear ratio, steer offset, steer gain,
 /// yaw bias, yaw scale, the fixes' latency, the rear tread's correction.
+/// Residual RMS at the fixes beyond the fixes' own noise, metres, above
+/// which a heading source's fit is a misfit (the limit is
+/// the drive gate's `residual_limit_m` with this allowance: 5.4 m for
+/// fixes of
+/// σ 1.5 m, 6.6 m at σ 3 m): the residuals are the fitted parameters', so
+/// beyond it no parameter values explain the drive and the configuration
+/// (a sign, a unit, a wheel or steering kind) is what is wrong. Committing
+/// such a fit would store parameters that only look calibrated.
+pub const MISFIT_RMS_M: f64 = 5.0;
+
 const N_GLOBAL: usize = 8;
 const SPEED: usize = 0;
 const RATIO: usize = 1;
@@ -808,7 +818,7 @@ impl<'a> Problem<'a> {
         // The joint values are one set of that source's values, so its own
         // best leaves no more (a refit that fails or lands worse keeps them).
         for (src, own) in own_fit_rms_m.iter_mut().enumerate() {
-            if let Some(r) = own.filter(|r| !r.is_finite() || *r > crate::drive_gate::MISFIT_RMS_M)
+            if let Some(r) = own.filter(|r| !r.is_finite() || *r > MISFIT_RMS_M)
                 && let Ok(alone) = self.alone_rms_m(&fit, src)
             {
                 *own = Some(alone.min(r));

@@ -229,14 +229,7 @@ pub fn apply_gate(cal: &mut DriveCalibration, gate: &DriveGate) -> Vec<GateRefus
     refusals
 }
 
-/// Residual RMS at the fixes beyond the fixes' own noise, metres, above
-/// which a heading source's fit is a misfit (the limit is
-/// [`DriveGate::residual_limit_m`] with this allowance: 5.4 m for fixes of
-/// σ 1.5 m, 6.6 m at σ 3 m): the residuals are the fitted parameters', so
-/// beyond it no parameter values explain the drive and the configuration
-/// (a sign, a unit, a wheel or steering kind) is what is wrong. Committing
-/// such a fit would store parameters that only look calibrated.
-pub const MISFIT_RMS_M: f64 = 5.0;
+pub use crate::drive::MISFIT_RMS_M;
 
 /// The heading sources whose fit leaves more at the fixes than their noise
 /// and [`MISFIT_RMS_M`] explain (`gate` caps the noise): (source, the

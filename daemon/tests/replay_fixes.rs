@@ -19,22 +19,32 @@ fn rows(text: &str) -> Vec<Vec<String>> {
         .collect()
 }
 
+/// `canodom replay` of the drive with the vehicle's configuration and `args`.
+fn replay_drive(args: &[&std::ffi::OsStr]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_canodom"))
+        .args(["replay", "--config"])
+        .arg(drive_dir().parent().unwrap().join("config_yaw.toml"))
+        .arg(drive_dir().join("drive.log.zst"))
+        .args(args)
+        .output()
+        .unwrap()
+}
+
 #[test]
 fn a_drive_is_calibrated_as_its_fixes_come_and_the_set_used_from_then_on() {
     let dir = crate::util::tmp_dir("replay_fixes");
     let (learnt, pose) = (dir.join("learnt.csv"), dir.join("pose.csv"));
-    let out = Command::new(env!("CARGO_BIN_EXE_canodom"))
-        .args(["replay", "--config"])
-        .arg(drive_dir().parent().unwrap().join("config_yaw.toml"))
-        .arg(drive_dir().join("drive.log.zst"))
-        .arg("--fixes")
-        .arg(drive_dir().join("fixes/fixes.nmea"))
-        .args(["--fixes-every-s", "30", "--learnt-out"])
-        .arg(&learnt)
-        .arg("--out")
-        .arg(&pose)
-        .output()
-        .unwrap();
+    let nmea = drive_dir().join("fixes/fixes.nmea");
+    let out = replay_drive(&[
+        "--fixes".as_ref(),
+        nmea.as_os_str(),
+        "--fixes-every-s".as_ref(),
+        "30".as_ref(),
+        "--learnt-out".as_ref(),
+        learnt.as_os_str(),
+        "--out".as_ref(),
+        pose.as_os_str(),
+    ]);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{stderr}");
     let refits: Vec<&str> = stderr
@@ -74,15 +84,7 @@ fn a_drive_is_calibrated_as_its_fixes_come_and_the_set_used_from_then_on() {
     // Taken into use at the first refit's time, not before: the poses
     // equal those of a replay without fixes up to it, and differ after.
     let plain = dir.join("plain.csv");
-    let status = Command::new(env!("CARGO_BIN_EXE_canodom"))
-        .args(["replay", "--config"])
-        .arg(drive_dir().parent().unwrap().join("config_yaw.toml"))
-        .arg(drive_dir().join("drive.log.zst"))
-        .arg("--out")
-        .arg(&plain)
-        .output()
-        .unwrap()
-        .status;
+    let status = replay_drive(&["--out".as_ref(), plain.as_os_str()]).status;
     assert!(status.success());
     let first_refit: f64 = rows(&text)[0][0].parse().unwrap();
     let (with, without) = (
@@ -160,16 +162,13 @@ fn fixes_outside_the_logs_time_are_refused_by_name() {
     let dir = crate::util::tmp_dir("replay_fixes_outside");
     let fixes = dir.join("fixes.csv");
     std::fs::write(&fixes, "t_unix_s,x_m,y_m\n1.0,0,0\n2.0,1,0\n3.0,2,0\n").unwrap();
-    let out = Command::new(env!("CARGO_BIN_EXE_canodom"))
-        .args(["replay", "--config"])
-        .arg(drive_dir().parent().unwrap().join("config_yaw.toml"))
-        .arg(drive_dir().join("drive.log.zst"))
-        .arg("--fixes")
-        .arg(&fixes)
-        .arg("--out")
-        .arg(dir.join("pose.csv"))
-        .output()
-        .unwrap();
+    let pose = dir.join("pose.csv");
+    let out = replay_drive(&[
+        "--fixes".as_ref(),
+        fixes.as_os_str(),
+        "--out".as_ref(),
+        pose.as_os_str(),
+    ]);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success());
     assert!(

@@ -446,6 +446,18 @@ impl State {
     #[must_use]
     pub fn rebased_at_origin(&self) -> Self {
         Self {
+            aided: self.aided.rebased_at_origin(),
+            aided_on: self.aided_on,
+            pending_yaw: self.pending_yaw,
+            ..self.wheels_learning_onto(Self::origin())
+        }
+    }
+
+    /// `fresh` with what this filter learnt of the wheels and the steering
+    /// (steering offset, front scale, wheel scales, their variances) and its
+    /// counts; its open windows dropped.
+    fn wheels_learning_onto(&self, fresh: Self) -> Self {
+        Self {
             stats: self.stats,
             slip_counts: self.slip_counts,
             slip_flags: self.slip_flags,
@@ -454,13 +466,10 @@ impl State {
             steer_offset_var: self.steer_offset_var,
             front_scale: self.front_scale,
             front_scale_var: self.front_scale_var,
-            aided: self.aided.rebased_at_origin(),
-            aided_on: self.aided_on,
-            pending_yaw: self.pending_yaw,
             scales: self.scales.rebased(),
             applied_ln_scale: self.applied_ln_scale,
             applied_factor: self.applied_factor,
-            ..Self::origin()
+            ..fresh
         }
     }
 
@@ -482,20 +491,7 @@ impl State {
             // next step's numerical check reports a broken state).
             return *self;
         };
-        Self {
-            stats: self.stats,
-            slip_counts: self.slip_counts,
-            slip_flags: self.slip_flags,
-            last_mahalanobis_sq: self.last_mahalanobis_sq,
-            steer_offset_rad: self.steer_offset_rad,
-            steer_offset_var: self.steer_offset_var,
-            front_scale: self.front_scale,
-            front_scale_var: self.front_scale_var,
-            scales: self.scales.rebased(),
-            applied_ln_scale: self.applied_ln_scale,
-            applied_factor: self.applied_factor,
-            ..handed_over
-        }
+        self.wheels_learning_onto(handed_over)
     }
 
     /// The pose estimate, heading wrapped to (−π, π].

@@ -10,7 +10,7 @@
 
 use canodom_can::time::Timestamp;
 use canodom_pipeline::config::Config;
-use canodom_pipeline::pipeline::{Outcome, Pipeline};
+use canodom_pipeline::pipeline::{Outcome, Pipeline, Step};
 use canodom_pipeline::plausibility::Suspicion;
 use canodom_pipeline::signal_forms::SignalForm;
 use canodom_pipeline::stats::Reject;
@@ -98,11 +98,16 @@ impl<'a> Bus<'a> {
     }
 }
 
-/// One second of the Hyundai preset's messages at 50 Hz: a circle at
-/// `speed_mps` and `yaw_dps` (left), the gyro reading `yaw_dps` as its
-/// signal holds it (the encoder saturates at the range's end, as the
-/// sensor does).
-fn hyundai_second(bus: &mut Bus<'_>, speed_mps: f64, yaw_dps: f64) -> Vec<Option<f64>> {
+/// One second of the Hyundai preset's messages at 50 Hz: a left circle at
+/// `speed_mps` and `yaw_dps`, the steering signal at `steer`, the gyro
+/// reading `gyro_dps` as its signal holds it (the encoder saturates at the
+/// range's end, as the sensor does). The steps it made.
+fn hyundai_steps(
+    bus: &mut Bus<'_>,
+    (speed_mps, yaw_dps): (f64, f64),
+    steer: f64,
+    gyro_dps: f64,
+) -> Vec<Step> {
     let s = bus.config.signals;
     let kph = 3.6 * speed_mps;
     let tread = bus.config.params.rear_tread_m();
@@ -111,8 +116,8 @@ fn hyundai_second(bus: &mut Bus<'_>, speed_mps: f64, yaw_dps: f64) -> Vec<Option
     let mut steps = Vec::new();
     for _ in 0..50 {
         bus.t_us += 20_000;
-        bus.send("SAS11", &[(s.steering.form, 0.0)]);
-        bus.send("ESP12", &[(yaw, yaw_dps)]);
+        bus.send("SAS11", &[(s.steering.form, steer)]);
+        bus.send("ESP12", &[(yaw, gyro_dps)]);
         if let Outcome::Step(step, _) = bus.send(
             "WHL_SPD11",
             &[
@@ -122,10 +127,19 @@ fn hyundai_second(bus: &mut Bus<'_>, speed_mps: f64, yaw_dps: f64) -> Vec<Option
                 (s.wheels.front_right.form, kph + half),
             ],
         ) {
-            steps.push(step.yaw_rate_radps);
+            steps.push(step);
         }
     }
     steps
+}
+
+/// [`hyundai_steps`] with the steering straight and the gyro right: each
+/// step's yaw rate as the filter got it.
+fn hyundai_second(bus: &mut Bus<'_>, speed_mps: f64, yaw_dps: f64) -> Vec<Option<f64>> {
+    hyundai_steps(bus, (speed_mps, yaw_dps), 0.0, yaw_dps)
+        .iter()
+        .map(|s| s.yaw_rate_radps)
+        .collect()
 }
 
 #[test]
@@ -175,41 +189,21 @@ fn a_yaw_rate_at_its_dbc_range_is_not_used_and_warned_of_by_name() {
     );
 }
 
-/// A second of the Hyundai preset's messages at 50 Hz on a left circle at
-/// `speed_mps` and `yaw_dps`, the steering at the angle that circle takes,
-/// the gyro reading `gyro_dps`. The last step's (fused, rear-only) headings.
+/// A second of [`hyundai_steps`] with the steering at the angle the
+/// circle takes. The last step's (fused, rear-only) headings.
 fn hyundai_circle_second(
     bus: &mut Bus<'_>,
     speed_mps: f64,
     yaw_dps: f64,
     gyro_dps: f64,
 ) -> Option<(f64, f64)> {
-    let s = bus.config.signals;
     let p = bus.config.params;
-    let kph = 3.6 * speed_mps;
-    let half = yaw_dps.to_radians() * p.rear_tread_m() / 2.0 * 3.6;
     let road_wheel_rad = (yaw_dps.to_radians() * p.wheelbase_m() / speed_mps).atan();
     let map = p.steering();
     let steer = (road_wheel_rad - map.offset_rad) / map.gain;
-    let yaw = s.yaw_rate.unwrap().signal.form;
-    let mut last = None;
-    for _ in 0..50 {
-        bus.t_us += 20_000;
-        bus.send("SAS11", &[(s.steering.form, steer)]);
-        bus.send("ESP12", &[(yaw, gyro_dps)]);
-        if let Outcome::Step(step, _) = bus.send(
-            "WHL_SPD11",
-            &[
-                (s.wheels.rear_left.form, kph - half),
-                (s.wheels.rear_right.form, kph + half),
-                (s.wheels.front_left.form, kph - half),
-                (s.wheels.front_right.form, kph + half),
-            ],
-        ) {
-            last = Some((step.fused.heading_rad, step.odometry.heading_rad));
-        }
-    }
-    last
+    hyundai_steps(bus, (speed_mps, yaw_dps), steer, gyro_dps)
+        .last()
+        .map(|s| (s.fused.heading_rad, s.odometry.heading_rad))
 }
 
 #[test]

@@ -81,7 +81,7 @@ pub struct DriveCalibration {
     pub weighted_rms_m: [Option<f64>; 3],
     /// Each source's weighted RMS position residual, metres, judged by the
     /// misfit check: the joint fit's (`weighted_rms_m`), or, for a source
-    /// that leaves more than [`MISFIT_RMS_M`](crate::drive_gate::MISFIT_RMS_M)
+    /// that leaves more than [`MISFIT_RMS_M`](super::MISFIT_RMS_M)
     /// there, its reckoning's alone with its own parameters refitted (the
     /// other sources off): what no values of that source remove.
     pub own_fit_rms_m: [Option<f64>; 3],
