@@ -37,7 +37,8 @@ echo "(a) fixes received live against the NMEA file"
 gpsfake -1 -q -P "$port" -c 0.1 "$work/fixes.nmea" >"$work/gpsfake1.log" 2>&1 &
 pids+=($!)
 sleep 1
-"$client" "127.0.0.1:$port" 16 1000 >"$work/a.csv" 2>"$work/a.log"
+# gpsfake sends a sentence every 0.1 s: GGA, GST and RMC a fix, 18 s for the 60 fixes.
+"$client" "127.0.0.1:$port" 24 1000 >"$work/a.csv" 2>"$work/a.log"
 kill "$(gpsd_pid)" 2>/dev/null || true
 "$work/venv/bin/python" - "$work/fixes.nmea" "$work/a.csv" <<'PY'
 import datetime as dt, sys
