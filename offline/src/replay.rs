@@ -406,8 +406,7 @@ impl<'a> Switcher<'a> {
     }
 
     /// Takes every set due by `at` into use before the frame at `at`.
-    fn before(&mut self, pipeline: &mut Pipeline, at: Option<Timestamp>) {
-        let Some(at) = at else { return };
+    fn before(&mut self, pipeline: &mut Pipeline, at: Timestamp) {
         while let Some((due, set)) = self.switches.get(self.next) {
             if *due > at {
                 break;
@@ -424,14 +423,6 @@ impl<'a> Switcher<'a> {
     }
 }
 
-/// A record's timestamp.
-fn entry_time(entry: &Entry, others: &[(Timestamp, CanFrame)]) -> Option<Timestamp> {
-    match entry {
-        Entry::Classic(c) => Some(c.timestamp),
-        Entry::Other(i) => others.get(*i).map(|(t, _)| *t),
-    }
-}
-
 /// Runs one batch's records through the pipeline, a row per filter step
 /// with the pose sample `run` would publish at that frame.
 fn filter_batch(
@@ -441,17 +432,22 @@ fn filter_batch(
     switcher: &mut Switcher<'_>,
 ) {
     for (k, entry) in batch.records.iter().enumerate() {
-        switcher.before(pipeline, entry_time(entry, &batch.others));
         let (at, step) = match entry {
-            Entry::Classic(c) => (
-                c.timestamp,
-                pipeline
-                    .push_data(c.timestamp, c.id, c.payload())
-                    .step()
-                    .copied(),
-            ),
+            Entry::Classic(c) => {
+                switcher.before(pipeline, c.timestamp);
+                (
+                    c.timestamp,
+                    pipeline
+                        .push_data(c.timestamp, c.id, c.payload())
+                        .step()
+                        .copied(),
+                )
+            }
             Entry::Other(i) => match batch.others.get(*i) {
-                Some((t, frame)) => (*t, pipeline.push(*t, frame).step().copied()),
+                Some((t, frame)) => {
+                    switcher.before(pipeline, *t);
+                    (*t, pipeline.push(*t, frame).step().copied())
+                }
                 None => continue,
             },
         };
