@@ -196,10 +196,7 @@ fn fixes_published_on_ros2_reach_the_subscriber_as_csv_lines() {
         assert!(Instant::now() < until, "no fix arrived over loopback");
     };
     assert_eq!(first, fix(0, 0));
-    assert_eq!(
-        csv_line(&first),
-        "1533245256.500000000,37.400000000,-122.100000000,12.500,"
-    );
+    assert_eq!(csv_line(&first), "1533245256.500000000,37.4,-122.1,12.500,");
     while fixes.recv_timeout(Duration::from_millis(100)).is_some() {}
     for (k, status) in [(1, 0), (2, -1), (3, 2)] {
         let mut buf = Vec::new();
