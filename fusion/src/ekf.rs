@@ -116,7 +116,7 @@ mod retro;
 mod scales;
 mod slide;
 mod wheels;
-use aided::Aided;
+use aided::{Aided, Learnable};
 #[cfg(test)]
 use algebra::propagate;
 use algebra::{
@@ -140,6 +140,69 @@ pub type Mat3 = Matrix3<f64>;
 
 /// χ²₃(0.99), the default gate.
 pub const CHI2_3_99: f64 = 11.34;
+
+/// How many of its standard deviations the rear diameter ratio's error,
+/// learnt against the gyro, must lie from 0 before the aided estimator
+/// carries the pose instead of the wheels. Where the wheels are exact (the
+/// opendbc drives) the learnt ratio stays within 2.4σ of 0; where they are
+/// not it lies 4.7σ (the multi-body Vanagon of seed 22) to 26σ (the real
+/// RAV4, a 0.044 % ratio the wheels' own learning cannot tell on a
+/// highway) off. Until then the wheels carry it: a kinematic car's exact
+/// wheels ended 0.002–0.04 % off where the gyro-carried heading ended
+/// 0.05–1.35 %.
+pub const AIDED_LEAD_SIGMAS: f64 = 3.5;
+
+/// How far the car must have driven with the gyro before the aided
+/// estimator may take the pose over, m: the wheels' own learning decides
+/// which wheel is off 150–250 m into a drive (and the aided estimator's
+/// rear ratio then follows what it applies); a ratio it has not explained
+/// by then is the gyro's to carry.
+pub const AIDED_LEAD_MIN_DISTANCE_M: f64 = 300.0;
+
+/// As [`AIDED_LEAD_SIGMAS`] for the effective tread's error: where the
+/// wheels are exact it stays within 0.2σ of 0 (its σ is 0.5 % after an
+/// opendbc drive), where the tread is 2 % wider than configured it lies
+/// 3.7σ off after 800 m.
+pub const AIDED_LEAD_TREAD_SIGMAS: f64 = 3.0;
+
+/// The least effective-tread error, relative, for which the aided
+/// estimator takes the pose over (beside [`AIDED_LEAD_SIGMAS`]): a tread
+/// 0.5 % off turns the wheels' heading 1.8° a full circle.
+pub const AIDED_LEAD_MIN_TREAD: f64 = 0.005;
+
+/// Whether the aided estimator carries the pose, and what it needs to
+/// decide it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct AidedLead {
+    /// The aided estimator carries the pose ([`AIDED_LEAD_SIGMAS`]).
+    leads: bool,
+    /// The wheel scales the aided estimator's wheels are read with: those
+    /// the wheels' own learning applies until it leads (its rear ratio then
+    /// follows each change), those applied when it took the lead from then
+    /// on.
+    factor: [f64; 4],
+    /// The rear axle's distance since the aided estimator started (or since
+    /// the wheels' learning last decided), m.
+    distance_m: f64,
+}
+
+impl AidedLead {
+    const NONE: Self = Self {
+        leads: false,
+        factor: [1.0; 4],
+        distance_m: 0.0,
+    };
+}
+
+/// A change of the rear wheels' applied scales this large (relative) is a
+/// decision of the wheels' learning, not its ordinary refinement window by
+/// window (±10⁻⁶).
+const RATIO_DECISION: f64 = 1e-4;
+
+/// The least rear ratio error, relative, for which the aided estimator
+/// takes the pose over (beside [`AIDED_LEAD_SIGMAS`]): 5·10⁻⁵ turns a car of
+/// 1.5 m tread by under 2° a kilometre.
+pub const AIDED_LEAD_MIN_RATIO: f64 = 5e-5;
 
 /// One sample's input: each wheel's distance since the previous sample and
 /// the measured road-wheel angle (the steering signal mapped through the
@@ -263,10 +326,13 @@ pub struct State {
     /// Variance of the offset estimate; 0 until the first update (the prior
     /// is the configuration's `steer_bias_sigma_rad`).
     steer_offset_var: f64,
-    /// The yaw-rate-aided estimator, which carries the pose from the first
-    /// yaw-rate sample on (`aided_on`).
+    /// The yaw-rate-aided estimator, which runs from the first yaw-rate
+    /// sample on (`aided_on`) and carries the pose once it has shown the
+    /// wheels off (`aided_leads`, [`AIDED_LEAD_SIGMAS`]).
     aided: Aided,
     aided_on: bool,
+    /// Whether the aided estimator leads, and what decides it.
+    lead: AidedLead,
     /// What an earlier run or a calibration taught about the yaw-rate
     /// sensor, for the aided estimator to start from.
     pending_yaw: Option<LearntPair>,
@@ -415,6 +481,7 @@ impl State {
             front_scale_var: 0.0,
             aided: Aided::zeroed(),
             aided_on: false,
+            lead: AidedLead::NONE,
             pending_yaw: None,
             window_rear_m: 0.0,
             window_front_m: 0.0,
@@ -448,6 +515,7 @@ impl State {
         Self {
             aided: self.aided.rebased_at_origin(),
             aided_on: self.aided_on,
+            lead: self.lead,
             pending_yaw: self.pending_yaw,
             ..self.wheels_learning_onto(Self::origin())
         }
@@ -496,7 +564,7 @@ impl State {
 
     /// The pose estimate, heading wrapped to (−π, π].
     pub fn pose(&self) -> Pose {
-        if self.aided_on {
+        if self.lead.leads {
             let [x_m, y_m, heading_rad] = self.aided.pose();
             return Pose {
                 x_m,
@@ -514,7 +582,7 @@ impl State {
 
     /// The pose estimate with the heading unwrapped (total turn since the start).
     pub fn pose_unwrapped(&self) -> Pose {
-        if self.aided_on {
+        if self.lead.leads {
             let [x_m, y_m, heading_rad] = self.aided.pose();
             return Pose {
                 x_m,
@@ -530,7 +598,7 @@ impl State {
 
     /// The covariance of [`State::pose`].
     pub fn covariance(&self) -> Mat3 {
-        if self.aided_on {
+        if self.lead.leads {
             let c = self.aided.pose_covariance();
             return Mat3::new(
                 c[0][0], c[0][1], c[0][2], c[1][0], c[1][1], c[1][2], c[2][0], c[2][1], c[2][2],
@@ -621,9 +689,17 @@ impl State {
         self.learnt().yaw_bias.map_or(0.0, |y| y.tread_err)
     }
 
-    /// True once the yaw-rate-aided estimator carries the pose.
+    /// True once the yaw-rate-aided estimator runs (from the first
+    /// yaw-rate sample).
     pub fn yaw_aided(&self) -> bool {
         self.aided_on
+    }
+
+    /// True once the yaw-rate-aided estimator carries the pose: it has shown
+    /// the rear wheels' ratio off beyond what the wheels' own learning
+    /// corrects ([`AIDED_LEAD_SIGMAS`]).
+    pub fn aided_leads(&self) -> bool {
+        self.lead.leads
     }
 
     /// The learnt factor applied to the front wheels' distances; 1 unless
@@ -927,7 +1003,7 @@ impl Ekf {
         check_input(input)?;
         let phi = input.steer_angle_rad;
         let yaw_aided = st.aided_on || input.yaw_rate_radps.is_some_and(f64::is_finite);
-        let scaled = self.scaled_wheels(st, input, yaw_aided);
+        let scaled = self.scaled_wheels(st, input);
         let w = scaled.as_ref().unwrap_or(&input.wheel_m);
         let filled;
         let w = if input.zero_is_floor {
@@ -958,8 +1034,9 @@ impl Ekf {
             .as_ref()
             .map_or((w, 0.0), |b| (&b.wheel_m, b.var_m2));
         let launch_var_m2 = launch_variance(st, input, w) + slide_var_m2;
-        if yaw_aided {
-            return self.aided_advance(st, input, w, phi, launch_var_m2);
+        // Until the aided estimator shows the wheels off, they carry the pose.
+        if yaw_aided && self.aided_advance(st, input, w, phi, launch_var_m2)? {
+            return Ok(());
         }
         // As odometry::rear_increment, with 1/b precomputed (inputs checked above).
         let rear = Increment {
@@ -1031,18 +1108,18 @@ impl Ekf {
         Ok(())
     }
 
-    /// The readings corrected by the applied wheel scales, where the wheels
-    /// alone carry the heading (with a gyro the aided estimator learns the
-    /// rear ratio against it); `None` where nothing is to correct.
+    /// The readings corrected by the applied wheel scales (those applied
+    /// when the aided estimator took the lead, once it has: it learnt the
+    /// rear ratio against the gyro on them); `None` where nothing is to
+    /// correct.
     #[inline]
-    fn scaled_wheels(
-        &self,
-        st: &State,
-        input: &OdometryInput,
-        yaw_aided: bool,
-    ) -> Option<WheelSet<f64>> {
-        let c = st.applied_factor;
-        if !self.cfg.learn_wheel_scales || yaw_aided || c == [1.0; 4] {
+    fn scaled_wheels(&self, st: &State, input: &OdometryInput) -> Option<WheelSet<f64>> {
+        let c = if st.lead.leads {
+            st.lead.factor
+        } else {
+            st.applied_factor
+        };
+        if !self.cfg.learn_wheel_scales || c == [1.0; 4] {
             return None;
         }
         let r = &input.wheel_m;
@@ -1054,8 +1131,10 @@ impl Ekf {
         })
     }
 
-    /// A step of the yaw-rate-aided estimator ([`aided`]), which takes the
-    /// pose over from the wheels-only filter at the first yaw-rate sample.
+    /// A step of the yaw-rate-aided estimator ([`aided`]), which starts at
+    /// the wheels-only filter's pose at the first yaw-rate sample and runs
+    /// beside it; true when it carries the pose (the wheels-only step is
+    /// then not taken).
     fn aided_advance(
         &self,
         st: &mut State,
@@ -1063,7 +1142,7 @@ impl Ekf {
         w: &WheelSet<f64>,
         phi: f64,
         launch_var_m2: f64,
-    ) -> Result<()> {
+    ) -> Result<bool> {
         if !st.aided_on {
             let pose = st.pose_unwrapped();
             let c = st.covariance();
@@ -1080,6 +1159,41 @@ impl Ekf {
             a.set_pose([pose.x_m, pose.y_m, pose.heading_rad], p_pose);
             st.aided = a;
             st.aided_on = true;
+        }
+        if !st.lead.leads && st.applied_factor != st.lead.factor {
+            // The wheels' learning rescaled a rear wheel: the aided
+            // estimator's rear ratio refers to the wheels as read now. A
+            // new decision (a wheel found off) starts it afresh: what it
+            // learnt on the wheels as they were read is not worth keeping
+            // (a Toyota gyro's had the RL tyre's +0.30 % as +0.21 ± 0.014 %,
+            // and shifted by the learner's −0.30 % it showed a ratio off
+            // that the corrected wheels no longer have).
+            let [rl, rr, _, _] = st.applied_factor;
+            let [rl0, rr0, _, _] = st.lead.factor;
+            let delta = -((rr - rr0) - (rl - rl0));
+            if delta.abs() >= RATIO_DECISION {
+                st.aided
+                    .set_learnt(Learnable::Ratio, 0.0, self.cfg.rear_ratio_sigma);
+                st.lead.distance_m = 0.0;
+            } else {
+                st.aided.shift_ratio(delta);
+            }
+            st.lead.factor = st.applied_factor;
+        }
+        st.lead.distance_m += 0.5 * (w.rear_left + w.rear_right).abs();
+        // A rear wheel that slipped or locked (the aided estimator's test,
+        // with the gyro's turn) is a drive whose wheels cannot carry the
+        // heading through it: the gyro takes over at once.
+        if !st.lead.leads
+            && (st.stats.yaw_over_rear > 0
+                || st.lead.distance_m >= AIDED_LEAD_MIN_DISTANCE_M && st.aided.shows_wheels_off())
+        {
+            // The aided estimator has run beside the wheels from the first
+            // yaw-rate sample: the pose moves once, to where it has brought
+            // the car (as the wheels' learning moves it when it decides),
+            // and follows it from then on.
+            st.lead.leads = true;
+            st.lead.factor = st.applied_factor;
         }
         let angle_rad = phi - st.steer_offset_rad;
         if st.steer_terms.angle_bits != angle_rad.to_bits() {
@@ -1101,7 +1215,7 @@ impl Ekf {
                 context: "yaw-rate-aided step",
             });
         }
-        Ok(())
+        Ok(st.lead.leads)
     }
 
     /// `w` with each wheel that reads exactly 0 beside a wheel that moves

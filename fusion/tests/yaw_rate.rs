@@ -64,17 +64,23 @@ fn gyro_bias_learnt_at_standstill_and_the_heading_holds_against_a_rear_tyre_bias
         println!(
             "drive {seed:2}: {distance:4.0} m, rear-only {e_rear:5.2} m, fused {e_fused:5.2} m, \
              fused with the gyro {e_gyro:5.2} m ({:.3} %, heading {heading_err:+.2}°); learnt bias {:.3}°/s \
-             (true 0.400), rear ratio error {:+.5} (true −0.00042), gyro over rear {}",
+             (true 0.400), rear ratio error {:+.5} ± {:.5} (true −0.00042), gyro over rear {}, gyro leads {}",
             100.0 * e_gyro / distance,
             with_gyro.yaw_bias_radps() / DEG,
             with_gyro.rear_ratio_err(),
+            with_gyro
+                .learnt()
+                .yaw_bias
+                .map_or(0.0, |y| y.rear_ratio_sigma),
             with_gyro.stats.yaw_over_rear,
+            with_gyro.aided_leads(),
         );
         // 0.1°/s, not the 0.05°/s this test held before #30's straight-road
         // prior: this gyro's noise (0.05°/s) is a fifth of its step, so on a
         // straight it reads 0.427°/s, not 0.4, and the prior learns what it
         // reads (0.41–0.46 here). Left open in issue #30's note.
         assert!((with_gyro.yaw_bias_radps() / DEG - 0.4).abs() < 0.1, "bias");
+        assert!(with_gyro.aided_leads(), "the gyro shows the rear ratio off");
         if e_gyro > e_rear {
             worse += 1;
         }
@@ -123,4 +129,76 @@ fn gyro_carries_the_heading_through_rear_wheel_slips() {
     );
     assert!(over > 0);
     assert!(gyro_sq < 0.05 * rear_sq, "{gyro_sq} vs {rear_sq}");
+}
+
+/// A gyro on a fine grid (VW's ESP_Gierrate, Hyundai's ESP12: 0.01°/s),
+/// with GYRO's bias and noise.
+const FINE_GYRO: YawRateSensor = YawRateSensor {
+    quantum_radps: 0.01 * DEG,
+    ..GYRO
+};
+
+/// The exact-wheel drives of the full-size family with `gyro`: (drives on
+/// which the gyro took the lead, drives on which that cost more than
+/// 0.05 % of the distance against the wheels alone). Where it did not take
+/// the lead the pose is the wheels' one, bit for bit.
+fn exact_wheels_with(gyro: YawRateSensor) -> (usize, usize) {
+    let (mut led, mut cost) = (0, 0);
+    for seed in 0..20 {
+        let mut drive = family::full_size_car(seed).unwrap();
+        drive.sim.standstill_s = 3.0;
+        drive.sim.yaw_rate_sensor = gyro;
+        let run = simulate(&drive.sim, &drive.plan, seed).unwrap();
+        let ekf = Ekf::new(EkfConfig {
+            yaw_quantum_radps: gyro.quantum_radps,
+            ..EkfConfig::new(drive.nominal)
+        })
+        .unwrap();
+        let with_gyro = replay_yaw(&run, &drive.nominal, Wheels::speeds(), &[ekf])[0];
+        let without = replay(&run, &drive.nominal, Wheels::speeds(), &[ekf])[0];
+        let distance = run.samples.last().unwrap().true_distance_m;
+        let (e_gyro, e_wheels) = (end_error(&with_gyro, &run), end_error(&without, &run));
+        println!(
+            "drive {seed:2}: {distance:4.0} m, wheels {e_wheels:5.2} m, with the gyro {e_gyro:5.2} m; \
+             rear ratio error {:+.6} ± {:.6}, gyro leads {}",
+            with_gyro.rear_ratio_err(),
+            with_gyro
+                .learnt()
+                .yaw_bias
+                .map_or(0.0, |y| y.rear_ratio_sigma),
+            with_gyro.aided_leads()
+        );
+        assert!(with_gyro.yaw_aided(), "the aided estimator runs");
+        if with_gyro.aided_leads() {
+            led += 1;
+        } else {
+            assert_eq!(with_gyro.pose(), without.pose(), "drive {seed}");
+        }
+        if e_gyro > e_wheels + 0.0005 * distance {
+            cost += 1;
+        }
+    }
+    (led, cost)
+}
+
+#[test]
+fn with_exact_wheels_the_wheels_keep_the_pose_on_most_drives() {
+    // A kinematic car's wheels are exact (these drives' tyres slip sideways
+    // in curves, the family's tyre model; their diameters are exact): the
+    // gyro runs beside them and takes over only once it shows them off.
+    // Not met everywhere (issue #45, open): the aided estimator's rear ratio
+    // comes out up to 6σ off 0 on some drives (−0.00034 ± 0.000056 on drive
+    // 4 with Toyota's grid), as large as a real 0.04 % tyre's, and the gyro
+    // then takes a lead that costs 0.8–1.8 % of the distance where the
+    // wheels ended 0.01–0.1 % off: 2 of 20 drives with a fine grid (VW,
+    // Hyundai), 4 of 20 with Toyota's 0.244°/s, whose noise (a fifth of a
+    // step) does not dither it. Where it does not lead, the pose is the
+    // wheels' (checked inside), and on most drives it does not.
+    for (name, gyro) in [("fine", FINE_GYRO), ("Toyota's grid", GYRO)] {
+        let (led, cost) = exact_wheels_with(gyro);
+        println!(
+            "{name}: the gyro took the lead on {led} of 20 drives, costing more than 0.05 % on {cost}"
+        );
+        assert!(led < 10, "{name}: {led} of 20");
+    }
 }

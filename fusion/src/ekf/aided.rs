@@ -301,6 +301,31 @@ impl Aided {
         ]
     }
 
+    /// True when the learnt rear diameter ratio error or effective-tread
+    /// error lies [`super::AIDED_LEAD_SIGMAS`] (the tread:
+    /// [`super::AIDED_LEAD_TREAD_SIGMAS`]) of its σ and at least
+    /// [`super::AIDED_LEAD_MIN_RATIO`] (or [`super::AIDED_LEAD_MIN_TREAD`])
+    /// from 0: the wheels are off in a way the gyro tells and their own
+    /// learning has not corrected.
+    pub(crate) fn shows_wheels_off(&self) -> bool {
+        let off = |i: usize, least: f64, sigmas: f64| {
+            let v = self.x[i].abs();
+            v >= least && v > sigmas * self.p[i][i].max(0.0).sqrt()
+        };
+        off(RATIO, super::AIDED_LEAD_MIN_RATIO, super::AIDED_LEAD_SIGMAS)
+            || off(
+                TREAD,
+                super::AIDED_LEAD_MIN_TREAD,
+                super::AIDED_LEAD_TREAD_SIGMAS,
+            )
+    }
+
+    /// Moves the learnt rear ratio error by `delta` (the wheels are read with
+    /// other scales now); its σ and correlations stay.
+    pub(crate) fn shift_ratio(&mut self, delta: f64) {
+        self.x[RATIO] += delta;
+    }
+
     /// Sets a learnt sensor error and its σ (from a state file or a
     /// calibration); its correlations with the rest are dropped.
     pub(crate) fn set_learnt(&mut self, which: Learnable, value: f64, sigma: f64) {
