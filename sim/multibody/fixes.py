@@ -10,6 +10,9 @@ makes them from a drive's `truth.csv` (the rear-axle midpoint at 50 Hz on the lo
 - white noise of --sigma-m per axis;
 - --jumps episodes of --jump-m metres (a multipath or a wrong ambiguity fix), each lasting
   1 to 3 fixes, in a random direction, drawn after the first 5 and before the last 5 fixes;
+- --gap START LENGTH: no fix describes an instant from START to START + LENGTH seconds after
+  the drive's start (a tunnel, a garage); the gap is cut after everything is drawn, so a drive's
+  fixes with and without it agree outside it (a jump drawn inside it is lost with it);
 - everything drawn from --seed, so the same arguments give the same files.
 
 `--clean` makes the fixes a perfect receiver would give (no noise, latency or jumps).
@@ -44,7 +47,8 @@ def read_truth(path: Path):
 
 
 def make_fixes(truth, *, seed: int, window_s: float = 60.0, rate_hz: float = 1.0, sigma_m: float = 0.3,
-               latency_s: float = 0.2, jumps: int = 2, jump_m: float = 15.0, clean: bool = False):
+               latency_s: float = 0.2, jumps: int = 2, jump_m: float = 15.0, clean: bool = False,
+               gap: tuple[float, float] | None = None):
     """The fixes (t_unix_s, x_m, y_m arrays) and a record of what was drawn."""
     tt, x, y, _ = truth
     rng = np.random.default_rng(seed)
@@ -74,8 +78,14 @@ def make_fixes(truth, *, seed: int, window_s: float = 60.0, rate_hz: float = 1.0
         fx[idx] += dx
         fy[idx] += dy
         drawn.append({"t_unix_s": [float(stamped[i]) for i in idx], "dx_m": dx, "dy_m": dy})
+    if gap is not None:
+        keep = ~((described >= t_start + gap[0]) & (described < t_start + gap[0] + gap[1]))
+        stamped, fx, fy = stamped[keep], fx[keep], fy[keep]
+        kept = set(np.round(stamped, 6).tolist())
+        drawn = [j for j in drawn if round(j["t_unix_s"][0], 6) in kept]
     record = {"seed": seed, "window_s": window_s, "rate_hz": rate_hz, "sigma_m": sigma_m,
-              "latency_s": latency_s, "jump_m": jump_m, "jumps": drawn, "fixes": int(n)}
+              "latency_s": latency_s, "jump_m": jump_m, "jumps": drawn, "fixes": int(len(stamped)),
+              "gap_s": list(gap) if gap is not None else None}
     return stamped, fx, fy, record
 
 
@@ -161,13 +171,18 @@ def main(argv=None) -> int:
     ap.add_argument("--jumps", type=int, default=2)
     ap.add_argument("--jump-m", type=float, default=15.0)
     ap.add_argument("--clean", action="store_true", help="no noise, latency or jumps")
+    ap.add_argument("--gap", type=float, nargs=2, metavar=("START_S", "LENGTH_S"),
+                    help="no fixes from START_S to START_S + LENGTH_S after the drive's start (e.g. 240 120)")
     ap.add_argument("--no-gst", action="store_true", help="no GST sentences: the σ only from GGA's HDOP")
     ap.add_argument("--origin", type=float, nargs=3, default=(48.15, 11.58, 520.0),
                     metavar=("LAT", "LON", "ALT"), help="where the truth's origin lies on the globe")
     a = ap.parse_args(argv)
+    if a.gap and (a.gap[1] <= 0 or a.gap[0] < 0):
+        ap.error("--gap wants START_S >= 0 and LENGTH_S > 0")
     truth = read_truth(a.drive / "truth.csv")
     t, x, y, record = make_fixes(truth, seed=a.seed, window_s=a.window_s, rate_hz=a.rate_hz, sigma_m=a.sigma_m,
-                                 latency_s=a.latency_s, jumps=a.jumps, jump_m=a.jump_m, clean=a.clean)
+                                 latency_s=a.latency_s, jumps=a.jumps, jump_m=a.jump_m, clean=a.clean,
+                                 gap=tuple(a.gap) if a.gap else None)
     write_all(a.out, t, x, y, record, tuple(a.origin), gst=not a.no_gst)
     print(f"{a.out}: {len(t)} fixes, jumps at {[j['t_unix_s'] for j in record['jumps']]}", file=sys.stderr)
     return 0
