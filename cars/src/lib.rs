@@ -387,20 +387,6 @@ impl Platform {
                 let _ = writeln!(out, "dbc = \"{}\"", self.dbc_file);
             } else if line.starts_with("interface = ") {
                 let _ = writeln!(out, "interface = {interface:?}");
-            } else if line.starts_with("yaw_rate = ") {
-                // Offered, not enabled, until the estimator is no worse
-                // with it (issue #45, open): on drives packed by opendbc's
-                // packer with exact wheels (can-dbc/tests/opendbc/drives.sh)
-                // VW's gyro ended 1.59 % of the distance off on seed 2
-                // where the wheels alone ended 0.003 % off, Hyundai's
-                // 0.43 % where they ended 0.10 % (seed 0 --reverse).
-                out.push_str(
-                    "# The yaw-rate sensor, off: with it the fused pose ended up to 1.6 % of\n\
-                     # the distance off on drives packed by opendbc where the wheels alone\n\
-                     # ended within 0.1 % (issue #45, open). With it:\n# ",
-                );
-                out.push_str(line);
-                out.push('\n');
             } else if line == "[vehicle]" {
                 out.push_str("[vehicle]                        # check these\n");
             } else {
@@ -578,13 +564,14 @@ mod tests {
                 p.name
             );
             assert!(text.contains("interface = \"vcan0\""), "{}", p.name);
-            // No yaw-rate sensor enabled yet (issue #45: the estimator is
-            // still worse with it on some drives).
-            assert!(
-                !text.lines().any(|l| l.starts_with("yaw_rate")),
-                "{}",
-                p.name
-            );
+            // The yaw-rate sensor on wherever the DBC carries one (issue
+            // #45): the aided estimator carries the pose only once it shows
+            // the wheels off, so the gyro costs nothing where they are exact.
+            let gyro = text.lines().any(|l| l.starts_with("yaw_rate = "));
+            let carries_one = ["vw_mqb", "toyota", "hyundai", "hyundai_canfd", "gm"]
+                .contains(&p.name);
+            assert_eq!(gyro, carries_one, "{}", p.name);
+            assert!(!text.contains("# yaw_rate ="), "{}: a commented-out line", p.name);
         }
     }
 
