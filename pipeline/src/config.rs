@@ -312,6 +312,35 @@ pub struct CalibrationConfig {
     pub fixes: Option<FixSignals>,
     /// How long it must stay below it, s (default 1).
     pub standstill_time_s: f64,
+    /// The online calibration's refits and the drift watch (`[calibration.drift]`).
+    pub drift: DriftWatchConfig,
+}
+
+/// `[calibration.drift]` (#46 item 3): how often and over how much of the
+/// drive the online calibration refits, and the drift watch's tolerances.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DriftWatchConfig {
+    /// The tolerances (radians and rad/s inside; configured in degrees) and
+    /// the σ multiple (see [`canodom_calib::drift::DriftConfig::default`]).
+    pub judge: canodom_calib::drift::DriftConfig,
+    /// The least fix time between two refits, s (default 120: two minutes of
+    /// 1 Hz fixes pin the speed scale to about 0.1 %).
+    pub every_s: f64,
+    /// Each refit fits the last this many seconds of the drive (default 600).
+    /// It bounds the memory of the live recording and the cost of a refit,
+    /// and it is how fast the watch sees a change: a tyre that changes
+    /// moves a refit's value by the share of the window driven since.
+    pub window_s: f64,
+}
+
+impl Default for DriftWatchConfig {
+    fn default() -> Self {
+        Self {
+            judge: canodom_calib::drift::DriftConfig::default(),
+            every_s: 120.0,
+            window_s: 600.0,
+        }
+    }
 }
 
 /// The validated configuration.
