@@ -95,8 +95,13 @@ impl Default for DriftConfig {
     /// - rear ratio 0.2 %: on a 1.5 m tread a heading drift of 0.08° a
     ///   metre turns the rear wheels' pose a third of the distance off
     ///   (README: a rear tyre 0.3 % off), the same bound as the filter's.
-    /// - rear tread 1 %: every turn's angle 1 % off on the wheels alone;
-    ///   fixes tell the tread only to about that on ordinary driving.
+    /// - rear tread 2 %: every turn's angle 2 % off on the wheels alone. A
+    ///   refit's effective tread is that of the turns in its window (the
+    ///   tyres' side slip in curves, issue #46): on a steady multi-body BMW
+    ///   it scattered from −1.3 % to +0.9 % between 3-minute refits, each
+    ///   with a σ of 0.2–0.3 %, and at 1 % it raised a flag on a car that
+    ///   had not changed; the tread is not what a tyre's pressure or wear
+    ///   changes.
     /// - steering gain 1 % and offset 0.2° (road wheel): the steering is the
     ///   third heading source; 0.2° at 10 m/s on a 2.7 m wheelbase is
     ///   0.7 °/s of turn the steering gets wrong, a few times the gate's σ.

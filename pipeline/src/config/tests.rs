@@ -520,7 +520,7 @@ fn every_bad_gnss_key_is_named() {
 #[test]
 fn the_drift_watch_keys_reach_their_fields_in_their_units() {
     let text = format!(
-        "{RC_CAR}\n[calibration.drift]\nk_sigma = 4.0\nyaw_bias_tol_dps = 0.1\nrear_ratio_tol_rel = 0.003\nsteer_offset_tol_deg = 0.5\nevery_s = 60.0\nwindow_s = 300.0\n"
+        "{RC_CAR}\n[calibration.drift]\nk_sigma = 4.0\nyaw_bias_tol_dps = 0.1\nrear_ratio_tol_rel = 0.003\nsteer_offset_tol_deg = 0.5\nevery_s = 30.0\nwindow_s = 300.0\n"
     );
     let c = Config::from_toml(&text, &path()).unwrap();
     let d = c.calibration.drift;
@@ -535,7 +535,7 @@ fn the_drift_watch_keys_reach_their_fields_in_their_units() {
         d.judge.tolerance(Param::SpeedScale),
         default.judge.tolerance(Param::SpeedScale)
     );
-    assert_eq!((d.every_s, d.window_s), (60.0, 300.0));
+    assert_eq!((d.every_s, d.window_s), (30.0, 300.0));
     assert_eq!(
         Config::from_toml(RC_CAR, &path())
             .unwrap()
@@ -587,7 +587,7 @@ fn every_bad_drift_key_is_named() {
         ("every_s = 0.0", "calibration.drift.every_s", "> 0"),
         ("window_s = -5.0", "calibration.drift.window_s", "> 0"),
         (
-            "window_s = 200.0",
+            "window_s = 100.0",
             "calibration.drift.window_s",
             "twice calibration.drift.every_s",
         ),
