@@ -86,7 +86,7 @@ pub struct DriftConfig {
 pub const CLEAR_SHARE: f64 = 0.5;
 
 impl Default for DriftConfig {
-    /// What a user of the odometry needs, against what a refit of ten
+    /// What a user of the odometry needs, against what a refit of three
     /// minutes of consumer fixes (σ 1.5 m) can tell:
     /// - speed scale 0.2 %: 2 m a kilometre, the drive gate's σ bound
     ///   (`max_speed_scale_std`), and the least wheel error the filter
