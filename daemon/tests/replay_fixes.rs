@@ -5,8 +5,9 @@
 //! taken into use from its time, and the rest of the drive dead-reckoned
 //! from the truth at 60 s within issue #31's 0.5 % (0.31 % measured).
 //! The drift watch (#46 item 3) judges its refits against the set the replay
-//! started with: nothing flagged on the model's car with its nominal set, a
-//! rear wheel committed 0.5 % off flagged at its first refit.
+//! started with: on the model's car with its nominal set only the steering
+//! offset the model has (0.3°) is flagged, and a rear wheel committed 0.5 %
+//! off is flagged at the watch's first refit.
 
 use std::process::Command;
 
@@ -20,6 +21,15 @@ fn rows(text: &str) -> Vec<Vec<String>> {
         .skip(1)
         .map(|l| l.split(',').map(str::to_owned).collect())
         .collect()
+}
+
+/// The learnt value and σ of a drift line, `after` the text before them.
+fn learnt_and_sigma(line: &str, after: &str) -> (f64, f64) {
+    let at = line.find(after).unwrap() + after.len();
+    let mut words = line[at..].split(' ');
+    let value = words.next().unwrap().parse().unwrap();
+    let sigma = words.nth(1).unwrap().trim_end_matches(',').parse().unwrap();
+    (value, sigma)
 }
 
 /// `canodom replay` of the drive with the vehicle's configuration and `args`.
@@ -70,11 +80,34 @@ fn a_drive_is_calibrated_as_its_fixes_come_and_the_set_used_from_then_on() {
     assert!(
         text.starts_with("t_unix_s,fixes,parameter,value,sigma,passed,taken_into_use,drifted\n")
     );
-    // The nominal set agrees with the car within the tolerances: no flag.
+    // The drift watch against the nominal set: the model's steering is
+    // 0.296° off at the road wheels (meta.json), beyond the 0.2° tolerance,
+    // and that is the one flag, with the learnt correction within 3σ of it;
+    // every other parameter agrees.
+    let flags: Vec<&str> = stderr
+        .lines()
+        .filter(|l| l.starts_with("replay: drift: "))
+        .collect();
     assert!(
-        rows(&text).iter().all(|r| r[7] == "0")
-            && !stderr.contains("replay: drift: ")
-            && stderr.contains("replay: drift watch: no flag over "),
+        flags.len() == 1
+            && flags[0].starts_with("replay: drift: steer_offset_rad flagged: learnt ")
+            && flags[0].contains("in use 0.000000"),
+        "{stderr}"
+    );
+    let (value, sigma) = learnt_and_sigma(flags[0], "steer_offset_rad flagged: learnt ");
+    let truth = 0.295_984_124_065_f64.to_radians();
+    assert!(
+        (value - truth).abs() <= 3.0 * sigma,
+        "{value} ± {sigma} against {truth}"
+    );
+    assert!(
+        rows(&text)
+            .iter()
+            .all(|r| (r[7] == "1") == (r[2] == "steer_offset_rad" && r[1] == "60")),
+        "{text}"
+    );
+    assert!(
+        stderr.contains("replay: drift watch: first flag (steer_offset_rad)"),
         "{stderr}"
     );
     let bias = rows(&text)
@@ -223,35 +256,37 @@ fn a_committed_set_the_drive_disagrees_with_is_flagged_with_the_distance_driven(
     ]);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{stderr}");
-    // Flagged, with the learnt ratio near 1.005.
-    let flag = stderr
+    // Flagged, with the learnt ratio near 1.005 (and the steering offset
+    // as against the nominal set, see above).
+    let flags: Vec<&str> = stderr
         .lines()
-        .find(|l| l.starts_with("replay: drift: "))
-        .unwrap_or_else(|| panic!("no flag: {stderr}"));
+        .filter(|l| l.starts_with("replay: drift: "))
+        .collect();
     assert!(
-        flag.starts_with("replay: drift: rear_ratio flagged: learnt 1.00")
-            && flag.contains("in use 1.000000")
-            && flag.ends_with(" m driven)"),
-        "{flag}"
+        flags.len() == 2
+            && flags[0].starts_with("replay: drift: rear_ratio flagged: learnt ")
+            && flags[0].contains("in use 1.000000")
+            && flags[0].ends_with(" m driven)")
+            && flags[1].starts_with("replay: drift: steer_offset_rad flagged: "),
+        "{stderr}"
     );
-    let learnt_ratio: f64 = flag["replay: drift: rear_ratio flagged: learnt ".len()..]
-        .split(' ')
-        .next()
-        .unwrap()
-        .parse()
-        .unwrap();
-    assert!((learnt_ratio - 1.005).abs() < 0.001, "{flag}");
+    let (learnt_ratio, _) = learnt_and_sigma(flags[0], "rear_ratio flagged: learnt ");
+    assert!((learnt_ratio - 1.005).abs() < 0.001, "{}", flags[0]);
     // The minute of fixes is one refit of the watch's (every 60 s), at the
-    // last fix: the learnt CSV's rows of that time show the flag, only on
-    // the rear ratio; those of the refit at 30 s do not.
+    // last fix: the learnt CSV's rows of that time show the flags; those of
+    // the refit at 30 s do not.
     let text = std::fs::read_to_string(&learnt).unwrap();
     let last_refit = rows(&text).last().unwrap()[0].clone();
     let flagged: Vec<Vec<String>> = rows(&text).into_iter().filter(|r| r[7] == "1").collect();
     assert!(
-        flagged.len() == 1 && flagged[0][2] == "rear_ratio" && flagged[0][0] == last_refit,
+        flagged.len() == 2
+            && flagged[0][2] == "rear_ratio"
+            && flagged[1][2] == "steer_offset_rad"
+            && flagged.iter().all(|r| r[0] == last_refit),
         "{text}"
     );
-    // The summary: the distance until the first flag, within the drive's.
+    // The summary: the distance until the first flag, the drive's up to the
+    // last fix (the watch's one refit is there; ~6 m/s over the minute).
     let summary = stderr
         .lines()
         .find(|l| l.starts_with("replay: drift watch: first flag (rear_ratio) at t="))
@@ -261,5 +296,5 @@ fn a_committed_set_the_drive_disagrees_with_is_flagged_with_the_distance_driven(
         summary[at..].split(' ').next().unwrap().parse().unwrap()
     };
     let (until, of) = (metres("s, "), metres("(of "));
-    assert!(until > 50.0 && until < of, "{summary}");
+    assert!(until > 200.0 && until == of, "{summary}");
 }
