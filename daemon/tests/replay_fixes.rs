@@ -23,6 +23,40 @@ fn rows(text: &str) -> Vec<Vec<String>> {
         .collect()
 }
 
+/// The drift watch against the nominal set: the model's steering is 0.296°
+/// off at the road wheels (meta.json), beyond the 0.2° tolerance, and that
+/// is the one flag, with the learnt correction within 3σ of it; every other
+/// parameter agrees. `stderr` and `learnt` (the CSV) are the replay's.
+fn only_the_models_steering_offset_is_flagged(stderr: &str, learnt: &str) {
+    let text = learnt;
+    let flags: Vec<&str> = stderr
+        .lines()
+        .filter(|l| l.starts_with("replay: drift: "))
+        .collect();
+    assert!(
+        flags.len() == 1
+            && flags[0].starts_with("replay: drift: steer_offset_rad flagged: learnt ")
+            && flags[0].contains("in use 0.000000"),
+        "{stderr}"
+    );
+    let (value, sigma) = learnt_and_sigma(flags[0], "steer_offset_rad flagged: learnt ");
+    let truth = 0.295_984_124_065_f64.to_radians();
+    assert!(
+        (value - truth).abs() <= 3.0 * sigma,
+        "{value} ± {sigma} against {truth}"
+    );
+    assert!(
+        rows(text)
+            .iter()
+            .all(|r| (r[7] == "1") == (r[2] == "steer_offset_rad" && r[1] == "60")),
+        "{text}"
+    );
+    assert!(
+        stderr.contains("replay: drift watch: first flag (steer_offset_rad)"),
+        "{stderr}"
+    );
+}
+
 /// The learnt value and σ of a drift line, `after` the text before them.
 fn learnt_and_sigma(line: &str, after: &str) -> (f64, f64) {
     let at = line.find(after).unwrap() + after.len();
@@ -80,36 +114,7 @@ fn a_drive_is_calibrated_as_its_fixes_come_and_the_set_used_from_then_on() {
     assert!(
         text.starts_with("t_unix_s,fixes,parameter,value,sigma,passed,taken_into_use,drifted\n")
     );
-    // The drift watch against the nominal set: the model's steering is
-    // 0.296° off at the road wheels (meta.json), beyond the 0.2° tolerance,
-    // and that is the one flag, with the learnt correction within 3σ of it;
-    // every other parameter agrees.
-    let flags: Vec<&str> = stderr
-        .lines()
-        .filter(|l| l.starts_with("replay: drift: "))
-        .collect();
-    assert!(
-        flags.len() == 1
-            && flags[0].starts_with("replay: drift: steer_offset_rad flagged: learnt ")
-            && flags[0].contains("in use 0.000000"),
-        "{stderr}"
-    );
-    let (value, sigma) = learnt_and_sigma(flags[0], "steer_offset_rad flagged: learnt ");
-    let truth = 0.295_984_124_065_f64.to_radians();
-    assert!(
-        (value - truth).abs() <= 3.0 * sigma,
-        "{value} ± {sigma} against {truth}"
-    );
-    assert!(
-        rows(&text)
-            .iter()
-            .all(|r| (r[7] == "1") == (r[2] == "steer_offset_rad" && r[1] == "60")),
-        "{text}"
-    );
-    assert!(
-        stderr.contains("replay: drift watch: first flag (steer_offset_rad)"),
-        "{stderr}"
-    );
+    only_the_models_steering_offset_is_flagged(&stderr, &text);
     let bias = rows(&text)
         .into_iter()
         .rev()
