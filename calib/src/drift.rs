@@ -115,7 +115,7 @@ impl Default for DriftConfig {
             tolerance: [
                 0.002,
                 0.002,
-                0.01,
+                0.02,
                 0.01,
                 0.2f64.to_radians(),
                 0.05f64.to_radians(),
