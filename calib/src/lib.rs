@@ -12,6 +12,7 @@
 //! - [`methods`]: the paper's closed form, the heading law and the exact
 //!   Levenberg–Marquardt refinement, all returning a [`CalibrationResult`].
 //! - [`steering`]: the steering map φ = k·u + c from constant-command arcs (§10).
+//! - [`drift`]: the drift watch: a learnt value against the set in use, with hysteresis.
 //! - [`drive`]: rear wheels, tread, steering map and yaw-rate sensor from an
 //!   ordinary drive with sparse position fixes (robust least squares over the
 //!   drive, the fixes' latency with them).
@@ -76,6 +77,7 @@
 
 pub mod arcs;
 pub mod calibrator;
+pub mod drift;
 pub mod drive;
 pub mod drive_gate;
 pub mod drive_record;

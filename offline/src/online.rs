@@ -11,9 +11,16 @@
 //! refit of a 10-minute drive costs well under a second, once every
 //! `every_s` of fixes. The pose never jumps: a new set changes how the
 //! wheels and the gyro are read from then on, not where the car is.
+//!
+//! Each refit fits the last `window_s` of the drive (`[calibration.drift]
+//! window_s`), not all of it: the daemon keeps only that much of a drive
+//! that may last hours, and a parameter that changes (a tyre losing
+//! pressure) shows in a refit once a good share of its window was driven
+//! since. [`drift_watch`] judges the refits against the set in use.
 
 use crate::drive::{DriveLog, fit_samples};
-use canodom_calib::drive::{DriveOptions, Fix};
+use canodom_calib::drift::{Change, DriftConfig, Watch, readings};
+use canodom_calib::drive::{DriveCalibration, DriveOptions, DriveSample, Fix};
 use canodom_calib::drive_gate::misfits;
 use canodom_params::persist::ParamValues;
 use canodom_pipeline::config::Config;
@@ -43,6 +50,12 @@ pub struct Epoch {
     /// failed, misfits the fixes, leaves the configured bounds, or nothing
     /// passed the gate.
     pub refused: Option<String>,
+    /// The fit, for the drift watch: `None` when it failed or misfits the
+    /// fixes (what it learnt then says nothing about the car).
+    pub judged: Option<DriveCalibration>,
+    /// Distance driven from the drive's start to `t_s` (the rear wheels'
+    /// mean with the set in use), m.
+    pub distance_m: f64,
 }
 
 impl Epoch {
@@ -57,8 +70,8 @@ impl Epoch {
 }
 
 /// Refits the drive every `every_s` of fixes (and once at the last fix),
-/// each over the samples and fixes up to that time, starting from `base`
-/// (the values in use when the drive was recorded).
+/// each over the samples and fixes of the `window_s` up to that time,
+/// starting from `base` (the values in use when the drive was recorded).
 pub fn learn(
     config: &Config,
     base: ParamValues,
@@ -66,6 +79,7 @@ pub fn learn(
     fixes: &[Fix],
     options: &DriveOptions,
     every_s: f64,
+    window_s: f64,
 ) -> Vec<Epoch> {
     let (Some(first), Some(last)) = (drive.samples.first(), drive.samples.last()) else {
         return Vec::new();
@@ -85,12 +99,61 @@ pub fn learn(
         t += every_s;
     }
     times.push(f_end.t_s);
+    // Distance from the start to each sample's end, for the epochs' `distance_m`.
+    let mut distance_m = 0.0;
+    let travelled: Vec<f64> = drive
+        .samples
+        .iter()
+        .map(|s| {
+            distance_m += 0.5 * (s.rear_left_m + s.rear_right_m).abs();
+            distance_m
+        })
+        .collect();
     times
         .into_iter()
         .map(|t_s| {
+            let from = drive.samples.partition_point(|s| s.t_s < t_s - window_s);
             let upto = drive.samples.partition_point(|s| s.t_s <= t_s);
-            let used: Vec<Fix> = inside.iter().copied().filter(|f| f.t_s <= t_s).collect();
-            epoch(config, base, &drive.samples[..upto], &used, options, t_s)
+            let used: Vec<Fix> = inside
+                .iter()
+                .copied()
+                .filter(|f| f.t_s <= t_s && f.t_s >= t_s - window_s)
+                .collect();
+            let mut e = epoch(
+                config,
+                base,
+                &drive.samples[from..upto],
+                &used,
+                options,
+                t_s,
+            );
+            e.distance_m = upto.checked_sub(1).map_or(0.0, |i| travelled[i]);
+            e
+        })
+        .collect()
+}
+
+/// The drift watch over `epochs` (fitted on samples recorded with `base`),
+/// each judged against `in_use`: the watch after each refit and what it
+/// changed, in the epochs' order.
+pub fn drift_watch(
+    epochs: &[Epoch],
+    base: &ParamValues,
+    in_use: &ParamValues,
+    judge: &DriftConfig,
+) -> Vec<(Watch, Vec<Change>)> {
+    let mut watch = Watch::default();
+    epochs
+        .iter()
+        .map(|e| {
+            let read = e
+                .judged
+                .as_ref()
+                .map(|cal| readings(base, cal, in_use))
+                .unwrap_or_default();
+            let (next, changes) = watch.judge(&read, judge);
+            watch = next;
+            (next, changes)
         })
         .collect()
 }
@@ -99,7 +162,7 @@ pub fn learn(
 fn epoch(
     config: &Config,
     base: ParamValues,
-    samples: &[canodom_calib::drive::DriveSample],
+    samples: &[DriveSample],
     fixes: &[Fix],
     options: &DriveOptions,
     t_s: f64,
@@ -114,6 +177,8 @@ fn epoch(
                 values: None,
                 estimates: Vec::new(),
                 refused: Some(e.to_string()),
+                judged: None,
+                distance_m: 0.0,
             };
         }
     };
@@ -174,25 +239,35 @@ fn epoch(
         values: Some(fit.values),
         estimates,
         refused,
+        judged: found.is_empty().then(|| fit.calibration.clone()),
+        distance_m: 0.0,
     }
 }
 
-/// The learnt-parameters CSV: a row per refit and estimate.
-pub const LEARNT_CSV_HEADER: &str = "t_unix_s,fixes,parameter,value,sigma,passed,taken_into_use";
+/// The learnt-parameters CSV: a row per refit and estimate; `drifted` is
+/// the drift watch's flag of that parameter after the refit (0 for one it
+/// does not judge, the fixes' latency).
+pub const LEARNT_CSV_HEADER: &str =
+    "t_unix_s,fixes,parameter,value,sigma,passed,taken_into_use,drifted";
 
-/// The learnt-parameters CSV's rows for `epochs`.
-pub fn learnt_csv(epochs: &[Epoch]) -> String {
+/// The learnt-parameters CSV's rows for `epochs`, with the watch after each
+/// (`watches[i]` after `epochs[i]`; a missing one counts as no flag).
+pub fn learnt_csv(epochs: &[Epoch], watches: &[Watch]) -> String {
     let mut out = format!("{LEARNT_CSV_HEADER}\n");
-    for e in epochs {
+    for (i, e) in epochs.iter().enumerate() {
         let used = u8::from(e.accepted().is_some());
         for (name, value, sigma, passed) in &e.estimates {
+            let drifted = canodom_calib::drift::Param::from_name(name)
+                .zip(watches.get(i))
+                .is_some_and(|(p, w)| w.flagged(p));
             // Writing to a String cannot fail.
             let _ = writeln!(
                 out,
-                "{:.3},{},{name},{value:.9},{sigma:.9},{},{used}",
+                "{:.3},{},{name},{value:.9},{sigma:.9},{},{used},{}",
                 e.t_s,
                 e.fixes,
-                u8::from(*passed)
+                u8::from(*passed),
+                u8::from(drifted)
             );
         }
     }

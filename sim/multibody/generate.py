@@ -62,6 +62,12 @@ WHEELS = {"spread_max": 0.00025}
 # difference; --tyre-large): {"wheel": "RL", "rel": 0.003}, or None. Applied after the
 # seed's draws, so a drive differs from its twin only in that wheel's speed frames.
 TYRE = {"large": None}
+# One tyre that changes mid-drive (a pressure drop, a puncture's slow leak; --tyre-change-at-s):
+# {"at_s": 600.0, "wheel": "RL", "rel": -0.005}, or None. From at_s on that wheel's effective
+# radius is 1 + rel times what it was (its frames read 1/(1 + rel) of before), the drift the
+# daemon's drift watch is to flag (issue #46). No draw depends on it: the drive without it is
+# the same drive up to at_s, bit for bit.
+TYRE_CHANGE = {"change": None}
 # Long drives (--minutes): the route is chained, turn after straight as for a short drive,
 # until the time its segments plan (length / speed) reaches this many minutes; None keeps
 # the ~1.1 km drives. The draws of a short drive are unchanged (the same seed gives the
@@ -550,6 +556,9 @@ def encode_log(sim: dict, veh: Vehicle, err: SensorErrors, rng: np.random.Genera
     ws = {}
     for w, col in WHEEL_STATE.items():
         kmh = interp(col, tw) * p.R_w * err.wheel_scale[w] * 3.6
+        change = TYRE_CHANGE["change"]
+        if change is not None and change["wheel"] == w:
+            kmh = kmh * np.where(tw >= change["at_s"], 1.0 / (1.0 + change["rel"]), 1.0)
         kmh = kmh + rng.normal(0.0, err.wheel_noise_kmh, kmh.shape)
         kmh = np.abs(kmh)
         kmh[kmh < err.wheel_floor_kmh] = 0.0
@@ -687,6 +696,7 @@ def write_drive(veh: Vehicle, seed: int, out_dir: Path, compress: bool = True) -
         "gyro_setting": dict(GYRO),
         "wheels_setting": dict(WHEELS),
         "tyre_setting": dict(TYRE),
+        "tyre_change_setting": dict(TYRE_CHANGE),
         "route_setting": dict(ROUTE),
         "model": "commonroad-vehicle-models 3.0.2 vehicle_dynamics_mb",
         "sensor_errors": dataclasses.asdict(err),
@@ -768,6 +778,10 @@ def main(argv=None) -> int:
     ap.add_argument("--tyre-large", nargs=2, default=None, metavar=("WHEEL", "REL"),
                     help="one tyre (FL, FR, RL or RR) larger than its draw by REL (e.g. RL 0.003): "
                     "its wheel-speed frames read 1/(1 + REL) of its draw")
+    ap.add_argument("--tyre-change-at-s", nargs=3, default=None, metavar=("T", "WHEEL", "REL"),
+                    help="from T s into the drive one tyre's (FL, FR, RL or RR) effective radius is "
+                    "1 + REL times what it was (e.g. 600 RL -0.005: a pressure drop after 10 minutes); "
+                    "its frames read 1/(1 + REL) of before. Recorded in meta.json (tyre_change_setting)")
     ap.add_argument("--minutes", type=float, default=None, metavar="MIN",
                     help="a long drive: chain route segments until the plan lasts MIN minutes "
                     "(e.g. 20; default: the ~1.1 km drive). Cost: the simulation's CPU grows with "
@@ -795,6 +809,15 @@ def main(argv=None) -> int:
         if wheel not in ("FL", "FR", "RL", "RR") or not -0.05 < rel < 0.05:
             ap.error(f"--tyre-large {wheel} {rel}: expected FL|FR|RL|RR and -0.05 < REL < 0.05")
         TYRE.update(large={"wheel": wheel, "rel": rel})
+    if args.tyre_change_at_s is not None:
+        at, wheel, rel = args.tyre_change_at_s
+        try:
+            at, rel = float(at), float(rel)
+        except ValueError:
+            ap.error(f"--tyre-change-at-s {at} {wheel} {rel}: T and REL must be numbers")
+        if wheel not in ("FL", "FR", "RL", "RR") or not -0.05 < rel < 0.05 or not at >= 0.0:
+            ap.error(f"--tyre-change-at-s {at} {wheel} {rel}: expected T >= 0, FL|FR|RL|RR and -0.05 < REL < 0.05")
+        TYRE_CHANGE.update(change={"at_s": at, "wheel": wheel, "rel": rel})
     WHEELS.update(spread_max=args.wheel_spread_max)
     vs = vehicles()
     for key in args.vehicle:

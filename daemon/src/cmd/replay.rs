@@ -80,14 +80,23 @@ pub struct ReplayArgs {
     /// --fixes-every-s of fixes over all driven so far, judged by
     /// `[calibration]`'s gate), and each set learnt is taken into use from
     /// the time it was learnt: the pose shows what the car would have done.
+    /// The drift watch refits every `[calibration.drift] every_s` over the
+    /// last `window_s` and judges each refit against the set the replay
+    /// started with (what the daemon, committing nothing by itself, holds):
+    /// a line when a parameter's flag rises or clears, and the distance
+    /// driven until the first flag at the end.
     #[arg(long, value_name = "FILE", conflicts_with = "ros2")]
     pub fixes: Option<PathBuf>,
     /// With --fixes: seconds of fixes between two refits.
     #[arg(long, requires = "fixes", default_value_t = canodom_offline::online::DEFAULT_EVERY_S)]
     pub fixes_every_s: f64,
+    /// With --fixes: each refit fits only this many seconds of the drive up
+    /// to it (default: all of it).
+    #[arg(long, requires = "fixes", value_name = "SECONDS")]
+    pub fixes_window_s: Option<f64>,
     /// With --fixes: write what was learnt at each refit (every parameter
     /// with its σ, whether it passed the gate, whether the set was taken
-    /// into use) to this CSV.
+    /// into use, whether the drift watch flags it) to this CSV.
     #[arg(long, requires = "fixes", value_name = "CSV")]
     pub learnt_out: Option<PathBuf>,
     /// `--ros2`: the drive published on ROS 2 at its pace (#43).
@@ -144,8 +153,8 @@ fn read_truth(args: &ReplayArgs) -> anyhow::Result<Option<Vec<canodom_calib::dri
     })
 }
 
-/// `--fixes`: the sets learnt as the fixes come, with their times (none
-/// without `--fixes`).
+/// `--fixes`: the sets learnt as the fixes come, with their times, and the
+/// drift watch's summary (nothing without `--fixes`).
 ///
 /// # Errors
 /// As [`super::replay_fixes::learn`].
@@ -153,12 +162,7 @@ fn learn_from_fixes(
     args: &ReplayArgs,
     config: &Config,
     params: Option<&canodom_params::persist::ParamSet>,
-) -> anyhow::Result<
-    Vec<(
-        canodom_can::time::Timestamp,
-        canodom_params::persist::ParamSet,
-    )>,
-> {
+) -> anyhow::Result<super::replay_fixes::Learnt> {
     Ok(match &args.fixes {
         Some(path) => super::replay_fixes::learn(
             &super::replay_fixes::FixesArgs {
@@ -166,12 +170,13 @@ fn learn_from_fixes(
                 log: &args.log,
                 interface: args.interface.as_deref(),
                 every_s: args.fixes_every_s,
+                window_s: args.fixes_window_s,
                 learnt_out: args.learnt_out.as_deref(),
             },
             config,
             params,
         )?,
-        None => Vec::new(),
+        None => super::replay_fixes::Learnt::default(),
     })
 }
 
@@ -189,7 +194,8 @@ pub fn execute(args: &ReplayArgs) -> anyhow::Result<()> {
         return Ok(());
     }
     let truth = read_truth(args)?;
-    let switches = learn_from_fixes(args, &config, params.as_ref())?;
+    let learnt = learn_from_fixes(args, &config, params.as_ref())?;
+    let switches = learnt.switches;
     let mut input = super::open_input(&args.log, "replay")?;
     let started = std::time::Instant::now();
     let (sink, mcap) = open_output(args, &config)?;
@@ -261,6 +267,9 @@ pub fn execute(args: &ReplayArgs) -> anyhow::Result<()> {
         );
     }
     eprintln!("replay: wheel scales: {}", summary.state.wheel_scales());
+    if let Some(drift) = &learnt.drift_summary {
+        eprintln!("replay: {drift}");
+    }
     for w in &summary.warnings {
         eprintln!("replay: warning: {w}");
     }

@@ -3,6 +3,7 @@
 //! taken into use from the time it was learnt.
 
 use anyhow::Context as _;
+use canodom_calib::drift::Watch;
 use canodom_can::time::Timestamp;
 use canodom_offline::online::{self, Epoch};
 use canodom_params::persist::ParamSet;
@@ -19,25 +20,48 @@ pub struct FixesArgs<'a> {
     pub interface: Option<&'a str>,
     /// `--fixes-every-s`.
     pub every_s: f64,
+    /// `--fixes-window-s` (`None`: all of the drive so far).
+    pub window_s: Option<f64>,
     /// `--learnt-out`.
     pub learnt_out: Option<&'a Path>,
 }
 
+/// What `replay --fixes` learnt.
+#[derive(Default)]
+pub struct Learnt {
+    /// The sets to take into use, each with its time.
+    pub switches: Vec<(Timestamp, ParamSet)>,
+    /// The drift watch in a line: how far the drive went until the first
+    /// flag, or that nothing was flagged.
+    pub drift_summary: Option<String>,
+}
+
 /// Learns from the fixes at `args.path` over the drive of `args.log`
-/// (recorded with `params` in use), prints each refit, writes
-/// `--learnt-out`, and returns the sets to take into use with their times.
+/// (recorded with `params` in use), prints each refit and each drift flag
+/// that rises or clears, writes `--learnt-out`, and returns the sets to take
+/// into use with their times and the drift watch's summary.
 ///
 /// # Errors
-/// Unreadable fixes or log, a `--fixes-every-s` that is not a positive
-/// number, an unwritable `--learnt-out`.
+/// Unreadable fixes or log, a `--fixes-every-s` or `--fixes-window-s` that
+/// is not a positive number, a window shorter than the interval, an
+/// unwritable `--learnt-out`.
 pub fn learn(
     args: &FixesArgs<'_>,
     config: &Config,
     params: Option<&ParamSet>,
-) -> anyhow::Result<Vec<(Timestamp, ParamSet)>> {
-    if !(args.every_s.is_finite() && args.every_s > 0.0) {
+) -> anyhow::Result<Learnt> {
+    for (flag, v) in [
+        ("--fixes-every-s", Some(args.every_s)),
+        ("--fixes-window-s", args.window_s),
+    ] {
+        if let Some(v) = v.filter(|v| !(v.is_finite() && *v > 0.0)) {
+            anyhow::bail!("{flag} {v}: must be a positive number of seconds");
+        }
+    }
+    if let Some(w) = args.window_s.filter(|w| *w < args.every_s) {
         anyhow::bail!(
-            "--fixes-every-s {}: must be a positive number of seconds",
+            "--fixes-window-s {w} is shorter than --fixes-every-s {}: fixes between refits would \
+             be seen by none",
             args.every_s
         );
     }
@@ -52,6 +76,7 @@ pub fn learn(
         &fixes,
         &canodom_calib::drive::DriveOptions::default(),
         args.every_s,
+        args.window_s.unwrap_or(f64::INFINITY),
     );
     if epochs.is_empty() {
         anyhow::bail!(
@@ -61,14 +86,81 @@ pub fn learn(
             fixes.len()
         );
     }
-    for e in &epochs {
-        eprintln!("replay: {}", describe(e));
+    // The drift watch refits on its own, shorter window: a long fit keeps
+    // the value from before a change until the change fills most of it.
+    let drift = &config.calibration.drift;
+    let checks = online::learn(
+        config,
+        base,
+        &drive,
+        &fixes,
+        &canodom_calib::drive::DriveOptions::default(),
+        drift.every_s,
+        drift.window_s,
+    );
+    let watches = online::drift_watch(&checks, &base, &base, &drift.judge);
+    // The refits and the flags in time order (a flag before a refit of
+    // the same time).
+    let mut lines: Vec<(f64, String)> = epochs.iter().map(|e| (e.t_s, describe(e))).collect();
+    let mut first_flag = None;
+    for (check, (_, changes)) in checks.iter().zip(&watches) {
+        for c in changes {
+            lines.push((check.t_s, describe_change(c, check.distance_m)));
+            if c.raised && first_flag.is_none() {
+                first_flag = Some((c.reading.param.name(), check.t_s, check.distance_m));
+            }
+        }
     }
+    lines.sort_by(|a, b| a.0.total_cmp(&b.0));
+    for (_, line) in &lines {
+        eprintln!("replay: {line}");
+    }
+    // Each refit's row shows the watch as it stood at the refit's time.
+    let as_of: Vec<Watch> = epochs
+        .iter()
+        .map(|e| {
+            let n = checks.partition_point(|c| c.t_s <= e.t_s);
+            n.checked_sub(1)
+                .map_or_else(Watch::default, |i| watches[i].0)
+        })
+        .collect();
     if let Some(out) = args.learnt_out {
-        std::fs::write(out, online::learnt_csv(&epochs))
+        std::fs::write(out, online::learnt_csv(&epochs, &as_of))
             .with_context(|| format!("--learnt-out {}", out.display()))?;
     }
-    Ok(switches(params, &epochs))
+    let distance_m = epochs.last().map_or(0.0, |e| e.distance_m);
+    let drift_summary = Some(match first_flag {
+        Some((name, t_s, d)) => format!(
+            "drift watch: first flag ({name}) at t={t_s:.1} s, {d:.0} m into the drive \
+             (of {distance_m:.0} m, {} refits of {:.0} s)",
+            checks.len(),
+            drift.window_s
+        ),
+        None => format!(
+            "drift watch: no flag over {distance_m:.0} m ({} refits of {:.0} s)",
+            checks.len(),
+            drift.window_s
+        ),
+    });
+    Ok(Learnt {
+        switches: switches(params, &epochs),
+        drift_summary,
+    })
+}
+
+/// A drift flag that rose or cleared, in a line: the parameter, its learnt
+/// value with σ, the value in use and the distance driven so far.
+fn describe_change(c: &canodom_calib::drift::Change, distance_m: f64) -> String {
+    let r = &c.reading;
+    format!(
+        "drift: {} {}: learnt {:.6} ± {:.6}, in use {:.6} ({:.0} m driven)",
+        r.param.name(),
+        if c.raised { "flagged" } else { "cleared" },
+        r.learnt,
+        r.sigma,
+        r.in_use,
+        distance_m
+    )
 }
 
 /// One refit in a line: when, how many fixes, what it told, and whether

@@ -2,9 +2,11 @@
 //! commit limits, and the bus's position fixes. Apart from `validate`
 //! because it needs the nominal vehicle and the output's base id first.
 
-use super::raw::{RawCalibration, RawFixes};
+use super::raw::{RawCalibration, RawDrift, RawFixes};
 use super::validator::Validator;
-use super::{CalibrationConfig, ConfigError, FixSignals, beside, default_param_file};
+use super::{
+    CalibrationConfig, ConfigError, DriftWatchConfig, FixSignals, beside, default_param_file,
+};
 use canodom_dbc::Database;
 use canodom_fusion::VehicleParams;
 use canodom_protocol::own_dbc::BaseId;
@@ -113,6 +115,83 @@ impl Validator<'_> {
             standstill_time_s: self
                 .positive("calibration.standstill_time_s", c.standstill_time_s)?,
             fixes: None,
+            drift: self.drift(&c.drift)?,
+        })
+    }
+
+    /// `[calibration.drift]`: every number positive, the refit window at
+    /// least two refit intervals (a window shorter than the interval would
+    /// leave fixes no refit sees).
+    fn drift(&self, d: &RawDrift) -> Result<DriftWatchConfig, ConfigError> {
+        use canodom_calib::drift::Param;
+        let default = DriftWatchConfig::default();
+        let mut judge = default.judge;
+        let pick = |key: &str, v: Option<f64>, default: f64| match v {
+            None => Ok(default),
+            Some(v) => self.positive(key, v),
+        };
+        judge.k_sigma = pick("calibration.drift.k_sigma", d.k_sigma, judge.k_sigma)?;
+        for (param, key, v, degrees) in [
+            (
+                Param::SpeedScale,
+                "speed_scale_tol_rel",
+                d.speed_scale_tol_rel,
+                false,
+            ),
+            (
+                Param::RearRatio,
+                "rear_ratio_tol_rel",
+                d.rear_ratio_tol_rel,
+                false,
+            ),
+            (
+                Param::RearTread,
+                "rear_tread_tol_rel",
+                d.rear_tread_tol_rel,
+                false,
+            ),
+            (
+                Param::SteerGain,
+                "steer_gain_tol_rel",
+                d.steer_gain_tol_rel,
+                false,
+            ),
+            (
+                Param::SteerOffset,
+                "steer_offset_tol_deg",
+                d.steer_offset_tol_deg,
+                true,
+            ),
+            (Param::YawBias, "yaw_bias_tol_dps", d.yaw_bias_tol_dps, true),
+            (
+                Param::YawScale,
+                "yaw_scale_tol_rel",
+                d.yaw_scale_tol_rel,
+                false,
+            ),
+        ] {
+            let i = Param::ALL
+                .iter()
+                .position(|p| *p == param)
+                .unwrap_or_default();
+            if let Some(v) = v {
+                let v = self.positive(&format!("calibration.drift.{key}"), v)?;
+                judge.tolerance[i] = if degrees { v.to_radians() } else { v };
+            }
+        }
+        let every_s = pick("calibration.drift.every_s", d.every_s, default.every_s)?;
+        let window_s = pick("calibration.drift.window_s", d.window_s, default.window_s)?;
+        if window_s < 2.0 * every_s {
+            return Err(self.err(
+                "calibration.drift.window_s",
+                &format!("at least twice calibration.drift.every_s ({every_s} s)"),
+                window_s,
+            ));
+        }
+        Ok(DriftWatchConfig {
+            judge,
+            every_s,
+            window_s,
         })
     }
 

@@ -206,6 +206,25 @@ pub(super) struct RawCalibration {
     pub(super) standstill_time_s: f64,
     /// Position fixes on the bus (GNSS on CAN) for calibration from a drive.
     pub(super) fixes: Option<RawFixes>,
+    /// `[calibration.drift]`: the online calibration's refits and the drift watch.
+    pub(super) drift: RawDrift,
+}
+
+/// `[calibration.drift]` (#46 item 3); the defaults are
+/// `canodom_calib::drift::DriftConfig::default`'s and `DriftWatchConfig`'s.
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub(super) struct RawDrift {
+    pub(super) k_sigma: Option<f64>,
+    pub(super) speed_scale_tol_rel: Option<f64>,
+    pub(super) rear_ratio_tol_rel: Option<f64>,
+    pub(super) rear_tread_tol_rel: Option<f64>,
+    pub(super) steer_gain_tol_rel: Option<f64>,
+    pub(super) steer_offset_tol_deg: Option<f64>,
+    pub(super) yaw_bias_tol_dps: Option<f64>,
+    pub(super) yaw_scale_tol_rel: Option<f64>,
+    pub(super) every_s: Option<f64>,
+    pub(super) window_s: Option<f64>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -261,6 +280,7 @@ impl Default for RawCalibration {
             standstill_speed_mps: 0.01,
             standstill_time_s: 1.0,
             fixes: None,
+            drift: RawDrift::default(),
         }
     }
 }

@@ -516,3 +516,86 @@ fn every_bad_gnss_key_is_named() {
     let e = invalid(&format!("{RC_CAR}\n[gnss]\naddress = \"a:1\"\n"));
     assert!(e.contains("source"), "{e}");
 }
+
+#[test]
+fn the_drift_watch_keys_reach_their_fields_in_their_units() {
+    use canodom_calib::drift::Param;
+    let text = format!(
+        "{RC_CAR}\n[calibration.drift]\nk_sigma = 4.0\nyaw_bias_tol_dps = 0.1\nrear_ratio_tol_rel = 0.003\nsteer_offset_tol_deg = 0.5\nevery_s = 30.0\nwindow_s = 300.0\n"
+    );
+    let c = Config::from_toml(&text, &path()).unwrap();
+    let d = c.calibration.drift;
+    assert_eq!(d.judge.k_sigma, 4.0);
+    assert!((d.judge.tolerance(Param::YawBias) - 0.1f64.to_radians()).abs() < 1e-15);
+    assert!((d.judge.tolerance(Param::SteerOffset) - 0.5f64.to_radians()).abs() < 1e-15);
+    assert_eq!(d.judge.tolerance(Param::RearRatio), 0.003);
+    // The others keep their defaults.
+    let default = DriftWatchConfig::default();
+    assert_eq!(
+        d.judge.tolerance(Param::SpeedScale),
+        default.judge.tolerance(Param::SpeedScale)
+    );
+    assert_eq!((d.every_s, d.window_s), (30.0, 300.0));
+    assert_eq!(
+        Config::from_toml(RC_CAR, &path())
+            .unwrap()
+            .calibration
+            .drift,
+        default
+    );
+}
+
+#[test]
+fn every_bad_drift_key_is_named() {
+    for (line, key, expected) in [
+        ("k_sigma = 0.0", "calibration.drift.k_sigma", "> 0"),
+        (
+            "speed_scale_tol_rel = -0.002",
+            "calibration.drift.speed_scale_tol_rel",
+            "> 0",
+        ),
+        (
+            "rear_ratio_tol_rel = nan",
+            "calibration.drift.rear_ratio_tol_rel",
+            "> 0",
+        ),
+        (
+            "rear_tread_tol_rel = 0.0",
+            "calibration.drift.rear_tread_tol_rel",
+            "> 0",
+        ),
+        (
+            "steer_gain_tol_rel = inf",
+            "calibration.drift.steer_gain_tol_rel",
+            "> 0",
+        ),
+        (
+            "steer_offset_tol_deg = -1.0",
+            "calibration.drift.steer_offset_tol_deg",
+            "> 0",
+        ),
+        (
+            "yaw_bias_tol_dps = 0.0",
+            "calibration.drift.yaw_bias_tol_dps",
+            "> 0",
+        ),
+        (
+            "yaw_scale_tol_rel = -0.1",
+            "calibration.drift.yaw_scale_tol_rel",
+            "> 0",
+        ),
+        ("every_s = 0.0", "calibration.drift.every_s", "> 0"),
+        ("window_s = -5.0", "calibration.drift.window_s", "> 0"),
+        (
+            "window_s = 100.0",
+            "calibration.drift.window_s",
+            "twice calibration.drift.every_s",
+        ),
+    ] {
+        let e = invalid(&format!("{RC_CAR}\n[calibration.drift]\n{line}\n"));
+        assert!(e.contains(&format!("key `{key}`")), "{line}: {e}");
+        assert!(e.contains(expected), "{line}: {e}");
+    }
+    let e = invalid(&format!("{RC_CAR}\n[calibration.drift]\nk = 3.0\n"));
+    assert!(e.contains("k_sigma"), "{e}");
+}
