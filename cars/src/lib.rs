@@ -568,10 +568,14 @@ mod tests {
             // #45): the aided estimator carries the pose only once it shows
             // the wheels off, so the gyro costs nothing where they are exact.
             let gyro = text.lines().any(|l| l.starts_with("yaw_rate = "));
-            let carries_one = ["vw_mqb", "toyota", "hyundai", "hyundai_canfd", "gm"]
-                .contains(&p.name);
+            let carries_one =
+                ["vw_mqb", "toyota", "hyundai", "hyundai_canfd", "gm"].contains(&p.name);
             assert_eq!(gyro, carries_one, "{}", p.name);
-            assert!(!text.contains("# yaw_rate ="), "{}: a commented-out line", p.name);
+            assert!(
+                !text.contains("# yaw_rate ="),
+                "{}: a commented-out line",
+                p.name
+            );
         }
     }
 
