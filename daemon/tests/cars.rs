@@ -271,9 +271,12 @@ fn the_toyota_example_carries_the_yaw_rate_the_readme_promises() {
     );
     let path = example("toyota.toml");
     let text = std::fs::read_to_string(&path).unwrap();
-    assert!(text.contains("# yaw_rate = \"KINEMATICS.YAW_RATE\""));
-    let on = text.replace("# yaw_rate = ", "yaw_rate = ");
-    let config = Config::from_toml(&on, &path).unwrap();
+    // Read by default (issue #45): the line is on, not one `#` away.
+    assert!(
+        text.lines()
+            .any(|l| l == "yaw_rate = \"KINEMATICS.YAW_RATE\"")
+    );
+    let config = Config::from_toml(&text, &path).unwrap();
     assert!(config.signals.yaw_rate.is_some());
 }
 

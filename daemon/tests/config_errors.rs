@@ -79,7 +79,10 @@ fn out_of_range_values() {
 #[test]
 fn yaw_rate_signal_takes_its_unit_from_the_dbc_and_its_sign_from_the_config() {
     let path = crate::util::toyota_toml();
-    let text = std::fs::read_to_string(&path).unwrap();
+    // The example reads the gyro; each case below writes its own line.
+    let text = std::fs::read_to_string(&path)
+        .unwrap()
+        .replace("yaw_rate = \"KINEMATICS.YAW_RATE\"\n", "");
     let with = |extra: &str| {
         let t = text.replace(
             "steering_kind = \"steering_wheel\"",
@@ -107,13 +110,24 @@ fn yaw_rate_signal_takes_its_unit_from_the_dbc_and_its_sign_from_the_config() {
     assert!(e.contains("signals.yaw_rate") && e.contains("deg/s"), "{e}");
     let e = with("yaw_rate_sign = 1").unwrap_err().to_string();
     assert!(e.contains("signals.yaw_rate_sign"), "{e}");
-    assert!(Config::load(&path).unwrap().signals.yaw_rate.is_none());
+    assert!(
+        Config::from_toml(&text, &path)
+            .unwrap()
+            .signals
+            .yaw_rate
+            .is_none()
+    );
+    assert!(Config::load(&path).unwrap().signals.yaw_rate.is_some());
 }
 
 #[test]
 fn calibration_fixes_name_two_signals_of_one_message() {
     let path = crate::util::toyota_toml();
-    let text = std::fs::read_to_string(&path).unwrap();
+    // KINEMATICS stands in for a GNSS message here: without the example's
+    // gyro, which reads it (a fixes message must not be an odometry input).
+    let text = std::fs::read_to_string(&path)
+        .unwrap()
+        .replace("yaw_rate = \"KINEMATICS.YAW_RATE\"\n", "");
     let with =
         |table: &str| Config::from_toml(&format!("{text}\n[calibration.fixes]\n{table}\n"), &path);
     // Any two signals of one message stand in for a GNSS message here.
