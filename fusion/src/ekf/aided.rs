@@ -10,7 +10,10 @@
 //! car by a degree a second at 10 m/s. A yaw-rate sensor has none of that;
 //! its only large error is a bias (0.4 °/s on production cars), which the
 //! wheels tell whenever the car stands or its speed and turn vary. So the
-//! gyro integrates the heading, and the wheels observe the gyro.
+//! gyro integrates the heading, and the wheels observe the gyro. Where the
+//! wheels are exact that only costs, so the estimator runs beside the
+//! wheels-only filter and carries the pose once it shows them off
+//! ([`super::AIDED_LEAD_SIGMAS`], `docs/calibration-math.md` §13).
 //!
 //! **State** (10): the rear-axle pose `x, y, θ`; the gyro bias `b` (rad/s);
 //! the gyro scale error `k` (`ω = (g − b)(1 + k)`), a *considered* state:
