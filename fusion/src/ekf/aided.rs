@@ -323,6 +323,14 @@ impl Aided {
             )
     }
 
+    /// True when the gyro's bias is known to [`super::AIDED_LEAD_BIAS_SIGMA_RADPS`]
+    /// (a calibration, or a long drive): its heading then drifts less than
+    /// any wheels' whose ratio and tread are known only as well as a drive
+    /// tells them.
+    pub(crate) fn gyro_known(&self) -> bool {
+        self.p[BIAS][BIAS].max(0.0).sqrt() < super::AIDED_LEAD_BIAS_SIGMA_RADPS
+    }
+
     /// Moves the learnt rear ratio error by `delta` (the wheels are read with
     /// other scales now); its σ and correlations stay.
     pub(crate) fn shift_ratio(&mut self, delta: f64) {
