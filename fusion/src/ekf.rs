@@ -182,7 +182,8 @@ pub const AIDED_LEAD_MIN_TREAD: f64 = 0.005;
 /// decide it.
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct AidedLead {
-    /// The aided estimator carries the pose ([`AIDED_LEAD_SIGMAS`]).
+    /// The aided estimator carries the pose (the rules beside
+    /// [`AIDED_LEAD_SIGMAS`]).
     leads: bool,
     /// The wheel scales the aided estimator's wheels are read with: those
     /// the wheels' own learning applies until it leads (its rear ratio then
@@ -336,7 +337,7 @@ pub struct State {
     steer_offset_var: f64,
     /// The yaw-rate-aided estimator, which runs from the first yaw-rate
     /// sample on (`aided_on`) and carries the pose once it has shown the
-    /// wheels off (`aided_leads`, [`AIDED_LEAD_SIGMAS`]).
+    /// wheels off (`lead`).
     aided: Aided,
     aided_on: bool,
     /// Whether the aided estimator leads, and what decides it.
@@ -559,9 +560,21 @@ impl State {
     /// in the aided filter without its readings its fitted terms ended 66 %
     /// of an opendbc drive off. The covariance is the aided one's (the
     /// wheels' own drift is not less); the wheels' own learning is kept;
-    /// the open correction window is dropped.
+    /// the open correction window is dropped. Where the aided filter did
+    /// not carry the pose, the wheels-only filter already does: it goes on
+    /// as it is (its pose and window kept, `pose` unused) and only the aided
+    /// filter is dropped.
     #[must_use]
     pub fn without_yaw_rate(&self, pose: Pose) -> Self {
+        if !self.lead.leads {
+            return Self {
+                aided: Aided::zeroed(),
+                aided_on: false,
+                lead: AidedLead::NONE,
+                pending_yaw: None,
+                ..*self
+            };
+        }
         let Ok(handed_over) = Self::new(pose, self.covariance()) else {
             // A non-finite pose or covariance: keep the filter as it is (the
             // next step's numerical check reports a broken state).
@@ -704,8 +717,9 @@ impl State {
     }
 
     /// True once the yaw-rate-aided estimator carries the pose: it has shown
-    /// the rear wheels' ratio off beyond what the wheels' own learning
-    /// corrects ([`AIDED_LEAD_SIGMAS`]).
+    /// the rear wheels' ratio or tread off beyond what the wheels' own
+    /// learning corrects ([`AIDED_LEAD_SIGMAS`]), a rear wheel slipped, or
+    /// the gyro's bias is known ([`AIDED_LEAD_BIAS_SIGMA_RADPS`]).
     pub fn aided_leads(&self) -> bool {
         self.lead.leads
     }

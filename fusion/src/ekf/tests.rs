@@ -37,6 +37,30 @@ fn arc_input(p: &VehicleParams, ds: f64, phi: f64) -> OdometryInput {
 }
 
 #[test]
+fn a_gyro_dropped_before_it_led_leaves_the_wheels_pose_as_it_was() {
+    // Exact wheels on an arc, the gyro reading the arc's rate: the aided
+    // filter runs beside the wheels and does not take the lead. Dropping the
+    // gyro (found at fault) keeps the wheels-only filter's pose, whatever
+    // pose the caller offers.
+    let p = car();
+    let ekf = Ekf::new(EkfConfig::new(p)).unwrap();
+    // 0.01 m a 0.01 s sample: 1 m/s.
+    let rate = 0.05f64.tan() / p.wheelbase_m();
+    let driven = (0..200).fold(State::origin(), |s, _| {
+        let mut input = arc_input(&p, 0.01, 0.05);
+        input.dt_s = 0.01;
+        input.yaw_rate_radps = Some(rate);
+        ekf.step(&s, &input).unwrap()
+    });
+    assert!(driven.yaw_aided() && !driven.aided_leads());
+    let dropped = driven.without_yaw_rate(Pose::default());
+    assert!(!dropped.yaw_aided());
+    assert_eq!(dropped.pose(), driven.pose());
+    assert_eq!(dropped.pose_unwrapped(), driven.pose_unwrapped());
+    assert_eq!(dropped.covariance(), driven.covariance());
+}
+
+#[test]
 fn rebased_state_starts_at_the_origin_and_keeps_what_was_learnt() {
     let p = car();
     // The default configuration learns the steering offset.
