@@ -20,6 +20,23 @@ use crate::wrap_angle;
 /// `β·S` is cut after it (0.6 rad leaves 7·10⁻⁴ of the displacement).
 pub(super) const RETRO_ORDER: usize = 5;
 
+/// The least change of the rear pair's scale difference, `|Δ ln s_RR −
+/// Δ ln s_RL|`, that moves the history: a decision (a wheel found off,
+/// 0.2 % or more), not the learner's refinements of it. Each refinement
+/// (1–10·10⁻⁵ per window after a decision) rotated the whole history by
+/// up to 0.07 rad, and over a 20-minute multi-body drive without a gyro
+/// the pose random-walked to 10⁷ m where the rear wheels ended 0.5 km
+/// away; applied from then on, they change where the car goes, not where
+/// it went.
+const RETRO_MIN_CHANGE: f64 = 5e-4;
+
+/// The largest turn, rad, that a change may give the history (`Δβ·S`):
+/// the series cut after [`RETRO_ORDER`] leaves 1.4·10⁻³ of the
+/// displacement at 1 rad and diverges beyond. A decision that late in a
+/// drive (a 0.3 % tyre told after 700 m) is applied from then on, and the
+/// history restarts so that a later decision is judged on what follows.
+const RETRO_MAX_TURN_RAD: f64 = 1.0;
+
 /// Adds a window's global displacement `moved` to the rear pair's moments,
 /// at the middle of its rear distance and turn `rear` (`None` when the
 /// window's increment came from the front: its heading carries the bias of
@@ -86,6 +103,18 @@ pub(super) fn reapply_rear_pair(st: &mut State, inv_rear_tread: f64) {
     let (d_right, d_left) = (rr - rr0, rl - rl0);
     let d_beta = (d_right - d_left) * inv_rear_tread;
     let d_mean = 0.5 * (d_right + d_left);
+    let too_late = (d_beta * st.rear_distance_m).abs() > RETRO_MAX_TURN_RAD;
+    if (d_right - d_left).abs() < RETRO_MIN_CHANGE || too_late {
+        if too_late {
+            st.rear_moments = [[0.0; 2]; RETRO_ORDER + 1];
+            st.rear_turn_moments = [[0.0; 2]; RETRO_ORDER + 1];
+            st.rear_distance_m = 0.0;
+            st.rear_turn_rad = 0.0;
+        }
+        st.applied_ln_scale = now;
+        st.applied_factor = now.map(|l| (-l).exp());
+        return;
+    }
     let scale = (-d_mean).exp();
     let rot_m = rotated_moments(&st.rear_moments, d_beta, scale);
     let rot_n = rotated_moments(&st.rear_turn_moments, d_beta, scale);
@@ -116,4 +145,82 @@ pub(super) fn reapply_rear_pair(st: &mut State, inv_rear_tread: f64) {
     st.rear_distance_m *= scale;
     st.applied_ln_scale = now;
     st.applied_factor = now.map(|l| (-l).exp());
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::{Fault, LearntWheelFault};
+    use super::*;
+
+    const INV_TREAD: f64 = 1.0 / 1.5;
+
+    /// A state that drove `distance_m` straight along x in 10 m windows,
+    /// its learner holding the rear-left wheel `scale` times the others
+    /// (nothing applied yet when `applied` is false).
+    fn driven(distance_m: f64, scale: f64, applied: bool) -> State {
+        let mut st = State::origin();
+        let windows = (distance_m / 10.0) as usize;
+        for _ in 0..windows {
+            add_rear_moments(&mut st, [10.0, 0.0], Some((10.0, 0.0)));
+        }
+        st.anchor.x = distance_m;
+        st.scales.restore(&LearntWheelFault {
+            fault: Fault::RearLeft,
+            scale,
+            sigma: 1e-4,
+            lead_log_odds: 20.0,
+            windows: 500,
+        });
+        if applied {
+            st.applied_ln_scale = st.scales.ln_scale();
+            st.applied_factor = st.applied_ln_scale.map(|l| (-l).exp());
+        }
+        st
+    }
+
+    #[test]
+    fn a_decision_early_in_a_drive_moves_the_history() {
+        // 0.3 % at 200 m turns the history by 0.4 rad.
+        let mut st = driven(200.0, 1.003, false);
+        assert_ne!(st.scales.ln_scale(), [0.0; 4], "the learner decided");
+        reapply_rear_pair(&mut st, INV_TREAD);
+        assert!(st.anchor.z.abs() > 0.3, "heading {}", st.anchor.z);
+        assert!(st.anchor.y.abs() > 10.0, "y {}", st.anchor.y);
+        assert_eq!(st.applied_ln_scale, st.scales.ln_scale());
+    }
+
+    #[test]
+    fn a_refinement_of_a_decision_is_applied_from_then_on() {
+        // A 5·10⁻⁵ refinement after 10 km rotated the whole history by
+        // 0.3 rad each time; the pose random-walked away.
+        let mut st = driven(10_000.0, 1.003, true);
+        let before = st.anchor;
+        st.scales.restore(&LearntWheelFault {
+            fault: Fault::RearLeft,
+            scale: 1.00305,
+            sigma: 1e-4,
+            lead_log_odds: 20.0,
+            windows: 501,
+        });
+        assert_ne!(st.scales.ln_scale(), st.applied_ln_scale);
+        reapply_rear_pair(&mut st, INV_TREAD);
+        assert_eq!(st.anchor, before, "a refinement moved the history");
+        assert_eq!(st.applied_ln_scale, st.scales.ln_scale());
+        assert!((st.rear_distance_m - 10_000.0).abs() < 1e-6, "history kept");
+    }
+
+    #[test]
+    fn a_decision_too_late_for_the_series_restarts_the_history() {
+        // 0.3 % after 1 km: 2 rad, past where the cut series holds.
+        let mut st = driven(1_000.0, 1.003, false);
+        let before = st.anchor;
+        reapply_rear_pair(&mut st, INV_TREAD);
+        assert_eq!(
+            st.anchor, before,
+            "the history was moved past the series' range"
+        );
+        assert_eq!(st.rear_distance_m, 0.0);
+        assert_eq!(st.rear_moments, [[0.0; 2]; RETRO_ORDER + 1]);
+        assert_eq!(st.applied_ln_scale, st.scales.ln_scale());
+    }
 }
