@@ -64,6 +64,29 @@ const MAX_TYRE_SCALE: f64 = 0.03;
 /// A share of rejected frames or faulty wheel steps above this is a wrong
 /// configuration, not a noisy bus (a few percent, as the issue asks).
 const FAULT_SHARE: f64 = 0.03;
+/// The least scale error of a yaw-rate sensor, against the rear wheels and
+/// the steering when those two agree, that is warned of and stops the
+/// gyro's readings: 5 %. Unnoticed, a gyro 3 % off took the pose to 5.4 %
+/// of an opendbc drive's distance where the wheels ended 0.03 % (10 %
+/// off: 17 %; 15 % low: 29 %), because the aided estimator blames a
+/// difference of turns on the rear tread. Below 5 % the medians' 2 % bins
+/// and a steering offset's left/right asymmetry no longer tell it.
+const GYRO_SCALE_LIMIT: f64 = 1.05;
+/// Turning steps each of the three comparisons needs before a gyro's
+/// scale is judged (about 18 s of turning at 100 Hz): a scale is not urgent,
+/// and at `MIN_SAMPLES` a second of a locking rear axle (the multi-body
+/// BMW, seed 5, at 14.7 s) put the gyro's median 5 % off the wheels'.
+const GYRO_SCALE_MIN_SAMPLES: u32 = 6 * MIN_SAMPLES;
+/// The least rear-wheel turn rate, rad/s, compared for a gyro's scale:
+/// 0.15 rad/s (8.6 °/s). A gyro's uncorrected bias (0.39 °/s on the
+/// multi-body Escort of seed 105) and a rear tyre 0.3 % off are then a few
+/// per cent of the turn, whose left/right asymmetry the two directions'
+/// mean cancels; at `MIN_TURN_RADPS` they put a right gyro 6 % off.
+const GYRO_SCALE_MIN_TURN_RADPS: f64 = 0.15;
+/// How far the steering's median turn may be off the rear wheels' for the
+/// two to count as agreeing against the gyro, as a share of the gyro's own
+/// ln-ratio: a third.
+const GYRO_SCALE_AGREE_SHARE: f64 = 1.0 / 3.0;
 
 /// What a warning suspects.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -176,6 +199,8 @@ struct Tally {
     /// outweighs many seconds of turning in a sum, not in a median. A
     /// fixed histogram keeps the state machine free of per-step allocation.
     ln_ratio_counts: Vec<u32>,
+    /// The same per turn direction of the reference (left, right).
+    side_counts: [Vec<u32>; 2],
     /// The step count at the last judgement.
     judged_at_n: u32,
 }
@@ -187,6 +212,7 @@ impl Default for Tally {
             agree: [0; 2],
             disagree: [0; 2],
             ln_ratio_counts: vec![0; bins],
+            side_counts: [vec![0; bins], vec![0; bins]],
             judged_at_n: 0,
         }
     }
@@ -207,6 +233,7 @@ impl Tally {
             .floor()
             .clamp(0.0, (self.ln_ratio_counts.len() - 1) as f64) as usize;
         self.ln_ratio_counts[bin] += 1;
+        self.side_counts[side][bin] += 1;
     }
 
     fn n(&self) -> u32 {
@@ -239,19 +266,36 @@ impl Tally {
     /// The median of |signal's turn| / |rear turn| over the steps (the
     /// centre of its bin).
     fn ratio(&self) -> f64 {
-        let half = u64::from(self.n()).div_ceil(2);
-        if half == 0 {
-            return 1.0;
-        }
-        let mut seen = 0u64;
-        for (bin, &count) in self.ln_ratio_counts.iter().enumerate() {
-            seen += u64::from(count);
-            if seen >= half {
-                return ((bin as f64 + 0.5) * LN_RATIO_BIN - LN_RATIO_SPAN).exp();
-            }
-        }
-        1.0
+        median_ln(&self.ln_ratio_counts, self.n()).exp()
     }
+
+    /// The mean of the two turn directions' median ln-ratios (the combined
+    /// median's when one direction has too few steps): an offset of the
+    /// reference's turn moves the two apart and cancels here.
+    fn ln_ratio_balanced(&self) -> f64 {
+        let n = [0, 1].map(|side| self.agree[side] + self.disagree[side]);
+        if n.iter().any(|&k| k < MIN_SAMPLES / 3) {
+            return self.ratio().ln();
+        }
+        0.5 * (median_ln(&self.side_counts[0], n[0]) + median_ln(&self.side_counts[1], n[1]))
+    }
+}
+
+/// The median ln-ratio (its bin's centre) of a histogram of `n` counts; 0
+/// when it is empty.
+fn median_ln(counts: &[u32], n: u32) -> f64 {
+    let half = u64::from(n).div_ceil(2);
+    if half == 0 {
+        return 0.0;
+    }
+    let mut seen = 0u64;
+    for (bin, &count) in counts.iter().enumerate() {
+        seen += u64::from(count);
+        if seen >= half {
+            return (bin as f64 + 0.5) * LN_RATIO_BIN - LN_RATIO_SPAN;
+        }
+    }
+    0.0
 }
 
 /// The plausibility state machine.
@@ -266,6 +310,10 @@ pub struct Plausibility {
     /// The steering's turn against the gyro's, while the gyro turns: the
     /// third comparison, which finds the odd one out.
     steer_yaw: Tally,
+    /// The same three comparisons in turns of `GYRO_SCALE_MIN_TURN_RADPS`
+    /// or more only (steering and gyro against the rear wheels, steering
+    /// against the gyro), for a gyro's scale.
+    scale_tallies: [Tally; 3],
     /// `Σ e·v`, `Σ v²` and `Σ e²`, `e` the rear turn less the reference's
     /// (the gyro, else the steering), over steps at speed: one rear wheel's
     /// scale error `ε` makes `e = (ε_R − ε_L) v / b`, which these fit.
@@ -292,6 +340,7 @@ impl Plausibility {
             steer: Tally::default(),
             yaw: Tally::default(),
             steer_yaw: Tally::default(),
+            scale_tallies: [Tally::default(), Tally::default(), Tally::default()],
             rear_excess: [0.0; 3],
             warnings: Vec::new(),
             judged_steer: false,
@@ -359,6 +408,14 @@ impl Plausibility {
                     if let Some(w) = step.yaw_rate_radps {
                         self.yaw.add(w, rear_turn);
                     }
+                }
+                if at_speed
+                    && rear_turn.abs() > GYRO_SCALE_MIN_TURN_RADPS
+                    && let (Some(s), Some(w)) = (steer_turn, step.yaw_rate_radps)
+                {
+                    self.scale_tallies[0].add(s, rear_turn);
+                    self.scale_tallies[1].add(w, rear_turn);
+                    self.scale_tallies[2].add(s, w);
                 }
                 if let (Some(s), Some(w)) = (steer_turn, step.yaw_rate_radps)
                     && v > MIN_SPEED_MPS
@@ -478,8 +535,50 @@ impl Plausibility {
                     t_s,
                 });
             }
+            if self.warnings.len() == before && self.gyro_scale_is_the_odd_one_out() {
+                let (yaw, steer) = (
+                    self.scale_tallies[1].ln_ratio_balanced().exp(),
+                    self.scale_tallies[0].ln_ratio_balanced().exp(),
+                );
+                self.warnings.push(Warning {
+                    signal: "signals.yaw_rate",
+                    suspicion: Suspicion::Unit,
+                    flag: None,
+                    message: format!(
+                        "the yaw rate reads {:.0} % {} than the rear wheels' and the steering's turns, which agree \
+                         with each other (the steering turns {steer:.2} times the rear wheels, the yaw rate {yaw:.2} \
+                         times): the gyro's scale or its DBC factor is off, not the car; its readings are not used \
+                         from here on (counted as yaw_implausible)",
+                        100.0 * (yaw - 1.0).abs(),
+                        if yaw > 1.0 { "more" } else { "less" },
+                    ),
+                    t_s,
+                });
+            }
             self.judged_yaw |= self.warnings.len() > before;
         }
+    }
+
+    /// The gyro's turn differs from the rear wheels' by `GYRO_SCALE_LIMIT`
+    /// or more, and from the steering's as much, while the steering and
+    /// the rear wheels agree: of three sources of the turn, the gyro is the
+    /// odd one out. (A tread off moves the rear wheels against both the
+    /// steering and the gyro; a steering ratio off, the steering against
+    /// both: neither is this.)
+    fn gyro_scale_is_the_odd_one_out(&self) -> bool {
+        let [steer, yaw, steer_yaw] = &self.scale_tallies;
+        if [steer, yaw, steer_yaw]
+            .iter()
+            .any(|t| t.n() < GYRO_SCALE_MIN_SAMPLES)
+        {
+            return false;
+        }
+        let ln_yaw = yaw.ln_ratio_balanced();
+        let ln_steer = steer.ln_ratio_balanced();
+        let ln_steer_yaw = steer_yaw.ln_ratio_balanced();
+        ln_yaw.abs() >= GYRO_SCALE_LIMIT.ln()
+            && ln_steer.abs() <= GYRO_SCALE_AGREE_SHARE * ln_yaw.abs()
+            && (ln_steer_yaw + ln_yaw).abs() <= GYRO_SCALE_AGREE_SHARE * ln_yaw.abs()
     }
 
     /// The yaw-rate sensor was warned of for its sign or its unit: the
@@ -896,6 +995,59 @@ mod tests {
                 step_at(t, odometry, phi.to_degrees() * 15.0, true_turn)
             })
             .collect()
+    }
+
+    /// 90 s at 10 m/s turning left and right on 40 m radii in turn, the
+    /// gyro reading `yaw_scale` times the true rate plus `yaw_bias`, and
+    /// the rear wheels the turn of a car `wheel_scale` times the true one.
+    fn slalom(yaw_scale: f64, yaw_bias: f64, wheel_scale: f64) -> Vec<Step> {
+        let (v, dt) = (10.0, 0.01);
+        let (mut x, mut y, mut th) = (0.0, 0.0, 0.0);
+        (0..9_000)
+            .map(|k| {
+                let t = k as f64 * dt;
+                let true_turn = if t % 20.0 < 10.0 { v / 40.0 } else { -v / 40.0 };
+                th += wheel_scale * true_turn * dt;
+                x += v * dt * th.cos();
+                y += v * dt * th.sin();
+                let odometry = Pose {
+                    x_m: x,
+                    y_m: y,
+                    heading_rad: th,
+                };
+                let phi = (2.7 * true_turn / v).atan();
+                step_at(
+                    t,
+                    odometry,
+                    phi.to_degrees() * 15.0,
+                    yaw_scale * true_turn + yaw_bias,
+                )
+            })
+            .collect()
+    }
+
+    fn gyro_scale_warned(p: &Plausibility) -> bool {
+        p.warnings().iter().any(|w| {
+            w.signal == "signals.yaw_rate" && w.message.contains("scale or its DBC factor")
+        })
+    }
+
+    #[test]
+    fn a_gyro_whose_scale_is_off_against_wheels_and_steering_is_named_and_dropped() {
+        for k in [1.06, 0.94, 1.2] {
+            let p = fed(&slalom(k, 0.0, 1.0), true);
+            assert!(gyro_scale_warned(&p), "scale {k}: {:?}", p.warnings());
+            assert!(p.yaw_rate_at_fault(), "scale {k}");
+        }
+        // A bias of 0.4 °/s is no scale.
+        let p = fed(&slalom(1.0, 0.4f64.to_radians(), 1.0), true);
+        assert!(!gyro_scale_warned(&p), "{:?}", p.warnings());
+        // 3 % is below what the medians tell: nothing is said.
+        assert!(!gyro_scale_warned(&fed(&slalom(1.03, 0.0, 1.0), true)));
+        // The rear wheels off (a tread): the gyro agrees with the steering.
+        let p = fed(&slalom(1.0, 0.0, 1.1), true);
+        assert!(!gyro_scale_warned(&p), "{:?}", p.warnings());
+        assert!(!p.yaw_rate_at_fault());
     }
 
     fn fed(steps: &[Step], with_yaw: bool) -> Plausibility {

@@ -119,13 +119,14 @@ def main():
     ap.add_argument("--steer-offset-deg", type=float, default=0.0)
     ap.add_argument("--gyro-bias-dps", type=float, default=0.0)
     ap.add_argument("--gyro-noise-dps", type=float, default=0.0)
+    ap.add_argument("--gyro-scale", type=float, default=1.0, help="the gyro reads this times the true rate")
     ap.add_argument("--gyro-stuck-s", type=float, default=0.0,
                     help="the gyro reads its range's end this long from mid-drive (gyro platforms)")
     ap.add_argument("--override", action="append", default=[], metavar="SECTION.KEY=VALUE",
                     help="replay a copy of the configuration with this line too; repeatable")
     a = ap.parse_args()
     faults = bool(a.tyre or a.car_tread_scale != 1.0 or a.car_ratio_scale != 1.0 or a.steer_offset_deg
-                  or a.gyro_bias_dps or a.gyro_noise_dps or a.tight or a.gyro_stuck_s)
+                  or a.gyro_bias_dps or a.gyro_noise_dps or a.gyro_scale != 1.0 or a.tight or a.gyro_stuck_s)
     dims = f"tread ×{a.car_tread_scale:g}, ratio ×{a.car_ratio_scale:g}"
     tyres = " ".join(a.tyre) or "matched"
     over = f" | fused with {' '.join(a.override)}" if a.override else ""
@@ -156,6 +157,7 @@ def main():
                        "--ratio", str(veh.get("steering_ratio", 1.0) * a.car_ratio_scale),
                        "--steer-offset-deg", str(a.steer_offset_deg),
                        "--gyro-bias-dps", str(a.gyro_bias_dps), "--gyro-noise-dps", str(a.gyro_noise_dps),
+                       "--gyro-scale", str(a.gyro_scale),
                        "--gyro-stuck-s", str(a.gyro_stuck_s)]
                 cmd += [f"--tyre={t}" for t in a.tyre]
                 cmd += [f for f, on in (("--reverse", a.reverse), ("--smooth", a.smooth), ("--tight", a.tight),

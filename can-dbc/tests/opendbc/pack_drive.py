@@ -19,7 +19,7 @@ frames.
         [--tight] [--out-and-back] [--smooth]
         [--wheelbase M --rear-tread M --front-tread M --ratio R]
         [--tyre RL=1.003 ...] [--steer-offset-deg D]
-        [--gyro-bias-dps B] [--gyro-noise-dps S] [--gyro-stuck-s T]
+        [--gyro-bias-dps B] [--gyro-scale K] [--gyro-noise-dps S] [--gyro-stuck-s T]
 
 writes LOG (candump -L, interface can0, CAN FD frames as `##0`) and TRUTH
 (CSV t_s,x_m,y_m,heading_rad of the rear-axle centre). `drives.py` runs it
@@ -271,6 +271,7 @@ def main():
                     help="wheel W (FL, FR, RL, RR) reads F times its true speed; repeatable")
     ap.add_argument("--steer-offset-deg", type=float, default=0.0, help="steering-wheel angle sensor offset, deg")
     ap.add_argument("--gyro-bias-dps", type=float, default=0.0, help="yaw-rate sensor bias, deg/s")
+    ap.add_argument("--gyro-scale", type=float, default=1.0, help="yaw-rate sensor scale (reads scale × the true rate)")
     ap.add_argument("--gyro-noise-dps", type=float, default=0.0, help="yaw-rate sensor white noise per sample, deg/s")
     ap.add_argument("--tight", action="store_true",
                     help=f"add a slow {TIGHT_RADIUS_M:.0f} m circle whose yaw rate is 1.2 times the gyro's range")
@@ -354,7 +355,7 @@ def main():
                 "FR": tyre["FR"] * v * math.hypot(1 + k * tf / 2, k * L),
                 "steer_deg": math.degrees(math.atan(k * L)) * ratio + a.steer_offset_deg,
                 "yaw_dps": (stuck[2] if stuck and stuck[0] <= t < stuck[1] else
-                            math.degrees(w) + a.gyro_bias_dps + a.gyro_noise_dps * gyro_rng.gauss(0, 1)),
+                            a.gyro_scale * math.degrees(w) + a.gyro_bias_dps + a.gyro_noise_dps * gyro_rng.gauss(0, 1)),
                 "reverse": reverse,
                 "gear": lambda m, sg: gear_value(dbc, m, sg, "R" if reverse else "D"),
             }
