@@ -536,27 +536,32 @@ impl Plausibility {
                 });
             }
             if self.warnings.len() == before && self.gyro_scale_is_the_odd_one_out() {
-                let (yaw, steer) = (
-                    self.scale_tallies[1].ln_ratio_balanced().exp(),
-                    self.scale_tallies[0].ln_ratio_balanced().exp(),
-                );
-                self.warnings.push(Warning {
-                    signal: "signals.yaw_rate",
-                    suspicion: Suspicion::Unit,
-                    flag: None,
-                    message: format!(
-                        "the yaw rate reads {:.0} % {} than the rear wheels' and the steering's turns, which agree \
-                         with each other (the steering turns {steer:.2} times the rear wheels, the yaw rate {yaw:.2} \
-                         times): the gyro's scale or its DBC factor is off, not the car; its readings are not used \
-                         from here on (counted as yaw_implausible)",
-                        100.0 * (yaw - 1.0).abs(),
-                        if yaw > 1.0 { "more" } else { "less" },
-                    ),
-                    t_s,
-                });
+                self.warn_gyro_scale(t_s);
             }
             self.judged_yaw |= self.warnings.len() > before;
         }
+    }
+
+    /// The warning for a gyro whose scale is the odd one out.
+    fn warn_gyro_scale(&mut self, t_s: f64) {
+        let (yaw, steer) = (
+            self.scale_tallies[1].ln_ratio_balanced().exp(),
+            self.scale_tallies[0].ln_ratio_balanced().exp(),
+        );
+        self.warnings.push(Warning {
+            signal: "signals.yaw_rate",
+            suspicion: Suspicion::Unit,
+            flag: None,
+            message: format!(
+                "the yaw rate reads {:.0} % {} than the rear wheels' and the steering's turns, which agree \
+                 with each other (the steering turns {steer:.2} times the rear wheels, the yaw rate {yaw:.2} \
+                 times): the gyro's scale or its DBC factor is off, not the car; its readings are not used \
+                 from here on (counted as yaw_implausible)",
+                100.0 * (yaw - 1.0).abs(),
+                if yaw > 1.0 { "more" } else { "less" },
+            ),
+            t_s,
+        });
     }
 
     /// The gyro's turn differs from the rear wheels' by `GYRO_SCALE_LIMIT`
