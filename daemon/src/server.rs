@@ -313,6 +313,7 @@ pub async fn run<C: Connector>(
         lost_tx.clone(),
         config.calibration.param_file.clone(),
         report_root(&config.calibration.param_file),
+        Arc::clone(&config),
     );
     // `[gnss]`: its source starts on the blocking pool (a failure is a
     // warning there, and the daemon goes on).

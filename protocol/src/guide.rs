@@ -288,6 +288,17 @@ pub fn render_guide(g: &GuideState) -> String {
         let _ = write!(s, ", {} send(s)", p.writeback_attempts);
     }
     s.push('\n');
+    if p.drift {
+        let _ = writeln!(
+            s,
+            "  drift: a parameter differs from the set in use (see the daemon's log){}",
+            if p.drift_candidate {
+                "; the learnt set awaits COMMIT"
+            } else {
+                ""
+            }
+        );
+    }
     if g.shows_results() {
         let r = &g.results;
         if let Some([t, ts, ratio]) = r.geometry {
@@ -393,6 +404,8 @@ mod tests {
             writeback: Writeback::Idle,
             standstill: true,
             writeback_attempts: 0,
+            drift: false,
+            drift_candidate: false,
         }
     }
 
@@ -459,6 +472,22 @@ mod tests {
             }
         }
         assert_eq!(guides.len(), State::ALL.len() * InstructionCode::ALL.len());
+    }
+
+    #[test]
+    fn the_guide_names_a_drift_and_a_candidate_awaiting_commit() {
+        let mut g = GuideState::new(None);
+        let mut p = progress(State::Idle, InstructionCode::None);
+        g.apply(&StatusPage::Progress(p));
+        assert!(!render_guide(&g).contains("drift"));
+        p.drift = true;
+        assert!(g.apply(&StatusPage::Progress(p)));
+        let block = render_guide(&g);
+        assert!(block.contains("drift: a parameter differs"), "{block}");
+        assert!(!block.contains("awaits COMMIT"), "{block}");
+        p.drift_candidate = true;
+        assert!(g.apply(&StatusPage::Progress(p)));
+        assert!(render_guide(&g).contains("the learnt set awaits COMMIT"));
     }
 
     #[test]
