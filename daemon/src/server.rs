@@ -921,6 +921,7 @@ impl<Tx: FrameSink + Clone> OdometryTask<Tx> {
             param_identity: self.pipeline.param_identity(),
             state_file: None,
             gnss: None,
+            drift: Some(self.links.drift.borrow().clone()).filter(|d| d.refits > 0),
         }
     }
 
