@@ -1407,6 +1407,75 @@ mod tests {
     }
 
     #[test]
+    fn a_drift_candidate_is_committed_by_commit_or_by_itself_at_a_standstill_only() {
+        let mut cal = Calibrator::new(config(), nominal(), ParamFile::default());
+        assert_eq!(
+            answers(&cal.on_command(0.0, Command::Commit, false)),
+            vec![Err(Refused::Session(Refusal::NothingToCommit))]
+        );
+        let learnt = ParamValues {
+            rear_right_diameter_m: 0.0905,
+            ..values(0.30)
+        };
+        cal.set_drift_candidate(Some(ParamValues {
+            rear_right_diameter_m: 0.5,
+            ..learnt
+        }));
+        assert_eq!(
+            answers(&cal.on_command(0.0, Command::Commit, false)),
+            vec![Err(Refused::OutOfBounds)]
+        );
+        cal.set_drift_candidate(Some(learnt));
+        assert_eq!(
+            answers(&cal.on_command(0.0, Command::Commit, true)),
+            vec![Err(Refused::WritebackBusy)]
+        );
+        let out = cal.on_command(0.0, Command::Commit, false);
+        assert!(answers(&out).is_empty(), "answered once stored");
+        assert!(out.iter().any(|o| matches!(o, Output::Persist(f)
+            if f.current.as_ref().is_some_and(|s| s.method == "drift" && s.values == learnt))));
+        let out = cal.on_persisted(0.0, true);
+        assert_eq!(answers(&out), vec![Ok(())]);
+        assert!(
+            out.iter()
+                .any(|o| matches!(o, Output::Adopted { version: 1 }))
+        );
+        assert!(cal.drift_candidate().is_none());
+
+        // By itself: not while moving, then at a standstill, answering nobody.
+        let next = ParamValues {
+            rear_right_diameter_m: 0.0906,
+            ..learnt
+        };
+        cal.set_drift_candidate(Some(next));
+        for k in 0..=100 {
+            let _ = cal.on_step(1.0 + f64::from(k) * 0.01, (0.01, 0.01), None, None);
+        }
+        assert!(cal.auto_commit(2.0, next, false).is_empty(), "moving");
+        for k in 1..=150 {
+            let _ = cal.on_step(2.0 + f64::from(k) * 0.01, (0.0, 0.0), None, None);
+        }
+        assert!(
+            cal.auto_commit(3.5, next, true).is_empty(),
+            "write-back pending"
+        );
+        let out = cal.auto_commit(3.5, next, false);
+        assert!(out.iter().any(|o| matches!(o, Output::Persist(f)
+            if f.current.as_ref().is_some_and(|s| s.method == "drift-auto" && s.version == 2))));
+        let out = cal.on_persisted(3.5, true);
+        assert!(answers(&out).is_empty(), "nobody asked");
+        assert!(
+            out.iter()
+                .any(|o| matches!(o, Output::Apply { version: 2, .. }))
+        );
+        assert_eq!(cal.current_values(), next);
+        assert!(
+            cal.auto_commit(3.6, next, false).is_empty(),
+            "no candidate left"
+        );
+    }
+
+    #[test]
     fn a_drive_needs_fixes_configured_and_enough_of_them() {
         let mut cal = Calibrator::new(config(), nominal(), ParamFile::default());
         assert_eq!(

@@ -174,6 +174,7 @@ async fn a_changed_tyre_is_flagged_on_the_bus_in_the_log_and_the_state_file_and_
         .lines()
         .filter(|l| l.contains("drift: rear_ratio flagged: learnt "))
         .collect();
+    println!("{flags:?}");
     assert!(
         flags.len() == 1 && flags[0].contains("WARN") && flags[0].contains("in use 1.000000"),
         "{}",
