@@ -46,10 +46,13 @@ struct Outcome {
     true_ratio: f64,
 }
 
-/// Drives the RC car with its right rear tyre `right_scale` times the
-/// set's, fixes at 5 Hz, then sends COMMIT at a standstill.
-async fn drive(name: &str, right_scale: f64) -> Outcome {
-    let dir = tmp_dir(name);
+/// The RC car's configuration in `dir` (fixes on the bus, the watch's
+/// short periods) and a random drive of it with its right rear tyre
+/// `right_scale` times the set's; the true right/left ratio.
+fn car_and_drive(
+    dir: &std::path::Path,
+    right_scale: f64,
+) -> (Config, canodom_fusion::sim::Run, f64) {
     std::fs::write(dir.join("car.dbc"), dbc_with_gnss()).unwrap();
     let example = std::fs::read_to_string(crate::util::rc_car_toml()).unwrap();
     let text = example.replace("../../data/dbc/rc_car.dbc", "car.dbc")
@@ -73,6 +76,14 @@ async fn drive(name: &str, right_scale: f64) -> Outcome {
         7,
     )
     .unwrap();
+    (config, run, d.rear_right / d.rear_left)
+}
+
+/// Drives the RC car with its right rear tyre `right_scale` times the
+/// set's, fixes at 5 Hz, then sends COMMIT at a standstill.
+async fn drive(name: &str, right_scale: f64) -> Outcome {
+    let dir = tmp_dir(name);
+    let (config, run, true_ratio) = car_and_drive(&dir, right_scale);
     let config = Arc::new(config);
     let state_path = dir.join("state.json");
     let observers = Observers {
@@ -162,13 +173,13 @@ async fn drive(name: &str, right_scale: f64) -> Outcome {
         logs: logs.take(),
         state,
         committed,
-        true_ratio: d.rear_right / d.rear_left,
+        true_ratio,
     }
 }
 
 #[tokio::test(start_paused = true)]
 async fn a_changed_tyre_is_flagged_on_the_bus_in_the_log_and_the_state_file_and_committed() {
-    let o = drive("drift-live-tyre", 1.01).await;
+    let o = Box::pin(drive("drift-live-tyre", 1.01)).await;
     let flags: Vec<&str> = o
         .logs
         .lines()
@@ -212,7 +223,7 @@ async fn a_changed_tyre_is_flagged_on_the_bus_in_the_log_and_the_state_file_and_
 
 #[tokio::test(start_paused = true)]
 async fn a_car_that_agrees_with_its_set_is_not_flagged() {
-    let o = drive("drift-live-steady", 1.0).await;
+    let o = Box::pin(drive("drift-live-steady", 1.0)).await;
     assert!(!o.logs.contains("flagged"), "{}", o.logs);
     assert!(!o.progress.is_empty() && o.progress.iter().all(|&(d, c)| !d && !c));
     let drift = o.state.drift.expect("refits made: a drift section");

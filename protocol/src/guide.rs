@@ -221,6 +221,20 @@ fn answer_text(code: u8, reason: Reason) -> String {
     }
 }
 
+/// The drift watch's line, while it flags a parameter.
+fn drift_text(p: &Progress) -> Option<String> {
+    p.drift.then(|| {
+        format!(
+            "drift: a parameter differs from the set in use (see the daemon's log){}",
+            if p.drift_candidate {
+                "; the learnt set awaits COMMIT"
+            } else {
+                ""
+            }
+        )
+    })
+}
+
 /// The guide as a block of lines (for a terminal, redrawn in place).
 pub fn render_guide(g: &GuideState) -> String {
     let mut s = String::new();
@@ -288,16 +302,8 @@ pub fn render_guide(g: &GuideState) -> String {
         let _ = write!(s, ", {} send(s)", p.writeback_attempts);
     }
     s.push('\n');
-    if p.drift {
-        let _ = writeln!(
-            s,
-            "  drift: a parameter differs from the set in use (see the daemon's log){}",
-            if p.drift_candidate {
-                "; the learnt set awaits COMMIT"
-            } else {
-                ""
-            }
-        );
+    if let Some(line) = drift_text(&p) {
+        let _ = writeln!(s, "  {line}");
     }
     if g.shows_results() {
         let r = &g.results;
