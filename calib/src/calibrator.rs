@@ -21,7 +21,7 @@
 use canodom_fusion::{Pose, SteeringMap, VehicleParams, Wheel};
 
 use crate::arcs::{ArcCollector, ArcFitError, ArcGeometry};
-use crate::drive::{DriveCalibration, DriveModel};
+use crate::drive::{DriveCalibration, DriveModel, DriveSample, Fix};
 use crate::drive_record::{DriveJob, DriveRecorder, DriveStep};
 use crate::error::Result;
 use crate::history::{ParamBounds, ParamFile, ParamValues};
@@ -59,6 +59,9 @@ pub struct CalibratorConfig {
     /// The quality a drive's fit must show before its values are committed
     /// (its tread limit relative to the tread in use).
     pub drive_gate: crate::drive_gate::DriveGate,
+    /// How much of the drive the online calibration keeps for its refits
+    /// (`[calibration.drift] window_s`), s; `None`: none kept.
+    pub online_window_s: Option<f64>,
 }
 
 /// An operator command.
@@ -217,6 +220,12 @@ enum AfterStore {
     Rollback {
         values: ParamValues,
     },
+    /// The drift watch's candidate: by COMMIT, or automatically (`auto`:
+    /// nobody asked, nobody is answered).
+    Candidate {
+        values: ParamValues,
+        auto: bool,
+    },
 }
 
 /// The slow effect being carried out by the caller.
@@ -265,6 +274,30 @@ pub struct Calibrator {
     steering: Option<ArcCollector>,
     drive: Option<DriveRecorder>,
     drive_result: Option<(DriveCalibration, ParamValues)>,
+    /// The online calibration's ring of the drive (no guided session).
+    online: Option<DriveRecorder>,
+    /// +1 whenever the ring is emptied: a refit of an older ring is stale.
+    online_generation: u64,
+    /// Distance driven since start (the rear wheels' mean), m.
+    odometer_m: f64,
+    /// The set the drift watch learnt, offered for COMMIT.
+    drift_candidate: Option<ParamValues>,
+}
+
+/// What the online calibration refits: the last stretch of the drive kept
+/// in the ring ([`Calibrator::online_window`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct OnlineWindow {
+    /// The binned steps.
+    pub samples: Vec<DriveSample>,
+    /// The fixes within their time, in metres.
+    pub fixes: Vec<Fix>,
+    /// The values the steps were read with (in use now).
+    pub base: ParamValues,
+    /// The ring's generation ([`Calibrator::online_generation`]).
+    pub generation: u64,
+    /// Distance driven since start, m.
+    pub odometer_m: f64,
 }
 
 impl Calibrator {
@@ -289,6 +322,10 @@ impl Calibrator {
             steering: None,
             drive: None,
             drive_result: None,
+            online: config.online_window_s.map(DriveRecorder::ring),
+            online_generation: 0,
+            odometer_m: 0.0,
+            drift_candidate: None,
         };
         me.session = Some(me.fresh_session());
         me
@@ -297,6 +334,86 @@ impl Calibrator {
     /// The parameter file as last stored.
     pub fn file(&self) -> &ParamFile {
         &self.file
+    }
+
+    /// Whether a guided calibration (track session, steering, drive) runs:
+    /// the online calibration then keeps nothing.
+    pub fn is_guided(&self) -> bool {
+        self.is_active() || self.drive.is_some()
+    }
+
+    /// The last `window_s` of the drive the ring holds, with what the
+    /// refit needs; `None` without a ring or while a guided calibration runs.
+    pub fn online_window(&self, window_s: f64) -> Option<OnlineWindow> {
+        if self.is_guided() {
+            return None;
+        }
+        let (samples, fixes) = self.online.as_ref()?.window(window_s);
+        Some(OnlineWindow {
+            samples,
+            fixes,
+            base: self.current_values(),
+            generation: self.online_generation,
+            odometer_m: self.odometer_m,
+        })
+    }
+
+    /// The ring's generation: +1 whenever it is emptied (a new set in use,
+    /// a guided calibration).
+    pub fn online_generation(&self) -> u64 {
+        self.online_generation
+    }
+
+    /// Distance driven since start, m.
+    pub fn odometer_m(&self) -> f64 {
+        self.odometer_m
+    }
+
+    /// The drift watch's candidate awaiting COMMIT.
+    pub fn drift_candidate(&self) -> Option<&ParamValues> {
+        self.drift_candidate.as_ref()
+    }
+
+    /// Offers `values` (the learnt set) for COMMIT outside any session, or
+    /// withdraws the offer (`None`).
+    pub fn set_drift_candidate(&mut self, values: Option<ParamValues>) {
+        self.drift_candidate = values;
+    }
+
+    /// Commits `values` (the candidate bounded per step,
+    /// [`crate::drift::bounded_step`]) by itself: only at a standstill with
+    /// a candidate, no guided calibration, nothing out and no write-back
+    /// pending, and within the bounds; stored, applied and written back as
+    /// a COMMIT is, but nobody is answered. Nothing when it may not.
+    pub fn auto_commit(
+        &mut self,
+        t_s: f64,
+        values: ParamValues,
+        writeback_pending: bool,
+    ) -> Vec<Output> {
+        let mut out = Vec::new();
+        if self.drift_candidate.is_none()
+            || self.is_guided()
+            || self.pending.is_some()
+            || writeback_pending
+            || !self.is_standstill(t_s)
+            || values == self.current_values()
+            || self.config.bounds.check(&values).is_err()
+        {
+            return out;
+        }
+        let then = AfterStore::Candidate { values, auto: true };
+        let _ = self.store(values, "drift-auto", t_s, then, &mut out);
+        out
+    }
+
+    /// Empties the online ring (its steps were read with a set no longer in
+    /// use, or a guided calibration took over).
+    fn restart_online(&mut self) {
+        if let Some(r) = self.online.as_mut() {
+            r.clear();
+            self.online_generation += 1;
+        }
     }
 
     /// The nominal parameters.
@@ -506,6 +623,9 @@ impl Calibrator {
         if let Some(drive) = self.drive.as_mut() {
             drive.window_closed(rear_slipped);
         }
+        if let Some(r) = self.online.as_mut() {
+            r.window_closed(rear_slipped);
+        }
     }
 
     /// A filter step at `t_s`: `rear_rev` wheel revolutions (left, right)
@@ -523,17 +643,28 @@ impl Calibrator {
             std::f64::consts::PI * p.wheel_diameter_m(Wheel::RearLeft) * rear_rev.0,
             std::f64::consts::PI * p.wheel_diameter_m(Wheel::RearRight) * rear_rev.1,
         );
+        let step = DriveStep {
+            t_s,
+            rear_left_m: left_m,
+            rear_right_m: right_m,
+            steer_angle_rad: steer_signal.map(|u| p.steering().angle_rad(u)),
+            yaw_rate_radps,
+            dt_s: self.standstill.interval_s(t_s),
+        };
         if let Some(drive) = self.drive.as_mut() {
-            drive.step(&DriveStep {
-                t_s,
-                rear_left_m: left_m,
-                rear_right_m: right_m,
-                steer_angle_rad: steer_signal.map(|u| p.steering().angle_rad(u)),
-                yaw_rate_radps,
-                dt_s: self.standstill.interval_s(t_s),
-            });
+            drive.step(&step);
+        }
+        if self.is_guided() {
+            if self.online.as_ref().is_some_and(|r| !r.is_empty()) {
+                self.restart_online();
+            }
+        } else if let Some(r) = self.online.as_mut() {
+            r.step(&step);
         }
         let distance_m = 0.5 * (left_m + right_m);
+        if distance_m.is_finite() {
+            self.odometer_m += distance_m.abs();
+        }
         let moving = self.standstill.step(t_s, distance_m);
         let sample = RevSample {
             t_s,
@@ -581,6 +712,11 @@ impl Calibrator {
     ) {
         if let Some(drive) = self.drive.as_mut() {
             drive.fix(t_s, first, second, geodetic, sigma_m);
+        }
+        if !self.is_guided()
+            && let Some(r) = self.online.as_mut()
+        {
+            r.fix(t_s, first, second, geodetic, sigma_m);
         }
     }
 
@@ -812,6 +948,11 @@ impl Calibrator {
         writeback_pending: bool,
         out: &mut Vec<Output>,
     ) -> Option<std::result::Result<(), Refused>> {
+        if self.phase() == Phase::Idle
+            && let Some(values) = self.drift_candidate
+        {
+            return self.commit_candidate(t_s, values, writeback_pending, out);
+        }
         let (Phase::Computed, Some(result)) = (self.phase(), self.result) else {
             return Some(Err(Refused::Session(Refusal::NothingToCommit)));
         };
@@ -836,6 +977,29 @@ impl Calibrator {
             AfterStore::Rear { result, values },
             out,
         )
+    }
+
+    /// COMMIT of the drift watch's candidate outside any session: checked
+    /// against the bounds as any commit, stored as the next version,
+    /// applied at a standstill and written back.
+    fn commit_candidate(
+        &mut self,
+        t_s: f64,
+        values: ParamValues,
+        writeback_pending: bool,
+        out: &mut Vec<Output>,
+    ) -> Option<std::result::Result<(), Refused>> {
+        if writeback_pending {
+            return Some(Err(Refused::WritebackBusy));
+        }
+        if self.config.bounds.check(&values).is_err() {
+            return Some(Err(Refused::OutOfBounds));
+        }
+        let then = AfterStore::Candidate {
+            values,
+            auto: false,
+        };
+        self.store(values, "drift", t_s, then, out)
     }
 
     fn rollback(
@@ -869,11 +1033,20 @@ impl Calibrator {
         else {
             return Vec::new();
         };
+        let auto = matches!(*then, AfterStore::Candidate { auto: true, .. });
         if !stored {
-            return vec![Output::Answer(Err(Refused::PersistFailed))];
+            return if auto {
+                Vec::new()
+            } else {
+                vec![Output::Answer(Err(Refused::PersistFailed))]
+            };
         }
         self.file = file;
-        let mut out = vec![Output::Answer(Ok(()))];
+        let mut out = if auto {
+            Vec::new()
+        } else {
+            vec![Output::Answer(Ok(()))]
+        };
         let values = match *then {
             AfterStore::Rear { result, values } => {
                 let actions = self.event(Event::Commit);
@@ -918,6 +1091,10 @@ impl Calibrator {
                 values
             }
             AfterStore::Rollback { values } => values,
+            AfterStore::Candidate { values, .. } => {
+                self.drift_candidate = None;
+                values
+            }
         };
         self.adopt(t_s, version, values, &mut out);
         out
@@ -927,6 +1104,8 @@ impl Calibrator {
     fn adopt(&mut self, t_s: f64, version: u16, values: ParamValues, out: &mut Vec<Output>) {
         self.pending_apply = Some((version, values));
         out.extend(self.apply_if_still(t_s));
+        // The ring's steps were read with the set before.
+        self.restart_online();
         self.session = Some(self.fresh_session());
         out.push(Output::Adopted { version });
     }
@@ -1078,6 +1257,7 @@ mod tests {
             max_history: 10,
             fixes_available: false,
             drive_gate: crate::drive_gate::DriveGate::default(),
+            online_window_s: None,
         }
     }
 
@@ -1224,6 +1404,75 @@ mod tests {
         assert!(cal.result().is_none());
         let in_use = cal.current_values();
         assert!((in_use.rear_tread_m - 0.285).abs() < 1e-4);
+    }
+
+    #[test]
+    fn a_drift_candidate_is_committed_by_commit_or_by_itself_at_a_standstill_only() {
+        let mut cal = Calibrator::new(config(), nominal(), ParamFile::default());
+        assert_eq!(
+            answers(&cal.on_command(0.0, Command::Commit, false)),
+            vec![Err(Refused::Session(Refusal::NothingToCommit))]
+        );
+        let learnt = ParamValues {
+            rear_right_diameter_m: 0.0905,
+            ..values(0.30)
+        };
+        cal.set_drift_candidate(Some(ParamValues {
+            rear_right_diameter_m: 0.5,
+            ..learnt
+        }));
+        assert_eq!(
+            answers(&cal.on_command(0.0, Command::Commit, false)),
+            vec![Err(Refused::OutOfBounds)]
+        );
+        cal.set_drift_candidate(Some(learnt));
+        assert_eq!(
+            answers(&cal.on_command(0.0, Command::Commit, true)),
+            vec![Err(Refused::WritebackBusy)]
+        );
+        let out = cal.on_command(0.0, Command::Commit, false);
+        assert!(answers(&out).is_empty(), "answered once stored");
+        assert!(out.iter().any(|o| matches!(o, Output::Persist(f)
+            if f.current.as_ref().is_some_and(|s| s.method == "drift" && s.values == learnt))));
+        let out = cal.on_persisted(0.0, true);
+        assert_eq!(answers(&out), vec![Ok(())]);
+        assert!(
+            out.iter()
+                .any(|o| matches!(o, Output::Adopted { version: 1 }))
+        );
+        assert!(cal.drift_candidate().is_none());
+
+        // By itself: not while moving, then at a standstill, answering nobody.
+        let next = ParamValues {
+            rear_right_diameter_m: 0.0906,
+            ..learnt
+        };
+        cal.set_drift_candidate(Some(next));
+        for k in 0..=100 {
+            let _ = cal.on_step(1.0 + f64::from(k) * 0.01, (0.01, 0.01), None, None);
+        }
+        assert!(cal.auto_commit(2.0, next, false).is_empty(), "moving");
+        for k in 1..=150 {
+            let _ = cal.on_step(2.0 + f64::from(k) * 0.01, (0.0, 0.0), None, None);
+        }
+        assert!(
+            cal.auto_commit(3.5, next, true).is_empty(),
+            "write-back pending"
+        );
+        let out = cal.auto_commit(3.5, next, false);
+        assert!(out.iter().any(|o| matches!(o, Output::Persist(f)
+            if f.current.as_ref().is_some_and(|s| s.method == "drift-auto" && s.version == 2))));
+        let out = cal.on_persisted(3.5, true);
+        assert!(answers(&out).is_empty(), "nobody asked");
+        assert!(
+            out.iter()
+                .any(|o| matches!(o, Output::Apply { version: 2, .. }))
+        );
+        assert_eq!(cal.current_values(), next);
+        assert!(
+            cal.auto_commit(3.6, next, false).is_empty(),
+            "no candidate left"
+        );
     }
 
     #[test]

@@ -306,6 +306,80 @@ impl Watch {
     }
 }
 
+/// How far one automatic commit (`[calibration] auto_commit = true`) may
+/// move each parameter, in its drift tolerances. A refit can be wrong
+/// without the gate seeing it (the steady drives' closest call, the tread
+/// at 1.24 %, would have raised a flag at a 1 % tolerance), and nobody
+/// looks at an automatic commit: two tolerances bound what one wrong refit
+/// does to the odometry to twice what the watch itself lets pass, while a
+/// real change of a tyre (0.5 % soft: 2.5 speed-scale tolerances) is
+/// followed in two commits, the second after the next refit confirms it.
+pub const AUTO_STEP_TOLERANCES: f64 = 2.0;
+
+/// The set one automatic commit takes: `candidate`, each value moved from
+/// `in_use` by at most [`AUTO_STEP_TOLERANCES`] of its tolerance: the rear
+/// diameters relative by the speed scale's, the tread, steering gain and
+/// yaw-rate scale relative by theirs, the steering offset and the yaw-rate
+/// bias absolute (an absent yaw-rate correction counts as bias 0, scale 1).
+pub fn bounded_step(
+    in_use: &ParamValues,
+    candidate: &ParamValues,
+    config: &DriftConfig,
+) -> ParamValues {
+    let step = |p: Param| AUTO_STEP_TOLERANCES * config.tolerance(p);
+    let relative = |from: f64, to: f64, p: Param| {
+        let s = step(p);
+        (to / from).clamp(1.0 - s, 1.0 + s) * from
+    };
+    let absolute = |from: f64, to: f64, p: Param| {
+        let s = step(p);
+        to.clamp(from - s, from + s)
+    };
+    let optional = |from: Option<f64>, to: Option<f64>, none: f64, f: &dyn Fn(f64, f64) -> f64| {
+        to.map(|to| f(from.unwrap_or(none), to))
+    };
+    ParamValues {
+        rear_tread_m: relative(
+            in_use.rear_tread_m,
+            candidate.rear_tread_m,
+            Param::RearTread,
+        ),
+        rear_left_diameter_m: relative(
+            in_use.rear_left_diameter_m,
+            candidate.rear_left_diameter_m,
+            Param::SpeedScale,
+        ),
+        rear_right_diameter_m: relative(
+            in_use.rear_right_diameter_m,
+            candidate.rear_right_diameter_m,
+            Param::SpeedScale,
+        ),
+        steering_gain: relative(
+            in_use.steering_gain,
+            candidate.steering_gain,
+            Param::SteerGain,
+        ),
+        steering_offset_rad: absolute(
+            in_use.steering_offset_rad,
+            candidate.steering_offset_rad,
+            Param::SteerOffset,
+        ),
+        yaw_rate_bias_radps: optional(
+            in_use.yaw_rate_bias_radps,
+            candidate.yaw_rate_bias_radps,
+            0.0,
+            &|a, b| absolute(a, b, Param::YawBias),
+        ),
+        yaw_rate_scale: optional(
+            in_use.yaw_rate_scale,
+            candidate.yaw_rate_scale,
+            1.0,
+            &|a, b| relative(a, b, Param::YawScale),
+        ),
+        yaw_rate_bias_sigma_radps: candidate.yaw_rate_bias_sigma_radps,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -395,6 +469,30 @@ mod tests {
     }
 
     #[test]
+    fn an_automatic_step_moves_each_value_at_most_twice_its_tolerance() {
+        let c = DriftConfig::default();
+        let in_use = ParamValues::plain(1.5, 0.65);
+        let candidate = ParamValues {
+            rear_left_diameter_m: 0.65 * 0.99,
+            rear_right_diameter_m: 0.65 * 1.001,
+            rear_tread_m: 1.5 * 1.01,
+            steering_offset_rad: 1f64.to_radians(),
+            yaw_rate_bias_radps: Some(0.01f64.to_radians()),
+            ..in_use
+        };
+        let b = bounded_step(&in_use, &candidate, &c);
+        // 1 % smaller: held to 0.4 %; 0.1 % and the tread's 1 %: taken whole.
+        assert!((b.rear_left_diameter_m / 0.65 - 0.996).abs() < 1e-12);
+        assert!((b.rear_right_diameter_m - candidate.rear_right_diameter_m).abs() < 1e-12);
+        assert!((b.rear_tread_m - candidate.rear_tread_m).abs() < 1e-12);
+        // 1° of offset: 0.4°; the bias from none (0) taken whole.
+        assert!((b.steering_offset_rad - 0.4f64.to_radians()).abs() < 1e-12);
+        assert_eq!(b.yaw_rate_bias_radps, candidate.yaw_rate_bias_radps);
+        assert_eq!(b.yaw_rate_scale, None);
+        assert_eq!(bounded_step(&in_use, &in_use, &c), in_use);
+    }
+
+    #[test]
     fn names_round_trip() {
         for p in Param::ALL {
             assert_eq!(Param::from_name(p.name()), Some(p));
@@ -419,6 +517,27 @@ mod tests {
             let d = beyond * tol;
             let (w, _) = Watch::default().judge(&[reading(p, d, d / c.k_sigma * 1.0001)], &c);
             prop_assert!(!w.any());
+        }
+
+        /// Automatic steps each within their bound reach any candidate.
+        #[test]
+        fn repeated_automatic_steps_reach_the_candidate(scale in 0.9f64..1.1, offset in -0.05f64..0.05) {
+            let c = DriftConfig::default();
+            let in_use = ParamValues::plain(1.5, 0.65);
+            let candidate = ParamValues {
+                rear_left_diameter_m: 0.65 * scale,
+                steering_offset_rad: offset,
+                ..in_use
+            };
+            let mut v = in_use;
+            for _ in 0..100 {
+                let next = bounded_step(&v, &candidate, &c);
+                prop_assert!((next.rear_left_diameter_m / v.rear_left_diameter_m - 1.0).abs() <= 0.004 + 1e-12);
+                prop_assert!((next.steering_offset_rad - v.steering_offset_rad).abs() <= 0.4f64.to_radians() + 1e-12);
+                v = next;
+            }
+            prop_assert!((v.rear_left_diameter_m - candidate.rear_left_diameter_m).abs() < 1e-12);
+            prop_assert!((v.steering_offset_rad - offset).abs() < 1e-12);
         }
 
         /// Once up, a flag holds for every difference above half the

@@ -82,9 +82,75 @@ pub struct DriveRecorder {
     closed: bool,
     /// The first sample of the filter's open correction window.
     window_start: usize,
+    /// A ring rather than a recording (the online calibration's,
+    /// [`DriveRecorder::ring`]): only this much of the drive is kept, s.
+    keep_s: Option<f64>,
+    /// Each fix's latitude and longitude when it was geodetic, to turn the
+    /// kept fixes into metres around a nearer origin as the ring moves on.
+    geodetic: Vec<Option<(f64, f64)>>,
 }
 
+/// A ring trims its oldest samples once they are this share of its length
+/// beyond it: a trim moves the whole ring, so it is done seldom (amortised
+/// O(1) a step) rather than at every bin.
+const RING_SLACK: f64 = 0.1;
+
 impl DriveRecorder {
+    /// A ring over the last `keep_s` of the drive: it never closes and never
+    /// fills, its oldest bins and fixes giving way to new ones (kept between
+    /// `keep_s` and `(1 + RING_SLACK)·keep_s`, or [`DRIVE_MAX_SAMPLES`] bins
+    /// if fewer). The online calibration's drift watch
+    /// ([`crate::drift`]) refits [`DriveRecorder::window`] of it.
+    pub fn ring(keep_s: f64) -> Self {
+        Self {
+            keep_s: Some(keep_s),
+            ..Self::default()
+        }
+    }
+
+    /// The samples and fixes of the last `window_s` (the open bin left
+    /// out), the fixes within the samples' time span, geodetic fixes in
+    /// metres around the first of them.
+    pub fn window(&self, window_s: f64) -> (Vec<DriveSample>, Vec<Fix>) {
+        let Some(last) = self.samples.last().map(|s| s.t_s) else {
+            return (Vec::new(), Vec::new());
+        };
+        let from = self.samples.partition_point(|s| s.t_s < last - window_s);
+        let samples = self.samples[from..].to_vec();
+        let first = samples.first().map_or(last, |s| s.t_s);
+        let kept = |f: &Fix| f.t_s >= first && f.t_s <= last;
+        let mut origin = None;
+        let fixes = self
+            .fixes
+            .iter()
+            .zip(&self.geodetic)
+            .filter(|(f, _)| kept(f))
+            .map(|(f, geo)| match geo {
+                Some((lat, lon)) => {
+                    let (lat0, lon0) = *origin.get_or_insert((*lat, *lon));
+                    let (x_m, y_m) = local_m(lat0, lon0, *lat, *lon);
+                    Fix { x_m, y_m, ..*f }
+                }
+                None => *f,
+            })
+            .collect();
+        (samples, fixes)
+    }
+
+    /// Forgets everything recorded (a ring whose samples were converted
+    /// with a set no longer in use).
+    pub fn clear(&mut self) {
+        *self = Self {
+            keep_s: self.keep_s,
+            ..Self::default()
+        };
+    }
+
+    /// Whether nothing is recorded (no bin, no fix).
+    pub fn is_empty(&self) -> bool {
+        self.samples.is_empty() && self.bin.is_none() && self.fixes.is_empty()
+    }
+
     /// Whether the recording is closed (a fit is running or awaits commit).
     pub fn is_closed(&self) -> bool {
         self.closed
@@ -93,7 +159,7 @@ impl DriveRecorder {
     /// Adds one filter step to the open bin, closing the bin after
     /// `DRIVE_BIN_S`.
     pub fn step(&mut self, step: &DriveStep) {
-        if self.closed || self.samples.len() >= DRIVE_MAX_SAMPLES {
+        if self.closed || (self.keep_s.is_none() && self.samples.len() >= DRIVE_MAX_SAMPLES) {
             return;
         }
         let (bin, yaw_dt, dt) = self.bin.get_or_insert((
@@ -151,14 +217,12 @@ impl DriveRecorder {
         }
         let (x_m, y_m) = if geodetic {
             let (lat0, lon0) = *self.origin.get_or_insert((first, second));
-            (
-                EARTH_RADIUS_M * lat0.to_radians().cos() * (second - lon0).to_radians(),
-                EARTH_RADIUS_M * (first - lat0).to_radians(),
-            )
+            local_m(lat0, lon0, first, second)
         } else {
             (first, second)
         };
         if self.fixes.last().is_none_or(|f| t_s > f.t_s) {
+            self.geodetic.push(geodetic.then_some((first, second)));
             self.fixes.push(Fix {
                 t_s,
                 x_m,
@@ -169,12 +233,39 @@ impl DriveRecorder {
         }
     }
 
-    /// Closes the open bin.
+    /// Closes the open bin; a ring then drops what it no longer keeps.
     fn flush(&mut self) {
         if let Some((mut bin, yaw_dt, dt)) = self.bin.take() {
             bin.yaw_rate_radps = (dt > 0.0).then(|| yaw_dt / dt);
             self.samples.push(bin);
         }
+        if let Some(keep_s) = self.keep_s {
+            self.trim(keep_s);
+        }
+    }
+
+    /// Drops the samples and fixes older than `keep_s` before the last
+    /// sample, once they are [`RING_SLACK`] of the ring (or it is full).
+    fn trim(&mut self, keep_s: f64) {
+        let (Some(first), Some(last)) = (
+            self.samples.first().map(|s| s.t_s),
+            self.samples.last().map(|s| s.t_s),
+        ) else {
+            return;
+        };
+        if last - first <= (1.0 + RING_SLACK) * keep_s && self.samples.len() < DRIVE_MAX_SAMPLES {
+            return;
+        }
+        let cut = self
+            .samples
+            .partition_point(|s| s.t_s < last - keep_s)
+            .max(self.samples.len().saturating_sub(DRIVE_MAX_SAMPLES - 1));
+        self.samples.drain(..cut);
+        self.window_start = self.window_start.saturating_sub(cut);
+        let t0 = self.samples.first().map_or(last, |s| s.t_s);
+        let old = self.fixes.partition_point(|f| f.t_s < t0);
+        self.fixes.drain(..old);
+        self.geodetic.drain(..old);
     }
 
     /// Closes the recording and hands out the fit to run: the fixes outside
@@ -217,6 +308,15 @@ impl DriveRecorder {
     pub fn reopen(&mut self) {
         self.closed = false;
     }
+}
+
+/// Latitude and longitude in degrees as metres east and north of
+/// (`lat0`, `lon0`) (equirectangular: centimetres over a few kilometres).
+fn local_m(lat0: f64, lon0: f64, lat: f64, lon: f64) -> (f64, f64) {
+    (
+        EARTH_RADIUS_M * lat0.to_radians().cos() * (lon - lon0).to_radians(),
+        EARTH_RADIUS_M * (lat - lat0).to_radians(),
+    )
 }
 
 #[cfg(test)]
@@ -331,6 +431,34 @@ mod tests {
         let north = d.fixes[1].y_m;
         assert!((north - 111.19).abs() < 0.1, "{north}");
         assert!(d.fixes[1].x_m.abs() < 1e-9);
+    }
+
+    #[test]
+    fn a_ring_keeps_its_window_and_never_closes() {
+        let mut d = DriveRecorder::ring(10.0);
+        for k in 0..=3000 {
+            let t = f64::from(k) * 0.01;
+            d.step(&step(t));
+            if k % 100 == 0 {
+                d.fix(t, 48.0 + t * 1e-5, 11.0, true, None);
+            }
+        }
+        // 30 s driven: between 10 s and 11 s kept.
+        let span = d.samples.last().unwrap().t_s - d.samples[0].t_s;
+        assert!((10.0..=11.0 + 1e-9).contains(&span), "{span}");
+        assert!(d.fixes.len() <= 12 && d.fixes.len() == d.geodetic.len());
+        let (samples, fixes) = d.window(5.0);
+        let span = samples.last().unwrap().t_s - samples[0].t_s;
+        assert!((4.9..=5.0).contains(&span), "{span}");
+        assert_eq!(fixes.len(), 5, "{fixes:?}");
+        // Around the window's first fix: 1e-5° of latitude a second.
+        assert!(fixes[0].y_m.abs() < 1e-9 && fixes[0].x_m.abs() < 1e-9);
+        assert!((fixes[4].y_m - 4.0 * 1.112).abs() < 0.01, "{:?}", fixes[4]);
+        d.clear();
+        assert!(d.window(5.0).0.is_empty());
+        d.step(&step(40.0));
+        d.step(&step(40.1));
+        assert_eq!(d.window(5.0).0.len(), 2, "still a ring after a clear");
     }
 
     #[test]

@@ -10,6 +10,13 @@
 //! computing a calibration run on tokio's blocking pool; the calibration
 //! refuses commands as busy until they are done, so at most one is out.
 //!
+//! The online calibration's refits (#46: the drift watch) run on the
+//! blocking pool too, at most one at a time and beside a store or a job:
+//! a refit of three minutes of the drive takes a good part of a second,
+//! and the steps, fixes and commands keep coming meanwhile. A flag that
+//! rises or clears is a warning (an info line) in the log, in the words of
+//! `replay --fixes`.
+//!
 //! Shutdown: when the odometry task has drained its frames it drops its
 //! sender; this task handles everything still queued, waits for a store in
 //! flight (a commit is stored whole or not at all), and returns.
@@ -20,8 +27,11 @@ use canodom_calib::standstill::Standstill;
 use canodom_can::bus::{BusError, FrameSink};
 use canodom_can::frame::CanFrame;
 use canodom_can::time::Timestamp;
+use canodom_live::drift_watch::{DriftReport, RefitJob};
 use canodom_live::{LiveCalibration, Output};
+use canodom_offline::online::Epoch;
 use canodom_params::persist::{ParamFile, ParamValues};
+use canodom_pipeline::config::Config;
 use canodom_pipeline::gate::SecurityGate;
 use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
@@ -112,6 +122,12 @@ pub struct CalibTask<Tx> {
     /// Fixes of a live GNSS source (`[gnss]`), on a channel of their own so
     /// that they never take room the odometry task's inputs need.
     pub gnss: Option<mpsc::Receiver<CalibInput>>,
+    /// The configuration the online calibration's refits fit with.
+    pub refit_config: Arc<Config>,
+    /// The drift watch's report, to the odometry task (state file, diagnostics).
+    pub drift: watch::Sender<DriftReport>,
+    /// The refit in flight and what it refits.
+    refit: Option<(JoinHandle<Epoch>, Arc<RefitJob>)>,
 }
 
 /// The odometry task's ends of the channels to the calibration task.
@@ -127,6 +143,8 @@ pub struct OdometryLinks {
     pub standstill: watch::Receiver<Standstill>,
     /// The guided session's phase.
     pub phase: watch::Receiver<Phase>,
+    /// The drift watch's report.
+    pub drift: watch::Receiver<DriftReport>,
 }
 
 impl<Tx: FrameSink + Clone> CalibTask<Tx> {
@@ -138,6 +156,7 @@ impl<Tx: FrameSink + Clone> CalibTask<Tx> {
         link_lost: mpsc::Sender<BusError>,
         param_file: PathBuf,
         report_root: PathBuf,
+        refit_config: Arc<Config>,
     ) -> (Self, OdometryLinks) {
         // Bounded both ways: calibration inputs wait for the calibration
         // task (nothing it needs may be dropped), and sets to apply are few.
@@ -146,6 +165,7 @@ impl<Tx: FrameSink + Clone> CalibTask<Tx> {
         let (clock_tx, clock) = watch::channel(None);
         let (standstill, standstill_rx) = watch::channel(live.standstill());
         let (phase, phase_rx) = watch::channel(live.phase());
+        let (drift, drift_rx) = watch::channel(live.drift());
         let task = Self {
             live,
             inputs,
@@ -159,6 +179,9 @@ impl<Tx: FrameSink + Clone> CalibTask<Tx> {
             param_file,
             report_root,
             gnss: None,
+            refit_config,
+            drift,
+            refit: None,
         };
         let links = OdometryLinks {
             inputs: inputs_tx,
@@ -166,6 +189,7 @@ impl<Tx: FrameSink + Clone> CalibTask<Tx> {
             clock: clock_tx,
             standstill: standstill_rx,
             phase: phase_rx,
+            drift: drift_rx,
         };
         (task, links)
     }
@@ -180,7 +204,14 @@ impl<Tx: FrameSink + Clone> CalibTask<Tx> {
                 biased;
                 done = finish(&mut effect), if effect.is_some() => {
                     let out = self.finished(done);
+                    self.drift.send_replace(self.live.drift());
                     effect = self.carry_out(out).await;
+                }
+                done = finish_refit(&mut self.refit), if self.refit.is_some() => {
+                    let out = self.refitted(done);
+                    if let Some(h) = self.carry_out(out).await {
+                        effect = Some(h);
+                    }
                 }
                 input = self.inputs.recv() => match input {
                     Some(input) => {
@@ -229,10 +260,7 @@ impl<Tx: FrameSink + Clone> CalibTask<Tx> {
                 second,
                 geodetic,
                 sigma_m,
-            } => {
-                self.live.on_fix(t, first, second, geodetic, sigma_m);
-                Vec::new()
-            }
+            } => self.live.on_fix(t, first, second, geodetic, sigma_m),
             CalibInput::Fault(t, code) => {
                 self.live.on_fault(t, code);
                 Vec::new()
@@ -272,6 +300,58 @@ impl<Tx: FrameSink + Clone> CalibTask<Tx> {
                 )
             }
         }
+    }
+
+    /// The refit in flight came back: judged, each flag that rose or
+    /// cleared logged, the report handed on.
+    fn refitted(&mut self, done: Result<Epoch, tokio::task::JoinError>) -> Vec<Output> {
+        let Some((_, job)) = self.refit.take() else {
+            return Vec::new();
+        };
+        let epoch = done
+            .inspect_err(|e| warn!(cause = %e, "online calibration refit failed"))
+            .ok();
+        if let Some(e) = &epoch {
+            debug!(t_s = e.t_s, fixes = e.fixes, refused = ?e.refused, "online calibration refit");
+        }
+        let now = self.now().unwrap_or(Timestamp::from_micros(0));
+        let (out, judged) = self.live.on_refit(now, &job, epoch.as_ref());
+        for c in judged
+            .iter()
+            .flat_map(|j| j.changes.iter().map(move |c| (c, j.distance_m)))
+        {
+            let line = crate::cmd::replay_fixes::describe_change(c.0, c.1);
+            let parameter = c.0.reading.param.name();
+            if c.0.raised {
+                warn!(parameter, "{line}; the learnt set awaits COMMIT");
+            } else {
+                info!(parameter, "{line}");
+            }
+        }
+        self.drift.send_replace(self.live.drift());
+        out
+    }
+
+    /// Runs `job` on the blocking pool ([`canodom_offline::online::refit`]).
+    fn start_refit(&mut self, job: RefitJob) {
+        if self.refit.is_some() {
+            // The watch asks for one at a time: never reached.
+            return;
+        }
+        let job = Arc::new(job);
+        let (config, for_pool) = (Arc::clone(&self.refit_config), Arc::clone(&job));
+        let handle = tokio::task::spawn_blocking(move || {
+            let w = &for_pool.window;
+            canodom_offline::online::refit(
+                &config,
+                w.base,
+                &w.samples,
+                &w.fixes,
+                &canodom_calib::drive::DriveOptions::default(),
+                for_pool.t_s,
+            )
+        });
+        self.refit = Some((handle, job));
     }
 
     /// The bus clock now: the last frame's timestamp plus the time since.
@@ -314,6 +394,7 @@ impl<Tx: FrameSink + Clone> CalibTask<Tx> {
                 }
                 Output::Persist(file) => effect = Some(self.store(file)),
                 Output::Compute(job) => effect = Some(Self::compute(job)),
+                Output::Refit(job) => self.start_refit(*job),
             }
         }
         effect
@@ -367,6 +448,16 @@ pub(crate) async fn send_all<Tx: FrameSink>(
 async fn next_fix(gnss: &mut Option<mpsc::Receiver<CalibInput>>) -> Option<CalibInput> {
     match gnss {
         Some(rx) => rx.recv().await,
+        None => std::future::pending().await,
+    }
+}
+
+/// The refit in flight, when it finishes (never without one).
+async fn finish_refit(
+    refit: &mut Option<(JoinHandle<Epoch>, Arc<RefitJob>)>,
+) -> Result<Epoch, tokio::task::JoinError> {
+    match refit {
+        Some((handle, _)) => handle.await,
         None => std::future::pending().await,
     }
 }

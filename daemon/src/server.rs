@@ -313,6 +313,7 @@ pub async fn run<C: Connector>(
         lost_tx.clone(),
         config.calibration.param_file.clone(),
         report_root(&config.calibration.param_file),
+        Arc::clone(&config),
     );
     // `[gnss]`: its source starts on the blocking pool (a failure is a
     // warning there, and the daemon goes on).
@@ -920,6 +921,7 @@ impl<Tx: FrameSink + Clone> OdometryTask<Tx> {
             param_identity: self.pipeline.param_identity(),
             state_file: None,
             gnss: None,
+            drift: Some(self.links.drift.borrow().clone()).filter(|d| d.refits > 0),
         }
     }
 

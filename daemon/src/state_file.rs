@@ -235,6 +235,69 @@ pub struct SavedState {
     /// restores it at the next start (absent in files of older versions).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub learnt: Option<SavedLearnt>,
+    /// The drift watch (#46 item 3): absent before its first refit, and in
+    /// files of older versions.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub drift: Option<SavedDrift>,
+}
+
+/// The drift watch as the state file shows it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SavedDrift {
+    /// Refits judged since the daemon started.
+    pub refits: u64,
+    /// The flagged parameters (`canodom_calib::drift::Param::name`).
+    pub flagged: Vec<String>,
+    /// When the last refit was made: its last fix's bus time, s (Unix time
+    /// on a live bus).
+    pub at_unix_s: Option<f64>,
+    /// Distance driven since the daemon started, at the last refit, m.
+    pub distance_m: f64,
+    /// What the last refit learnt, each with its σ and the value in use.
+    pub learnt: Vec<SavedDriftReading>,
+    /// The learnt set offered for COMMIT, if one is.
+    pub candidate: Option<canodom_params::persist::ParamValues>,
+}
+
+/// One parameter of the last refit.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SavedDriftReading {
+    /// Which.
+    pub parameter: String,
+    /// The learnt value (relative parameters relative to the set the drive
+    /// was read with).
+    pub learnt: f64,
+    /// Its σ.
+    pub sigma: f64,
+    /// The set in use's value on the same scale.
+    pub in_use: f64,
+    /// Whether it is flagged.
+    pub flagged: bool,
+}
+
+impl From<&canodom_live::drift_watch::DriftReport> for SavedDrift {
+    fn from(d: &canodom_live::drift_watch::DriftReport) -> Self {
+        Self {
+            refits: d.refits,
+            flagged: d.flagged.iter().map(|p| p.name().to_owned()).collect(),
+            at_unix_s: d.t_s,
+            distance_m: d.distance_m,
+            learnt: d
+                .readings
+                .iter()
+                .map(|r| SavedDriftReading {
+                    parameter: r.param.name().to_owned(),
+                    learnt: r.learnt,
+                    sigma: r.sigma,
+                    in_use: r.in_use,
+                    flagged: d.flagged.contains(&r.param),
+                })
+                .collect(),
+            candidate: d.candidate,
+        }
+    }
 }
 
 pub use canodom_params::learnt::{
@@ -398,6 +461,7 @@ impl SavedState {
                 steering_offset_rad: steering.offset_rad,
             },
             learnt: Some(SavedLearnt::from_state(&summary.state)),
+            drift: summary.drift.as_ref().map(SavedDrift::from),
         }
     }
 }

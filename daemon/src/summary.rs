@@ -33,4 +33,6 @@ pub struct Summary {
     /// What the live GNSS source did (`None`: no `[gnss]`; a source that did
     /// not start has its error in `status.last_error`).
     pub gnss: Option<crate::gnss_task::GnssSummary>,
+    /// What the drift watch knows (`None` before its first refit).
+    pub drift: Option<canodom_live::drift_watch::DriftReport>,
 }

@@ -9,7 +9,7 @@
 //! The runtime's clock is paused: the bus stamps frames with tokio's
 //! virtual time, so the periods are exact and seconds of driving are quick.
 
-use crate::util::{rc_car, tmp_dir};
+use crate::util::{Logs, rc_car, tmp_dir};
 use canodom::server::{InProcessDaemon, Observers, Summary};
 use canodom::state_file::{FORMAT_VERSION, SavedState, StateFileOptions, load};
 use canodom_can::bus::{FrameSink, InProcessTx};
@@ -21,42 +21,8 @@ use canodom_protocol::calib_wire::{CalibWire, Command};
 use canodom_sim::drive::simulator;
 use canodom_sim::vehicle::{PathKind, SampleEncoder};
 use std::path::{Path, PathBuf};
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 use std::time::Duration;
-
-/// The log lines of the daemon (the test thread's subscriber: the
-/// in-process daemon runs on the test's current-thread runtime).
-#[derive(Clone, Default)]
-struct Logs(Arc<Mutex<Vec<u8>>>);
-
-impl std::io::Write for Logs {
-    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
-        self.0.lock().unwrap().extend_from_slice(buf);
-        Ok(buf.len())
-    }
-    fn flush(&mut self) -> std::io::Result<()> {
-        Ok(())
-    }
-}
-
-impl Logs {
-    fn capture() -> (Self, tracing::subscriber::DefaultGuard) {
-        let logs = Self::default();
-        let writer = logs.clone();
-        let guard = tracing::subscriber::set_default(
-            tracing_subscriber::fmt()
-                .with_ansi(false)
-                .with_writer(move || writer.clone())
-                .finish(),
-        );
-        (logs, guard)
-    }
-
-    /// The lines logged since the last call.
-    fn take(&self) -> String {
-        String::from_utf8(std::mem::take(&mut *self.0.lock().unwrap())).unwrap()
-    }
-}
 
 /// The rc car with its parameter file in `dir`.
 fn config_in(dir: &Path) -> Config {
@@ -617,6 +583,7 @@ mod format {
                 steering_offset_rad: 0.0,
             },
             learnt: None,
+            drift: None,
         };
         save(&path, &state).unwrap();
         // The temporary name is taken by a directory: the write fails and
@@ -640,6 +607,50 @@ mod format {
             e.to_string().contains("format_version 7") && e.to_string().contains("newer"),
             "{e}"
         );
+        fs::remove_dir_all(dir).unwrap();
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_drift_section_round_trips_and_a_file_without_one_still_loads() {
+        use canodom_calib::drift::{Param, Reading};
+        use canodom_live::drift_watch::DriftReport;
+        let dir = scratch("drift");
+        let path = dir.join("state.json");
+        let config = Arc::new(config());
+        let report = DriftReport {
+            refits: 4,
+            flagged: vec![Param::RearRatio],
+            readings: vec![Reading {
+                param: Param::RearRatio,
+                learnt: 1.005,
+                sigma: 0.0004,
+                in_use: 1.0,
+            }],
+            t_s: Some(1_700_000_240.0),
+            distance_m: 2_500.0,
+            candidate: Some(canodom_params::persist::ParamValues::plain(0.3, 0.09)),
+        };
+        let drift = SavedDrift::from(&report);
+        assert_eq!(drift.flagged, ["rear_ratio"]);
+        assert!(drift.learnt[0].flagged && drift.learnt[0].parameter == "rear_ratio");
+        let (summary, _) = daemon_run(&config, 0.5).await;
+        let mut state = SavedState::new(&config, &summary);
+        assert_eq!(state.drift, None, "no refit: no section");
+        state.drift = Some(drift.clone());
+        save(&path, &state).unwrap();
+        let text = fs::read_to_string(&path).unwrap();
+        assert!(
+            text.contains("\"flagged\": [\n      \"rear_ratio\"\n    ]"),
+            "{text}"
+        );
+        assert_eq!(load(&path).unwrap().drift, Some(drift));
+        // A file written before the drift watch (no section) still loads.
+        state.drift = None;
+        let mut old: serde_json::Value = serde_json::to_value(&state).unwrap();
+        assert!(old.get("drift").is_none());
+        old.as_object_mut().unwrap().remove("drift");
+        fs::write(&path, old.to_string()).unwrap();
+        assert_eq!(load(&path).unwrap().drift, None);
         fs::remove_dir_all(dir).unwrap();
     }
 

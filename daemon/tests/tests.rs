@@ -15,6 +15,7 @@ mod cars;
 mod cli;
 mod config_errors;
 mod dbc_tools;
+mod drift_live;
 mod drive_session;
 mod follow_session;
 mod gnss_drive;

@@ -26,6 +26,9 @@ use canodom_calib::calibrator::{
     Output as CalibOutput,
 };
 use canodom_calib::session::{Instruction, Phase};
+
+pub mod drift_watch;
+
 use canodom_can::frame::CanFrame;
 use canodom_can::time::Timestamp;
 use canodom_fusion::{Pose, VehicleParams};
@@ -38,6 +41,7 @@ use canodom_protocol::calib_wire::{
 use canodom_report::committed::Report;
 use canodom_report::report::CalibrationReport;
 use canodom_report::steering_report::SteeringReport;
+use drift_watch::{DriftReport, Judged, OnlineWatch, RefitJob};
 
 /// Status period while a session is active, s (10 Hz).
 const ACTIVE_STATUS_S: f64 = 0.1;
@@ -60,6 +64,10 @@ pub enum Output {
     /// Run this calibration job off the frame path, then call
     /// [`LiveCalibration::on_computed`].
     Compute(Job),
+    /// Run this refit of the online calibration off the frame path
+    /// ([`canodom_offline::online::refit`]), then call
+    /// [`LiveCalibration::on_refit`]; at most one is asked for at a time.
+    Refit(Box<RefitJob>),
 }
 
 /// The parameter write-back in progress.
@@ -86,6 +94,7 @@ pub struct LiveCalibration {
     next_status_s: Option<f64>,
     status_counter: u8,
     params_counter: u8,
+    online: OnlineWatch,
 }
 
 fn seconds(t: Timestamp) -> f64 {
@@ -113,10 +122,12 @@ impl LiveCalibration {
                 max_history: config.max_history,
                 fixes_available: config.fixes.is_some(),
                 drive_gate: canodom_offline::drive::drive_gate(&config, nominal.rear_tread_m()),
+                online_window_s: Some(config.drift.window_s),
             },
             nominal,
             file,
         );
+        let online = OnlineWatch::new(config.drift);
         Self {
             wire,
             config,
@@ -129,7 +140,43 @@ impl LiveCalibration {
             next_status_s: None,
             status_counter: 0,
             params_counter: 0,
+            online,
         }
+    }
+
+    /// What the drift watch knows now, the candidate as it awaits COMMIT.
+    pub fn drift(&self) -> DriftReport {
+        DriftReport {
+            candidate: self.calibrator.drift_candidate().copied(),
+            ..self.online.report().clone()
+        }
+    }
+
+    /// The refit of `job` came back (`epoch`: `None` when it could not
+    /// run): judged against the set in use, the candidate offered or
+    /// withdrawn, and the status sent when a flag changed. The changes are
+    /// the caller's to log (`None`: the ring was emptied since, not judged).
+    pub fn on_refit(
+        &mut self,
+        t: Timestamp,
+        job: &RefitJob,
+        epoch: Option<&canodom_offline::online::Epoch>,
+    ) -> (Vec<Output>, Option<Judged>) {
+        let (generation, in_use) = (
+            self.calibrator.online_generation(),
+            self.calibrator.current_values(),
+        );
+        let Some((judged, candidate)) = self.online.judged(job, epoch, generation, &in_use) else {
+            return (Vec::new(), None);
+        };
+        let before = self.calibrator.drift_candidate().copied();
+        self.calibrator.set_drift_candidate(candidate);
+        let out = if judged.changes.is_empty() && before.is_some() == candidate.is_some() {
+            Vec::new()
+        } else {
+            self.status(seconds(t))
+        };
+        (out, Some(judged))
     }
 
     /// The parameter file as the daemon last stored it.
@@ -197,6 +244,9 @@ impl LiveCalibration {
     /// A position fix from the bus: a local x and y in metres, or (`geodetic`)
     /// latitude and longitude in degrees, with the 1σ per axis its source
     /// states (gpsd, ROS 2; none from the bus). Recorded while a drive is.
+    ///
+    /// Outside a guided calibration the fix also feeds the online
+    /// calibration: the refit it makes due, if any ([`Output::Refit`]).
     pub fn on_fix(
         &mut self,
         t: Timestamp,
@@ -204,9 +254,16 @@ impl LiveCalibration {
         second: f64,
         geodetic: bool,
         sigma_m: Option<f64>,
-    ) {
+    ) -> Vec<Output> {
+        let t_s = seconds(t);
         self.calibrator
-            .on_fix(seconds(t), first, second, geodetic, sigma_m);
+            .on_fix(t_s, first, second, geodetic, sigma_m);
+        let cal = &self.calibrator;
+        self.online
+            .due(t_s, |window_s| cal.online_window(window_s))
+            .map(|job| Output::Refit(Box::new(job)))
+            .into_iter()
+            .collect()
     }
 
     /// The input path refused or faulted a wheel frame (`code`: the
@@ -220,6 +277,18 @@ impl LiveCalibration {
         let t_s = seconds(t);
         let applies = self.calibrator.tick(t_s);
         let mut out = self.carry(t_s, applies);
+        if self.config.auto_commit
+            && let Some(candidate) = self.calibrator.drift_candidate()
+        {
+            let values = canodom_calib::drift::bounded_step(
+                &self.calibrator.current_values(),
+                candidate,
+                &self.config.drift.judge,
+            );
+            let pending = self.writeback() == Writeback::Pending;
+            let stored = self.calibrator.auto_commit(t_s, values, pending);
+            out.extend(self.carry(t_s, stored));
+        }
         if let Some(wb) = self.writeback
             && wb.state == Writeback::Pending
             && t_s >= wb.deadline_s
@@ -627,6 +696,8 @@ impl LiveCalibration {
                 writeback: wb.map_or(Writeback::Idle, |w| w.state),
                 standstill: cal.is_standstill(t_s),
                 writeback_attempts: wb.map_or(0, |w| w.attempts),
+                drift: self.online.watch().any(),
+                drift_candidate: cal.drift_candidate().is_some(),
             }),
             StatusPage::Counts(Counts {
                 cw_accepted: accepted[0],

@@ -119,7 +119,7 @@ pub fn learn(
                 .copied()
                 .filter(|f| f.t_s <= t_s && f.t_s >= t_s - window_s)
                 .collect();
-            let mut e = epoch(
+            let mut e = refit(
                 config,
                 base,
                 &drive.samples[from..upto],
@@ -158,8 +158,11 @@ pub fn drift_watch(
         .collect()
 }
 
-/// One refit at `t_s`.
-fn epoch(
+/// One refit at `t_s` over `samples` (recorded with `base` in use) and the
+/// fixes among `fixes` within their time: what [`learn`] does at each of
+/// its times, and what the daemon's drift watch runs live over the ring it
+/// keeps (`distance_m` is left 0 for the caller).
+pub fn refit(
     config: &Config,
     base: ParamValues,
     samples: &[DriveSample],

@@ -314,6 +314,12 @@ pub struct CalibrationConfig {
     pub standstill_time_s: f64,
     /// The online calibration's refits and the drift watch (`[calibration.drift]`).
     pub drift: DriftWatchConfig,
+    /// Whether the daemon commits the drift watch's learnt set by itself
+    /// at a standstill, each parameter moved at most
+    /// [`canodom_calib::drift::AUTO_STEP_TOLERANCES`] of its drift
+    /// tolerance per commit (`[calibration] auto_commit`, default false:
+    /// the operator commits it with COMMIT).
+    pub auto_commit: bool,
 }
 
 /// `[calibration.drift]` (#46 item 3): the drift watch's refits of the

@@ -84,7 +84,7 @@ pub type Result<T> = std::result::Result<T, WireError>;
 #[derive(Debug)]
 struct StatusHandles {
     page: SignalHandle,
-    p0: [SignalHandle; 10],
+    p0: [SignalHandle; 12],
     p1: [SignalHandle; 9],
     results: [[SignalHandle; 3]; 4],
 }
@@ -171,6 +171,8 @@ impl CalibWire {
                     st("WRITEBACK")?,
                     st("STANDSTILL")?,
                     st("WB_ATTEMPTS")?,
+                    st("DRIFT")?,
+                    st("DRIFT_CANDIDATE")?,
                 ],
                 p1: [
                     st("CW_ACCEPTED")?,
@@ -398,6 +400,8 @@ impl CalibWire {
                 h.p0[7].encode_raw(u64::from(p.writeback.code()), &mut buf);
                 h.p0[8].encode_raw(u64::from(p.standstill), &mut buf);
                 h.p0[9].encode_raw(u64::from(p.writeback_attempts.min(7)), &mut buf);
+                h.p0[10].encode_raw(u64::from(p.drift), &mut buf);
+                h.p0[11].encode_raw(u64::from(p.drift_candidate), &mut buf);
             }
             StatusPage::Counts(c) => {
                 let raws = [
@@ -477,6 +481,8 @@ impl CalibWire {
                     writeback: coded(Writeback::from_code, "WRITEBACK", raw(&p[7]))?,
                     standstill: raw(&p[8]) == 1,
                     writeback_attempts: raw(&p[9]) as u8,
+                    drift: raw(&p[10]) == 1,
+                    drift_candidate: raw(&p[11]) == 1,
                 })
             }
             1 => {

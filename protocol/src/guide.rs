@@ -221,6 +221,20 @@ fn answer_text(code: u8, reason: Reason) -> String {
     }
 }
 
+/// The drift watch's line, while it flags a parameter.
+fn drift_text(p: &Progress) -> Option<String> {
+    p.drift.then(|| {
+        format!(
+            "drift: a parameter differs from the set in use (see the daemon's log){}",
+            if p.drift_candidate {
+                "; the learnt set awaits COMMIT"
+            } else {
+                ""
+            }
+        )
+    })
+}
+
 /// The guide as a block of lines (for a terminal, redrawn in place).
 pub fn render_guide(g: &GuideState) -> String {
     let mut s = String::new();
@@ -288,6 +302,9 @@ pub fn render_guide(g: &GuideState) -> String {
         let _ = write!(s, ", {} send(s)", p.writeback_attempts);
     }
     s.push('\n');
+    if let Some(line) = drift_text(&p) {
+        let _ = writeln!(s, "  {line}");
+    }
     if g.shows_results() {
         let r = &g.results;
         if let Some([t, ts, ratio]) = r.geometry {
@@ -393,6 +410,8 @@ mod tests {
             writeback: Writeback::Idle,
             standstill: true,
             writeback_attempts: 0,
+            drift: false,
+            drift_candidate: false,
         }
     }
 
@@ -459,6 +478,22 @@ mod tests {
             }
         }
         assert_eq!(guides.len(), State::ALL.len() * InstructionCode::ALL.len());
+    }
+
+    #[test]
+    fn the_guide_names_a_drift_and_a_candidate_awaiting_commit() {
+        let mut g = GuideState::new(None);
+        let mut p = progress(State::Idle, InstructionCode::None);
+        g.apply(&StatusPage::Progress(p));
+        assert!(!render_guide(&g).contains("drift"));
+        p.drift = true;
+        assert!(g.apply(&StatusPage::Progress(p)));
+        let block = render_guide(&g);
+        assert!(block.contains("drift: a parameter differs"), "{block}");
+        assert!(!block.contains("awaits COMMIT"), "{block}");
+        p.drift_candidate = true;
+        assert!(g.apply(&StatusPage::Progress(p)));
+        assert!(render_guide(&g).contains("the learnt set awaits COMMIT"));
     }
 
     #[test]

@@ -744,6 +744,8 @@ mod tests {
             writeback: Writeback::Idle,
             standstill: true,
             writeback_attempts: 0,
+            drift: false,
+            drift_candidate: false,
         }
     }
 

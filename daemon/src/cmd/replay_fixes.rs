@@ -150,7 +150,7 @@ pub fn learn(
 
 /// A drift flag that rose or cleared, in a line: the parameter, its learnt
 /// value with σ, the value in use and the distance driven so far.
-fn describe_change(c: &canodom_calib::drift::Change, distance_m: f64) -> String {
+pub(crate) fn describe_change(c: &canodom_calib::drift::Change, distance_m: f64) -> String {
     let r = &c.reading;
     format!(
         "drift: {} {}: learnt {:.6} ± {:.6}, in use {:.6} ({:.0} m driven)",

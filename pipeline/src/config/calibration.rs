@@ -116,6 +116,7 @@ impl Validator<'_> {
                 .positive("calibration.standstill_time_s", c.standstill_time_s)?,
             fixes: None,
             drift: self.drift(&c.drift)?,
+            auto_commit: c.auto_commit,
         })
     }
 

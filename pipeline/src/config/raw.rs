@@ -208,6 +208,8 @@ pub(super) struct RawCalibration {
     pub(super) fixes: Option<RawFixes>,
     /// `[calibration.drift]`: the online calibration's refits and the drift watch.
     pub(super) drift: RawDrift,
+    /// Commit the drift watch's learnt set at a standstill by itself.
+    pub(super) auto_commit: bool,
 }
 
 /// `[calibration.drift]` (#46 item 3); the defaults are
@@ -281,6 +283,7 @@ impl Default for RawCalibration {
             standstill_time_s: 1.0,
             fixes: None,
             drift: RawDrift::default(),
+            auto_commit: false,
         }
     }
 }

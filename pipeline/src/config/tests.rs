@@ -546,6 +546,18 @@ fn the_drift_watch_keys_reach_their_fields_in_their_units() {
 }
 
 #[test]
+fn auto_commit_is_off_unless_set_and_must_be_a_bool() {
+    let c = Config::from_toml(RC_CAR, &path()).unwrap();
+    assert!(!c.calibration.auto_commit);
+    let text = format!("{RC_CAR}\n[calibration]\nauto_commit = true\n");
+    let c = Config::from_toml(&text, &path()).unwrap();
+    assert!(c.calibration.auto_commit);
+    let text = format!("{RC_CAR}\n[calibration]\nauto_commit = 1\n");
+    let e = Config::from_toml(&text, &path()).unwrap_err().to_string();
+    assert!(e.contains("auto_commit"), "{e}");
+}
+
+#[test]
 fn every_bad_drift_key_is_named() {
     for (line, key, expected) in [
         ("k_sigma = 0.0", "calibration.drift.k_sigma", "> 0"),

@@ -108,6 +108,10 @@ pub struct Progress {
     pub standstill: bool,
     /// CALIB_PARAMS sends of the current write-back (0..=7, saturating).
     pub writeback_attempts: u8,
+    /// The drift watch flags a parameter (`DRIFT`).
+    pub drift: bool,
+    /// A learnt set awaits COMMIT outside any session (`DRIFT_CANDIDATE`).
+    pub drift_candidate: bool,
 }
 
 /// `CALIB_STATUS` page 1: counts and the answer to the last command.

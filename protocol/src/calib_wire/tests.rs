@@ -21,6 +21,8 @@ fn auth_lockout_is_always_0_on_page_0_and_absent_elsewhere() {
         writeback: Writeback::Idle,
         standstill: true,
         writeback_attempts: 0,
+        drift: false,
+        drift_candidate: false,
     });
     assert_eq!(w.auth_lockout(&w.encode_status(&p0, 3)), Some(false));
     let p5 = w.encode_status(
@@ -250,6 +252,8 @@ fn every_status_page_round_trips() {
             writeback: Writeback::Failed,
             standstill: true,
             writeback_attempts: 4,
+            drift: true,
+            drift_candidate: true,
         }),
         StatusPage::Counts(Counts {
             cw_accepted: 5,

@@ -1,0 +1,237 @@
+//! The drift watch in the running daemon (#46 item 3) on the in-process
+//! bus: the simulated RC car drives a random course with position fixes on
+//! the bus (`[calibration.fixes]`) and no guided session. With its right
+//! rear tyre 1 % larger than the set in use (a tyre changed since the
+//! calibration), the daemon's refits flag the rear wheels' ratio: DRIFT and
+//! DRIFT_CANDIDATE rise on CALIB_STATUS, the warning names the parameter,
+//! and the state file's `drift` section lists it with the learnt candidate;
+//! COMMIT then stores that candidate as the next version. With the tyres as
+//! the set says, nothing is flagged.
+//!
+//! The runtime's clock is paused (the bus stamps frames with tokio's
+//! virtual time); the watch refits every 10 s of fixes over the last 20 s.
+
+use crate::util::{Logs, tmp_dir};
+use canodom::server::{InProcessDaemon, Observers};
+use canodom::state_file::{StateFileOptions, load};
+use canodom_can::bus::{BusEvent, FrameSink, FrameSource};
+use canodom_can::frame::{CanFrame, FrameId};
+use canodom_fusion::sim::{Plan, simulate};
+use canodom_pipeline::config::Config;
+use canodom_pipeline::pipeline::Pipeline;
+use canodom_protocol::calib_wire::{CalibWire, Command, StatusPage};
+use canodom_sim::vehicle::{SampleEncoder, sim_config};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+/// rc_car.dbc with a GNSS message: the rear-axle centre in a local frame, mm.
+fn dbc_with_gnss() -> String {
+    let dbc =
+        std::fs::read_to_string(crate::util::manifest().join("../data/dbc/rc_car.dbc")).unwrap();
+    let gnss = "BO_ 768 GNSS_LOCAL: 8 GNSS\n SG_ X : 0|32@1- (0.001,0) [-1000000|1000000] \"m\" ODOM\n \
+                SG_ Y : 32|32@1- (0.001,0) [-1000000|1000000] \"m\" ODOM\n\n";
+    let at = dbc.find("CM_ ").unwrap();
+    format!("{}{gnss}{}", &dbc[..at], &dbc[at..])
+}
+
+/// What one drive showed.
+struct Outcome {
+    /// (DRIFT, DRIFT_CANDIDATE) of every progress page seen.
+    progress: Vec<(bool, bool)>,
+    logs: String,
+    state: canodom::state_file::SavedState,
+    /// The parameter file's current set after the drive (and a COMMIT).
+    committed: Option<canodom_params::persist::ParamSet>,
+    /// The true right/left rear diameter ratio.
+    true_ratio: f64,
+}
+
+/// The RC car's configuration in `dir` (fixes on the bus, the watch's
+/// short periods) and a random drive of it with its right rear tyre
+/// `right_scale` times the set's; the true right/left ratio.
+fn car_and_drive(
+    dir: &std::path::Path,
+    right_scale: f64,
+) -> (Config, canodom_fusion::sim::Run, f64) {
+    std::fs::write(dir.join("car.dbc"), dbc_with_gnss()).unwrap();
+    let example = std::fs::read_to_string(crate::util::rc_car_toml()).unwrap();
+    let text = example.replace("../../data/dbc/rc_car.dbc", "car.dbc")
+        + "\n[calibration.fixes]\nx = \"GNSS_LOCAL.X\"\ny = \"GNSS_LOCAL.Y\"\n\
+           [calibration.drift]\nevery_s = 10.0\nwindow_s = 20.0\n";
+    let text = text.replacen(
+        "[calibration]",
+        "[calibration]\nparam_file = \"params.toml\"",
+        1,
+    );
+    let cfg_path = dir.join("car.toml");
+    std::fs::write(&cfg_path, &text).unwrap();
+    let config = Config::load(&cfg_path).unwrap();
+    let nominal = *Pipeline::new(&config).unwrap().params();
+    let mut d = nominal.wheel_diameters_m();
+    d.rear_right *= right_scale;
+    let truth = nominal.with_diameters(d).unwrap();
+    let run = simulate(
+        &sim_config(&config, truth),
+        &Plan::random_drive(7, 60.0, 0.8).unwrap(),
+        7,
+    )
+    .unwrap();
+    (config, run, d.rear_right / d.rear_left)
+}
+
+/// Drives the RC car with its right rear tyre `right_scale` times the
+/// set's, fixes at 5 Hz, then sends COMMIT at a standstill.
+async fn drive(name: &str, right_scale: f64) -> Outcome {
+    let dir = tmp_dir(name);
+    let (config, run, true_ratio) = car_and_drive(&dir, right_scale);
+    let config = Arc::new(config);
+    let state_path = dir.join("state.json");
+    let observers = Observers {
+        state_file: Some(StateFileOptions {
+            path: state_path.clone(),
+            every: Duration::from_secs(1),
+        }),
+        ..Observers::default()
+    };
+    let (logs, _guard) = Logs::capture();
+    let daemon = InProcessDaemon::spawn(Arc::clone(&config), 1 << 16, observers);
+    let (mut rx, tx) = daemon.bus.open().unwrap();
+    let wire = CalibWire::new(config.output.base_id).unwrap();
+    let progress = Arc::new(Mutex::new(Vec::new()));
+    let seen = Arc::clone(&progress);
+    let status_id = wire.status_id();
+    let status_wire = CalibWire::new(config.output.base_id).unwrap();
+    tokio::spawn(async move {
+        while let Ok(ev) = rx.recv().await {
+            let BusEvent::Frame(r) = ev else { continue };
+            if r.frame.id() == status_id
+                && let Ok((StatusPage::Progress(p), _)) = status_wire.decode_status(r.frame.data())
+            {
+                seen.lock().unwrap().push((p.drift, p.drift_candidate));
+            }
+        }
+    });
+    tokio::time::sleep(Duration::from_millis(20)).await;
+    let gnss = config
+        .db
+        .messages()
+        .iter()
+        .find(|m| m.name() == "GNSS_LOCAL")
+        .unwrap();
+    let mut encoder = SampleEncoder::new(&config);
+    let mut frames = Vec::new();
+    for (k, s) in run.samples.iter().enumerate() {
+        frames.clear();
+        encoder.encode(s, &mut frames);
+        if k % 20 == 0 {
+            let data = gnss
+                .encode(&[("X", s.true_pose.x_m), ("Y", s.true_pose.y_m)])
+                .unwrap();
+            frames.push(CanFrame::new_data(FrameId::Standard(768), &data).unwrap());
+        }
+        for f in &frames {
+            tx.send(f).await.unwrap();
+        }
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+    // The last refit on the blocking pool (real time), and a standstill.
+    let last = run.samples.last().unwrap();
+    let mut still = Vec::new();
+    for _ in 0..300 {
+        still.clear();
+        let mut s = *last;
+        s.t_s += 0.01;
+        encoder.encode(&s, &mut still);
+        for f in &still {
+            tx.send(f).await.unwrap();
+        }
+        tokio::time::sleep(Duration::from_millis(10)).await;
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    // The state before the COMMIT (which takes the candidate).
+    let state = load(&state_path).unwrap();
+    let data = wire.encode_command(
+        Command::Commit,
+        config.calibration.arming_code.unwrap_or(0),
+        1,
+    );
+    tx.send(&CalibWire::frame(wire.cmd_id(), &data).unwrap())
+        .await
+        .unwrap();
+    for _ in 0..20 {
+        tokio::time::sleep(Duration::from_millis(50)).await;
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    daemon.stop().await.unwrap();
+    let committed =
+        canodom_params::persist::load(&dir.join("params.toml"), &config.calibration.bounds)
+            .ok()
+            .and_then(|f| f.current);
+    let progress = progress.lock().unwrap().clone();
+    Outcome {
+        progress,
+        logs: logs.take(),
+        state,
+        committed,
+        true_ratio,
+    }
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_changed_tyre_is_flagged_on_the_bus_in_the_log_and_the_state_file_and_committed() {
+    let o = Box::pin(drive("drift-live-tyre", 1.01)).await;
+    let flags: Vec<&str> = o
+        .logs
+        .lines()
+        .filter(|l| l.contains("drift: rear_ratio flagged: learnt "))
+        .collect();
+    println!("{flags:?}");
+    assert!(
+        flags.len() == 1 && flags[0].contains("WARN") && flags[0].contains("in use 1.000000"),
+        "{}",
+        o.logs
+    );
+    assert!(
+        o.progress.iter().any(|&(d, c)| d && c),
+        "DRIFT and DRIFT_CANDIDATE on CALIB_STATUS: {:?}",
+        o.progress
+    );
+    assert!(!o.progress[0].0, "not flagged before the first refit");
+    let drift = o.state.drift.expect("a drift section in the state file");
+    assert!(
+        drift.flagged.contains(&"rear_ratio".to_owned()),
+        "{drift:?}"
+    );
+    let ratio = drift
+        .learnt
+        .iter()
+        .find(|r| r.parameter == "rear_ratio")
+        .unwrap();
+    assert!(
+        ratio.flagged && (ratio.learnt - o.true_ratio).abs() < 3.0 * ratio.sigma + 1e-3,
+        "{ratio:?} against {}",
+        o.true_ratio
+    );
+    let candidate = drift.candidate.expect("the learnt set offered");
+    let learnt = candidate.rear_right_diameter_m / candidate.rear_left_diameter_m;
+    assert!((learnt - o.true_ratio).abs() < 2e-3, "{learnt}");
+    // COMMIT stored the candidate as the first version, by the drift watch.
+    let set = o.committed.expect("COMMIT stored the candidate");
+    assert_eq!((set.version, set.method.as_str()), (1, "drift"));
+    assert_eq!(set.values, candidate);
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_car_that_agrees_with_its_set_is_not_flagged() {
+    let o = Box::pin(drive("drift-live-steady", 1.0)).await;
+    assert!(!o.logs.contains("flagged"), "{}", o.logs);
+    assert!(!o.progress.is_empty() && o.progress.iter().all(|&(d, c)| !d && !c));
+    let drift = o.state.drift.expect("refits made: a drift section");
+    assert!(drift.refits >= 3 && drift.flagged.is_empty(), "{drift:?}");
+    assert!(drift.learnt.iter().any(|r| r.parameter == "rear_ratio"));
+    assert_eq!(drift.candidate, None);
+    assert!(
+        o.committed.is_none(),
+        "COMMIT with nothing to commit stores nothing"
+    );
+}
