@@ -15,12 +15,11 @@ use crate::util::{Logs, tmp_dir};
 use canodom::server::{InProcessDaemon, Observers};
 use canodom::state_file::{StateFileOptions, load};
 use canodom_can::bus::{BusEvent, FrameSink, FrameSource};
-use canodom_can::frame::{CanFrame, FrameId};
 use canodom_fusion::sim::{Plan, simulate};
 use canodom_pipeline::config::Config;
 use canodom_pipeline::pipeline::Pipeline;
 use canodom_protocol::calib_wire::{CalibWire, Command, StatusPage};
-use canodom_sim::vehicle::{SampleEncoder, sim_config};
+use canodom_sim::vehicle::sim_config;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
@@ -112,28 +111,7 @@ async fn drive(name: &str, right_scale: f64) -> Outcome {
         }
     });
     tokio::time::sleep(Duration::from_millis(20)).await;
-    let gnss = config
-        .db
-        .messages()
-        .iter()
-        .find(|m| m.name() == "GNSS_LOCAL")
-        .unwrap();
-    let mut encoder = SampleEncoder::new(&config);
-    let mut frames = Vec::new();
-    for (k, s) in run.samples.iter().enumerate() {
-        frames.clear();
-        encoder.encode(s, &mut frames);
-        if k % 20 == 0 {
-            let data = gnss
-                .encode(&[("X", s.true_pose.x_m), ("Y", s.true_pose.y_m)])
-                .unwrap();
-            frames.push(CanFrame::new_data(FrameId::Standard(768), &data).unwrap());
-        }
-        for f in &frames {
-            tx.send(f).await.unwrap();
-        }
-        tokio::time::sleep(Duration::from_millis(10)).await;
-    }
+    let mut encoder = crate::util::send_drive_with_fixes(&tx, &config, &run, 20).await;
     // The last refit on the blocking pool (real time), and a standstill.
     let last = run.samples.last().unwrap();
     let mut still = Vec::new();

@@ -7,12 +7,11 @@
 use crate::util::tmp_dir;
 use canodom::server::{InProcessDaemon, Observers};
 use canodom_can::bus::FrameSink;
-use canodom_can::frame::{CanFrame, FrameId};
 use canodom_fusion::sim::{Plan, simulate};
 use canodom_pipeline::config::Config;
 use canodom_pipeline::pipeline::Pipeline;
 use canodom_protocol::calib_wire::{CalibWire, Command};
-use canodom_sim::vehicle::{SampleEncoder, sim_config};
+use canodom_sim::vehicle::sim_config;
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -65,28 +64,7 @@ async fn a_drive_with_fixes_on_the_bus_commits_the_true_ratio() {
         CalibWire::frame(wire.cmd_id(), &data).unwrap()
     };
     tx.send(&send_cmd(Command::StartDrive, 1)).await.unwrap();
-    let gnss = config
-        .db
-        .messages()
-        .iter()
-        .find(|m| m.name() == "GNSS_LOCAL")
-        .unwrap();
-    let mut encoder = SampleEncoder::new(&config);
-    let mut frames = Vec::new();
-    for (k, s) in run.samples.iter().enumerate() {
-        frames.clear();
-        encoder.encode(s, &mut frames);
-        if k % 100 == 0 {
-            let data = gnss
-                .encode(&[("X", s.true_pose.x_m), ("Y", s.true_pose.y_m)])
-                .unwrap();
-            frames.push(CanFrame::new_data(FrameId::Standard(768), &data).unwrap());
-        }
-        for f in &frames {
-            tx.send(f).await.unwrap();
-        }
-        tokio::time::sleep(Duration::from_millis(10)).await;
-    }
+    crate::util::send_drive_with_fixes(&tx, &config, &run, 100).await;
     tx.send(&send_cmd(Command::Compute, 2)).await.unwrap();
     tokio::time::sleep(Duration::from_millis(50)).await;
     tx.send(&send_cmd(Command::Commit, 3)).await.unwrap();

@@ -152,3 +152,40 @@ impl Logs {
         String::from_utf8(std::mem::take(&mut *self.0.lock().unwrap())).unwrap()
     }
 }
+
+/// Sends a simulated drive's frames on `tx` in real time (10 ms per
+/// sample), with a `GNSS_LOCAL` fix of the true position every
+/// `fix_every` samples (the test DBC's message 768); returns the encoder,
+/// whose counters a caller that sends on goes on from.
+pub async fn send_drive_with_fixes(
+    tx: &impl canodom_can::bus::FrameSink,
+    config: &Config,
+    run: &canodom_fusion::sim::Run,
+    fix_every: usize,
+) -> canodom_sim::vehicle::SampleEncoder {
+    let gnss = config
+        .db
+        .messages()
+        .iter()
+        .find(|m| m.name() == "GNSS_LOCAL")
+        .unwrap();
+    let mut encoder = canodom_sim::vehicle::SampleEncoder::new(config);
+    let mut frames = Vec::new();
+    for (k, s) in run.samples.iter().enumerate() {
+        frames.clear();
+        encoder.encode(s, &mut frames);
+        if k % fix_every == 0 {
+            let data = gnss
+                .encode(&[("X", s.true_pose.x_m), ("Y", s.true_pose.y_m)])
+                .unwrap();
+            frames.push(
+                CanFrame::new_data(canodom_can::frame::FrameId::Standard(768), &data).unwrap(),
+            );
+        }
+        for f in &frames {
+            tx.send(f).await.unwrap();
+        }
+        tokio::time::sleep(std::time::Duration::from_millis(10)).await;
+    }
+    encoder
+}

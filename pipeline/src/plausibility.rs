@@ -970,13 +970,21 @@ mod tests {
         );
     }
 
+    /// `pose` moved by `dt` at `speed` turning at `turn` (heading first).
+    fn advance(pose: &mut Pose, speed: f64, turn: f64, dt: f64) -> Pose {
+        pose.heading_rad += turn * dt;
+        pose.x_m += speed * dt * pose.heading_rad.cos();
+        pose.y_m += speed * dt * pose.heading_rad.sin();
+        *pose
+    }
+
     /// Steps of a drive that alternates 20 s straights at 20 m/s with 10 s
     /// left curves of radius 200 m, as a rear axle whose right wheel reads
     /// `1 + eps_right` times true sees it (its turn is `(d_R − d_L)/b`), with
     /// the steering and the gyro telling the truth.
     fn drive_with_a_rear_tyre_off(eps_right: f64) -> Vec<Step> {
         let (v, b, dt) = (20.0, 1.5, 0.01);
-        let (mut x, mut y, mut th) = (0.0, 0.0, 0.0);
+        let mut pose = Pose::default();
         (0..18_000)
             .map(|k| {
                 let t = k as f64 * dt;
@@ -986,16 +994,7 @@ mod tests {
                     v - true_turn * b / 2.0,
                     (v + true_turn * b / 2.0) * (1.0 + eps_right),
                 );
-                let rear_turn = (d_r - d_l) / b;
-                let speed = 0.5 * (d_l + d_r);
-                th += rear_turn * dt;
-                x += speed * dt * th.cos();
-                y += speed * dt * th.sin();
-                let odometry = Pose {
-                    x_m: x,
-                    y_m: y,
-                    heading_rad: th,
-                };
+                let odometry = advance(&mut pose, 0.5 * (d_l + d_r), (d_r - d_l) / b, dt);
                 let phi = (2.7 * true_turn / v).atan();
                 step_at(t, odometry, phi.to_degrees() * 15.0, true_turn)
             })
@@ -1007,19 +1006,12 @@ mod tests {
     /// the rear wheels the turn of a car `wheel_scale` times the true one.
     fn slalom(yaw_scale: f64, yaw_bias: f64, wheel_scale: f64) -> Vec<Step> {
         let (v, dt) = (10.0, 0.01);
-        let (mut x, mut y, mut th) = (0.0, 0.0, 0.0);
+        let mut pose = Pose::default();
         (0..9_000)
             .map(|k| {
                 let t = k as f64 * dt;
                 let true_turn = if t % 20.0 < 10.0 { v / 40.0 } else { -v / 40.0 };
-                th += wheel_scale * true_turn * dt;
-                x += v * dt * th.cos();
-                y += v * dt * th.sin();
-                let odometry = Pose {
-                    x_m: x,
-                    y_m: y,
-                    heading_rad: th,
-                };
+                let odometry = advance(&mut pose, v, wheel_scale * true_turn, dt);
                 let phi = (2.7 * true_turn / v).atan();
                 step_at(
                     t,
