@@ -24,15 +24,6 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 /// rc_car.dbc with a GNSS message: the rear-axle centre in a local frame, mm.
-fn dbc_with_gnss() -> String {
-    let dbc =
-        std::fs::read_to_string(crate::util::manifest().join("../data/dbc/rc_car.dbc")).unwrap();
-    let gnss = "BO_ 768 GNSS_LOCAL: 8 GNSS\n SG_ X : 0|32@1- (0.001,0) [-1000000|1000000] \"m\" ODOM\n \
-                SG_ Y : 32|32@1- (0.001,0) [-1000000|1000000] \"m\" ODOM\n\n";
-    let at = dbc.find("CM_ ").unwrap();
-    format!("{}{gnss}{}", &dbc[..at], &dbc[at..])
-}
-
 /// What one drive showed.
 struct Outcome {
     /// (DRIFT, DRIFT_CANDIDATE) of every progress page seen.
@@ -52,19 +43,10 @@ fn car_and_drive(
     dir: &std::path::Path,
     right_scale: f64,
 ) -> (Config, canodom_fusion::sim::Run, f64) {
-    std::fs::write(dir.join("car.dbc"), dbc_with_gnss()).unwrap();
-    let example = std::fs::read_to_string(crate::util::rc_car_toml()).unwrap();
-    let text = example.replace("../../data/dbc/rc_car.dbc", "car.dbc")
-        + "\n[calibration.fixes]\nx = \"GNSS_LOCAL.X\"\ny = \"GNSS_LOCAL.Y\"\n\
-           [calibration.drift]\nevery_s = 10.0\nwindow_s = 20.0\n";
-    let text = text.replacen(
-        "[calibration]",
-        "[calibration]\nparam_file = \"params.toml\"",
-        1,
+    let config = crate::util::rc_car_with_fixes(
+        dir,
+        "[calibration.drift]\nevery_s = 10.0\nwindow_s = 20.0\n",
     );
-    let cfg_path = dir.join("car.toml");
-    std::fs::write(&cfg_path, &text).unwrap();
-    let config = Config::load(&cfg_path).unwrap();
     let nominal = *Pipeline::new(&config).unwrap().params();
     let mut d = nominal.wheel_diameters_m();
     d.rear_right *= right_scale;

@@ -8,7 +8,6 @@ use crate::util::tmp_dir;
 use canodom::server::{InProcessDaemon, Observers};
 use canodom_can::bus::FrameSink;
 use canodom_fusion::sim::{Plan, simulate};
-use canodom_pipeline::config::Config;
 use canodom_pipeline::pipeline::Pipeline;
 use canodom_protocol::calib_wire::{CalibWire, Command};
 use canodom_sim::vehicle::sim_config;
@@ -16,30 +15,10 @@ use std::sync::Arc;
 use std::time::Duration;
 
 /// rc_car.dbc with a GNSS message: the rear-axle centre in a local frame, mm.
-fn dbc_with_gnss() -> String {
-    let dbc =
-        std::fs::read_to_string(crate::util::manifest().join("../data/dbc/rc_car.dbc")).unwrap();
-    let gnss = "BO_ 768 GNSS_LOCAL: 8 GNSS\n SG_ X : 0|32@1- (0.001,0) [-1000000|1000000] \"m\" ODOM\n \
-                SG_ Y : 32|32@1- (0.001,0) [-1000000|1000000] \"m\" ODOM\n\n";
-    let at = dbc.find("CM_ ").unwrap();
-    format!("{}{gnss}{}", &dbc[..at], &dbc[at..])
-}
-
 #[tokio::test(start_paused = true)]
 async fn a_drive_with_fixes_on_the_bus_commits_the_true_ratio() {
     let dir = tmp_dir("drive-session");
-    std::fs::write(dir.join("car.dbc"), dbc_with_gnss()).unwrap();
-    let example = std::fs::read_to_string(crate::util::rc_car_toml()).unwrap();
-    let text = example.replace("../../data/dbc/rc_car.dbc", "car.dbc")
-        + "\n[calibration.fixes]\nx = \"GNSS_LOCAL.X\"\ny = \"GNSS_LOCAL.Y\"\n";
-    let text = text.replacen(
-        "[calibration]",
-        "[calibration]\nparam_file = \"params.toml\"",
-        1,
-    );
-    let cfg_path = dir.join("car.toml");
-    std::fs::write(&cfg_path, &text).unwrap();
-    let config = Config::load(&cfg_path).unwrap();
+    let config = crate::util::rc_car_with_fixes(&dir, "");
     let nominal = *Pipeline::new(&config).unwrap().params();
     let mut d = nominal.wheel_diameters_m();
     d.rear_right *= 1.01;

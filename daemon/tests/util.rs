@@ -189,3 +189,30 @@ pub async fn send_drive_with_fixes(
     }
     encoder
 }
+
+/// The RC car's configuration in `dir` with position fixes on the bus (a
+/// `GNSS_LOCAL` message added to its DBC), a parameter file beside it, and
+/// `extra` TOML appended.
+pub fn rc_car_with_fixes(dir: &std::path::Path, extra: &str) -> Config {
+    let dbc = std::fs::read_to_string(manifest().join("../data/dbc/rc_car.dbc")).unwrap();
+    let gnss = "BO_ 768 GNSS_LOCAL: 8 GNSS\n SG_ X : 0|32@1- (0.001,0) [-1000000|1000000] \"m\" ODOM\n \
+                SG_ Y : 32|32@1- (0.001,0) [-1000000|1000000] \"m\" ODOM\n\n";
+    let at = dbc.find("CM_ ").unwrap();
+    std::fs::write(
+        dir.join("car.dbc"),
+        format!("{}{gnss}{}", &dbc[..at], &dbc[at..]),
+    )
+    .unwrap();
+    let example = std::fs::read_to_string(rc_car_toml()).unwrap();
+    let text = example.replace("../../data/dbc/rc_car.dbc", "car.dbc")
+        + "\n[calibration.fixes]\nx = \"GNSS_LOCAL.X\"\ny = \"GNSS_LOCAL.Y\"\n"
+        + extra;
+    let text = text.replacen(
+        "[calibration]",
+        "[calibration]\nparam_file = \"params.toml\"",
+        1,
+    );
+    let cfg_path = dir.join("car.toml");
+    std::fs::write(&cfg_path, &text).unwrap();
+    Config::load(&cfg_path).unwrap()
+}
