@@ -193,13 +193,13 @@ struct Tally {
     /// [left turns, right turns] of the rear wheels.
     agree: [u32; 2],
     disagree: [u32; 2],
-    /// Histogram of ln(|signal's turn| / |rear turn|), one count per step,
-    /// for the median ratio. The median, not Σ|signal|/Σ|rear|: a second
-    /// of a slipping wheel that passes the lateral-acceleration test still
-    /// outweighs many seconds of turning in a sum, not in a median. A
-    /// fixed histogram keeps the state machine free of per-step allocation.
-    ln_ratio_counts: Vec<u32>,
-    /// The same per turn direction of the reference (left, right).
+    /// Histograms of ln(|signal's turn| / |rear turn|), one count per
+    /// step, per turn direction of the reference ([left, right]); their
+    /// sum is the whole tally's. For the median ratio: the median, not
+    /// Σ|signal|/Σ|rear|: a second of a slipping wheel that passes the
+    /// lateral-acceleration test still outweighs many seconds of turning
+    /// in a sum, not in a median. Fixed histograms keep the state machine
+    /// free of per-step allocation.
     side_counts: [Vec<u32>; 2],
     /// The step count at the last judgement.
     judged_at_n: u32,
@@ -211,7 +211,6 @@ impl Default for Tally {
         Self {
             agree: [0; 2],
             disagree: [0; 2],
-            ln_ratio_counts: vec![0; bins],
             side_counts: [vec![0; bins], vec![0; bins]],
             judged_at_n: 0,
         }
@@ -231,8 +230,7 @@ impl Tally {
         // both clamp into the end bins.
         let bin = ((ln_ratio + LN_RATIO_SPAN) / LN_RATIO_BIN)
             .floor()
-            .clamp(0.0, (self.ln_ratio_counts.len() - 1) as f64) as usize;
-        self.ln_ratio_counts[bin] += 1;
+            .clamp(0.0, (self.side_counts[side].len() - 1) as f64) as usize;
         self.side_counts[side][bin] += 1;
     }
 
@@ -266,7 +264,8 @@ impl Tally {
     /// The median of |signal's turn| / |rear turn| over the steps (the
     /// centre of its bin).
     fn ratio(&self) -> f64 {
-        median_ln(&self.ln_ratio_counts, self.n()).exp()
+        let [left, right] = &self.side_counts;
+        median_ln(left.iter().zip(right).map(|(l, r)| l + r), self.n()).exp()
     }
 
     /// The mean of the two turn directions' median ln-ratios (the combined
@@ -277,19 +276,20 @@ impl Tally {
         if n.iter().any(|&k| k < MIN_SAMPLES / 3) {
             return self.ratio().ln();
         }
-        0.5 * (median_ln(&self.side_counts[0], n[0]) + median_ln(&self.side_counts[1], n[1]))
+        let [left, right] = &self.side_counts;
+        0.5 * (median_ln(left.iter().copied(), n[0]) + median_ln(right.iter().copied(), n[1]))
     }
 }
 
 /// The median ln-ratio (its bin's centre) of a histogram of `n` counts; 0
 /// when it is empty.
-fn median_ln(counts: &[u32], n: u32) -> f64 {
+fn median_ln(counts: impl Iterator<Item = u32>, n: u32) -> f64 {
     let half = u64::from(n).div_ceil(2);
     if half == 0 {
         return 0.0;
     }
     let mut seen = 0u64;
-    for (bin, &count) in counts.iter().enumerate() {
+    for (bin, count) in counts.enumerate() {
         seen += u64::from(count);
         if seen >= half {
             return (bin as f64 + 0.5) * LN_RATIO_BIN - LN_RATIO_SPAN;
@@ -586,9 +586,9 @@ impl Plausibility {
             && (ln_steer_yaw + ln_yaw).abs() <= GYRO_SCALE_AGREE_SHARE * ln_yaw.abs()
     }
 
-    /// The yaw-rate sensor was warned of for its sign or its unit: the
-    /// pipeline stops giving its readings to the filter (a range warning
-    /// is not this: the readings in range are right).
+    /// The yaw-rate sensor was warned of for its sign, its unit or its
+    /// scale: the pipeline stops giving its readings to the filter (a
+    /// range warning is not this: the readings in range are right).
     pub fn yaw_rate_at_fault(&self) -> bool {
         self.warnings.iter().any(|w| {
             w.signal == "signals.yaw_rate"
