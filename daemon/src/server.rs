@@ -1136,11 +1136,13 @@ impl<Tx: FrameSink + Clone> OdometryTask<Tx> {
                     .as_ref()
                     .map(crate::gnss_task::GnssSummary::state)
             });
+            let drift = crate::calib_task::drift_state(&self.links.drift.borrow());
             tap.pose(
                 &self.pipeline,
                 pose,
                 self.links.phase.borrow().as_str(),
                 gnss,
+                drift,
             );
         }
         let Ok(frames) = self.encoder.encode(&pose) else {
