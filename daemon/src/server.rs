@@ -835,6 +835,11 @@ impl<Tx: FrameSink + Clone> OdometryTask<Tx> {
             canodom_protocol::secoc::SYNC_PERIOD_US,
         ));
         sync_tick.set_missed_tick_behavior(MissedTickBehavior::Delay);
+        // The drift watch's flags and candidate last written: a flag that
+        // rises or clears is in the file at once, not a period later (#46
+        // item 3; the period may be minutes).
+        let mut drift_open = true;
+        let mut drift_seen = drift_flags(&self.links.drift.borrow_and_update());
         loop {
             tokio::select! {
                 biased;
@@ -878,6 +883,17 @@ impl<Tx: FrameSink + Clone> OdometryTask<Tx> {
                     if let Some(n) = &self.notifier { let _ = n.watchdog(); }
                 }
                 _ = state_tick.tick(), if state_every.is_some() => self.save_state(),
+                changed = self.links.drift.changed(), if drift_open => match changed {
+                    Ok(()) => {
+                        let now = drift_flags(&self.links.drift.borrow_and_update());
+                        if now != drift_seen {
+                            drift_seen = now;
+                            self.save_state();
+                        }
+                    }
+                    // The calibration task has stopped: nothing more will change.
+                    Err(_) => drift_open = false,
+                },
                 () = self.token.cancelled() => {
                     // Drain what the link task already queued: nothing received is lost.
                     while let Ok(event) = self.frames.try_recv() {
@@ -1152,6 +1168,18 @@ impl<Tx: FrameSink + Clone> OdometryTask<Tx> {
             self.published += 1;
         }
     }
+}
+
+/// What of the drift watch's report writes the state file when it
+/// changes: the flags, and the candidate (the file shows the set a COMMIT
+/// would store, not one a later refit replaced).
+fn drift_flags(
+    d: &canodom_live::drift_watch::DriftReport,
+) -> (
+    Vec<canodom_calib::drift::Param>,
+    Option<canodom_params::persist::ParamValues>,
+) {
+    (d.flagged.clone(), d.candidate)
 }
 
 /// How long a secured frame waits for its authenticator, µs; at stop every
