@@ -883,17 +883,11 @@ impl<Tx: FrameSink + Clone> OdometryTask<Tx> {
                     if let Some(n) = &self.notifier { let _ = n.watchdog(); }
                 }
                 _ = state_tick.tick(), if state_every.is_some() => self.save_state(),
-                changed = self.links.drift.changed(), if drift_open => match changed {
-                    Ok(()) => {
-                        let now = drift_flags(&self.links.drift.borrow_and_update());
-                        if now != drift_seen {
-                            drift_seen = now;
-                            self.save_state();
-                        }
-                    }
-                    // The calibration task has stopped: nothing more will change.
-                    Err(_) => drift_open = false,
-                },
+                changed = self.links.drift.changed(), if drift_open => {
+                    // Err: the calibration task has stopped, nothing will change.
+                    drift_open = changed.is_ok();
+                    self.save_on_drift_change(&mut drift_seen);
+                }
                 () = self.token.cancelled() => {
                     // Drain what the link task already queued: nothing received is lost.
                     while let Ok(event) = self.frames.try_recv() {
@@ -946,6 +940,16 @@ impl<Tx: FrameSink + Clone> OdometryTask<Tx> {
     fn save_state(&self) {
         if let Some((tx, _)) = &self.state_out {
             tx.send_replace(Some(self.summary()));
+        }
+    }
+
+    /// Writes the state file when the drift watch's flags or candidate
+    /// differ from `seen` (and remembers them).
+    fn save_on_drift_change(&mut self, seen: &mut DriftFlags) {
+        let now = drift_flags(&self.links.drift.borrow_and_update());
+        if now != *seen {
+            *seen = now;
+            self.save_state();
         }
     }
 
@@ -1173,14 +1177,15 @@ impl<Tx: FrameSink + Clone> OdometryTask<Tx> {
 /// What of the drift watch's report writes the state file when it
 /// changes: the flags, and the candidate (the file shows the set a COMMIT
 /// would store, not one a later refit replaced).
-fn drift_flags(
-    d: &canodom_live::drift_watch::DriftReport,
-) -> (
-    Vec<canodom_calib::drift::Param>,
-    Option<canodom_params::persist::ParamValues>,
-) {
+fn drift_flags(d: &canodom_live::drift_watch::DriftReport) -> DriftFlags {
     (d.flagged.clone(), d.candidate)
 }
+
+/// See [`drift_flags`].
+type DriftFlags = (
+    Vec<canodom_calib::drift::Param>,
+    Option<canodom_params::persist::ParamValues>,
+);
 
 /// How long a secured frame waits for its authenticator, µs; at stop every
 /// waiting frame has waited its last.

@@ -575,7 +575,7 @@ mod tests {
 
     /// The drift fields and the session of a calibration message.
     #[derive(Debug, PartialEq)]
-    struct Drift {
+    struct Message {
         refits: u64,
         drift: bool,
         candidate: bool,
@@ -586,17 +586,17 @@ mod tests {
         session: String,
     }
 
-    fn calibration_message(drift: Option<DriftState>) -> Drift {
+    fn calibration_message(drift: Option<&DriftState>) -> Message {
         let p = VehicleParams::nominal(0.25, 0.30, 0.09, 1000).unwrap();
         let mut out = Vec::new();
-        calibration_cdr(&(3, false, p, "idle", drift), &p, &mut out);
+        calibration_cdr(&(3, false, p, "idle", drift.copied()), &p, &mut out);
         let mut r = Reader { b: &out, at: 4 };
         assert_eq!(r.take(2, 2), 3u16.to_le_bytes());
         r.u8();
         for _ in 0..7 {
             r.f64();
         }
-        let d = Drift {
+        let d = Message {
             refits: r.u64(),
             drift: r.u8() == 1,
             candidate: r.u8() == 1,
@@ -640,8 +640,8 @@ mod tests {
             ],
         );
         assert_eq!(
-            calibration_message(Some(state)),
-            Drift {
+            calibration_message(Some(&state)),
+            Message {
                 refits: 4,
                 drift: true,
                 candidate: true,
@@ -657,7 +657,7 @@ mod tests {
         // No watch (a replay, or before the first refit): the same fields, empty.
         assert_eq!(
             calibration_message(None),
-            Drift {
+            Message {
                 refits: 0,
                 drift: false,
                 candidate: false,
