@@ -483,3 +483,39 @@ pub fn lock(gate: &Mutex<SecurityGate>) -> std::sync::MutexGuard<'_, SecurityGat
     gate.lock()
         .unwrap_or_else(std::sync::PoisonError::into_inner)
 }
+
+/// The drift watch's report as the diagnostics show it (the recordings'
+/// calibration channel, Foxglove, ROS 2 `/diagnostics`); `None` before its
+/// first refit, as in the state file.
+pub fn drift_state(d: &DriftReport) -> Option<canodom_export::sample::DriftState> {
+    use canodom_export::sample::{DriftParam, DriftReading, DriftState};
+    if d.refits == 0 {
+        return None;
+    }
+    let read = d.readings.iter().map(|r| DriftParam {
+        name: r.param.name(),
+        flagged: d.flagged.contains(&r.param),
+        reading: Some(DriftReading {
+            learnt: r.learnt,
+            sigma: r.sigma,
+            in_use: r.in_use,
+        }),
+    });
+    // A flag stays until a refit that reads the parameter clears it: one
+    // the last refit did not read is still shown, without a reading.
+    let unread = d
+        .flagged
+        .iter()
+        .filter(|p| !d.readings.iter().any(|r| r.param == **p))
+        .map(|p| DriftParam {
+            name: p.name(),
+            flagged: true,
+            reading: None,
+        });
+    Some(DriftState::new(
+        d.refits,
+        d.distance_m,
+        d.candidate.is_some(),
+        read.chain(unread),
+    ))
+}

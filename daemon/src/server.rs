@@ -835,6 +835,11 @@ impl<Tx: FrameSink + Clone> OdometryTask<Tx> {
             canodom_protocol::secoc::SYNC_PERIOD_US,
         ));
         sync_tick.set_missed_tick_behavior(MissedTickBehavior::Delay);
+        // The drift watch's flags and candidate last written: a flag that
+        // rises or clears is in the file at once, not a period later (#46
+        // item 3; the period may be minutes).
+        let mut drift_open = true;
+        let mut drift_seen = drift_flags(&self.links.drift.borrow_and_update());
         loop {
             tokio::select! {
                 biased;
@@ -878,6 +883,11 @@ impl<Tx: FrameSink + Clone> OdometryTask<Tx> {
                     if let Some(n) = &self.notifier { let _ = n.watchdog(); }
                 }
                 _ = state_tick.tick(), if state_every.is_some() => self.save_state(),
+                changed = self.links.drift.changed(), if drift_open => {
+                    // Err: the calibration task has stopped, nothing will change.
+                    drift_open = changed.is_ok();
+                    self.save_on_drift_change(&mut drift_seen);
+                }
                 () = self.token.cancelled() => {
                     // Drain what the link task already queued: nothing received is lost.
                     while let Ok(event) = self.frames.try_recv() {
@@ -930,6 +940,16 @@ impl<Tx: FrameSink + Clone> OdometryTask<Tx> {
     fn save_state(&self) {
         if let Some((tx, _)) = &self.state_out {
             tx.send_replace(Some(self.summary()));
+        }
+    }
+
+    /// Writes the state file when the drift watch's flags or candidate
+    /// differ from `seen` (and remembers them).
+    fn save_on_drift_change(&mut self, seen: &mut DriftFlags) {
+        let now = drift_flags(&self.links.drift.borrow_and_update());
+        if now != *seen {
+            *seen = now;
+            self.save_state();
         }
     }
 
@@ -1136,11 +1156,13 @@ impl<Tx: FrameSink + Clone> OdometryTask<Tx> {
                     .as_ref()
                     .map(crate::gnss_task::GnssSummary::state)
             });
+            let drift = crate::calib_task::drift_state(&self.links.drift.borrow());
             tap.pose(
                 &self.pipeline,
                 pose,
                 self.links.phase.borrow().as_str(),
                 gnss,
+                drift,
             );
         }
         let Ok(frames) = self.encoder.encode(&pose) else {
@@ -1151,6 +1173,19 @@ impl<Tx: FrameSink + Clone> OdometryTask<Tx> {
         }
     }
 }
+
+/// What of the drift watch's report writes the state file when it
+/// changes: the flags, and the candidate (the file shows the set a COMMIT
+/// would store, not one a later refit replaced).
+fn drift_flags(d: &canodom_live::drift_watch::DriftReport) -> DriftFlags {
+    (d.flagged.clone(), d.candidate)
+}
+
+/// See [`drift_flags`].
+type DriftFlags = (
+    Vec<canodom_calib::drift::Param>,
+    Option<canodom_params::persist::ParamValues>,
+);
 
 /// How long a secured frame waits for its authenticator, µs; at stop every
 /// waiting frame has waited its last.

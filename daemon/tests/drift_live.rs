@@ -5,8 +5,10 @@
 //! calibration), the daemon's refits flag the rear wheels' ratio: DRIFT and
 //! DRIFT_CANDIDATE rise on CALIB_STATUS, the warning names the parameter,
 //! and the state file's `drift` section lists it with the learnt candidate;
-//! COMMIT then stores that candidate as the next version. With the tyres as
-//! the set says, nothing is flagged.
+//! COMMIT then stores that candidate as the next version. The drive is
+//! recorded (`run --record`): the recording's calibration channel carries
+//! the watch, the flag only from the refit that raised it. With the tyres
+//! as the set says, nothing is flagged.
 //!
 //! The runtime's clock is paused (the bus stamps frames with tokio's
 //! virtual time); the watch refits every 10 s of fixes over the last 20 s.
@@ -15,6 +17,8 @@ use crate::util::{Logs, tmp_dir};
 use canodom::server::{InProcessDaemon, Observers};
 use canodom::state_file::{StateFileOptions, load};
 use canodom_can::bus::{BusEvent, FrameSink, FrameSource};
+use canodom_export::live::{LiveOptions, LiveOutputs};
+use canodom_export::recorder::RecorderOptions;
 use canodom_fusion::sim::{Plan, simulate};
 use canodom_pipeline::config::Config;
 use canodom_pipeline::pipeline::Pipeline;
@@ -34,6 +38,73 @@ struct Outcome {
     committed: Option<canodom_params::persist::ParamSet>,
     /// The true right/left rear diameter ratio.
     true_ratio: f64,
+    /// The drift watch of every calibration message recorded.
+    recorded: Vec<RecordedDrift>,
+}
+
+/// The drift fields of a recorded `canodom_msgs/msg/Calibration`.
+#[derive(Debug, Clone, PartialEq)]
+struct RecordedDrift {
+    refits: u64,
+    drift: bool,
+    candidate: bool,
+    flagged: Vec<String>,
+    /// (parameter, learnt, σ, in use, flagged).
+    readings: Vec<(String, f64, f64, f64, bool)>,
+}
+
+/// Reads a CDR message field by field (XCDR1: each primitive aligned to
+/// its size from the payload's start, after the 4-byte header).
+struct Cdr<'a> {
+    b: &'a [u8],
+    at: usize,
+}
+
+impl Cdr<'_> {
+    fn take(&mut self, n: usize, align: usize) -> &[u8] {
+        self.at += (align - (self.at - 4) % align) % align;
+        self.at += n;
+        &self.b[self.at - n..self.at]
+    }
+    fn u8(&mut self) -> u8 {
+        self.take(1, 1)[0]
+    }
+    fn u32(&mut self) -> u32 {
+        u32::from_le_bytes(self.take(4, 4).try_into().unwrap())
+    }
+    fn f64(&mut self) -> f64 {
+        f64::from_le_bytes(self.take(8, 8).try_into().unwrap())
+    }
+    fn string(&mut self) -> String {
+        let n = self.u32() as usize;
+        String::from_utf8(self.take(n, 1)[..n - 1].to_vec()).unwrap()
+    }
+}
+
+/// The drift fields of a calibration message, as its schema lists them.
+fn recorded_drift(data: &[u8]) -> RecordedDrift {
+    let mut r = Cdr { b: data, at: 4 };
+    r.take(2, 2);
+    r.u8();
+    // wheelbase, treads, four diameters.
+    for _ in 0..7 {
+        r.f64();
+    }
+    let refits = u64::from_le_bytes(r.take(8, 8).try_into().unwrap());
+    let drift = r.u8() == 1;
+    let candidate = r.u8() == 1;
+    r.f64();
+    let flagged = (0..r.u32()).map(|_| r.string()).collect();
+    let readings = (0..r.u32())
+        .map(|_| (r.string(), r.f64(), r.f64(), r.f64(), r.u8() == 1))
+        .collect();
+    RecordedDrift {
+        refits,
+        drift,
+        candidate,
+        flagged,
+        readings,
+    }
 }
 
 /// The RC car's configuration in `dir` (fixes on the bus, the watch's
@@ -61,17 +132,28 @@ fn car_and_drive(
 }
 
 /// Drives the RC car with its right rear tyre `right_scale` times the
-/// set's, fixes at 5 Hz, then sends COMMIT at a standstill.
-async fn drive(name: &str, right_scale: f64) -> Outcome {
+/// set's, fixes at 5 Hz, then sends COMMIT at a standstill; the state file
+/// is written every `state_every` (and when the watch's flags change).
+async fn drive(name: &str, right_scale: f64, state_every: Duration) -> Outcome {
     let dir = tmp_dir(name);
     let (config, run, true_ratio) = car_and_drive(&dir, right_scale);
     let config = Arc::new(config);
     let state_path = dir.join("state.json");
+    let recording = dir.join("drive.mcap");
+    let (tap, outputs) = LiveOutputs::start(LiveOptions {
+        record: Some(RecorderOptions::new(recording.clone())),
+        foxglove: None,
+        k_rear_m: config.ekf.k_rear_m,
+        queue: 1 << 16,
+        forward: None,
+    })
+    .unwrap();
     let observers = Observers {
         state_file: Some(StateFileOptions {
             path: state_path.clone(),
-            every: Duration::from_secs(1),
+            every: state_every,
         }),
+        tap: Some(tap),
         ..Observers::default()
     };
     let (logs, _guard) = Logs::capture();
@@ -123,6 +205,14 @@ async fn drive(name: &str, right_scale: f64) -> Outcome {
         std::thread::sleep(Duration::from_millis(20));
     }
     daemon.stop().await.unwrap();
+    outputs.join().unwrap();
+    let bytes = std::fs::read(&recording).unwrap();
+    let recorded = mcap::MessageStream::new(&bytes)
+        .unwrap()
+        .map(Result::unwrap)
+        .filter(|m| m.channel.topic == "/canodom/calibration")
+        .map(|m| recorded_drift(&m.data))
+        .collect();
     let committed =
         canodom_params::persist::load(&dir.join("params.toml"), &config.calibration.bounds)
             .ok()
@@ -134,12 +224,15 @@ async fn drive(name: &str, right_scale: f64) -> Outcome {
         state,
         committed,
         true_ratio,
+        recorded,
     }
 }
 
 #[tokio::test(start_paused = true)]
 async fn a_changed_tyre_is_flagged_on_the_bus_in_the_log_and_the_state_file_and_committed() {
-    let o = Box::pin(drive("drift-live-tyre", 1.01)).await;
+    // The state file's period is longer than the drive: what it holds was
+    // written when the flag rose (or the candidate changed).
+    let o = Box::pin(drive("drift-live-tyre", 1.01, Duration::from_secs(3600))).await;
     let flags: Vec<&str> = o
         .logs
         .lines()
@@ -179,16 +272,61 @@ async fn a_changed_tyre_is_flagged_on_the_bus_in_the_log_and_the_state_file_and_
     let set = o.committed.expect("COMMIT stored the candidate");
     assert_eq!((set.version, set.method.as_str()), (1, "drift"));
     assert_eq!(set.values, candidate);
+
+    // The recording: no drift before the refit that raised the flag, then
+    // the flagged ratio with what that refit learnt and the candidate.
+    let first = o
+        .recorded
+        .iter()
+        .position(|d| d.drift)
+        .expect("a recorded flag");
+    assert!(
+        o.recorded[..first]
+            .iter()
+            .all(|d| !d.candidate && d.flagged.is_empty()),
+        "{:?}",
+        &o.recorded[..first]
+    );
+    assert_eq!(o.recorded[0].refits, 0, "{:?}", o.recorded[0]);
+    // (The larger tyre moves the mean diameter too: speed_scale may be
+    // flagged beside the ratio.)
+    let flag = &o.recorded[first];
+    assert!(
+        flag.candidate && flag.flagged.contains(&"rear_ratio".to_owned()),
+        "{flag:?}"
+    );
+    let (_, learnt, sigma, in_use, flagged) = flag
+        .readings
+        .iter()
+        .find(|r| r.0 == "rear_ratio")
+        .expect("the ratio's reading")
+        .clone();
+    assert!(
+        flagged && in_use == 1.0 && (learnt - o.true_ratio).abs() < 3.0 * sigma + 1e-3,
+        "{flag:?} against {}",
+        o.true_ratio
+    );
 }
 
 #[tokio::test(start_paused = true)]
 async fn a_car_that_agrees_with_its_set_is_not_flagged() {
-    let o = Box::pin(drive("drift-live-steady", 1.0)).await;
+    let o = Box::pin(drive("drift-live-steady", 1.0, Duration::from_secs(1))).await;
     assert!(!o.logs.contains("flagged"), "{}", o.logs);
     assert!(!o.progress.is_empty() && o.progress.iter().all(|&(d, c)| !d && !c));
     let drift = o.state.drift.expect("refits made: a drift section");
     assert!(drift.refits >= 3 && drift.flagged.is_empty(), "{drift:?}");
     assert!(drift.learnt.iter().any(|r| r.parameter == "rear_ratio"));
+    // The recording carries the refits, and never a flag.
+    assert!(
+        o.recorded.iter().all(|d| !d.drift && d.flagged.is_empty()),
+        "{:?}",
+        o.recorded.iter().find(|d| d.drift)
+    );
+    let last = o.recorded.last().expect("calibration messages recorded");
+    assert!(
+        last.refits >= 3 && last.readings.iter().any(|r| r.0 == "rear_ratio" && !r.4),
+        "{last:?}"
+    );
     assert_eq!(drift.candidate, None);
     assert!(
         o.committed.is_none(),

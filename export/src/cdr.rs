@@ -68,14 +68,26 @@ pub fn gate_schema() -> String {
 
 /// The `ros2msg` schema of canodom's calibration message.
 pub fn calibration_schema() -> String {
-    "# The vehicle parameters in use; param_version 0: the configuration's nominal ones.\n\
-     uint16 param_version\nbool nominal\nfloat64 wheelbase_m\nfloat64 rear_tread_m\n\
-     float64 front_tread_m\n\
-     float64[4] wheel_diameter_m # rear left, rear right, front left, front right\n\
-     # The guided calibration's phase: idle, positioning, recording, awaiting_end_pose,\n\
-     # ready, computing or computed (a replay has no session: idle).\n\
-     string session\n"
-        .to_owned()
+    [
+        "# The vehicle parameters in use; param_version 0: the configuration's nominal ones.\n\
+         uint16 param_version\nbool nominal\nfloat64 wheelbase_m\nfloat64 rear_tread_m\n\
+         float64 front_tread_m\n\
+         float64[4] wheel_diameter_m # rear left, rear right, front left, front right\n\
+         # The drift watch (#46): refits judged (0: none yet, or a replay); drift while any\n\
+         # parameter is flagged (CALIB_STATUS DRIFT); drift_candidate while a learnt set is\n\
+         # offered for COMMIT (DRIFT_CANDIDATE); the distance driven at the last refit; the\n\
+         # flagged parameters; and what the last refit learnt of each parameter it read.\n\
+         uint64 drift_refits\nbool drift\nbool drift_candidate\nfloat64 drift_distance_m\n\
+         string[] drift_flagged\ncanodom_msgs/DriftReading[] drift_readings\n\
+         # The guided calibration's phase: idle, positioning, recording, awaiting_end_pose,\n\
+         # ready, computing or computed (a replay has no session: idle).\n\
+         string session\n",
+        "MSG: canodom_msgs/DriftReading\n\
+         # The learnt value with its sigma and the value in use, in the parameter's unit\n\
+         # (relative ones relative to the set the drive was recorded with).\n\
+         string parameter\nfloat64 learnt\nfloat64 sigma\nfloat64 in_use\nbool flagged\n",
+    ]
+    .join(SEP)
 }
 
 /// The `ros2msg` schema of canodom's raw-frame message.
@@ -264,6 +276,14 @@ impl<'a> Cdr<'a> {
         self.u32(s.len() as u32 + 1);
         self.buf.extend_from_slice(s.as_bytes());
         self.buf.push(0);
+    }
+
+    /// A `string[]`: length, then the strings.
+    pub(crate) fn strings<'s>(&mut self, values: impl ExactSizeIterator<Item = &'s str>) {
+        self.u32(values.len() as u32);
+        for v in values {
+            self.string(v);
+        }
     }
 
     /// Doubles. On a little-endian host their bytes are already CDR's: one
@@ -474,6 +494,7 @@ mod tests {
     #[test]
     fn schemas_define_every_type_they_use() {
         for schema in [
+            calibration_schema(),
             odometry_schema(),
             tf_schema(),
             pose_in_frame_schema(),

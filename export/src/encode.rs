@@ -12,7 +12,7 @@
 //! ([`MessageSink`]), without allocating.
 
 use crate::cdr::{self, Cdr, Odometry, RosTime, Transform};
-use crate::sample::{FrameRef, FrameSource, OwnedFrame, StepSample};
+use crate::sample::{DriftState, FrameRef, FrameSource, OwnedFrame, StepSample};
 use canodom_fusion::VehicleParams;
 use canodom_fusion::Wheel;
 
@@ -181,8 +181,8 @@ impl<F: FnMut(Topic, u64, &[u8])> MessageSink for SliceSink<F> {
 }
 
 /// What the calibration message says: parameter version, whether nominal,
-/// the parameters, the session's phase.
-type CalibrationKey = (u16, bool, VehicleParams, &'static str);
+/// the parameters, the session's phase, the drift watch's state.
+type CalibrationKey = (u16, bool, VehicleParams, &'static str, Option<DriftState>);
 
 /// Encodes steps into one message per [`Topic`].
 #[derive(Debug)]
@@ -267,12 +267,13 @@ impl StepEncoder {
             sample.output.flags.nominal_params,
             *params,
             sample.calibration_phase,
+            sample.drift,
         );
         let text = match &mut self.calibration {
             Some((k, text)) if *k == key => text,
             slot => {
                 let mut text = Vec::new();
-                calibration_cdr(key.0, key.1, params, key.3, &mut text);
+                calibration_cdr(&key, params, &mut text);
                 &mut slot.insert((key, text)).1
             }
         };
@@ -410,12 +411,35 @@ fn gate_cdr(s: &StepSample, out: &mut Vec<u8>) {
     )));
 }
 
-fn calibration_cdr(version: u16, nominal: bool, p: &VehicleParams, phase: &str, out: &mut Vec<u8>) {
+fn calibration_cdr(key: &CalibrationKey, p: &VehicleParams, out: &mut Vec<u8>) {
+    let &(version, nominal, _, phase, drift) = key;
     let mut w = Cdr::new(out);
     w.u16(version);
     w.u8(u8::from(nominal));
     w.f64s(&[p.wheelbase_m(), p.rear_tread_m(), p.front_tread_m()]);
     w.f64s(&Wheel::ALL.map(|wh| p.wheel_diameter_m(wh)));
+    // No watch reads as one that has judged nothing: the fields are there
+    // in every message, so a reader's schema never changes mid-file.
+    let d = drift.unwrap_or_default();
+    w.u64s(&[d.refits]);
+    w.u8(u8::from(d.any_flagged()));
+    w.u8(u8::from(d.candidate));
+    w.f64s(&[d.distance_m]);
+    let flagged: Vec<&str> = d.flagged().map(|q| q.name).collect();
+    w.strings(flagged.iter().copied());
+    // A sequence of messages, not one `float64[]` per column: an empty
+    // `float64[]` is aligned by some readers and not by others.
+    let read: Vec<_> = d
+        .params()
+        .filter_map(|q| q.reading.map(|r| (q, r)))
+        .collect();
+    w.u32(read.len() as u32);
+    for (q, r) in read {
+        w.string(q.name);
+        w.f64s(&[r.learnt, r.sigma, r.in_use]);
+        w.u8(u8::from(q.flagged));
+    }
+    // The session's phase stays the last field: readers find it from the end.
     w.string(phase);
 }
 
@@ -511,6 +535,152 @@ mod tests {
             let twist = twist_covariance(1e-3, rear_m, 1.5, 0.01);
             proptest::prop_assert!(smallest_eigenvalue(&twist) > 0.0, "twist {:?}", twist);
         }
+    }
+
+    /// A reader of the calibration message, field by field as its schema
+    /// lists them (XCDR1: each primitive aligned to its size from the
+    /// payload's start).
+    struct Reader<'a> {
+        b: &'a [u8],
+        at: usize,
+    }
+
+    impl Reader<'_> {
+        fn take(&mut self, n: usize, align: usize) -> &[u8] {
+            self.at += (align - (self.at - 4) % align) % align;
+            self.at += n;
+            &self.b[self.at - n..self.at]
+        }
+        fn u8(&mut self) -> u8 {
+            self.take(1, 1)[0]
+        }
+        fn u32(&mut self) -> u32 {
+            u32::from_le_bytes(self.take(4, 4).try_into().unwrap())
+        }
+        fn u64(&mut self) -> u64 {
+            u64::from_le_bytes(self.take(8, 8).try_into().unwrap())
+        }
+        fn f64(&mut self) -> f64 {
+            f64::from_le_bytes(self.take(8, 8).try_into().unwrap())
+        }
+        fn string(&mut self) -> String {
+            let n = self.u32() as usize;
+            let s = self.take(n, 1);
+            String::from_utf8(s[..n - 1].to_vec()).unwrap()
+        }
+        fn strings(&mut self) -> Vec<String> {
+            (0..self.u32()).map(|_| self.string()).collect()
+        }
+    }
+
+    /// The drift fields and the session of a calibration message.
+    #[derive(Debug, PartialEq)]
+    struct Message {
+        refits: u64,
+        drift: bool,
+        candidate: bool,
+        distance_m: f64,
+        flagged: Vec<String>,
+        /// (parameter, learnt, σ, in use, flagged).
+        readings: Vec<(String, f64, f64, f64, bool)>,
+        session: String,
+    }
+
+    fn calibration_message(drift: Option<&DriftState>) -> Message {
+        let p = VehicleParams::nominal(0.25, 0.30, 0.09, 1000).unwrap();
+        let mut out = Vec::new();
+        calibration_cdr(&(3, false, p, "idle", drift.copied()), &p, &mut out);
+        let mut r = Reader { b: &out, at: 4 };
+        assert_eq!(r.take(2, 2), 3u16.to_le_bytes());
+        r.u8();
+        for _ in 0..7 {
+            r.f64();
+        }
+        let d = Message {
+            refits: r.u64(),
+            drift: r.u8() == 1,
+            candidate: r.u8() == 1,
+            distance_m: r.f64(),
+            flagged: r.strings(),
+            readings: (0..r.u32())
+                .map(|_| (r.string(), r.f64(), r.f64(), r.f64(), r.u8() == 1))
+                .collect(),
+            session: r.string(),
+        };
+        assert_eq!(r.at, out.len(), "nothing after the session");
+        d
+    }
+
+    #[test]
+    fn the_calibration_message_carries_the_drift_watch_before_the_session() {
+        use crate::sample::{DriftParam, DriftReading};
+        let read = |name, flagged, learnt| DriftParam {
+            name,
+            flagged,
+            reading: Some(DriftReading {
+                learnt,
+                sigma: 0.001,
+                in_use: 1.0,
+            }),
+        };
+        // A flag the last refit did not read (it stays until one clears
+        // it) is flagged without a reading.
+        let state = DriftState::new(
+            4,
+            1234.5,
+            true,
+            [
+                read("speed_scale", false, 1.0005),
+                read("rear_ratio", true, 1.01),
+                DriftParam {
+                    name: "yaw_bias",
+                    flagged: true,
+                    reading: None,
+                },
+            ],
+        );
+        assert_eq!(
+            calibration_message(Some(&state)),
+            Message {
+                refits: 4,
+                drift: true,
+                candidate: true,
+                distance_m: 1234.5,
+                flagged: vec!["rear_ratio".into(), "yaw_bias".into()],
+                readings: vec![
+                    ("speed_scale".into(), 1.0005, 0.001, 1.0, false),
+                    ("rear_ratio".into(), 1.01, 0.001, 1.0, true),
+                ],
+                session: "idle".into(),
+            }
+        );
+        // No watch (a replay, or before the first refit): the same fields, empty.
+        assert_eq!(
+            calibration_message(None),
+            Message {
+                refits: 0,
+                drift: false,
+                candidate: false,
+                distance_m: 0.0,
+                flagged: vec![],
+                readings: vec![],
+                session: "idle".into(),
+            }
+        );
+    }
+
+    #[test]
+    fn a_drift_state_keeps_at_most_its_fixed_number_of_parameters() {
+        use crate::sample::{DRIFT_PARAMS, DriftParam};
+        let p = DriftParam {
+            name: "p",
+            flagged: true,
+            reading: None,
+        };
+        let d = DriftState::new(1, 0.0, false, std::iter::repeat_n(p, DRIFT_PARAMS + 2));
+        assert_eq!(d.params().count(), DRIFT_PARAMS);
+        assert!(d.any_flagged());
+        assert!(!DriftState::default().any_flagged());
     }
 
     #[test]

@@ -59,14 +59,15 @@ impl Tap {
 
     /// Queues the pose `output` just published by `pipeline` with the
     /// frames since the previous one, the guided calibration's
-    /// `calibration_phase` and the live GNSS source's state; never waits
-    /// (a full queue drops it).
+    /// `calibration_phase`, the live GNSS source's state and the drift
+    /// watch's; never waits (a full queue drops it).
     pub fn pose(
         &mut self,
         pipeline: &Pipeline,
         output: PoseOutput,
         calibration_phase: &'static str,
         gnss: Option<crate::sample::GnssState>,
+        drift: Option<crate::sample::DriftState>,
     ) {
         let Some(step) = pipeline.last_step() else {
             return;
@@ -75,6 +76,7 @@ impl Tap {
             sample: StepSample {
                 calibration_phase,
                 gnss,
+                drift,
                 ..StepSample::of(pipeline, &step, output)
             },
             params: *pipeline.params(),

@@ -820,6 +820,7 @@ pub(crate) mod tests {
             // A session that starts recording half-way.
             calibration_phase: if k < 250 { "idle" } else { "recording" },
             gnss: None,
+            drift: None,
         }
     }
 

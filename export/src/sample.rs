@@ -39,6 +39,94 @@ pub struct StepSample {
     /// The live GNSS source's state (`[gnss]`, #46); `None` without one
     /// (and in a replay).
     pub gnss: Option<GnssState>,
+    /// The live drift watch's state (#46 item 3); `None` before its first
+    /// refit, without fixes, and in a replay.
+    pub drift: Option<DriftState>,
+}
+
+/// The most parameters a [`DriftState`] carries. The drift watch judges
+/// seven (`canodom_calib::drift::Param::ALL`); the spare one keeps a new
+/// parameter from being dropped before this is raised. A fixed array keeps
+/// [`StepSample`] `Copy`: it is copied per pose into the live outputs'
+/// queue, where a `Vec` would allocate at every step.
+pub const DRIFT_PARAMS: usize = 8;
+
+/// The drift watch's state as the diagnostics show it (#46 item 3): the
+/// daemon's `DriftReport` in plain values (this crate does not know the
+/// calibration's crates).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct DriftState {
+    /// Refits judged so far.
+    pub refits: u64,
+    /// Distance driven at the last judged refit, m.
+    pub distance_m: f64,
+    /// A learnt set is offered for COMMIT.
+    pub candidate: bool,
+    /// The parameters the last refit read or the watch flags, in the
+    /// watch's order; the unused tail is `None`.
+    pub params: [Option<DriftParam>; DRIFT_PARAMS],
+}
+
+/// One parameter of a [`DriftState`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DriftParam {
+    /// Its name (`canodom_calib::drift::Param::name`: the state file's and
+    /// the log's).
+    pub name: &'static str,
+    /// The watch flags it.
+    pub flagged: bool,
+    /// What the last refit learnt of it; `None` when that refit did not
+    /// tell it (a flag stays until a refit clears it).
+    pub reading: Option<DriftReading>,
+}
+
+/// A parameter as a refit learnt it, against the set in use.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DriftReading {
+    /// The learnt value (the parameter's unit; relative ones relative to
+    /// the set the drive was recorded with).
+    pub learnt: f64,
+    /// Its σ.
+    pub sigma: f64,
+    /// The set in use's value on the same scale.
+    pub in_use: f64,
+}
+
+impl DriftState {
+    /// A state of `refits`, `distance_m` and `candidate` with `params`
+    /// (those past [`DRIFT_PARAMS`] are left out).
+    pub fn new(
+        refits: u64,
+        distance_m: f64,
+        candidate: bool,
+        params: impl IntoIterator<Item = DriftParam>,
+    ) -> Self {
+        let mut slots = [None; DRIFT_PARAMS];
+        for (slot, p) in slots.iter_mut().zip(params) {
+            *slot = Some(p);
+        }
+        Self {
+            refits,
+            distance_m,
+            candidate,
+            params: slots,
+        }
+    }
+
+    /// The parameters carried.
+    pub fn params(&self) -> impl Iterator<Item = &DriftParam> {
+        self.params.iter().flatten()
+    }
+
+    /// The flagged parameters.
+    pub fn flagged(&self) -> impl Iterator<Item = &DriftParam> {
+        self.params().filter(|p| p.flagged)
+    }
+
+    /// Any parameter flagged (CALIB_STATUS's DRIFT).
+    pub fn any_flagged(&self) -> bool {
+        self.flagged().next().is_some()
+    }
 }
 
 /// A live GNSS source's state as the diagnostics show it (#46): the
@@ -133,6 +221,7 @@ impl StepSample {
             counts: Counts::from(pipeline.stats()),
             calibration_phase: "idle",
             gnss: None,
+            drift: None,
         }
     }
 }

@@ -462,6 +462,7 @@ mod tests {
             counts: canodom_export::sample::Counts::default(),
             calibration_phase: "idle",
             gnss: None,
+            drift: None,
         }
     }
 

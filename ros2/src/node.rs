@@ -626,6 +626,9 @@ fn diagnostics(
     if let Some(g) = &s.gnss {
         status.push(gnss_status(g, hw_id(config)));
     }
+    if let Some(d) = &s.drift {
+        status.push(drift_status(d, hw_id(config)));
+    }
     status
 }
 
@@ -669,10 +672,127 @@ fn gnss_status(g: &canodom_export::sample::GnssState, hardware_id: String) -> St
     }
 }
 
+/// The drift watch's status (#46 item 3): a warning while any parameter
+/// is flagged (CALIB_STATUS's DRIFT), naming each with what the last refit
+/// learnt of it against the value in use; an error never (the set in use
+/// goes on until a COMMIT).
+fn drift_status(d: &canodom_export::sample::DriftState, hardware_id: String) -> Status {
+    let flagged: Vec<&str> = d.flagged().map(|p| p.name).collect();
+    let (level, message) = if flagged.is_empty() {
+        (Level::Ok, format!("nothing flagged ({} refits)", d.refits))
+    } else if d.candidate {
+        (
+            Level::Warn,
+            format!(
+                "{} flagged; candidate offered for COMMIT",
+                flagged.join(", ")
+            ),
+        )
+    } else {
+        (Level::Warn, format!("{} flagged", flagged.join(", ")))
+    };
+    let mut values = vec![
+        ("refits".to_owned(), d.refits.to_string()),
+        ("flagged".to_owned(), flagged.join(",")),
+        ("candidate".to_owned(), d.candidate.to_string()),
+        ("distance_m".to_owned(), d.distance_m.to_string()),
+    ];
+    // The state file's and the log's words: learnt ± σ against in use.
+    values.extend(d.flagged().map(|p| {
+        let text = p.reading.map_or_else(
+            || "not read by the last refit".to_owned(),
+            |r| format!("learnt {} ± {}, in use {}", r.learnt, r.sigma, r.in_use),
+        );
+        (p.name.to_owned(), text)
+    }));
+    Status {
+        level,
+        name: "canodom: calibration drift".into(),
+        message,
+        hardware_id,
+        values,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
-    use canodom_export::sample::GnssState;
+    use canodom_export::sample::{DriftParam, DriftReading, DriftState, GnssState};
+
+    #[test]
+    fn the_drift_status_warns_while_flagged_and_names_learnt_sigma_and_in_use() {
+        let param = |name, flagged| DriftParam {
+            name,
+            flagged,
+            reading: Some(DriftReading {
+                learnt: 1.01,
+                sigma: 0.002,
+                in_use: 1.0,
+            }),
+        };
+        let quiet = DriftState::new(3, 900.0, false, [param("rear_ratio", false)]);
+        let s = drift_status(&quiet, "canodom/test".into());
+        assert_eq!(
+            (s.level, s.name.as_str(), s.message.as_str()),
+            (
+                Level::Ok,
+                "canodom: calibration drift",
+                "nothing flagged (3 refits)"
+            )
+        );
+        let value = |s: &Status, k: &str| {
+            s.values
+                .iter()
+                .find(|(key, _)| key == k)
+                .map(|(_, v)| v.clone())
+        };
+        assert_eq!(value(&s, "flagged").as_deref(), Some(""));
+        // Only a flagged parameter gets a line of its own.
+        assert_eq!(value(&s, "rear_ratio"), None);
+
+        let flagged = DriftState::new(
+            4,
+            1200.0,
+            true,
+            [
+                param("speed_scale", false),
+                param("rear_ratio", true),
+                DriftParam {
+                    name: "yaw_bias",
+                    flagged: true,
+                    reading: None,
+                },
+            ],
+        );
+        let s = drift_status(&flagged, String::new());
+        assert_eq!(
+            (s.level, s.message.as_str()),
+            (
+                Level::Warn,
+                "rear_ratio, yaw_bias flagged; candidate offered for COMMIT"
+            )
+        );
+        assert_eq!(
+            value(&s, "rear_ratio").as_deref(),
+            Some("learnt 1.01 ± 0.002, in use 1")
+        );
+        assert_eq!(
+            value(&s, "yaw_bias").as_deref(),
+            Some("not read by the last refit")
+        );
+        assert_eq!(value(&s, "speed_scale"), None);
+        assert_eq!(value(&s, "candidate").as_deref(), Some("true"));
+        assert_eq!(value(&s, "flagged").as_deref(), Some("rear_ratio,yaw_bias"));
+        assert_eq!(value(&s, "refits").as_deref(), Some("4"));
+        let s = drift_status(
+            &DriftState {
+                candidate: false,
+                ..flagged
+            },
+            String::new(),
+        );
+        assert_eq!(s.message, "rear_ratio, yaw_bias flagged");
+    }
 
     #[test]
     fn the_gnss_status_says_connected_rate_and_refusals_by_reason() {
