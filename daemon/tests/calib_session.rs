@@ -13,8 +13,6 @@ use canodom::server::{InProcessDaemon, Observers};
 use canodom_can::bus::{BusEvent, FrameSink, FrameSource, InProcessTx};
 use canodom_can::frame::FrameId;
 use canodom_dbc::Database;
-use canodom_export::live::{LiveOptions, LiveOutputs};
-use canodom_export::recorder::RecorderOptions;
 use canodom_fusion::sim::{Direction, Plan, simulate};
 use canodom_fusion::{VehicleParams, Wheel};
 use canodom_params::persist::{ParamFile, ParamValues, store};
@@ -185,14 +183,7 @@ async fn a_driven_session_commits_the_true_parameters_and_writes_them_back() {
     // The session is recorded (`run --record`): its calibration channel
     // carries the session's phase.
     let recording = tmp_dir("session-record").join("session.mcap");
-    let (tap, outputs) = LiveOutputs::start(LiveOptions {
-        record: Some(RecorderOptions::new(recording.clone())),
-        foxglove: None,
-        k_rear_m: config.ekf.k_rear_m,
-        queue: 1 << 16,
-        forward: None,
-    })
-    .unwrap();
+    let (tap, outputs) = crate::util::recording_to(&recording, &config);
     let observers = Observers {
         tap: Some(tap),
         ..Observers::default()

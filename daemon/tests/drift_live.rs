@@ -17,8 +17,7 @@ use crate::util::{Logs, tmp_dir};
 use canodom::server::{InProcessDaemon, Observers};
 use canodom::state_file::{StateFileOptions, load};
 use canodom_can::bus::{BusEvent, FrameSink, FrameSource};
-use canodom_export::live::{LiveOptions, LiveOutputs};
-use canodom_export::recorder::RecorderOptions;
+use canodom_export::cdr::CdrReader;
 use canodom_fusion::sim::{Plan, simulate};
 use canodom_pipeline::config::Config;
 use canodom_pipeline::pipeline::Pipeline;
@@ -53,58 +52,33 @@ struct RecordedDrift {
     readings: Vec<(String, f64, f64, f64, bool)>,
 }
 
-/// Reads a CDR message field by field (XCDR1: each primitive aligned to
-/// its size from the payload's start, after the 4-byte header).
-struct Cdr<'a> {
-    b: &'a [u8],
-    at: usize,
-}
-
-impl Cdr<'_> {
-    fn take(&mut self, n: usize, align: usize) -> &[u8] {
-        self.at += (align - (self.at - 4) % align) % align;
-        self.at += n;
-        &self.b[self.at - n..self.at]
-    }
-    fn u8(&mut self) -> u8 {
-        self.take(1, 1)[0]
-    }
-    fn u32(&mut self) -> u32 {
-        u32::from_le_bytes(self.take(4, 4).try_into().unwrap())
-    }
-    fn f64(&mut self) -> f64 {
-        f64::from_le_bytes(self.take(8, 8).try_into().unwrap())
-    }
-    fn string(&mut self) -> String {
-        let n = self.u32() as usize;
-        String::from_utf8(self.take(n, 1)[..n - 1].to_vec()).unwrap()
-    }
-}
-
 /// The drift fields of a calibration message, as its schema lists them.
 fn recorded_drift(data: &[u8]) -> RecordedDrift {
-    let mut r = Cdr { b: data, at: 4 };
-    r.take(2, 2);
-    r.u8();
-    // wheelbase, treads, four diameters.
-    for _ in 0..7 {
-        r.f64();
-    }
-    let refits = u64::from_le_bytes(r.take(8, 8).try_into().unwrap());
-    let drift = r.u8() == 1;
-    let candidate = r.u8() == 1;
-    r.f64();
-    let flagged = (0..r.u32()).map(|_| r.string()).collect();
-    let readings = (0..r.u32())
-        .map(|_| (r.string(), r.f64(), r.f64(), r.f64(), r.u8() == 1))
-        .collect();
-    RecordedDrift {
-        refits,
-        drift,
-        candidate,
-        flagged,
-        readings,
-    }
+    let mut r = CdrReader::new(data);
+    let whole = (|| {
+        // version, the fixed flag, wheelbase, treads, four diameters.
+        r.u16()?;
+        r.u8()?;
+        for _ in 0..7 {
+            r.f64()?;
+        }
+        let refits = r.u64()?;
+        let drift = r.u8()? == 1;
+        let candidate = r.u8()? == 1;
+        r.f64()?;
+        let flagged = r.strings()?;
+        let readings = (0..r.u32()?)
+            .map(|_| Some((r.string()?, r.f64()?, r.f64()?, r.f64()?, r.u8()? == 1)))
+            .collect::<Option<_>>()?;
+        Some(RecordedDrift {
+            refits,
+            drift,
+            candidate,
+            flagged,
+            readings,
+        })
+    })();
+    whole.expect("a calibration message with the drift fields")
 }
 
 /// The RC car's configuration in `dir` (fixes on the bus, the watch's
@@ -140,14 +114,7 @@ async fn drive(name: &str, right_scale: f64, state_every: Duration) -> Outcome {
     let config = Arc::new(config);
     let state_path = dir.join("state.json");
     let recording = dir.join("drive.mcap");
-    let (tap, outputs) = LiveOutputs::start(LiveOptions {
-        record: Some(RecorderOptions::new(recording.clone())),
-        foxglove: None,
-        k_rear_m: config.ekf.k_rear_m,
-        queue: 1 << 16,
-        forward: None,
-    })
-    .unwrap();
+    let (tap, outputs) = crate::util::recording_to(&recording, &config);
     let observers = Observers {
         state_file: Some(StateFileOptions {
             path: state_path.clone(),

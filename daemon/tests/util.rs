@@ -216,3 +216,22 @@ pub fn rc_car_with_fixes(dir: &std::path::Path, extra: &str) -> Config {
     std::fs::write(&cfg_path, &text).unwrap();
     Config::load(&cfg_path).unwrap()
 }
+
+/// The live outputs recording every pose to `path` (`run --record`), with
+/// no Foxglove server or ROS 2 forward: the tap to hand the daemon, and
+/// the outputs to join.
+pub fn recording_to(
+    path: &std::path::Path,
+    config: &Config,
+) -> (canodom_export::live::Tap, canodom_export::live::LiveOutputs) {
+    canodom_export::live::LiveOutputs::start(canodom_export::live::LiveOptions {
+        record: Some(canodom_export::recorder::RecorderOptions::new(
+            path.to_path_buf(),
+        )),
+        foxglove: None,
+        k_rear_m: config.ekf.k_rear_m,
+        queue: 1 << 16,
+        forward: None,
+    })
+    .unwrap()
+}

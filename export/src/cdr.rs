@@ -374,6 +374,79 @@ pub fn encode_frame_transform(t: &Transform<'_>, buf: &mut Vec<u8>) {
     transform_fields(&mut Cdr::new(buf), t);
 }
 
+/// A reader of a little-endian XCDR1 payload, field by field in its
+/// schema's order: what a test or a tool needs to check a message this
+/// crate wrote without a ROS 2 stack. Each call returns `None` past the
+/// end (or for a string that is not UTF-8 and NUL-terminated) and then
+/// stays there.
+#[derive(Debug, Clone)]
+pub struct CdrReader<'a> {
+    payload: &'a [u8],
+    at: usize,
+}
+
+impl<'a> CdrReader<'a> {
+    /// A reader of `message`: the 4-byte encapsulation header, then the
+    /// payload (alignment counts from the payload's start).
+    pub fn new(message: &'a [u8]) -> Self {
+        Self {
+            payload: message.get(4..).unwrap_or_default(),
+            at: 0,
+        }
+    }
+
+    /// `n` bytes at the next multiple of `align`.
+    pub fn take(&mut self, n: usize, align: usize) -> Option<&'a [u8]> {
+        let start = self.at.next_multiple_of(align.max(1));
+        let bytes = self.payload.get(start..start.checked_add(n)?)?;
+        self.at = start + n;
+        Some(bytes)
+    }
+
+    /// A `uint8` (or `bool`).
+    pub fn u8(&mut self) -> Option<u8> {
+        self.take(1, 1).map(|b| b[0])
+    }
+
+    /// A `uint16`.
+    pub fn u16(&mut self) -> Option<u16> {
+        Some(u16::from_le_bytes(self.take(2, 2)?.try_into().ok()?))
+    }
+
+    /// A `uint32` (and a sequence's length).
+    pub fn u32(&mut self) -> Option<u32> {
+        Some(u32::from_le_bytes(self.take(4, 4)?.try_into().ok()?))
+    }
+
+    /// A `uint64`.
+    pub fn u64(&mut self) -> Option<u64> {
+        Some(u64::from_le_bytes(self.take(8, 8)?.try_into().ok()?))
+    }
+
+    /// A `float64`.
+    pub fn f64(&mut self) -> Option<f64> {
+        Some(f64::from_le_bytes(self.take(8, 8)?.try_into().ok()?))
+    }
+
+    /// A `string`: its length with the NUL, the bytes, the NUL.
+    pub fn string(&mut self) -> Option<String> {
+        let n = usize::try_from(self.u32()?).ok()?;
+        let (text, nul) = self.take(n, 1)?.split_last().map(|(l, t)| (t, *l))?;
+        (nul == 0).then_some(())?;
+        String::from_utf8(text.to_vec()).ok()
+    }
+
+    /// A `string[]`.
+    pub fn strings(&mut self) -> Option<Vec<String>> {
+        (0..self.u32()?).map(|_| self.string()).collect()
+    }
+
+    /// Whether every byte of the payload has been read.
+    pub fn at_end(&self) -> bool {
+        self.at == self.payload.len()
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -514,5 +587,35 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn the_reader_reads_what_the_writer_wrote_and_stops_at_the_end() {
+        let mut buf = Vec::new();
+        let mut w = Cdr::new(&mut buf);
+        w.u8(7);
+        w.u16(0x1234);
+        w.u32(5);
+        w.f64s(&[1.5]);
+        w.string("drift");
+        w.strings(["a", "bc"].into_iter());
+        let mut r = CdrReader::new(&buf);
+        assert_eq!(r.u8(), Some(7));
+        assert_eq!(r.u16(), Some(0x1234));
+        assert_eq!(r.u32(), Some(5));
+        assert_eq!(r.f64(), Some(1.5));
+        assert_eq!(r.string().as_deref(), Some("drift"));
+        assert_eq!(r.strings(), Some(vec!["a".to_owned(), "bc".to_owned()]));
+        assert!(r.at_end());
+        assert_eq!(r.u8(), None);
+        // A cut message, a string without its NUL: None, no panic.
+        assert_eq!(CdrReader::new(&buf[..buf.len() - 1]).strings(), None);
+        let mut bad = Vec::new();
+        let mut w = Cdr::new(&mut bad);
+        w.u32(2);
+        w.u8(b'x');
+        w.u8(b'y');
+        assert_eq!(CdrReader::new(&bad).string(), None);
+        assert_eq!(CdrReader::new(&[0, 1]).u8(), None);
     }
 }

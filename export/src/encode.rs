@@ -537,42 +537,6 @@ mod tests {
         }
     }
 
-    /// A reader of the calibration message, field by field as its schema
-    /// lists them (XCDR1: each primitive aligned to its size from the
-    /// payload's start).
-    struct Reader<'a> {
-        b: &'a [u8],
-        at: usize,
-    }
-
-    impl Reader<'_> {
-        fn take(&mut self, n: usize, align: usize) -> &[u8] {
-            self.at += (align - (self.at - 4) % align) % align;
-            self.at += n;
-            &self.b[self.at - n..self.at]
-        }
-        fn u8(&mut self) -> u8 {
-            self.take(1, 1)[0]
-        }
-        fn u32(&mut self) -> u32 {
-            u32::from_le_bytes(self.take(4, 4).try_into().unwrap())
-        }
-        fn u64(&mut self) -> u64 {
-            u64::from_le_bytes(self.take(8, 8).try_into().unwrap())
-        }
-        fn f64(&mut self) -> f64 {
-            f64::from_le_bytes(self.take(8, 8).try_into().unwrap())
-        }
-        fn string(&mut self) -> String {
-            let n = self.u32() as usize;
-            let s = self.take(n, 1);
-            String::from_utf8(s[..n - 1].to_vec()).unwrap()
-        }
-        fn strings(&mut self) -> Vec<String> {
-            (0..self.u32()).map(|_| self.string()).collect()
-        }
-    }
-
     /// The drift fields and the session of a calibration message.
     #[derive(Debug, PartialEq)]
     struct Message {
@@ -590,24 +554,27 @@ mod tests {
         let p = VehicleParams::nominal(0.25, 0.30, 0.09, 1000).unwrap();
         let mut out = Vec::new();
         calibration_cdr(&(3, false, p, "idle", drift.copied()), &p, &mut out);
-        let mut r = Reader { b: &out, at: 4 };
-        assert_eq!(r.take(2, 2), 3u16.to_le_bytes());
+        let mut r = cdr::CdrReader::new(&out);
+        assert_eq!(r.u16(), Some(3));
         r.u8();
         for _ in 0..7 {
             r.f64();
         }
-        let d = Message {
-            refits: r.u64(),
-            drift: r.u8() == 1,
-            candidate: r.u8() == 1,
-            distance_m: r.f64(),
-            flagged: r.strings(),
-            readings: (0..r.u32())
-                .map(|_| (r.string(), r.f64(), r.f64(), r.f64(), r.u8() == 1))
-                .collect(),
-            session: r.string(),
-        };
-        assert_eq!(r.at, out.len(), "nothing after the session");
+        let d = (|| {
+            Some(Message {
+                refits: r.u64()?,
+                drift: r.u8()? == 1,
+                candidate: r.u8()? == 1,
+                distance_m: r.f64()?,
+                flagged: r.strings()?,
+                readings: (0..r.u32()?)
+                    .map(|_| Some((r.string()?, r.f64()?, r.f64()?, r.f64()?, r.u8()? == 1)))
+                    .collect::<Option<_>>()?,
+                session: r.string()?,
+            })
+        })()
+        .expect("a whole calibration message");
+        assert!(r.at_end(), "nothing after the session");
         d
     }
 
