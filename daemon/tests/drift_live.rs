@@ -8,7 +8,9 @@
 //! COMMIT then stores that candidate as the next version. The drive is
 //! recorded (`run --record`): the recording's calibration channel carries
 //! the watch, the flag only from the refit that raised it. With the tyres
-//! as the set says, nothing is flagged.
+//! as the set says, nothing is flagged. With `[calibration] auto_commit =
+//! true` and no operator, the candidate is committed by itself at the
+//! standstill, bounded per step, and written back to the ECU.
 //!
 //! The runtime's clock is paused (the bus stamps frames with tokio's
 //! virtual time); the watch refits every 10 s of fixes over the last 20 s.
@@ -21,7 +23,9 @@ use canodom_export::cdr::CdrReader;
 use canodom_fusion::sim::{Plan, simulate};
 use canodom_pipeline::config::Config;
 use canodom_pipeline::pipeline::Pipeline;
-use canodom_protocol::calib_wire::{CalibWire, Command, StatusPage};
+use canodom_protocol::calib_wire::{
+    Ack, AckStatus, CalibWire, Command, ParamSet, ParamsAssembler, StatusPage,
+};
 use canodom_sim::vehicle::sim_config;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
@@ -33,8 +37,10 @@ struct Outcome {
     progress: Vec<(bool, bool)>,
     logs: String,
     state: canodom::state_file::SavedState,
-    /// The parameter file's current set after the drive (and a COMMIT).
-    committed: Option<canodom_params::persist::ParamSet>,
+    /// The parameter file after the drive (and a COMMIT, if sent).
+    file: Option<canodom_params::persist::ParamFile>,
+    /// Every complete `CALIB_PARAMS` set written back on the bus.
+    written_back: Vec<ParamSet>,
     /// The true right/left rear diameter ratio.
     true_ratio: f64,
     /// The drift watch of every calibration message recorded.
@@ -105,12 +111,29 @@ fn car_and_drive(
     (config, run, d.rear_right / d.rear_left)
 }
 
+/// Who commits the drift watch's candidate.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Committer {
+    /// The operator sends COMMIT at the standstill after the drive.
+    Operator,
+    /// Nobody: `[calibration] auto_commit = true`.
+    Auto,
+}
+
 /// Drives the RC car with its right rear tyre `right_scale` times the
-/// set's, fixes at 5 Hz, then sends COMMIT at a standstill; the state file
-/// is written every `state_every` (and when the watch's flags change).
-async fn drive(name: &str, right_scale: f64, state_every: Duration) -> Outcome {
+/// set's, fixes at 5 Hz, then stands still (and the operator sends COMMIT,
+/// if it is the committer); the state file is written every `state_every`
+/// (and when the watch's flags change). An ECU on the bus acknowledges
+/// every set written back.
+async fn drive(
+    name: &str,
+    right_scale: f64,
+    state_every: Duration,
+    committer: Committer,
+) -> Outcome {
     let dir = tmp_dir(name);
-    let (config, run, true_ratio) = car_and_drive(&dir, right_scale);
+    let (mut config, run, true_ratio) = car_and_drive(&dir, right_scale);
+    config.calibration.auto_commit = committer == Committer::Auto;
     let config = Arc::new(config);
     let state_path = dir.join("state.json");
     let recording = dir.join("drive.mcap");
@@ -128,16 +151,36 @@ async fn drive(name: &str, right_scale: f64, state_every: Duration) -> Outcome {
     let (mut rx, tx) = daemon.bus.open().unwrap();
     let wire = CalibWire::new(config.output.base_id).unwrap();
     let progress = Arc::new(Mutex::new(Vec::new()));
-    let seen = Arc::clone(&progress);
-    let status_id = wire.status_id();
-    let status_wire = CalibWire::new(config.output.base_id).unwrap();
+    let written_back = Arc::new(Mutex::new(Vec::new()));
+    let (seen, sets) = (Arc::clone(&progress), Arc::clone(&written_back));
+    let (status_id, params_id, ack_id) = (wire.status_id(), wire.params_id(), wire.ack_id());
+    let listener_wire = CalibWire::new(config.output.base_id).unwrap();
+    let (_, ecu_tx) = daemon.bus.open().unwrap();
     tokio::spawn(async move {
+        let mut assembler = ParamsAssembler::default();
+        let mut ack_counter = 0u8;
         while let Ok(ev) = rx.recv().await {
             let BusEvent::Frame(r) = ev else { continue };
-            if r.frame.id() == status_id
-                && let Ok((StatusPage::Progress(p), _)) = status_wire.decode_status(r.frame.data())
+            let id = r.frame.id();
+            if id == status_id
+                && let Ok((StatusPage::Progress(p), _)) =
+                    listener_wire.decode_status(r.frame.data())
             {
                 seen.lock().unwrap().push((p.drift, p.drift_candidate));
+            } else if id == params_id
+                && let Ok(page) = listener_wire.decode_params(r.frame.data())
+                && let Some(Ok(set)) = assembler.push(&listener_wire, page.0)
+            {
+                assembler = ParamsAssembler::default();
+                sets.lock().unwrap().push(set);
+                let ack = Ack {
+                    version: set.version,
+                    status: AckStatus::Stored,
+                    set_crc: listener_wire.set_crc(&set).unwrap(),
+                };
+                let data = listener_wire.encode_ack(ack, ack_counter);
+                ack_counter = ack_counter.wrapping_add(1);
+                let _ = ecu_tx.send(&CalibWire::frame(ack_id, &data).unwrap()).await;
             }
         }
     });
@@ -159,14 +202,16 @@ async fn drive(name: &str, right_scale: f64, state_every: Duration) -> Outcome {
     }
     // The state before the COMMIT (which takes the candidate).
     let state = load(&state_path).unwrap();
-    let data = wire.encode_command(
-        Command::Commit,
-        config.calibration.arming_code.unwrap_or(0),
-        1,
-    );
-    tx.send(&CalibWire::frame(wire.cmd_id(), &data).unwrap())
-        .await
-        .unwrap();
+    if committer == Committer::Operator {
+        let data = wire.encode_command(
+            Command::Commit,
+            config.calibration.arming_code.unwrap_or(0),
+            1,
+        );
+        tx.send(&CalibWire::frame(wire.cmd_id(), &data).unwrap())
+            .await
+            .unwrap();
+    }
     for _ in 0..20 {
         tokio::time::sleep(Duration::from_millis(50)).await;
         std::thread::sleep(Duration::from_millis(20));
@@ -180,16 +225,16 @@ async fn drive(name: &str, right_scale: f64, state_every: Duration) -> Outcome {
         .filter(|m| m.channel.topic == "/canodom/calibration")
         .map(|m| recorded_drift(&m.data))
         .collect();
-    let committed =
-        canodom_params::persist::load(&dir.join("params.toml"), &config.calibration.bounds)
-            .ok()
-            .and_then(|f| f.current);
+    let file =
+        canodom_params::persist::load(&dir.join("params.toml"), &config.calibration.bounds).ok();
     let progress = progress.lock().unwrap().clone();
+    let written_back = written_back.lock().unwrap().clone();
     Outcome {
         progress,
         logs: logs.take(),
         state,
-        committed,
+        file,
+        written_back,
         true_ratio,
         recorded,
     }
@@ -199,7 +244,13 @@ async fn drive(name: &str, right_scale: f64, state_every: Duration) -> Outcome {
 async fn a_changed_tyre_is_flagged_on_the_bus_in_the_log_and_the_state_file_and_committed() {
     // The state file's period is longer than the drive: what it holds was
     // written when the flag rose (or the candidate changed).
-    let o = Box::pin(drive("drift-live-tyre", 1.01, Duration::from_secs(3600))).await;
+    let o = Box::pin(drive(
+        "drift-live-tyre",
+        1.01,
+        Duration::from_secs(3600),
+        Committer::Operator,
+    ))
+    .await;
     let flags: Vec<&str> = o
         .logs
         .lines()
@@ -236,9 +287,17 @@ async fn a_changed_tyre_is_flagged_on_the_bus_in_the_log_and_the_state_file_and_
     let learnt = candidate.rear_right_diameter_m / candidate.rear_left_diameter_m;
     assert!((learnt - o.true_ratio).abs() < 2e-3, "{learnt}");
     // COMMIT stored the candidate as the first version, by the drift watch.
-    let set = o.committed.expect("COMMIT stored the candidate");
+    let set = o
+        .file
+        .and_then(|f| f.current)
+        .expect("COMMIT stored the candidate");
     assert_eq!((set.version, set.method.as_str()), (1, "drift"));
     assert_eq!(set.values, candidate);
+    assert!(
+        o.written_back.iter().any(|w| w.version == 1),
+        "the committed set written back: {:?}",
+        o.written_back
+    );
 
     // The recording: no drift before the refit that raised the flag, then
     // the flagged ratio with what that refit learnt and the candidate.
@@ -277,7 +336,13 @@ async fn a_changed_tyre_is_flagged_on_the_bus_in_the_log_and_the_state_file_and_
 
 #[tokio::test(start_paused = true)]
 async fn a_car_that_agrees_with_its_set_is_not_flagged() {
-    let o = Box::pin(drive("drift-live-steady", 1.0, Duration::from_secs(1))).await;
+    let o = Box::pin(drive(
+        "drift-live-steady",
+        1.0,
+        Duration::from_secs(1),
+        Committer::Operator,
+    ))
+    .await;
     assert!(!o.logs.contains("flagged"), "{}", o.logs);
     assert!(!o.progress.is_empty() && o.progress.iter().all(|&(d, c)| !d && !c));
     let drift = o.state.drift.expect("refits made: a drift section");
@@ -296,7 +361,102 @@ async fn a_car_that_agrees_with_its_set_is_not_flagged() {
     );
     assert_eq!(drift.candidate, None);
     assert!(
-        o.committed.is_none(),
+        o.file.and_then(|f| f.current).is_none() && o.written_back.is_empty(),
         "COMMIT with nothing to commit stores nothing"
+    );
+}
+
+#[tokio::test(start_paused = true)]
+async fn with_auto_commit_a_changed_tyre_is_committed_at_the_standstill_a_bounded_step_at_a_time() {
+    let o = Box::pin(drive(
+        "drift-live-auto",
+        1.01,
+        Duration::from_secs(3600),
+        Committer::Auto,
+    ))
+    .await;
+    let file = o.file.expect("the parameter file");
+    let current = file.current.clone().expect("an automatic commit");
+    println!(
+        "auto commits: {:?}; written back: {:?}",
+        file.history
+            .iter()
+            .chain([&current])
+            .map(|s| (
+                s.version,
+                s.method.as_str(),
+                s.values.rear_right_diameter_m / s.values.rear_left_diameter_m
+            ))
+            .collect::<Vec<_>>(),
+        o.written_back
+            .iter()
+            .map(|w| (w.version, w.diameter_ratio))
+            .collect::<Vec<_>>()
+    );
+    // Every set stored was the drift watch's own, each at most two
+    // tolerances (0.2 % speed scale each) from the one before, starting
+    // from the nominal set in use.
+    let config = car_and_drive(&tmp_dir("drift-live-auto-nominal"), 1.0).0;
+    let nominal = *Pipeline::new(&config).unwrap().params();
+    let mut before = (
+        nominal.wheel_diameters_m().rear_left,
+        nominal.wheel_diameters_m().rear_right,
+    );
+    let step = canodom_calib::drift::AUTO_STEP_TOLERANCES
+        * config
+            .calibration
+            .drift
+            .judge
+            .tolerance(canodom_calib::drift::Param::SpeedScale);
+    for set in file.history.iter().chain([&current]) {
+        assert_eq!(set.method, "drift-auto", "{set:?}");
+        let v = &set.values;
+        let moved = [
+            v.rear_left_diameter_m / before.0 - 1.0,
+            v.rear_right_diameter_m / before.1 - 1.0,
+        ];
+        assert!(
+            moved.iter().all(|m| m.abs() <= step + 1e-12),
+            "one automatic commit moved a rear diameter by {moved:?}, more than {step}"
+        );
+        before = (v.rear_left_diameter_m, v.rear_right_diameter_m);
+    }
+    // The ratio moved toward the tyres' (1 % apart), and the step bound held
+    // it from getting there in one commit.
+    let ratio = current.values.rear_right_diameter_m / current.values.rear_left_diameter_m;
+    assert!(
+        ratio > 1.0 + 0.5 * step && ratio <= o.true_ratio + 2e-3,
+        "ratio after the automatic commits {ratio}, the tyres' {}",
+        o.true_ratio
+    );
+    // Each commit was written back to the ECU, as an operator's COMMIT is.
+    assert!(
+        o.written_back
+            .iter()
+            .any(|w| w.version == current.version && (w.diameter_ratio - ratio).abs() < 1e-4),
+        "{:?} against version {}",
+        o.written_back,
+        current.version
+    );
+    // The flag was raised on the bus before the commit took the candidate,
+    // and the log says that the daemon committed by itself, and what.
+    assert!(o.progress.iter().any(|&(d, c)| d && c), "{:?}", o.progress);
+    let said: Vec<&str> = o
+        .logs
+        .lines()
+        .filter(|l| l.contains("committing the learnt set at this standstill by itself"))
+        .collect();
+    assert!(
+        said.len() == file.history.len() + 1
+            && said
+                .iter()
+                .all(|l| l.contains("WARN") && l.contains("rear_ratio_to")),
+        "{}",
+        o.logs
+    );
+    assert!(
+        o.logs.contains("calibrated parameters applied"),
+        "{}",
+        o.logs
     );
 }

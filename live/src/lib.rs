@@ -286,7 +286,22 @@ impl LiveCalibration {
                 &self.config.drift.judge,
             );
             let pending = self.writeback() == Writeback::Pending;
+            let before = self.calibrator.current_values();
             let stored = self.calibrator.auto_commit(t_s, values, pending);
+            if !stored.is_empty() {
+                // Nobody answers an automatic commit: the log is where an
+                // operator finds what changed, and why.
+                tracing::warn!(
+                    rear_ratio_from = before.diameter_ratio(),
+                    rear_ratio_to = values.diameter_ratio(),
+                    tread_m_from = before.rear_tread_m,
+                    tread_m_to = values.rear_tread_m,
+                    "drift: committing the learnt set at this standstill by itself \
+                     ([calibration] auto_commit = true), each parameter moved at most \
+                     {} of its tolerances",
+                    canodom_calib::drift::AUTO_STEP_TOLERANCES
+                );
+            }
             out.extend(self.carry(t_s, stored));
         }
         if let Some(wb) = self.writeback
