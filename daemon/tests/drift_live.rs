@@ -111,6 +111,52 @@ fn car_and_drive(
     (config, run, d.rear_right / d.rear_left)
 }
 
+/// What the listener on the bus collects: (DRIFT, DRIFT_CANDIDATE) of every
+/// progress page, and every complete parameter set written back.
+type Heard = (Arc<Mutex<Vec<(bool, bool)>>>, Arc<Mutex<Vec<ParamSet>>>);
+
+/// Listens on `rx` for status pages and written-back sets, and answers each
+/// set on `ecu_tx` as the ECU that stored it would.
+fn listen_and_acknowledge(
+    mut rx: canodom_can::bus::InProcessRx,
+    ecu_tx: canodom_can::bus::InProcessTx,
+    base_id: canodom_protocol::own_dbc::BaseId,
+) -> Heard {
+    let progress = Arc::new(Mutex::new(Vec::new()));
+    let written_back = Arc::new(Mutex::new(Vec::new()));
+    let (seen, sets) = (Arc::clone(&progress), Arc::clone(&written_back));
+    let wire = CalibWire::new(base_id).unwrap();
+    let (status_id, params_id, ack_id) = (wire.status_id(), wire.params_id(), wire.ack_id());
+    tokio::spawn(async move {
+        let mut assembler = ParamsAssembler::default();
+        let mut ack_counter = 0u8;
+        while let Ok(ev) = rx.recv().await {
+            let BusEvent::Frame(r) = ev else { continue };
+            let id = r.frame.id();
+            if id == status_id
+                && let Ok((StatusPage::Progress(p), _)) = wire.decode_status(r.frame.data())
+            {
+                seen.lock().unwrap().push((p.drift, p.drift_candidate));
+            } else if id == params_id
+                && let Ok(page) = wire.decode_params(r.frame.data())
+                && let Some(Ok(set)) = assembler.push(&wire, page.0)
+            {
+                assembler = ParamsAssembler::default();
+                sets.lock().unwrap().push(set);
+                let ack = Ack {
+                    version: set.version,
+                    status: AckStatus::Stored,
+                    set_crc: wire.set_crc(&set).unwrap(),
+                };
+                let data = wire.encode_ack(ack, ack_counter);
+                ack_counter = ack_counter.wrapping_add(1);
+                let _ = ecu_tx.send(&CalibWire::frame(ack_id, &data).unwrap()).await;
+            }
+        }
+    });
+    (progress, written_back)
+}
+
 /// Who commits the drift watch's candidate.
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum Committer {
@@ -148,42 +194,10 @@ async fn drive(
     };
     let (logs, _guard) = Logs::capture();
     let daemon = InProcessDaemon::spawn(Arc::clone(&config), 1 << 16, observers);
-    let (mut rx, tx) = daemon.bus.open().unwrap();
+    let (rx, tx) = daemon.bus.open().unwrap();
     let wire = CalibWire::new(config.output.base_id).unwrap();
-    let progress = Arc::new(Mutex::new(Vec::new()));
-    let written_back = Arc::new(Mutex::new(Vec::new()));
-    let (seen, sets) = (Arc::clone(&progress), Arc::clone(&written_back));
-    let (status_id, params_id, ack_id) = (wire.status_id(), wire.params_id(), wire.ack_id());
-    let listener_wire = CalibWire::new(config.output.base_id).unwrap();
-    let (_, ecu_tx) = daemon.bus.open().unwrap();
-    tokio::spawn(async move {
-        let mut assembler = ParamsAssembler::default();
-        let mut ack_counter = 0u8;
-        while let Ok(ev) = rx.recv().await {
-            let BusEvent::Frame(r) = ev else { continue };
-            let id = r.frame.id();
-            if id == status_id
-                && let Ok((StatusPage::Progress(p), _)) =
-                    listener_wire.decode_status(r.frame.data())
-            {
-                seen.lock().unwrap().push((p.drift, p.drift_candidate));
-            } else if id == params_id
-                && let Ok(page) = listener_wire.decode_params(r.frame.data())
-                && let Some(Ok(set)) = assembler.push(&listener_wire, page.0)
-            {
-                assembler = ParamsAssembler::default();
-                sets.lock().unwrap().push(set);
-                let ack = Ack {
-                    version: set.version,
-                    status: AckStatus::Stored,
-                    set_crc: listener_wire.set_crc(&set).unwrap(),
-                };
-                let data = listener_wire.encode_ack(ack, ack_counter);
-                ack_counter = ack_counter.wrapping_add(1);
-                let _ = ecu_tx.send(&CalibWire::frame(ack_id, &data).unwrap()).await;
-            }
-        }
-    });
+    let (progress, written_back) =
+        listen_and_acknowledge(rx, daemon.bus.open().unwrap().1, config.output.base_id);
     tokio::time::sleep(Duration::from_millis(20)).await;
     let mut encoder = crate::util::send_drive_with_fixes(&tx, &config, &run, 20).await;
     // The last refit on the blocking pool (real time), and a standstill.
