@@ -1222,7 +1222,7 @@ mod tests {
             let mut a = with_bias_memory(&cfg, 0.3, 80.0);
             let c = a.p[TH][TH];
             for k in 0..N {
-                a.p[X][k] = lever_m / 1000.0 * a.p[X][k];
+                a.p[X][k] *= lever_m / 1000.0;
                 a.p[k][X] = a.p[X][k];
             }
             a.p[X][X] = lever_m * lever_m * c + 1.0;
