@@ -407,7 +407,9 @@ fn gate_cdr(s: &StepSample, out: &mut Vec<u8>) {
     });
     w.u8(u8::from(matches!(
         s.correction,
-        WindowOutcome::RejectedKeptRear | WindowOutcome::RejectedUsedFront
+        WindowOutcome::RejectedKeptRear
+            | WindowOutcome::RejectedUsedFront
+            | WindowOutcome::Disagreed
     )));
 }
 

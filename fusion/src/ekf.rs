@@ -257,6 +257,13 @@ pub enum WindowOutcome {
     RejectedKeptRear,
     /// The gate rejected it and the front increment was used (a rear wheel slipped).
     RejectedUsedFront,
+    /// The yaw-rate-aided estimator's gate rejected the window: the rear
+    /// wheels' turn and the gyro's disagreed beyond `yaw_gate_sigma` with
+    /// no wheel seen slipping. The gyro carried the heading and the rear
+    /// distance was kept, as in [`WindowOutcome::RejectedKeptRear`], and
+    /// nothing was learnt; but the rear wheels' distances are not suspect
+    /// (a tyre whose size changed does this in every turning window).
+    Disagreed,
 }
 
 impl WindowOutcome {
@@ -269,6 +276,7 @@ impl WindowOutcome {
             Self::Accepted => "accepted",
             Self::RejectedKeptRear => "kept_rear",
             Self::RejectedUsedFront => "used_front",
+            Self::Disagreed => "disagreed",
         }
     }
 }

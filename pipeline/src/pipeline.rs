@@ -988,14 +988,16 @@ impl Pipeline {
         let correction = state.last_window;
         if matches!(
             correction,
-            WindowOutcome::RejectedKeptRear | WindowOutcome::RejectedUsedFront
+            WindowOutcome::RejectedKeptRear
+                | WindowOutcome::RejectedUsedFront
+                | WindowOutcome::Disagreed
         ) {
             self.latched.gate_reject = true;
             Self::remark(&mut self.stats, &mut reasons, Reject::GateReject);
-            if correction == WindowOutcome::RejectedKeptRear {
-                self.stats.gate.kept_rear += 1;
-            } else {
+            if correction == WindowOutcome::RejectedUsedFront {
                 self.stats.gate.used_front += 1;
+            } else {
+                self.stats.gate.kept_rear += 1;
             }
             for w in Wheel::ALL {
                 if state.slip_flags[w] {

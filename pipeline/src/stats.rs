@@ -138,7 +138,9 @@ pub struct Stats {
 /// consensus blamed (`GateReject` counts them all).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct GateCounts {
-    /// Rejections that kept the rear increment (a front wheel blamed).
+    /// Rejections that kept the rear increment (a front wheel blamed, or
+    /// the gyro-aided estimator's wheels and gyro disagreeing:
+    /// `WindowOutcome::Disagreed`).
     pub kept_rear: u64,
     /// Rejections that took the front increment (a rear wheel blamed).
     pub used_front: u64,

@@ -892,7 +892,7 @@ fn close_window(cfg: &EkfConfig, ib: f64, st: &mut State) {
             }
             None => {
                 st.stats.rejected_kept_rear += 1;
-                WindowOutcome::RejectedKeptRear
+                WindowOutcome::Disagreed
             }
         }
     };
