@@ -18,8 +18,8 @@ use canodom_fusion::{VehicleParams, Wheel};
 use canodom_params::persist::{ParamFile, ParamValues, store};
 use canodom_pipeline::pipeline::Pipeline;
 use canodom_protocol::calib_wire::{
-    Ack, AckStatus, CalibWire, Command, Counts, ParamSet, ParamsAssembler, Progress, Reason, State,
-    StatusPage, WireDirection, Writeback,
+    CalibWire, Command, Counts, ParamSet, ParamsAssembler, Progress, Reason, State, StatusPage,
+    WireDirection, Writeback,
 };
 use canodom_protocol::own_dbc::{OwnFrame, dbc_for_base};
 use canodom_sim::vehicle::{SampleEncoder, sim_config};
@@ -191,7 +191,7 @@ async fn a_driven_session_commits_the_true_parameters_and_writes_them_back() {
     let daemon = InProcessDaemon::spawn(Arc::clone(&config), 65536, observers);
     let bus = daemon.bus.clone();
     let wire = CalibWire::new(config.output.base_id).unwrap();
-    let (status_id, params_id, ack_id) = (wire.status_id(), wire.params_id(), wire.ack_id());
+    let (status_id, params_id) = (wire.status_id(), wire.params_id());
     let quality_id = OwnFrame::OdomQuality.id(config.output.base_id);
     let own_db = Database::parse(&dbc_for_base(config.output.base_id), "canodom.dbc").unwrap();
     let param_version = own_db.signal("ODOM_QUALITY.PARAM_VERSION").unwrap();
@@ -227,14 +227,8 @@ async fn a_driven_session_commits_the_true_parameters_and_writes_them_back() {
                     assembler = ParamsAssembler::default();
                     seen.lock().unwrap().sets.push(set);
                     if ecu_on.load(Ordering::Relaxed) {
-                        let ack = Ack {
-                            version: set.version,
-                            status: AckStatus::Stored,
-                            set_crc: wire.set_crc(&set).unwrap(),
-                        };
-                        let data = wire.encode_ack(ack, ack_counter);
+                        let f = crate::util::stored_ack(&wire, &set, ack_counter);
                         ack_counter = ack_counter.wrapping_add(1);
-                        let f = CalibWire::frame(ack_id, &data).unwrap();
                         let _ = ecu_tx.send(&f).await;
                     }
                 }

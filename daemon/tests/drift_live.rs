@@ -23,9 +23,7 @@ use canodom_export::cdr::CdrReader;
 use canodom_fusion::sim::{Plan, simulate};
 use canodom_pipeline::config::Config;
 use canodom_pipeline::pipeline::Pipeline;
-use canodom_protocol::calib_wire::{
-    Ack, AckStatus, CalibWire, Command, ParamSet, ParamsAssembler, StatusPage,
-};
+use canodom_protocol::calib_wire::{CalibWire, Command, ParamSet, ParamsAssembler, StatusPage};
 use canodom_sim::vehicle::sim_config;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
@@ -126,7 +124,7 @@ fn listen_and_acknowledge(
     let written_back = Arc::new(Mutex::new(Vec::new()));
     let (seen, sets) = (Arc::clone(&progress), Arc::clone(&written_back));
     let wire = CalibWire::new(base_id).unwrap();
-    let (status_id, params_id, ack_id) = (wire.status_id(), wire.params_id(), wire.ack_id());
+    let (status_id, params_id) = (wire.status_id(), wire.params_id());
     tokio::spawn(async move {
         let mut assembler = ParamsAssembler::default();
         let mut ack_counter = 0u8;
@@ -143,14 +141,9 @@ fn listen_and_acknowledge(
             {
                 assembler = ParamsAssembler::default();
                 sets.lock().unwrap().push(set);
-                let ack = Ack {
-                    version: set.version,
-                    status: AckStatus::Stored,
-                    set_crc: wire.set_crc(&set).unwrap(),
-                };
-                let data = wire.encode_ack(ack, ack_counter);
+                let ack = crate::util::stored_ack(&wire, &set, ack_counter);
                 ack_counter = ack_counter.wrapping_add(1);
-                let _ = ecu_tx.send(&CalibWire::frame(ack_id, &data).unwrap()).await;
+                let _ = ecu_tx.send(&ack).await;
             }
         }
     });

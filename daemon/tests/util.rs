@@ -235,3 +235,19 @@ pub fn recording_to(
     })
     .unwrap()
 }
+
+/// The frame an ECU answers a complete written-back `set` with: stored,
+/// its acknowledgement counter `counter`.
+pub fn stored_ack(
+    wire: &canodom_protocol::calib_wire::CalibWire,
+    set: &canodom_protocol::calib_wire::ParamSet,
+    counter: u8,
+) -> CanFrame {
+    use canodom_protocol::calib_wire::{Ack, AckStatus, CalibWire};
+    let ack = Ack {
+        version: set.version,
+        status: AckStatus::Stored,
+        set_crc: wire.set_crc(set).unwrap(),
+    };
+    CalibWire::frame(wire.ack_id(), &wire.encode_ack(ack, counter)).unwrap()
+}

@@ -84,10 +84,11 @@ const STRAIGHT_MAX_HEADING_GAIN: f64 = 2.0;
 /// multi-body 20-minute drives after 10 minutes of fixes every accepted
 /// window moved the pose by 0.15–1.8 m (the Escort of seed 105 drove 3 %
 /// further than the truth in some 15 s spans). Left out beyond 300 m, the
-/// median of the 2-minute windows fell on 7 of 9 drives and the worst on
-/// 7 of 9; the real RAV4's calibrated second half, whose corrections have
-/// levers of 100–300 m, is unchanged (0.22 %), while at 100 m it lost
-/// them (0.48 %).
+/// median of the 2-minute windows fell on 6 of 9 drives (by up to 0.24
+/// points; it rose by up to 0.05 on three) and the worst on 7 of 9 (the
+/// Escort of seed 105 rose 1.42 → 1.75 %); the real RAV4's calibrated
+/// second half, whose corrections have levers of 100–300 m, is unchanged
+/// (0.22 %), while at 100 m it lost them (0.48 %).
 const MAX_POSITION_LEVER_M: f64 = 300.0;
 
 /// How long a turn's rounding error holds, s (twice its correlation time):
