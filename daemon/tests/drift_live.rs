@@ -41,6 +41,8 @@ struct Outcome {
     written_back: Vec<ParamSet>,
     /// The true right/left rear diameter ratio.
     true_ratio: f64,
+    /// The configuration the daemon ran with.
+    config: Arc<Config>,
     /// The drift watch of every calibration message recorded.
     recorded: Vec<RecordedDrift>,
 }
@@ -243,6 +245,7 @@ async fn drive(
         file,
         written_back,
         true_ratio,
+        config,
         recorded,
     }
 }
@@ -403,8 +406,8 @@ async fn with_auto_commit_a_changed_tyre_is_committed_at_the_standstill_a_bounde
     // Every set stored was the drift watch's own, each at most two
     // tolerances (0.2 % speed scale each) from the one before, starting
     // from the nominal set in use.
-    let config = car_and_drive(&tmp_dir("drift-live-auto-nominal"), 1.0).0;
-    let nominal = *Pipeline::new(&config).unwrap().params();
+    let config = &o.config;
+    let nominal = *Pipeline::new(config).unwrap().params();
     let mut before = (
         nominal.wheel_diameters_m().rear_left,
         nominal.wheel_diameters_m().rear_right,

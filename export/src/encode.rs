@@ -405,12 +405,7 @@ fn gate_cdr(s: &StepSample, out: &mut Vec<u8>) {
         WindowOutcome::Open => "open",
         other => other.as_str(),
     });
-    w.u8(u8::from(matches!(
-        s.correction,
-        WindowOutcome::RejectedKeptRear
-            | WindowOutcome::RejectedUsedFront
-            | WindowOutcome::Disagreed
-    )));
+    w.u8(u8::from(s.correction.is_rejected()));
 }
 
 fn calibration_cdr(key: &CalibrationKey, p: &VehicleParams, out: &mut Vec<u8>) {

@@ -279,6 +279,15 @@ impl WindowOutcome {
             Self::Disagreed => "disagreed",
         }
     }
+
+    /// Whether a gate rejected the window's correction, whatever it did
+    /// then (the `GateReject` count, the gate flag of the recordings).
+    pub fn is_rejected(self) -> bool {
+        matches!(
+            self,
+            Self::RejectedKeptRear | Self::RejectedUsedFront | Self::Disagreed
+        )
+    }
 }
 
 /// How the corrections went.

@@ -986,12 +986,7 @@ impl Pipeline {
         self.stats.gate.yaw_over_rear = state.stats.yaw_over_rear;
         self.stats.gate.yaw_refused = state.stats.yaw_refused;
         let correction = state.last_window;
-        if matches!(
-            correction,
-            WindowOutcome::RejectedKeptRear
-                | WindowOutcome::RejectedUsedFront
-                | WindowOutcome::Disagreed
-        ) {
+        if correction.is_rejected() {
             self.latched.gate_reject = true;
             Self::remark(&mut self.stats, &mut reasons, Reject::GateReject);
             if correction == WindowOutcome::RejectedUsedFront {

@@ -492,9 +492,9 @@ impl Aided {
     /// Jacobian `h` (index, value) and variance `r`; considered states (the
     /// gyro scale, those in `consider`, and the position where the update
     /// would move it through a lever beyond [`MAX_POSITION_LEVER_M`]) are
-    /// not updated, their covariance is. Returns the squared normalised innovation and the
-    /// prior `H P Hᵀ`, or `None` when it is beyond the gate (nothing
-    /// changed then).
+    /// not updated, their covariance is. Returns the squared normalised
+    /// innovation and the prior `H P Hᵀ`, or `None` when it is beyond the
+    /// gate (nothing changed then).
     fn update(
         &mut self,
         nu: f64,
