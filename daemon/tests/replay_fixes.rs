@@ -68,13 +68,38 @@ fn learnt_and_sigma(line: &str, after: &str) -> (f64, f64) {
 
 /// `canodom replay` of the drive with the vehicle's configuration and `args`.
 fn replay_drive(args: &[&std::ffi::OsStr]) -> std::process::Output {
+    replay_drive_with(&drive_dir().parent().unwrap().join("config_yaw.toml"), args)
+}
+
+/// `canodom replay` of the drive with the configuration at `config`.
+fn replay_drive_with(config: &std::path::Path, args: &[&std::ffi::OsStr]) -> std::process::Output {
     Command::new(env!("CARGO_BIN_EXE_canodom"))
         .args(["replay", "--config"])
-        .arg(drive_dir().parent().unwrap().join("config_yaw.toml"))
+        .arg(config)
         .arg(drive_dir().join("drive.log.zst"))
         .args(args)
         .output()
         .unwrap()
+}
+
+/// The vehicle's configuration, written into `dir`, with the drift watch
+/// refitting the last 60 s every 30 s: the drive's minute of fixes fills
+/// that window once, at its last fix (the default 180 s window never fills
+/// within a minute, and a refit that does not span most of its window is
+/// not judged).
+fn config_with_a_minute_window(dir: &std::path::Path) -> std::path::PathBuf {
+    let vehicle = drive_dir().parent().unwrap().to_path_buf();
+    let text = std::fs::read_to_string(vehicle.join("config_yaw.toml")).unwrap();
+    let dbc_dir = vehicle.join("../../dbc/");
+    let text = text.replace("\"../../dbc/", &format!("\"{}", dbc_dir.display()));
+    assert!(!text.contains("[calibration.drift]"), "{text}");
+    let path = dir.join("config_yaw.toml");
+    std::fs::write(
+        &path,
+        format!("{text}\n[calibration.drift]\nevery_s = 30.0\nwindow_s = 60.0\n"),
+    )
+    .unwrap();
+    path
 }
 
 #[test]
@@ -82,16 +107,20 @@ fn a_drive_is_calibrated_as_its_fixes_come_and_the_set_used_from_then_on() {
     let dir = crate::util::tmp_dir("replay_fixes");
     let (learnt, pose) = (dir.join("learnt.csv"), dir.join("pose.csv"));
     let nmea = drive_dir().join("fixes/fixes.nmea");
-    let out = replay_drive(&[
-        "--fixes".as_ref(),
-        nmea.as_os_str(),
-        "--fixes-every-s".as_ref(),
-        "30".as_ref(),
-        "--learnt-out".as_ref(),
-        learnt.as_os_str(),
-        "--out".as_ref(),
-        pose.as_os_str(),
-    ]);
+    let config = config_with_a_minute_window(&dir);
+    let out = replay_drive_with(
+        &config,
+        &[
+            "--fixes".as_ref(),
+            nmea.as_os_str(),
+            "--fixes-every-s".as_ref(),
+            "30".as_ref(),
+            "--learnt-out".as_ref(),
+            learnt.as_os_str(),
+            "--out".as_ref(),
+            pose.as_os_str(),
+        ],
+    );
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{stderr}");
     let refits: Vec<&str> = stderr
@@ -247,18 +276,22 @@ fn a_committed_set_the_drive_disagrees_with_is_flagged_with_the_distance_driven(
     store(&params, &file).unwrap();
     let learnt = dir.join("learnt.csv");
     let nmea = drive_dir().join("fixes/fixes.nmea");
-    let out = replay_drive(&[
-        "--params".as_ref(),
-        params.as_os_str(),
-        "--fixes".as_ref(),
-        nmea.as_os_str(),
-        "--fixes-every-s".as_ref(),
-        "30".as_ref(),
-        "--learnt-out".as_ref(),
-        learnt.as_os_str(),
-        "--out".as_ref(),
-        dir.join("pose.csv").as_os_str(),
-    ]);
+    let config = config_with_a_minute_window(&dir);
+    let out = replay_drive_with(
+        &config,
+        &[
+            "--params".as_ref(),
+            params.as_os_str(),
+            "--fixes".as_ref(),
+            nmea.as_os_str(),
+            "--fixes-every-s".as_ref(),
+            "30".as_ref(),
+            "--learnt-out".as_ref(),
+            learnt.as_os_str(),
+            "--out".as_ref(),
+            dir.join("pose.csv").as_os_str(),
+        ],
+    );
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{stderr}");
     // Flagged, with the learnt ratio near 1.005 (and the steering offset
@@ -277,9 +310,10 @@ fn a_committed_set_the_drive_disagrees_with_is_flagged_with_the_distance_driven(
     );
     let (learnt_ratio, _) = learnt_and_sigma(flags[0], "rear_ratio flagged: learnt ");
     assert!((learnt_ratio - 1.005).abs() < 0.001, "{}", flags[0]);
-    // The minute of fixes is one refit of the watch's (every 60 s), at the
-    // last fix: the learnt CSV's rows of that time show the flags; those of
-    // the refit at 30 s do not.
+    // The minute of fixes fills the watch's 60 s window once, at the last
+    // fix (its refit at 30 s spans half of it and is not judged): the
+    // learnt CSV's rows of that time show the flags; those of the refit at
+    // 30 s do not.
     let text = std::fs::read_to_string(&learnt).unwrap();
     let last_refit = rows(&text).last().unwrap()[0].clone();
     let flagged: Vec<Vec<String>> = rows(&text).into_iter().filter(|r| r[7] == "1").collect();
@@ -291,7 +325,7 @@ fn a_committed_set_the_drive_disagrees_with_is_flagged_with_the_distance_driven(
         "{text}"
     );
     // The summary: the distance until the first flag, the drive's up to the
-    // last fix (the watch's one refit is there; ~6 m/s over the minute).
+    // last fix (the watch's one judged refit is there; ~6 m/s over the minute).
     let summary = stderr
         .lines()
         .find(|l| l.starts_with("replay: drift watch: first flag (rear_ratio) at t="))
@@ -302,4 +336,25 @@ fn a_committed_set_the_drive_disagrees_with_is_flagged_with_the_distance_driven(
     };
     let (until, of) = (metres("s, "), metres("(of "));
     assert!(until > 200.0 && until == of, "{summary}");
+}
+
+#[test]
+fn a_minute_of_fixes_does_not_fill_the_default_drift_window_and_the_summary_says_so() {
+    // The model's steering offset (0.296°) is flagged once the watch's
+    // window is full (above); the default 180 s window a minute of fixes
+    // never fills, so nothing is judged, and the summary says that rather
+    // than "no flag".
+    let nmea = drive_dir().join("fixes/fixes.nmea");
+    let out = replay_drive(&["--fixes".as_ref(), nmea.as_os_str()]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    assert!(
+        !stderr.lines().any(|l| l.starts_with("replay: drift: ")),
+        "{stderr}"
+    );
+    assert!(
+        stderr.lines().any(|l| l.starts_with("replay: drift watch: nothing judged over ")
+            && l.contains("(0 of 1 refits judged, each over 180 s of fixes: the fixes never spanned 90 % of [calibration.drift] window_s)")),
+        "{stderr}"
+    );
 }

@@ -12,7 +12,7 @@
 //! pool, at most one at a time.
 
 use canodom_calib::calibrator::OnlineWindow;
-use canodom_calib::drift::{Change, Param, Reading, Watch, readings};
+use canodom_calib::drift::{Change, Param, Reading, Watch, readings, window_is_full};
 use canodom_offline::online::Epoch;
 use canodom_params::persist::ParamValues;
 use canodom_pipeline::config::DriftWatchConfig;
@@ -99,7 +99,10 @@ impl OnlineWatch {
     /// A fix came at `t_s`: the refit to run when one is due (`every_s`
     /// of fix time since the last, none in flight) and `window` — the
     /// calibrator's ring (`None` during a guided calibration) — holds
-    /// enough fixes.
+    /// enough fixes, spanning most of `window_s`
+    /// ([`canodom_calib::drift::window_is_full`]: a refit of the first
+    /// minute of fixes is not judged, so it is not run; the schedule
+    /// moves on as if it had been).
     pub fn due(
         &mut self,
         t_s: f64,
@@ -114,6 +117,13 @@ impl OnlineWatch {
             return None;
         }
         self.next_s = Some(t_s + self.config.every_s);
+        let span_s = match (window.fixes.first(), window.fixes.last()) {
+            (Some(a), Some(b)) => b.t_s - a.t_s,
+            _ => 0.0,
+        };
+        if !window_is_full(span_s, self.config.window_s) {
+            return None;
+        }
         self.in_flight = true;
         Some(RefitJob { window, t_s })
     }
@@ -175,7 +185,13 @@ mod tests {
     use super::*;
     use canodom_calib::drive::{DriveCalibration, DriveSample, Estimate, Fix};
 
+    /// A ring of `fixes` fixes spread over 179 s, as 1 Hz fixes fill the
+    /// default 180 s window.
     fn window(generation: u64, fixes: usize) -> OnlineWindow {
+        window_spanning(generation, fixes, 179.0)
+    }
+
+    fn window_spanning(generation: u64, fixes: usize, span_s: f64) -> OnlineWindow {
         let sample = DriveSample {
             t_s: 0.0,
             rear_left_m: 0.1,
@@ -191,9 +207,15 @@ mod tests {
             heading_rad: None,
             sigma_m: None,
         };
+        let step_s = span_s / (fixes.max(2) - 1) as f64;
         OnlineWindow {
             samples: vec![sample; 10],
-            fixes: vec![fix; fixes],
+            fixes: (0..fixes)
+                .map(|i| Fix {
+                    t_s: i as f64 * step_s,
+                    ..fix
+                })
+                .collect(),
             base: ParamValues::plain(1.5, 0.65),
             generation,
             odometer_m: 1234.0,
@@ -234,6 +256,7 @@ mod tests {
         Epoch {
             t_s: 0.0,
             fixes: 10,
+            fixes_span_s: 179.0,
             values: Some(values),
             estimates: Vec::new(),
             refused: None,
@@ -267,6 +290,28 @@ mod tests {
         assert!(w.judged(&job, None, 0, &in_use).is_some());
         assert!(w.due(220.0, |_| Some(window(0, 10))).is_none());
         assert!(w.due(221.0, |_| Some(window(0, 10))).is_some());
+    }
+
+    #[test]
+    fn a_ring_whose_fixes_span_less_than_most_of_the_window_is_not_refitted() {
+        let mut w = OnlineWatch::new(DriftWatchConfig::default());
+        let _ = w.due(0.0, |_| None);
+        // A minute of fixes at the start of a drive (or after an outage).
+        assert!(
+            w.due(60.0, |_| Some(window_spanning(0, 61, 60.0)))
+                .is_none()
+        );
+        // Not asked again at the next fix: the schedule moved on.
+        assert!(w.due(61.0, |_| panic!("not due")).is_none());
+        assert!(
+            w.due(120.0, |_| Some(window_spanning(0, 121, 120.0)))
+                .is_none()
+        );
+        // Three minutes: refitted and judged.
+        assert!(
+            w.due(180.0, |_| Some(window_spanning(0, 180, 179.0)))
+                .is_some()
+        );
     }
 
     #[test]

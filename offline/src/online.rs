@@ -19,7 +19,7 @@
 //! since. [`drift_watch`] judges the refits against the set in use.
 
 use crate::drive::{DriveLog, fit_samples};
-use canodom_calib::drift::{Change, DriftConfig, Watch, readings};
+use canodom_calib::drift::{Change, DriftConfig, Watch, readings, window_is_full};
 use canodom_calib::drive::{DriveCalibration, DriveOptions, DriveSample, Fix};
 use canodom_calib::drive_gate::misfits;
 use canodom_params::persist::ParamValues;
@@ -39,6 +39,10 @@ pub struct Epoch {
     pub t_s: f64,
     /// Fixes it used.
     pub fixes: usize,
+    /// Their span: the last one's time minus the first's, s (0 for fewer
+    /// than two). The drift watch judges only a refit that spans most of
+    /// its window ([`canodom_calib::drift::window_is_full`]).
+    pub fixes_span_s: f64,
     /// The set it learnt: the values in use with every estimate that
     /// passed the gate applied (`None` when the fit failed).
     pub values: Option<ParamValues>,
@@ -133,19 +137,25 @@ pub fn learn(
         .collect()
 }
 
-/// The drift watch over `epochs` (fitted on samples recorded with `base`),
-/// each judged against `in_use`: the watch after each refit and what it
-/// changed, in the epochs' order.
+/// The drift watch over `epochs` (fitted on samples recorded with `base`,
+/// each over at most `window_s` of the drive), each judged against
+/// `in_use`: the watch after each refit and what it changed, in the
+/// epochs' order. A refit whose fixes do not yet span most of the window
+/// leaves the watch as it was ([`window_is_full`]).
 pub fn drift_watch(
     epochs: &[Epoch],
     base: &ParamValues,
     in_use: &ParamValues,
     judge: &DriftConfig,
+    window_s: f64,
 ) -> Vec<(Watch, Vec<Change>)> {
     let mut watch = Watch::default();
     epochs
         .iter()
         .map(|e| {
+            if !window_is_full(e.fixes_span_s, window_s) {
+                return (watch, Vec::new());
+            }
             let read = e
                 .judged
                 .as_ref()
@@ -171,12 +181,17 @@ pub fn refit(
     t_s: f64,
 ) -> Epoch {
     let what = format!("the drive up to t={t_s:.1} s");
+    let fixes_span_s = match (fixes.first(), fixes.last()) {
+        (Some(a), Some(b)) => (b.t_s - a.t_s).max(0.0),
+        _ => 0.0,
+    };
     let fit = match fit_samples(config, base, samples, fixes, &what, options) {
         Ok(fit) => fit,
         Err(e) => {
             return Epoch {
                 t_s,
                 fixes: fixes.len(),
+                fixes_span_s,
                 values: None,
                 estimates: Vec::new(),
                 refused: Some(e.to_string()),
@@ -239,6 +254,7 @@ pub fn refit(
     Epoch {
         t_s,
         fixes: fixes.len(),
+        fixes_span_s,
         values: Some(fit.values),
         estimates,
         refused,

@@ -98,7 +98,7 @@ pub fn learn(
         drift.every_s,
         drift.window_s,
     );
-    let watches = online::drift_watch(&checks, &base, &base, &drift.judge);
+    let watches = online::drift_watch(&checks, &base, &base, &drift.judge, drift.window_s);
     // The refits and the flags in time order (a flag before a refit of
     // the same time).
     let mut lines: Vec<(f64, String)> = epochs.iter().map(|e| (e.t_s, describe(e))).collect();
@@ -129,18 +129,28 @@ pub fn learn(
             .with_context(|| format!("--learnt-out {}", out.display()))?;
     }
     let distance_m = epochs.last().map_or(0.0, |e| e.distance_m);
+    // Refits of fewer fixes than fill the window are not judged: say how
+    // many were, so a short drive's "no flag" is not read as "no drift".
+    let judged = checks
+        .iter()
+        .filter(|c| canodom_calib::drift::window_is_full(c.fixes_span_s, drift.window_s))
+        .count();
+    let refits = format!(
+        "{judged} of {} refits judged, each over {:.0} s of fixes",
+        checks.len(),
+        drift.window_s
+    );
     let drift_summary = Some(match first_flag {
         Some((name, t_s, d)) => format!(
             "drift watch: first flag ({name}) at t={t_s:.1} s, {d:.0} m into the drive \
-             (of {distance_m:.0} m, {} refits of {:.0} s)",
-            checks.len(),
-            drift.window_s
+             (of {distance_m:.0} m, {refits})"
         ),
-        None => format!(
-            "drift watch: no flag over {distance_m:.0} m ({} refits of {:.0} s)",
-            checks.len(),
-            drift.window_s
+        None if judged == 0 => format!(
+            "drift watch: nothing judged over {distance_m:.0} m ({refits}: the fixes never \
+             spanned {:.0} % of [calibration.drift] window_s)",
+            100.0 * canodom_calib::drift::FULL_WINDOW_SHARE
         ),
+        None => format!("drift watch: no flag over {distance_m:.0} m ({refits})"),
     });
     Ok(Learnt {
         switches: switches(params, &epochs),
