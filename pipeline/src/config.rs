@@ -338,7 +338,10 @@ pub struct DriftWatchConfig {
     /// 300 s one 300 s later), so a change is flagged about `window_s +
     /// every_s` after it: 240 s, 2.7 km at 40 km/h, inside issue #46's 3 km.
     /// A window much shorter leaves the rear ratio's σ above a fifth of the
-    /// 0.5 % to be seen (0.07 % over 180 s measured).
+    /// 0.5 % to be seen (0.07 % over 180 s measured). A refit is judged
+    /// only once its fixes span nine tenths of the window
+    /// ([`canodom_calib::drift::window_is_full`]): the first `window_s` of
+    /// a drive's fixes, or of fixes back after a longer outage, flag nothing.
     pub window_s: f64,
 }
 
