@@ -102,25 +102,35 @@ fn config_with_a_minute_window(dir: &std::path::Path) -> std::path::PathBuf {
     path
 }
 
+/// `canodom replay` of the drive with its minute of fixes, refitted every
+/// 30 s, the drift watch's window a minute ([`config_with_a_minute_window`]),
+/// the learnt CSV to `learnt` and the poses to `pose`; `extra` before them.
+fn replay_fixes_in_a_minute_window(
+    dir: &std::path::Path,
+    extra: &[&std::ffi::OsStr],
+    learnt: &std::path::Path,
+    pose: &std::path::Path,
+) -> std::process::Output {
+    let nmea = drive_dir().join("fixes/fixes.nmea");
+    let mut args: Vec<&std::ffi::OsStr> = extra.to_vec();
+    args.extend([
+        "--fixes".as_ref(),
+        nmea.as_os_str(),
+        "--fixes-every-s".as_ref(),
+        "30".as_ref(),
+        "--learnt-out".as_ref(),
+        learnt.as_os_str(),
+        "--out".as_ref(),
+        pose.as_os_str(),
+    ]);
+    replay_drive_with(&config_with_a_minute_window(dir), &args)
+}
+
 #[test]
 fn a_drive_is_calibrated_as_its_fixes_come_and_the_set_used_from_then_on() {
     let dir = crate::util::tmp_dir("replay_fixes");
     let (learnt, pose) = (dir.join("learnt.csv"), dir.join("pose.csv"));
-    let nmea = drive_dir().join("fixes/fixes.nmea");
-    let config = config_with_a_minute_window(&dir);
-    let out = replay_drive_with(
-        &config,
-        &[
-            "--fixes".as_ref(),
-            nmea.as_os_str(),
-            "--fixes-every-s".as_ref(),
-            "30".as_ref(),
-            "--learnt-out".as_ref(),
-            learnt.as_os_str(),
-            "--out".as_ref(),
-            pose.as_os_str(),
-        ],
-    );
+    let out = replay_fixes_in_a_minute_window(&dir, &[], &learnt, &pose);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{stderr}");
     let refits: Vec<&str> = stderr
@@ -275,22 +285,11 @@ fn a_committed_set_the_drive_disagrees_with_is_flagged_with_the_distance_driven(
     let params = dir.join("params.toml");
     store(&params, &file).unwrap();
     let learnt = dir.join("learnt.csv");
-    let nmea = drive_dir().join("fixes/fixes.nmea");
-    let config = config_with_a_minute_window(&dir);
-    let out = replay_drive_with(
-        &config,
-        &[
-            "--params".as_ref(),
-            params.as_os_str(),
-            "--fixes".as_ref(),
-            nmea.as_os_str(),
-            "--fixes-every-s".as_ref(),
-            "30".as_ref(),
-            "--learnt-out".as_ref(),
-            learnt.as_os_str(),
-            "--out".as_ref(),
-            dir.join("pose.csv").as_os_str(),
-        ],
+    let out = replay_fixes_in_a_minute_window(
+        &dir,
+        &["--params".as_ref(), params.as_os_str()],
+        &learnt,
+        &dir.join("pose.csv"),
     );
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{stderr}");
