@@ -250,6 +250,56 @@ pub fn readings(base: &ParamValues, cal: &DriveCalibration, in_use: &ParamValues
     out
 }
 
+/// How many of a parameter's past refits [`SigmaFloor`] remembers.
+pub const SIGMA_HISTORY: usize = 5;
+
+/// A refit's σ is itself an estimate (the jackknife over a window's few
+/// stretches), and now and then it comes out well below what the window's
+/// driving can tell: on the multi-body drives the refits that raised false
+/// flags reported σ far under their neighbours' (Escort 121: speed scale
+/// ± 0.11 % against a median ± 0.16 %, steering gain ± 0.12 % against
+/// ± 0.25 %). What a window of ordinary driving tells changes little from
+/// one refit to the next, and a changed tyre moves the value, not how well
+/// it is told; so each reading is judged with at least the median σ of the
+/// parameter's last [`SIGMA_HISTORY`] readings.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct SigmaFloor {
+    past: [Vec<f64>; 7],
+}
+
+impl SigmaFloor {
+    /// `readings` with each σ raised to the median of its parameter's last
+    /// readings' σ (none before the first), then remembered.
+    pub fn apply(&mut self, readings: &[Reading]) -> Vec<Reading> {
+        readings
+            .iter()
+            .map(|r| {
+                let past = &mut self.past[r.param.index()];
+                let floor = median(past);
+                past.push(r.sigma);
+                if past.len() > SIGMA_HISTORY {
+                    past.remove(0);
+                }
+                Reading {
+                    sigma: r.sigma.max(floor),
+                    ..*r
+                }
+            })
+            .collect()
+    }
+}
+
+/// The median of `values` (0 when empty).
+fn median(values: &[f64]) -> f64 {
+    let mut v = values.to_vec();
+    v.sort_by(f64::total_cmp);
+    match v.len() {
+        0 => 0.0,
+        n if n % 2 == 1 => v[n / 2],
+        n => 0.5 * (v[n / 2 - 1] + v[n / 2]),
+    }
+}
+
 /// What a judgement changed for one parameter.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Change {
@@ -429,6 +479,40 @@ mod tests {
         // 0.05 %: cleared.
         let (w, ch) = w.judge(&[reading(Param::SpeedScale, -0.0005, 0.0005)], &c);
         assert!(!w.any() && ch.len() == 1 && !ch[0].raised);
+    }
+
+    #[test]
+    fn a_sigma_far_below_the_last_refits_is_raised_to_their_median() {
+        let mut floor = SigmaFloor::default();
+        // The first reading has nothing to compare with: kept.
+        let out = floor.apply(&[reading(Param::SpeedScale, 0.003, 0.0016)]);
+        assert_eq!(out[0].sigma, 0.0016);
+        for s in [0.0015, 0.0017, 0.0016] {
+            floor.apply(&[reading(Param::SpeedScale, 0.0, s)]);
+        }
+        // 0.33 % with σ 0.11 % would be 3σ beyond; with its neighbours'
+        // 0.16 % it is 2σ: not flagged.
+        let out = floor.apply(&[reading(Param::SpeedScale, 0.0033, 0.0011)]);
+        assert!((out[0].sigma - 0.0016).abs() < 1e-12);
+        let (w, _) = Watch::default().judge(&out, &DriftConfig::default());
+        assert!(!w.any());
+        // A larger σ than the neighbours' is kept; other parameters have
+        // their own history.
+        let out = floor.apply(&[
+            reading(Param::SpeedScale, 0.0, 0.003),
+            reading(Param::RearRatio, 0.005, 0.0001),
+        ]);
+        assert_eq!((out[0].sigma, out[1].sigma), (0.003, 0.0001));
+        // Only the last SIGMA_HISTORY readings count.
+        let mut floor = SigmaFloor::default();
+        for _ in 0..SIGMA_HISTORY {
+            floor.apply(&[reading(Param::RearRatio, 0.0, 0.01)]);
+        }
+        for _ in 0..SIGMA_HISTORY {
+            floor.apply(&[reading(Param::RearRatio, 0.0, 0.0001)]);
+        }
+        let out = floor.apply(&[reading(Param::RearRatio, 0.0, 0.00005)]);
+        assert_eq!(out[0].sigma, 0.0001);
     }
 
     #[test]

@@ -12,7 +12,7 @@
 //! pool, at most one at a time.
 
 use canodom_calib::calibrator::OnlineWindow;
-use canodom_calib::drift::{Change, Param, Reading, Watch, readings, window_is_full};
+use canodom_calib::drift::{Change, Param, Reading, SigmaFloor, Watch, readings, window_is_full};
 use canodom_offline::online::Epoch;
 use canodom_params::persist::ParamValues;
 use canodom_pipeline::config::DriftWatchConfig;
@@ -66,6 +66,8 @@ pub struct OnlineWatch {
     /// The fix time the next refit is due at (set by the first fix).
     next_s: Option<f64>,
     in_flight: bool,
+    /// The judged refits' σ, for [`SigmaFloor`].
+    floor: SigmaFloor,
     report: DriftReport,
 }
 
@@ -77,6 +79,7 @@ impl OnlineWatch {
             watch: Watch::default(),
             next_s: None,
             in_flight: false,
+            floor: SigmaFloor::default(),
             report: DriftReport::default(),
         }
     }
@@ -147,7 +150,7 @@ impl OnlineWatch {
         }
         let read = epoch
             .and_then(|e| e.judged.as_ref())
-            .map(|cal| readings(&job.window.base, cal, in_use))
+            .map(|cal| self.floor.apply(&readings(&job.window.base, cal, in_use)))
             .unwrap_or_default();
         let (next, changes) = self.watch.judge(&read, &self.config.judge);
         self.watch = next;

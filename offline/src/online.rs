@@ -19,7 +19,7 @@
 //! since. [`drift_watch`] judges the refits against the set in use.
 
 use crate::drive::{DriveLog, fit_samples};
-use canodom_calib::drift::{Change, DriftConfig, Watch, readings, window_is_full};
+use canodom_calib::drift::{Change, DriftConfig, SigmaFloor, Watch, readings, window_is_full};
 use canodom_calib::drive::{DriveCalibration, DriveOptions, DriveSample, Fix};
 use canodom_calib::drive_gate::misfits;
 use canodom_params::persist::ParamValues;
@@ -150,6 +150,7 @@ pub fn drift_watch(
     window_s: f64,
 ) -> Vec<(Watch, Vec<Change>)> {
     let mut watch = Watch::default();
+    let mut floor = SigmaFloor::default();
     epochs
         .iter()
         .map(|e| {
@@ -159,7 +160,7 @@ pub fn drift_watch(
             let read = e
                 .judged
                 .as_ref()
-                .map(|cal| readings(base, cal, in_use))
+                .map(|cal| floor.apply(&readings(base, cal, in_use)))
                 .unwrap_or_default();
             let (next, changes) = watch.judge(&read, judge);
             watch = next;
