@@ -96,6 +96,15 @@ pub const CLEAR_SHARE: f64 = 0.5;
 /// second less than the window they fill.
 pub const FULL_WINDOW_SHARE: f64 = 0.9;
 
+/// The time `fixes` span: the last one's time minus the first's, s (0 for
+/// fewer than two).
+pub fn fixes_span_s(fixes: &[crate::drive::Fix]) -> f64 {
+    match (fixes.first(), fixes.last()) {
+        (Some(a), Some(b)) => (b.t_s - a.t_s).max(0.0),
+        _ => 0.0,
+    }
+}
+
 /// Whether a refit whose fixes span `fixes_span_s` (its last fix's time
 /// minus its first's) is judged by a watch refitting `window_s`
 /// ([`FULL_WINDOW_SHARE`]). An unbounded window is judged at any span.

@@ -12,7 +12,9 @@
 //! pool, at most one at a time.
 
 use canodom_calib::calibrator::OnlineWindow;
-use canodom_calib::drift::{Change, Param, Reading, SigmaFloor, Watch, readings, window_is_full};
+use canodom_calib::drift::{
+    Change, Param, Reading, SigmaFloor, Watch, fixes_span_s, readings, window_is_full,
+};
 use canodom_offline::online::Epoch;
 use canodom_params::persist::ParamValues;
 use canodom_pipeline::config::DriftWatchConfig;
@@ -120,11 +122,7 @@ impl OnlineWatch {
             return None;
         }
         self.next_s = Some(t_s + self.config.every_s);
-        let span_s = match (window.fixes.first(), window.fixes.last()) {
-            (Some(a), Some(b)) => b.t_s - a.t_s,
-            _ => 0.0,
-        };
-        if !window_is_full(span_s, self.config.window_s) {
+        if !window_is_full(fixes_span_s(&window.fixes), self.config.window_s) {
             return None;
         }
         self.in_flight = true;

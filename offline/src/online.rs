@@ -182,10 +182,7 @@ pub fn refit(
     t_s: f64,
 ) -> Epoch {
     let what = format!("the drive up to t={t_s:.1} s");
-    let fixes_span_s = match (fixes.first(), fixes.last()) {
-        (Some(a), Some(b)) => (b.t_s - a.t_s).max(0.0),
-        _ => 0.0,
-    };
+    let fixes_span_s = canodom_calib::drift::fixes_span_s(fixes);
     let fit = match fit_samples(config, base, samples, fixes, &what, options) {
         Ok(fit) => fit,
         Err(e) => {
