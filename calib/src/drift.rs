@@ -298,6 +298,30 @@ impl SigmaFloor {
     }
 }
 
+/// The drift watch as a caller keeps it between refits: the flags and the
+/// σ floor their judgements use.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Watcher {
+    watch: Watch,
+    floor: SigmaFloor,
+}
+
+impl Watcher {
+    /// The flags now.
+    pub fn watch(&self) -> Watch {
+        self.watch
+    }
+
+    /// Judges a refit's `readings` ([`SigmaFloor`], then [`Watch::judge`]):
+    /// what changed.
+    pub fn judge(&mut self, readings: &[Reading], config: &DriftConfig) -> Vec<Change> {
+        let floored = self.floor.apply(readings);
+        let (next, changes) = self.watch.judge(&floored, config);
+        self.watch = next;
+        changes
+    }
+}
+
 /// The median of `values` (0 when empty).
 fn median(values: &[f64]) -> f64 {
     let mut v = values.to_vec();

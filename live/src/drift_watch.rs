@@ -13,7 +13,7 @@
 
 use canodom_calib::calibrator::OnlineWindow;
 use canodom_calib::drift::{
-    Change, Param, Reading, SigmaFloor, Watch, fixes_span_s, readings, window_is_full,
+    Change, Param, Reading, Watch, Watcher, fixes_span_s, readings, window_is_full,
 };
 use canodom_offline::online::Epoch;
 use canodom_params::persist::ParamValues;
@@ -64,12 +64,10 @@ pub struct Judged {
 #[derive(Debug, Clone)]
 pub struct OnlineWatch {
     config: DriftWatchConfig,
-    watch: Watch,
+    watch: Watcher,
     /// The fix time the next refit is due at (set by the first fix).
     next_s: Option<f64>,
     in_flight: bool,
-    /// The judged refits' σ, for [`SigmaFloor`].
-    floor: SigmaFloor,
     report: DriftReport,
 }
 
@@ -78,17 +76,16 @@ impl OnlineWatch {
     pub fn new(config: DriftWatchConfig) -> Self {
         Self {
             config,
-            watch: Watch::default(),
+            watch: Watcher::default(),
             next_s: None,
             in_flight: false,
-            floor: SigmaFloor::default(),
             report: DriftReport::default(),
         }
     }
 
     /// The flags.
     pub fn watch(&self) -> Watch {
-        self.watch
+        self.watch.watch()
     }
 
     /// The settings.
@@ -148,10 +145,10 @@ impl OnlineWatch {
         }
         let read = epoch
             .and_then(|e| e.judged.as_ref())
-            .map(|cal| self.floor.apply(&readings(&job.window.base, cal, in_use)))
+            .map(|cal| readings(&job.window.base, cal, in_use))
             .unwrap_or_default();
-        let (next, changes) = self.watch.judge(&read, &self.config.judge);
-        self.watch = next;
+        let changes = self.watch.judge(&read, &self.config.judge);
+        let next = self.watch.watch();
         let candidate = if next.any() {
             epoch.and_then(Epoch::accepted).copied()
         } else {

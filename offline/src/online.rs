@@ -19,7 +19,7 @@
 //! since. [`drift_watch`] judges the refits against the set in use.
 
 use crate::drive::{DriveLog, fit_samples};
-use canodom_calib::drift::{Change, DriftConfig, SigmaFloor, Watch, readings, window_is_full};
+use canodom_calib::drift::{Change, DriftConfig, Watch, Watcher, readings, window_is_full};
 use canodom_calib::drive::{DriveCalibration, DriveOptions, DriveSample, Fix};
 use canodom_calib::drive_gate::misfits;
 use canodom_params::persist::ParamValues;
@@ -149,22 +149,20 @@ pub fn drift_watch(
     judge: &DriftConfig,
     window_s: f64,
 ) -> Vec<(Watch, Vec<Change>)> {
-    let mut watch = Watch::default();
-    let mut floor = SigmaFloor::default();
+    let mut watcher = Watcher::default();
     epochs
         .iter()
         .map(|e| {
             if !window_is_full(e.fixes_span_s, window_s) {
-                return (watch, Vec::new());
+                return (watcher.watch(), Vec::new());
             }
             let read = e
                 .judged
                 .as_ref()
-                .map(|cal| floor.apply(&readings(base, cal, in_use)))
+                .map(|cal| readings(base, cal, in_use))
                 .unwrap_or_default();
-            let (next, changes) = watch.judge(&read, judge);
-            watch = next;
-            (next, changes)
+            let changes = watcher.judge(&read, judge);
+            (watcher.watch(), changes)
         })
         .collect()
 }
