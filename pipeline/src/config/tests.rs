@@ -521,11 +521,11 @@ fn every_bad_gnss_key_is_named() {
 fn the_drift_watch_keys_reach_their_fields_in_their_units() {
     use canodom_calib::drift::Param;
     let text = format!(
-        "{RC_CAR}\n[calibration.drift]\nk_sigma = 4.0\nyaw_bias_tol_dps = 0.1\nrear_ratio_tol_rel = 0.003\nsteer_offset_tol_deg = 0.5\nevery_s = 30.0\nwindow_s = 300.0\n"
+        "{RC_CAR}\n[calibration.drift]\nk_sigma = 5.0\nyaw_bias_tol_dps = 0.1\nrear_ratio_tol_rel = 0.003\nsteer_offset_tol_deg = 0.5\nevery_s = 30.0\nwindow_s = 300.0\n"
     );
     let c = Config::from_toml(&text, &path()).unwrap();
     let d = c.calibration.drift;
-    assert_eq!(d.judge.k_sigma, 4.0);
+    assert_eq!(d.judge.k_sigma, 5.0);
     assert!((d.judge.tolerance(Param::YawBias) - 0.1f64.to_radians()).abs() < 1e-15);
     assert!((d.judge.tolerance(Param::SteerOffset) - 0.5f64.to_radians()).abs() < 1e-15);
     assert_eq!(d.judge.tolerance(Param::RearRatio), 0.003);
