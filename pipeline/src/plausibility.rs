@@ -285,9 +285,10 @@ impl Tally {
 /// its bin (the counts taken as spread evenly over it); 0 when it is empty.
 /// Not the bin's centre: with 2 % bins a centre moves the median by up to
 /// a percent, and a gyro's scale is judged against a 5 % limit — a median
-/// of 3.8 % (the multi-body BMW 320i of seed 122, a right gyro against a
-/// rear pair whose left tyre is 0.23 % large) read as its bin's 5 % and
-/// dropped the gyro for the whole drive.
+/// of 3.8 % (the multi-body BMW 320i of seed 122: a right gyro against a
+/// rear pair and a steering that over-read its first hard turns, tyre slip
+/// and a steering ratio 2.5 % off) read as its bin's 5 % and dropped the
+/// gyro for the whole drive.
 fn median_ln(counts: impl Iterator<Item = u32>, n: u32) -> f64 {
     if n == 0 {
         return 0.0;
