@@ -630,7 +630,7 @@ impl Calibrator {
 
     /// A filter step at `t_s`: `rear_rev` wheel revolutions (left, right)
     /// since the previous step, the steering signal, and the yaw rate the
-    /// filter used.
+    /// filter used; the front wheels not read ([`Self::on_step_with_front`]).
     pub fn on_step(
         &mut self,
         t_s: f64,
@@ -638,15 +638,36 @@ impl Calibrator {
         steer_signal: Option<f64>,
         yaw_rate_radps: Option<f64>,
     ) -> Vec<Output> {
+        self.on_step_with_front(t_s, rear_rev, None, steer_signal, yaw_rate_radps)
+    }
+
+    /// [`Self::on_step`] with the front wheels' revolutions (left, right)
+    /// of the step, `None` when they were not fresh: the drift watch reads
+    /// the front tyres' ratio from them ([`crate::front_ratio`]).
+    pub fn on_step_with_front(
+        &mut self,
+        t_s: f64,
+        rear_rev: (f64, f64),
+        front_rev: Option<(f64, f64)>,
+        steer_signal: Option<f64>,
+        yaw_rate_radps: Option<f64>,
+    ) -> Vec<Output> {
         let p = self.vehicle(&self.current_values());
+        let circumference = |w: Wheel| std::f64::consts::PI * p.wheel_diameter_m(w);
         let (left_m, right_m) = (
-            std::f64::consts::PI * p.wheel_diameter_m(Wheel::RearLeft) * rear_rev.0,
-            std::f64::consts::PI * p.wheel_diameter_m(Wheel::RearRight) * rear_rev.1,
+            circumference(Wheel::RearLeft) * rear_rev.0,
+            circumference(Wheel::RearRight) * rear_rev.1,
         );
         let step = DriveStep {
             t_s,
             rear_left_m: left_m,
             rear_right_m: right_m,
+            front_m: front_rev.map(|(l, r)| {
+                (
+                    circumference(Wheel::FrontLeft) * l,
+                    circumference(Wheel::FrontRight) * r,
+                )
+            }),
             steer_angle_rad: steer_signal.map(|u| p.steering().angle_rad(u)),
             yaw_rate_radps,
             dt_s: self.standstill.interval_s(t_s),

@@ -9,7 +9,11 @@
 //! the state file and the status frames are the caller's.
 
 use crate::drive::{DriveCalibration, Estimate};
+use crate::front_ratio::FrontRatio;
 use crate::history::ParamValues;
+
+/// How many parameters the drift watch judges.
+pub const PARAMS: usize = 8;
 
 /// A parameter the drift watch judges.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
@@ -28,11 +32,16 @@ pub enum Param {
     YawBias,
     /// The yaw-rate sensor's scale, relative.
     YawScale,
+    /// The front wheels' right/left diameter ratio, relative
+    /// ([`crate::front_ratio`]). No parameter set carries the front
+    /// tyres, so it is judged against its value at the watch's first
+    /// reading ([`Watcher::front_reading`]): a front tyre losing pressure.
+    FrontRatio,
 }
 
 impl Param {
     /// Every parameter, in the order they are reported.
-    pub const ALL: [Self; 7] = [
+    pub const ALL: [Self; PARAMS] = [
         Self::SpeedScale,
         Self::RearRatio,
         Self::RearTread,
@@ -40,6 +49,7 @@ impl Param {
         Self::SteerOffset,
         Self::YawBias,
         Self::YawScale,
+        Self::FrontRatio,
     ];
 
     /// The name logs, the state file and the learnt CSV use (the online
@@ -53,6 +63,7 @@ impl Param {
             Self::SteerOffset => "steer_offset_rad",
             Self::YawBias => "yaw_bias_radps",
             Self::YawScale => "yaw_scale",
+            Self::FrontRatio => "front_ratio",
         }
     }
 
@@ -74,7 +85,7 @@ pub struct DriftConfig {
     pub k_sigma: f64,
     /// Each parameter's tolerance, in its unit ([`Param`]), indexed as
     /// [`Param::ALL`]: a difference must exceed it.
-    pub tolerance: [f64; 7],
+    pub tolerance: [f64; PARAMS],
 }
 
 /// The share of its tolerance a flagged parameter's difference must fall
@@ -136,12 +147,17 @@ impl Default for DriftConfig {
     ///   drive gate's σ bound (`max_yaw_bias_std_dps`).
     /// - yaw-rate scale 0.2 %: 0.7° a full circle; the issue's gyro of
     ///   0.5 % is 2.5 times it.
+    /// - front ratio 0.2 %: as the rear's (a tyre 0.5 % soft is 2.5
+    ///   tolerances). Its reading is steadier than a refit's: on nine
+    ///   steady 20-minute multi-body drives it moved by at most 0.03 %
+    ///   between 3-minute windows, with a σ of 0.001–0.017 %.
     ///
     /// And `k_sigma` 4, from the false flags a user can live with: none in
     /// many hours of steady driving (issue #46: none in an hour). The
-    /// watch judges seven parameters at every refit, once a minute over
-    /// 3-minute windows, so about 20 independent judgements an hour each,
-    /// 140 in all. At 3 σ each crosses by noise alone with a chance of
+    /// watch judges seven parameters at every refit whose σ can reach
+    /// their tolerance (the front ratio's is a hundredth of it), once a
+    /// minute over 3-minute windows, so about 20 independent judgements an
+    /// hour each, 140 in all. At 3 σ each crosses by noise alone with a chance of
     /// 0.27 %: a false flag every 2.6 hours wherever k σ rather than the
     /// tolerance decides (the speed scale's σ of 0.1–0.15 % makes 3 σ
     /// 0.3–0.45 %, past its 0.2 % tolerance); at 4 σ, 6.3·10⁻⁵: one in
@@ -159,6 +175,7 @@ impl Default for DriftConfig {
                 0.01,
                 0.2f64.to_radians(),
                 0.05f64.to_radians(),
+                0.002,
                 0.002,
             ],
         }
@@ -286,7 +303,7 @@ pub const SIGMA_HISTORY: usize = 5;
 /// parameter's last [`SIGMA_HISTORY`] readings.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct SigmaFloor {
-    past: [Vec<f64>; 7],
+    past: [Vec<f64>; PARAMS],
 }
 
 impl SigmaFloor {
@@ -311,18 +328,36 @@ impl SigmaFloor {
     }
 }
 
-/// The drift watch as a caller keeps it between refits: the flags and the
-/// σ floor their judgements use.
+/// The drift watch as a caller keeps it between refits: the flags, the
+/// σ floor their judgements use, and the front tyres' ratio its first
+/// reading found.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Watcher {
     watch: Watch,
     floor: SigmaFloor,
+    front_baseline: Option<FrontRatio>,
 }
 
 impl Watcher {
     /// The flags now.
     pub fn watch(&self) -> Watch {
         self.watch
+    }
+
+    /// A refit's front tyres' ratio as a reading to judge
+    /// ([`Param::FrontRatio`]). No parameter set carries the front tyres,
+    /// so what it is judged against is the ratio of the watch's first
+    /// reading (the car as the watch found it: a pair of front tyres that
+    /// already differ is no drift), with that reading's σ added to this
+    /// one's. The first reading itself is judged against itself.
+    pub fn front_reading(&mut self, front: &FrontRatio) -> Reading {
+        let base = *self.front_baseline.get_or_insert(*front);
+        Reading {
+            param: Param::FrontRatio,
+            learnt: front.value,
+            sigma: front.sigma.hypot(base.sigma),
+            in_use: base.value,
+        }
     }
 
     /// Judges a refit's `readings` ([`SigmaFloor`], then [`Watch::judge`]):
@@ -358,7 +393,7 @@ pub struct Change {
 /// The drift flags, one per parameter.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct Watch {
-    flags: [bool; 7],
+    flags: [bool; PARAMS],
 }
 
 impl Watch {
@@ -653,6 +688,42 @@ mod tests {
     }
 
     #[test]
+    fn the_front_tyres_are_judged_against_their_first_reading() {
+        let config = DriftConfig::default();
+        let mut w = Watcher::default();
+        let front = |value: f64, sigma: f64| FrontRatio {
+            value,
+            sigma,
+            distance_m: 600.0,
+        };
+        // A pair that already differs by 0.3 % is how the watch found the
+        // car: no drift.
+        let first = w.front_reading(&front(1.003, 0.00002));
+        assert_eq!(
+            (first.learnt, first.in_use, first.param),
+            (1.003, 1.003, Param::FrontRatio)
+        );
+        assert!(w.judge(&[first], &config).is_empty());
+        let steady = w.front_reading(&front(1.0032, 0.00003));
+        assert_eq!(steady.in_use, 1.003);
+        assert!((steady.sigma - 0.00002f64.hypot(0.00003)).abs() < 1e-12);
+        assert!(w.judge(&[steady], &config).is_empty());
+        // The front-left tyre loses 0.5 %: flagged, then cleared once
+        // pumped back up.
+        let soft = w.front_reading(&front(1.0081, 0.00003));
+        let changes = w.judge(&[soft], &config);
+        assert!(changes.len() == 1 && changes[0].raised, "{changes:?}");
+        assert!(w.watch().flagged(Param::FrontRatio));
+        let pumped = w.front_reading(&front(1.0035, 0.00003));
+        let changes = w.judge(&[pumped], &config);
+        assert!(changes.len() == 1 && !changes[0].raised, "{changes:?}");
+        // A change within its window spreads the reading's parts: a σ that
+        // wide keeps it from a flag until the window holds the change.
+        let mixed = w.front_reading(&front(1.0060, 0.0008));
+        assert!(w.judge(&[mixed], &config).is_empty());
+    }
+
+    #[test]
     fn names_round_trip() {
         for p in Param::ALL {
             assert_eq!(Param::from_name(p.name()), Some(p));
@@ -661,7 +732,7 @@ mod tests {
     }
 
     fn any_param() -> impl Strategy<Value = Param> {
-        (0usize..7).prop_map(|i| Param::ALL[i])
+        (0usize..PARAMS).prop_map(|i| Param::ALL[i])
     }
 
     proptest! {

@@ -29,6 +29,9 @@ pub struct DriveStep {
     pub rear_left_m: f64,
     /// Rear-right distance, m.
     pub rear_right_m: f64,
+    /// Front (left, right) distances with the diameters in use, m; `None`
+    /// where the front wheels were not fresh.
+    pub front_m: Option<(f64, f64)>,
     /// The road-wheel angle of the map in use, rad.
     pub steer_angle_rad: Option<f64>,
     /// The yaw rate the filter used, rad/s.
@@ -167,6 +170,7 @@ impl DriveRecorder {
                 t_s: step.t_s,
                 rear_left_m: 0.0,
                 rear_right_m: 0.0,
+                front_m: Some((0.0, 0.0)),
                 steer_angle_rad: None,
                 yaw_rate_radps: None,
                 rear_slip: false,
@@ -177,6 +181,11 @@ impl DriveRecorder {
         bin.t_s = step.t_s;
         bin.rear_left_m += step.rear_left_m;
         bin.rear_right_m += step.rear_right_m;
+        // A bin is read on the front only if every step in it was.
+        bin.front_m = bin
+            .front_m
+            .zip(step.front_m)
+            .map(|(b, s)| (b.0 + s.0, b.1 + s.1));
         bin.steer_angle_rad = step.steer_angle_rad.or(bin.steer_angle_rad);
         if let Some(w) = step.yaw_rate_radps {
             *yaw_dt += w * step.dt_s;
@@ -328,6 +337,7 @@ mod tests {
             t_s,
             rear_left_m: 0.01,
             rear_right_m: 0.012,
+            front_m: Some((0.011, 0.013)),
             steer_angle_rad: Some(0.1),
             yaw_rate_radps: Some(0.2),
             dt_s: 0.01,

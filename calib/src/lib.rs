@@ -82,6 +82,7 @@ pub mod drive;
 pub mod drive_gate;
 pub mod drive_record;
 pub mod error;
+pub mod front_ratio;
 pub mod history;
 pub mod methods;
 pub mod run;

@@ -90,6 +90,7 @@ fn bench(c: &mut Criterion) {
                 t_s,
                 rear_left_m: 0.01,
                 rear_right_m: 0.0101,
+                front_m: Some((0.0102, 0.0103)),
                 steer_angle_rad: Some(0.05),
                 yaw_rate_radps: None,
                 dt_s: 0.01,

@@ -73,6 +73,8 @@ pub enum CalibInput {
         t: Timestamp,
         /// Rear wheel revolutions (left, right) since the previous step.
         rear_rev: (f64, f64),
+        /// Front wheel revolutions (left, right), when the front was fresh.
+        front_rev: Option<(f64, f64)>,
         /// The steering signal.
         steer_signal: Option<f64>,
         /// The yaw rate the filter used.
@@ -268,11 +270,18 @@ impl<Tx: FrameSink + Clone> CalibTask<Tx> {
             CalibInput::Step {
                 t,
                 rear_rev,
+                front_rev,
                 steer_signal,
                 yaw_rate_radps,
                 window,
             } => {
-                let out = self.live.on_step(t, rear_rev, steer_signal, yaw_rate_radps);
+                let out = self.live.on_step_with_front(
+                    t,
+                    rear_rev,
+                    front_rev,
+                    steer_signal,
+                    yaw_rate_radps,
+                );
                 self.live.on_window(window);
                 self.standstill.send_replace(self.live.standstill());
                 out
@@ -483,6 +492,10 @@ pub fn lock(gate: &Mutex<SecurityGate>) -> std::sync::MutexGuard<'_, SecurityGat
     gate.lock()
         .unwrap_or_else(std::sync::PoisonError::into_inner)
 }
+
+// Every parameter the watch judges fits the diagnostics' slots: checked
+// when the daemon is built, so a new parameter cannot be dropped silently.
+const _: () = assert!(canodom_calib::drift::PARAMS <= canodom_export::sample::DRIFT_PARAMS);
 
 /// The drift watch's report as the diagnostics show it (the recordings'
 /// calibration channel, Foxglove, ROS 2 `/diagnostics`); `None` before its

@@ -1074,6 +1074,7 @@ impl<Tx: FrameSink + Clone> OdometryTask<Tx> {
                     self.to_calibration(CalibInput::Step {
                         t: r.timestamp,
                         rear_rev: step.rear_rev,
+                        front_rev: step.front_rev,
                         steer_signal: step.steer_signal,
                         yaw_rate_radps: step.yaw_rate_radps,
                         window: step.correction,

@@ -9,6 +9,7 @@
 //! offset the model has (0.3°) is flagged, and a rear wheel committed 0.5 %
 //! off is flagged at the watch's first refit.
 
+use std::fmt::Write as _;
 use std::process::Command;
 
 fn drive_dir() -> std::path::PathBuf {
@@ -356,4 +357,150 @@ fn a_minute_of_fixes_does_not_fill_the_default_drift_window_and_the_summary_says
             && l.contains("(0 of 1 refits judged, each over 180 s of fixes: the fixes never spanned 90 % of [calibration.drift] window_s)")),
         "{stderr}"
     );
+}
+
+/// The drive's log with its front-left wheel-speed sensor reading `1/(1 +
+/// rel)` of its speed from `from_s` after the first frame on (its tyre
+/// `rel` smaller: a pressure loss), as a plain candump log. The Toyota
+/// `WHEEL_SPEEDS` (0x0AA) carries `WHEEL_SPEED_FL` in the low 15 bits of
+/// bytes 2–3, 0.01 km/h, offset −67.67, no checksum.
+fn drive_with_a_soft_front_left_tyre(from_s: f64, rel: f64) -> String {
+    let text = crate::util::zstd_text(&drive_dir().join("drive.log.zst"));
+    let time = |line: &str| -> f64 {
+        line.split(' ')
+            .next()
+            .unwrap()
+            .trim_matches(['(', ')'])
+            .parse()
+            .unwrap()
+    };
+    let t0 = time(text.lines().next().unwrap());
+    let mut out = String::new();
+    for line in text.lines() {
+        let mut line = line.to_owned();
+        if let Some(at) = line.find(" 0AA#")
+            && time(&line) - t0 >= from_s
+        {
+            let hex = &line[at + 5..];
+            let mut bytes: Vec<u8> = (0..hex.len() / 2)
+                .map(|i| u8::from_str_radix(&hex[2 * i..2 * i + 2], 16).unwrap())
+                .collect();
+            let raw = (u32::from(bytes[2] & 0x7f) << 8) | u32::from(bytes[3]);
+            let kmh = f64::from(raw) * 0.01 - 67.67;
+            let read = if kmh > 0.0 { kmh / (1.0 + rel) } else { kmh };
+            let raw = ((read + 67.67) / 0.01).round() as u32;
+            bytes[2] = (bytes[2] & 0x80) | ((raw >> 8) as u8 & 0x7f);
+            bytes[3] = raw as u8;
+            line.truncate(at + 5);
+            for b in bytes {
+                write!(line, "{b:02X}").unwrap();
+            }
+        }
+        out.push_str(&line);
+        out.push('\n');
+    }
+    out
+}
+
+/// Fixes of the whole drive from its truth, 1 Hz, with a deterministic
+/// error of up to 0.3 m per axis, as a fixes CSV.
+fn fixes_of_the_whole_drive() -> String {
+    let truth = std::fs::read_to_string(drive_dir().join("truth.csv")).unwrap();
+    let mut lines = truth.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let col = |name: &str| header.iter().position(|h| *h == name).unwrap();
+    let (t, x, y) = (col("t_unix_s"), col("x_m"), col("y_m"));
+    let mut out = "t_unix_s,x_m,y_m\n".to_owned();
+    let mut next = None;
+    let mut k = 0.0f64;
+    for line in lines {
+        let v: Vec<f64> = line.split(',').map(|f| f.parse().unwrap()).collect();
+        if v[t] >= *next.get_or_insert(v[t]) {
+            k += 1.0;
+            writeln!(
+                out,
+                "{:.3},{:.3},{:.3}",
+                v[t],
+                v[x] + 0.3 * (1.7 * k).sin(),
+                v[y] + 0.3 * (2.3 * k).cos()
+            )
+            .unwrap();
+            next = Some(v[t] + 1.0);
+        }
+    }
+    out
+}
+
+/// The drift lines of `canodom replay` of `log` with fixes over the whole
+/// drive, the watch refitting the last 40 s every 10 s.
+fn front_drift_lines(dir: &std::path::Path, log: &str) -> Vec<String> {
+    let vehicle = drive_dir().parent().unwrap().to_path_buf();
+    let text = std::fs::read_to_string(vehicle.join("config_yaw.toml")).unwrap();
+    let dbc_dir = vehicle.join("../../dbc/");
+    let text = text.replace("\"../../dbc/", &format!("\"{}", dbc_dir.display()));
+    let config = dir.join("config_yaw.toml");
+    std::fs::write(
+        &config,
+        format!("{text}\n[calibration.drift]\nevery_s = 10.0\nwindow_s = 40.0\n"),
+    )
+    .unwrap();
+    let (log_path, fixes) = (dir.join("drive.log"), dir.join("fixes.csv"));
+    std::fs::write(&log_path, log).unwrap();
+    std::fs::write(&fixes, fixes_of_the_whole_drive()).unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_canodom"))
+        .args(["replay", "--config"])
+        .arg(&config)
+        .arg(&log_path)
+        .arg("--fixes")
+        .arg(&fixes)
+        .args(["--fixes-every-s", "10", "--out"])
+        .arg(dir.join("pose.csv"))
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    stderr
+        .lines()
+        .filter(|l| l.starts_with("replay: drift: front_ratio "))
+        .map(str::to_owned)
+        .collect()
+}
+
+#[test]
+fn a_front_tyre_that_loses_pressure_is_flagged_against_the_front_pair_as_first_read() {
+    // No parameter set carries the front tyres and the drive fit reads the
+    // rear wheels: the front pair's ratio on the window's near-straights is
+    // judged against its first reading.
+    let dir = crate::util::tmp_dir("replay_fixes_front");
+    let plain = crate::util::zstd_text(&drive_dir().join("drive.log.zst"));
+    let lines = front_drift_lines(&dir, &plain);
+    assert!(lines.is_empty(), "{lines:?}");
+    // The front-left tyre 0.5 % smaller from 70 s on: it reads 0.5 % long,
+    // the pair's right/left ratio 0.5 % low. The drive's 10 m/s make the
+    // first window entirely after the change end at 110 s, about 950 m in.
+    let soft = drive_with_a_soft_front_left_tyre(70.0, -0.005);
+    let lines = front_drift_lines(&dir, &soft);
+    assert_eq!(lines.len(), 1, "{lines:?}");
+    let line = &lines[0];
+    assert!(
+        line.starts_with("replay: drift: front_ratio flagged: learnt ")
+            && line.ends_with("a front tyre's size changed: check its pressure"),
+        "{line}"
+    );
+    let (learnt, sigma) = learnt_and_sigma(line, "flagged: learnt ");
+    let first = line
+        .split("as first read ")
+        .nth(1)
+        .and_then(|r| r.split(' ').next())
+        .and_then(|v| v.parse::<f64>().ok())
+        .unwrap();
+    assert!(((learnt / first - 1.0) + 0.005).abs() < 0.0005, "{line}");
+    assert!(sigma < 0.001, "{line}");
+    let metres: f64 = line
+        .split(" (")
+        .nth(1)
+        .and_then(|r| r.split(' ').next())
+        .and_then(|v| v.parse().ok())
+        .unwrap();
+    assert!(metres > 700.0 && metres < 1124.0, "{line}");
 }

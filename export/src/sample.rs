@@ -45,11 +45,11 @@ pub struct StepSample {
 }
 
 /// The most parameters a [`DriftState`] carries. The drift watch judges
-/// seven (`canodom_calib::drift::Param::ALL`); the spare one keeps a new
+/// eight (`canodom_calib::drift::Param::ALL`); the spare one keeps a new
 /// parameter from being dropped before this is raised. A fixed array keeps
 /// [`StepSample`] `Copy`: it is copied per pose into the live outputs'
 /// queue, where a `Vec` would allocate at every step.
-pub const DRIFT_PARAMS: usize = 8;
+pub const DRIFT_PARAMS: usize = 9;
 
 /// The drift watch's state as the diagnostics show it (#46 item 3): the
 /// daemon's `DriftReport` in plain values (this crate does not know the

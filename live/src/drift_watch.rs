@@ -143,10 +143,13 @@ impl OnlineWatch {
         if job.window.generation != generation {
             return None;
         }
-        let read = epoch
+        let mut read = epoch
             .and_then(|e| e.judged.as_ref())
             .map(|cal| readings(&job.window.base, cal, in_use))
             .unwrap_or_default();
+        if let Some(front) = epoch.and_then(|e| e.front_ratio.as_ref()) {
+            read.push(self.watch.front_reading(front));
+        }
         let changes = self.watch.judge(&read, &self.config.judge);
         let next = self.watch.watch();
         let candidate = if next.any() {
@@ -194,6 +197,7 @@ mod tests {
             t_s: 0.0,
             rear_left_m: 0.1,
             rear_right_m: 0.1,
+            front_m: None,
             steer_angle_rad: None,
             yaw_rate_radps: None,
             rear_slip: false,
@@ -260,6 +264,7 @@ mod tests {
             refused: None,
             judged: Some(cal),
             distance_m: 0.0,
+            front_ratio: None,
         }
     }
 
@@ -341,5 +346,44 @@ mod tests {
         assert!(j.changes.len() == 1 && !j.changes[0].raised);
         assert_eq!(cand, None);
         assert!(!w.watch().any() && w.report().refits == 2);
+    }
+
+    #[test]
+    fn the_front_tyres_first_reading_is_what_later_ones_are_judged_against() {
+        use canodom_calib::front_ratio::FrontRatio;
+        let mut w = OnlineWatch::new(DriftWatchConfig::default());
+        let _ = w.due(0.0, |_| None);
+        let base = ParamValues::plain(1.5, 0.65);
+        let with_front = |value: f64| Epoch {
+            front_ratio: Some(FrontRatio {
+                value,
+                sigma: 0.00003,
+                distance_m: 600.0,
+            }),
+            ..epoch(1.0, base)
+        };
+        let job = w.due(60.0, |_| Some(window(0, 10))).unwrap();
+        let (j, _) = w.judged(&job, Some(&with_front(1.002)), 0, &base).unwrap();
+        assert!(j.changes.is_empty());
+        let front = |w: &OnlineWatch| {
+            w.report()
+                .readings
+                .iter()
+                .find(|r| r.param == Param::FrontRatio)
+                .copied()
+                .unwrap()
+        };
+        assert_eq!((front(&w).learnt, front(&w).in_use), (1.002, 1.002));
+        // The front-left tyre 0.5 % soft: flagged, and the diagnostics
+        // show it against the first reading.
+        let job = w.due(120.0, |_| Some(window(0, 10))).unwrap();
+        let (j, _) = w.judged(&job, Some(&with_front(1.007)), 0, &base).unwrap();
+        assert!(j.changes.len() == 1 && j.changes[0].raised, "{j:?}");
+        assert_eq!(w.report().flagged, vec![Param::FrontRatio]);
+        assert_eq!((front(&w).learnt, front(&w).in_use), (1.007, 1.002));
+        // A refit that cannot read the front says nothing about it.
+        let job = w.due(180.0, |_| Some(window(0, 10))).unwrap();
+        let (j, _) = w.judged(&job, Some(&epoch(1.0, base)), 0, &base).unwrap();
+        assert!(j.changes.is_empty() && w.watch().flagged(Param::FrontRatio));
     }
 }

@@ -212,7 +212,8 @@ impl LiveCalibration {
 
     /// A filter step: `rear_rev` wheel revolutions (left, right) since the
     /// previous step with the diameters in use, the steering signal, and the
-    /// yaw rate the filter used (for a drive recorded against fixes).
+    /// yaw rate the filter used (for a drive recorded against fixes); the
+    /// front wheels not read ([`Self::on_step_with_front`]).
     pub fn on_step(
         &mut self,
         t: Timestamp,
@@ -220,10 +221,28 @@ impl LiveCalibration {
         steer_signal: Option<f64>,
         yaw_rate_radps: Option<f64>,
     ) -> Vec<Output> {
+        self.on_step_with_front(t, rear_rev, None, steer_signal, yaw_rate_radps)
+    }
+
+    /// [`Self::on_step`] with the front wheels' revolutions (left, right),
+    /// `None` when they were not fresh: the drift watch reads the front
+    /// tyres' ratio from them.
+    pub fn on_step_with_front(
+        &mut self,
+        t: Timestamp,
+        rear_rev: (f64, f64),
+        front_rev: Option<(f64, f64)>,
+        steer_signal: Option<f64>,
+        yaw_rate_radps: Option<f64>,
+    ) -> Vec<Output> {
         let t_s = seconds(t);
-        let out = self
-            .calibrator
-            .on_step(t_s, rear_rev, steer_signal, yaw_rate_radps);
+        let out = self.calibrator.on_step_with_front(
+            t_s,
+            rear_rev,
+            front_rev,
+            steer_signal,
+            yaw_rate_radps,
+        );
         self.carry(t_s, out)
     }
 

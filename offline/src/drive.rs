@@ -59,12 +59,16 @@ pub fn samples_from_frames(
             .map_err(filter(&format!("parameter set version {}", s.version)))?;
     }
     let map = pipeline.params().steering();
-    let (d_left, d_right) = {
+    let [d_left, d_right, d_front_left, d_front_right] = {
+        use canodom_fusion::Wheel;
         let p = pipeline.params();
-        (
-            std::f64::consts::PI * p.wheel_diameter_m(canodom_fusion::Wheel::RearLeft),
-            std::f64::consts::PI * p.wheel_diameter_m(canodom_fusion::Wheel::RearRight),
-        )
+        [
+            Wheel::RearLeft,
+            Wheel::RearRight,
+            Wheel::FrontLeft,
+            Wheel::FrontRight,
+        ]
+        .map(|w| std::f64::consts::PI * p.wheel_diameter_m(w))
     };
     let mut samples: Vec<DriveSample> = Vec::new();
     // The first sample of the filter's open correction window: when its gate
@@ -82,6 +86,9 @@ pub fn samples_from_frames(
             t_s: t0 + step.t_s,
             rear_left_m: step.rear_rev.0 * d_left,
             rear_right_m: step.rear_rev.1 * d_right,
+            front_m: step
+                .front_rev
+                .map(|(l, r)| (l * d_front_left, r * d_front_right)),
             steer_angle_rad: step.steer_signal.map(|u| map.angle_rad(u)),
             yaw_rate_radps: step.yaw_rate_radps,
             rear_slip: false,

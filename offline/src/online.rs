@@ -22,6 +22,7 @@ use crate::drive::{DriveLog, fit_samples};
 use canodom_calib::drift::{Change, DriftConfig, Watch, Watcher, readings, window_is_full};
 use canodom_calib::drive::{DriveCalibration, DriveOptions, DriveSample, Fix};
 use canodom_calib::drive_gate::misfits;
+use canodom_calib::front_ratio::{FrontGeometry, FrontRatio, front_ratio};
 use canodom_params::persist::ParamValues;
 use canodom_pipeline::config::Config;
 use std::fmt::Write as _;
@@ -60,6 +61,11 @@ pub struct Epoch {
     /// Distance driven from the drive's start to `t_s` (the rear wheels'
     /// mean with the set in use), m.
     pub distance_m: f64,
+    /// The front tyres' right/left ratio over the window's near-straights
+    /// ([`canodom_calib::front_ratio`]), the rear wheels read with the rear
+    /// ratio the fit learnt; `None` when the fit is not judged or the
+    /// window holds too little of them.
+    pub front_ratio: Option<FrontRatio>,
 }
 
 impl Epoch {
@@ -156,11 +162,14 @@ pub fn drift_watch(
             if !window_is_full(e.fixes_span_s, window_s) {
                 return (watcher.watch(), Vec::new());
             }
-            let read = e
+            let mut read = e
                 .judged
                 .as_ref()
                 .map(|cal| readings(base, cal, in_use))
                 .unwrap_or_default();
+            if let Some(front) = &e.front_ratio {
+                read.push(watcher.front_reading(front));
+            }
             let changes = watcher.judge(&read, judge);
             (watcher.watch(), changes)
         })
@@ -193,6 +202,7 @@ pub fn refit(
                 refused: Some(e.to_string()),
                 judged: None,
                 distance_m: 0.0,
+                front_ratio: None,
             };
         }
     };
@@ -238,6 +248,18 @@ pub fn refit(
         cal,
         &crate::drive::drive_gate(&config.calibration, base.rear_tread_m),
     );
+    let front = found.is_empty().then(|| {
+        let geometry = FrontGeometry {
+            rear_tread_m: base.rear_tread_m * cal.rear_tread.value,
+            front_tread_m: config.params.front_tread_m(),
+            wheelbase_m: config.params.wheelbase_m(),
+        };
+        front_ratio(samples, &geometry, cal.rear_ratio.value)
+    });
+    let front = front.flatten();
+    if let Some(f) = &front {
+        estimates.push(("front_ratio", f.value, f.sigma, true));
+    }
     let refused = if !found.is_empty() {
         Some(canodom_calib::drive_gate::misfit_refusal(&found))
     } else if let Some(why) = &fit.out_of_bounds {
@@ -256,6 +278,7 @@ pub fn refit(
         refused,
         judged: found.is_empty().then(|| fit.calibration.clone()),
         distance_m: 0.0,
+        front_ratio: front,
     }
 }
 

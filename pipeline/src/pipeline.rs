@@ -1022,6 +1022,12 @@ impl Pipeline {
             fused,
             odometry: self.odometry.pose(),
             rear_rev: (rev(rl, Wheel::RearLeft), rev(rr, Wheel::RearRight)),
+            front_rev: front_fresh.then(|| {
+                (
+                    rev(input.wheel_m.front_left, Wheel::FrontLeft),
+                    rev(input.wheel_m.front_right, Wheel::FrontRight),
+                )
+            }),
             steer_signal: self.steer_signal,
             correction,
             yaw_rate_radps: input.yaw_rate_radps,

@@ -827,6 +827,7 @@ mod tests {
             fused: odometry,
             odometry,
             rear_rev: (0.0, 0.0),
+            front_rev: None,
             steer_signal: Some(steer),
             correction: WindowOutcome::Open,
             yaw_rate_radps: Some(yaw_radps),

@@ -20,6 +20,10 @@ pub struct Step {
     /// Rear (left, right) wheel revolutions of this step, with the diameters
     /// in use: what the calibration session records.
     pub rear_rev: (f64, f64),
+    /// Front (left, right) wheel revolutions of this step with the
+    /// diameters in use; `None` when the front wheels were not fresh (or are
+    /// not configured): the drift watch reads the front tyres from them.
+    pub front_rev: Option<(f64, f64)>,
     /// The latest steering signal `u` as the vehicle reports it (before the
     /// steering map), if any arrived yet.
     pub steer_signal: Option<f64>,

@@ -270,3 +270,49 @@ fn a_drive_needs_fixes_configured_and_enough_of_them() {
         vec![Ok(())]
     );
 }
+
+#[test]
+fn the_online_ring_keeps_the_front_wheels_in_metres_with_the_diameters_in_use() {
+    let mut cal = Calibrator::new(
+        CalibratorConfig {
+            online_window_s: Some(60.0),
+            ..config()
+        },
+        nominal(),
+        ParamFile::default(),
+    );
+    let circumference = std::f64::consts::PI * 0.09;
+    for k in 0..200 {
+        let t_s = f64::from(k) * 0.01;
+        // The front wheels stale for the middle steps.
+        let front = (!(80..120).contains(&k)).then_some((0.1, 0.102));
+        let _ = cal.on_step_with_front(t_s, (0.1, 0.1), front, Some(0.0), None);
+    }
+    cal.on_fix(2.0, 0.0, 0.0, false, None);
+    let window = cal.online_window(60.0).unwrap();
+    let (read, stale): (Vec<&DriveSample>, Vec<&DriveSample>) =
+        window.samples.iter().partition(|s| s.front_m.is_some());
+    assert!(read.len() > 20 && !stale.is_empty(), "{:?}", window.samples);
+    for s in read {
+        let (l, r) = s.front_m.unwrap();
+        // A bin's front distances sum its steps', as its rear ones do.
+        let steps = s.rear_left_m / (0.1 * circumference);
+        assert!((l - steps * 0.1 * circumference).abs() < 1e-12, "{s:?}");
+        assert!((r - steps * 0.102 * circumference).abs() < 1e-12, "{s:?}");
+    }
+    // Without the front wheels (`on_step`) nothing is read of them.
+    let mut blind = Calibrator::new(
+        CalibratorConfig {
+            online_window_s: Some(60.0),
+            ..config()
+        },
+        nominal(),
+        ParamFile::default(),
+    );
+    for k in 0..200 {
+        let _ = blind.on_step(f64::from(k) * 0.01, (0.1, 0.1), Some(0.0), None);
+    }
+    blind.on_fix(2.0, 0.0, 0.0, false, None);
+    let window = blind.online_window(60.0).unwrap();
+    assert!(window.samples.iter().all(|s| s.front_m.is_none()));
+}

@@ -15,6 +15,12 @@ pub struct DriveSample {
     pub rear_left_m: f64,
     /// Rear-right distance since the previous sample, with the parameters in use.
     pub rear_right_m: f64,
+    /// Front (left, right) distances since the previous sample, with the
+    /// diameters in use; `None` where the front wheels were not read (not
+    /// configured, or stale in part of the interval). The drive fit does not
+    /// use them; the drift watch reads the front tyres' ratio from them
+    /// ([`crate::front_ratio`]).
+    pub front_m: Option<(f64, f64)>,
     /// Road-wheel angle through the steering map in use (left positive), at `t_s`.
     pub steer_angle_rad: Option<f64>,
     /// Yaw-rate sensor as measured (rad/s, left positive), uncorrected: the

@@ -145,6 +145,7 @@ fn record(
             t_s: s.t_s,
             rear_left_m: d(Wheel::RearLeft),
             rear_right_m: d(Wheel::RearRight),
+            front_m: Some((d(Wheel::FrontLeft), d(Wheel::FrontRight))),
             steer_angle_rad: Some(map.angle_rad(s.steer_signal)),
             yaw_rate_radps: Some(s.yaw_rate_radps),
             rear_slip: false,

@@ -159,11 +159,22 @@ pub fn learn(
 }
 
 /// A drift flag that rose or cleared, in a line: the parameter, its learnt
-/// value with σ, the value in use and the distance driven so far.
+/// value with σ, the value in use and the distance driven so far. The
+/// front tyres' ratio, which no set carries, is judged against its first
+/// reading, and its flag says what to check.
 pub(crate) fn describe_change(c: &canodom_calib::drift::Change, distance_m: f64) -> String {
+    use canodom_calib::drift::Param;
     let r = &c.reading;
+    let (against, hint) = match (r.param, c.raised) {
+        (Param::FrontRatio, true) => (
+            "as first read",
+            " — a front tyre's size changed: check its pressure",
+        ),
+        (Param::FrontRatio, false) => ("as first read", ""),
+        _ => ("in use", ""),
+    };
     format!(
-        "drift: {} {}: learnt {:.6} ± {:.6}, in use {:.6} ({:.0} m driven)",
+        "drift: {} {}: learnt {:.6} ± {:.6}, {against} {:.6} ({:.0} m driven){hint}",
         r.param.name(),
         if c.raised { "flagged" } else { "cleared" },
         r.learnt,

@@ -170,6 +170,12 @@ impl Validator<'_> {
                 d.yaw_scale_tol_rel,
                 false,
             ),
+            (
+                Param::FrontRatio,
+                "front_ratio_tol_rel",
+                d.front_ratio_tol_rel,
+                false,
+            ),
         ] {
             let i = Param::ALL
                 .iter()

@@ -225,6 +225,7 @@ pub(super) struct RawDrift {
     pub(super) steer_offset_tol_deg: Option<f64>,
     pub(super) yaw_bias_tol_dps: Option<f64>,
     pub(super) yaw_scale_tol_rel: Option<f64>,
+    pub(super) front_ratio_tol_rel: Option<f64>,
     pub(super) every_s: Option<f64>,
     pub(super) window_s: Option<f64>,
 }

@@ -521,7 +521,7 @@ fn every_bad_gnss_key_is_named() {
 fn the_drift_watch_keys_reach_their_fields_in_their_units() {
     use canodom_calib::drift::Param;
     let text = format!(
-        "{RC_CAR}\n[calibration.drift]\nk_sigma = 5.0\nyaw_bias_tol_dps = 0.1\nrear_ratio_tol_rel = 0.003\nsteer_offset_tol_deg = 0.5\nevery_s = 30.0\nwindow_s = 300.0\n"
+        "{RC_CAR}\n[calibration.drift]\nk_sigma = 5.0\nyaw_bias_tol_dps = 0.1\nrear_ratio_tol_rel = 0.003\nsteer_offset_tol_deg = 0.5\nfront_ratio_tol_rel = 0.004\nevery_s = 30.0\nwindow_s = 300.0\n"
     );
     let c = Config::from_toml(&text, &path()).unwrap();
     let d = c.calibration.drift;
@@ -529,6 +529,7 @@ fn the_drift_watch_keys_reach_their_fields_in_their_units() {
     assert!((d.judge.tolerance(Param::YawBias) - 0.1f64.to_radians()).abs() < 1e-15);
     assert!((d.judge.tolerance(Param::SteerOffset) - 0.5f64.to_radians()).abs() < 1e-15);
     assert_eq!(d.judge.tolerance(Param::RearRatio), 0.003);
+    assert_eq!(d.judge.tolerance(Param::FrontRatio), 0.004);
     // The others keep their defaults.
     let default = DriftWatchConfig::default();
     assert_eq!(
@@ -594,6 +595,11 @@ fn every_bad_drift_key_is_named() {
         (
             "yaw_scale_tol_rel = -0.1",
             "calibration.drift.yaw_scale_tol_rel",
+            "> 0",
+        ),
+        (
+            "front_ratio_tol_rel = 0.0",
+            "calibration.drift.front_ratio_tol_rel",
             "> 0",
         ),
         ("every_s = 0.0", "calibration.drift.every_s", "> 0"),
