@@ -144,9 +144,20 @@ fn a_drive_is_calibrated_as_its_fixes_come_and_the_set_used_from_then_on() {
         "one at 30 s of fixes, one at the last: {stderr}"
     );
     assert!(
-        refits[1].contains("(60 fixes)") && refits[1].ends_with("taken into use from here"),
+        refits[1].contains("(60 fixes)")
+            && refits[1].contains("; taken into use from here")
+            && !refits[1].contains("front_ratio"),
         "{stderr}"
     );
+    // The front tyres' ratio is told apart, as watched only (the model's
+    // front tyres agree within their ±0.025 % draw).
+    let watched = refits[1]
+        .split("(the front tyres' ratio ")
+        .nth(1)
+        .unwrap_or_else(|| panic!("{}", refits[1]));
+    assert!(watched.ends_with(", watched only)"), "{}", refits[1]);
+    let ratio: f64 = watched.split(' ').next().unwrap().parse().unwrap();
+    assert!((ratio - 1.0).abs() < 0.001, "{}", refits[1]);
 
     // The learnt values: the yaw-rate bias of the last refit within 3σ of
     // the model's (meta.json: 0.01856 °/s), its σ below the gate's 0.05 °/s.

@@ -185,12 +185,14 @@ pub(crate) fn describe_change(c: &canodom_calib::drift::Change, distance_m: f64)
 }
 
 /// One refit in a line: when, how many fixes, what it told, and whether
-/// its set was taken into use.
+/// its set was taken into use. The front tyres' ratio, which no set
+/// carries, is told apart: it is watched, never taken into use.
 fn describe(e: &Epoch) -> String {
+    let front = canodom_calib::drift::Param::FrontRatio.name();
     let told: Vec<String> = e
         .estimates
         .iter()
-        .filter(|(_, _, _, passed)| *passed)
+        .filter(|(name, _, _, passed)| *passed && *name != front)
         .map(|(name, value, sigma, _)| format!("{name} {value:.6} ± {sigma:.6}"))
         .collect();
     let told = if told.is_empty() {
@@ -198,13 +200,22 @@ fn describe(e: &Epoch) -> String {
     } else {
         told.join(", ")
     };
+    let watched = e
+        .front_ratio
+        .map(|f| {
+            format!(
+                " (the front tyres' ratio {:.6} ± {:.6}, watched only)",
+                f.value, f.sigma
+            )
+        })
+        .unwrap_or_default();
     match &e.refused {
         None => format!(
-            "online calibration at t={:.1} s ({} fixes): {told}; taken into use from here",
+            "online calibration at t={:.1} s ({} fixes): {told}; taken into use from here{watched}",
             e.t_s, e.fixes
         ),
         Some(why) => format!(
-            "online calibration at t={:.1} s ({} fixes): {told}; not taken into use: {why}",
+            "online calibration at t={:.1} s ({} fixes): {told}; not taken into use: {why}{watched}",
             e.t_s, e.fixes
         ),
     }
