@@ -199,7 +199,9 @@ pub struct Reading {
     pub learnt: f64,
     /// Its σ.
     pub sigma: f64,
-    /// The set in use's value on the same scale.
+    /// The set in use's value on the same scale (for
+    /// [`Param::FrontRatio`], which no set carries, the watch's first
+    /// reading of it: [`Watcher::front_reading`]).
     pub in_use: f64,
 }
 
@@ -342,6 +344,18 @@ impl Watcher {
     /// The flags now.
     pub fn watch(&self) -> Watch {
         self.watch
+    }
+
+    /// Takes `baseline` as the front tyres' first reading (what a previous
+    /// run of the daemon judged against, from its state file), so that a
+    /// front tyre changed while the car stood is judged as one changed
+    /// while it drove. A baseline that is not a plausible ratio (not
+    /// finite, beyond ±10 %, a σ not finite) is ignored.
+    pub fn restore_front_baseline(&mut self, baseline: FrontRatio) {
+        if (baseline.value - 1.0).abs() < 0.1 && baseline.sigma.is_finite() && baseline.sigma >= 0.0
+        {
+            self.front_baseline = Some(baseline);
+        }
     }
 
     /// A refit's front tyres' ratio as a reading to judge
@@ -721,6 +735,35 @@ mod tests {
         // wide keeps it from a flag until the window holds the change.
         let mixed = w.front_reading(&front(1.0060, 0.0008));
         assert!(w.judge(&[mixed], &config).is_empty());
+    }
+
+    #[test]
+    fn a_restored_front_baseline_flags_a_tyre_changed_while_the_car_stood() {
+        let config = DriftConfig::default();
+        let front = |value: f64| FrontRatio {
+            value,
+            sigma: 0.00003,
+            distance_m: 600.0,
+        };
+        let mut w = Watcher::default();
+        w.restore_front_baseline(front(1.001));
+        let r = w.front_reading(&front(0.996));
+        assert_eq!(r.in_use, 1.001);
+        let changes = w.judge(&[r], &config);
+        assert!(changes.len() == 1 && changes[0].raised, "{changes:?}");
+        // Nonsense from a damaged file is ignored: the first reading is
+        // the baseline again.
+        for bad in [f64::NAN, 1.5, 0.0] {
+            let mut w = Watcher::default();
+            w.restore_front_baseline(front(bad));
+            assert_eq!(w.front_reading(&front(0.996)).in_use, 0.996);
+        }
+        let mut w = Watcher::default();
+        w.restore_front_baseline(FrontRatio {
+            sigma: f64::INFINITY,
+            ..front(1.0)
+        });
+        assert_eq!(w.front_reading(&front(0.996)).in_use, 0.996);
     }
 
     #[test]

@@ -325,14 +325,17 @@ impl<Tx: FrameSink + Clone> CalibTask<Tx> {
         }
         let now = self.now().unwrap_or(Timestamp::from_micros(0));
         let (out, judged) = self.live.on_refit(now, &job, epoch.as_ref());
+        let offered = self.live.drift().candidate.is_some();
         for c in judged
             .iter()
             .flat_map(|j| j.changes.iter().map(move |c| (c, j.distance_m)))
         {
             let line = crate::cmd::replay_fixes::describe_change(c.0, c.1);
             let parameter = c.0.reading.param.name();
-            if c.0.raised {
+            if c.0.raised && offered {
                 warn!(parameter, "{line}; the learnt set awaits COMMIT");
+            } else if c.0.raised {
+                warn!(parameter, "{line}");
             } else {
                 info!(parameter, "{line}");
             }

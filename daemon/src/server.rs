@@ -274,7 +274,18 @@ pub async fn run<C: Connector>(
     // pose encoder, the calibration wire and the ODOM_CMD checks.
     let own = OwnDbc::new(config.output.base_id)
         .map_err(canodom_protocol::pose_frames::PoseEncodeError::from)?;
-    let (live, calib_ack_id) = live_calibration(&config, &own, nominal)?;
+    let (mut live, calib_ack_id) = live_calibration(&config, &own, nominal)?;
+    if let Some(options) = &observers.state_file
+        && let Ok(state) = crate::state_file::load(&options.path)
+        && let Some(front) = crate::state_file::saved_front_baseline(&state)
+    {
+        info!(
+            file = %options.path.display(),
+            front_ratio = front.value,
+            "drift watch: the front tyres are judged against the ratio the last run read"
+        );
+        live.restore_front_baseline(front);
+    }
     let calib_cmd_id = config.calibration.command_id;
     let encoder = PoseEncoder::with_dbc(&own)?;
     let cmd_id = OwnFrame::OdomCmd.id(config.output.base_id);

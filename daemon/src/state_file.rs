@@ -271,7 +271,8 @@ pub struct SavedDriftReading {
     pub learnt: f64,
     /// Its σ.
     pub sigma: f64,
-    /// The set in use's value on the same scale.
+    /// The set in use's value on the same scale (for `front_ratio`, which
+    /// no set carries, the watch's first reading of it).
     pub in_use: f64,
     /// Whether it is flagged.
     pub flagged: bool,
@@ -298,6 +299,27 @@ impl From<&canodom_live::drift_watch::DriftReport> for SavedDrift {
             candidate: d.candidate,
         }
     }
+}
+
+/// The front tyres' ratio the drift watch of the run that wrote `state`
+/// judged against (its `front_ratio` reading's value in use), with that
+/// reading's σ (at least the baseline's own): what the next start's watch
+/// judges against, since no parameter set carries the front tyres.
+pub fn saved_front_baseline(state: &SavedState) -> Option<canodom_calib::front_ratio::FrontRatio> {
+    let name = canodom_calib::drift::Param::FrontRatio.name();
+    let r = state
+        .drift
+        .as_ref()?
+        .learnt
+        .iter()
+        .find(|r| r.parameter == name)?;
+    (r.in_use.is_finite() && r.sigma.is_finite()).then_some(
+        canodom_calib::front_ratio::FrontRatio {
+            value: r.in_use,
+            sigma: r.sigma,
+            distance_m: 0.0,
+        },
+    )
 }
 
 pub use canodom_params::learnt::{

@@ -620,12 +620,20 @@ mod format {
         let report = DriftReport {
             refits: 4,
             flagged: vec![Param::RearRatio],
-            readings: vec![Reading {
-                param: Param::RearRatio,
-                learnt: 1.005,
-                sigma: 0.0004,
-                in_use: 1.0,
-            }],
+            readings: vec![
+                Reading {
+                    param: Param::RearRatio,
+                    learnt: 1.005,
+                    sigma: 0.0004,
+                    in_use: 1.0,
+                },
+                Reading {
+                    param: Param::FrontRatio,
+                    learnt: 1.0004,
+                    sigma: 0.00005,
+                    in_use: 1.0003,
+                },
+            ],
             t_s: Some(1_700_000_240.0),
             distance_m: 2_500.0,
             candidate: Some(canodom_params::persist::ParamValues::plain(0.3, 0.09)),
@@ -644,6 +652,10 @@ mod format {
             "{text}"
         );
         assert_eq!(load(&path).unwrap().drift, Some(drift));
+        // The front tyres' ratio the watch judged against is what the next
+        // start judges against.
+        let front = canodom::state_file::saved_front_baseline(&load(&path).unwrap()).unwrap();
+        assert_eq!((front.value, front.sigma), (1.0003, 0.00005));
         // A file written before the drift watch (no section) still loads.
         state.drift = None;
         let mut old: serde_json::Value = serde_json::to_value(&state).unwrap();
@@ -651,6 +663,10 @@ mod format {
         old.as_object_mut().unwrap().remove("drift");
         fs::write(&path, old.to_string()).unwrap();
         assert_eq!(load(&path).unwrap().drift, None);
+        assert_eq!(
+            canodom::state_file::saved_front_baseline(&load(&path).unwrap()),
+            None
+        );
         fs::remove_dir_all(dir).unwrap();
     }
 

@@ -88,7 +88,8 @@ pub struct DriftReading {
     pub learnt: f64,
     /// Its σ.
     pub sigma: f64,
-    /// The set in use's value on the same scale.
+    /// The set in use's value on the same scale (for `front_ratio`, which
+    /// no set carries, the watch's first reading of it).
     pub in_use: f64,
 }
 

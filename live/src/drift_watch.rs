@@ -130,8 +130,8 @@ impl OnlineWatch {
     /// run); `generation` is the calibrator's ring generation now and
     /// `in_use` the set in use now. A refit of a ring since emptied (a set
     /// committed meanwhile) is dropped unjudged. Returns what changed, and
-    /// the candidate to offer (the learnt set while anything is flagged
-    /// and the refit's set passed its gate; else none).
+    /// the candidate to offer (the learnt set while anything a set carries
+    /// is flagged and the refit's set passed its gate; else none).
     pub fn judged(
         &mut self,
         job: &RefitJob,
@@ -152,7 +152,13 @@ impl OnlineWatch {
         }
         let changes = self.watch.judge(&read, &self.config.judge);
         let next = self.watch.watch();
-        let candidate = if next.any() {
+        // A set is offered only for what a set carries: committing one
+        // does nothing for a front tyre (watched, in no set).
+        let set_drifted = next
+            .flagged_params()
+            .into_iter()
+            .any(|p| p != Param::FrontRatio);
+        let candidate = if set_drifted {
             epoch.and_then(Epoch::accepted).copied()
         } else {
             None
@@ -172,6 +178,12 @@ impl OnlineWatch {
             },
             candidate,
         ))
+    }
+
+    /// The front tyres' ratio a previous run judged against (its state
+    /// file): see [`Watcher::restore_front_baseline`].
+    pub fn restore_front_baseline(&mut self, baseline: canodom_calib::front_ratio::FrontRatio) {
+        self.watch.restore_front_baseline(baseline);
     }
 
     /// The candidate was committed (or withdrawn): the report no longer
@@ -377,9 +389,11 @@ mod tests {
         // The front-left tyre 0.5 % soft: flagged, and the diagnostics
         // show it against the first reading.
         let job = w.due(120.0, |_| Some(window(0, 10))).unwrap();
-        let (j, _) = w.judged(&job, Some(&with_front(1.007)), 0, &base).unwrap();
+        let (j, candidate) = w.judged(&job, Some(&with_front(1.007)), 0, &base).unwrap();
         assert!(j.changes.len() == 1 && j.changes[0].raised, "{j:?}");
         assert_eq!(w.report().flagged, vec![Param::FrontRatio]);
+        // No set is offered: none carries the front tyres.
+        assert_eq!(candidate, None);
         assert_eq!((front(&w).learnt, front(&w).in_use), (1.007, 1.002));
         // A refit that cannot read the front says nothing about it.
         let job = w.due(180.0, |_| Some(window(0, 10))).unwrap();
