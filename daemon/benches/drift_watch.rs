@@ -3,7 +3,8 @@
 //! pushes it into the online ring of the drive (the per-CAN-step cost the
 //! watch adds is that push, `ring_push`, beside the whole `on_step`), and
 //! (b) one refit of a 180 s window with fixes at 1 Hz, as the daemon runs
-//! it on its blocking pool every `every_s` of fixes.
+//! it on its blocking pool every `every_s` of fixes (with the front tyres'
+//! ratio read from the window's near-straights).
 //!
 //! The drive: the simulated rc_car on a random course through the daemon's
 //! own pipeline and live calibration, a fix of the true position each
@@ -52,7 +53,13 @@ fn bench(c: &mut Criterion) {
         for f in &frames {
             if let Outcome::Step(step, _) = pipeline.push(t, f) {
                 steps.push((t, step));
-                let _ = live.on_step(t, step.rear_rev, step.steer_signal, step.yaw_rate_radps);
+                let _ = live.on_step_with_front(
+                    t,
+                    step.rear_rev,
+                    step.front_rev,
+                    step.steer_signal,
+                    step.yaw_rate_radps,
+                );
                 live.on_window(step.correction);
             }
         }
@@ -106,9 +113,24 @@ fn bench(c: &mut Criterion) {
             let lap = (k / steps.len()) as u64;
             let t = Timestamp::from_micros(t.as_micros() + lap * t_end);
             k += 1;
-            black_box(live.on_step(t, step.rear_rev, step.steer_signal, step.yaw_rate_radps))
+            black_box(live.on_step_with_front(
+                t,
+                step.rear_rev,
+                step.front_rev,
+                step.steer_signal,
+                step.yaw_rate_radps,
+            ))
         });
     });
+    let once = canodom_offline::online::refit(
+        &config,
+        job.window.base,
+        &job.window.samples,
+        &job.window.fixes,
+        &DriveOptions::default(),
+        job.t_s,
+    );
+    eprintln!("the refit reads the front tyres: {:?}", once.front_ratio);
     group.sample_size(10);
     group.bench_function("refit_180s_1hz", |b| {
         b.iter(|| {
