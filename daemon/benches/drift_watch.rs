@@ -16,10 +16,12 @@ use canodom_calib::drive::DriveOptions;
 use canodom_calib::drive_record::{DriveRecorder, DriveStep};
 use canodom_can::time::Timestamp;
 use canodom_fusion::sim::{Plan, simulate};
+use canodom_live::drift_watch::RefitJob;
 use canodom_live::{LiveCalibration, Output};
 use canodom_params::persist::ParamFile;
 use canodom_pipeline::config::Config;
 use canodom_pipeline::pipeline::{Outcome, Pipeline};
+use canodom_pipeline::step::Step;
 use canodom_protocol::calib_wire::CalibWire;
 use canodom_sim::vehicle::{SampleEncoder, sim_config};
 use criterion::{Criterion, criterion_group, criterion_main};
@@ -53,13 +55,7 @@ fn bench(c: &mut Criterion) {
         for f in &frames {
             if let Outcome::Step(step, _) = pipeline.push(t, f) {
                 steps.push((t, step));
-                let _ = live.on_step_with_front(
-                    t,
-                    step.rear_rev,
-                    step.front_rev,
-                    step.steer_signal,
-                    step.yaw_rate_radps,
-                );
+                let _ = hand_over(&mut live, t, &step);
                 live.on_window(step.correction);
             }
         }
@@ -113,24 +109,10 @@ fn bench(c: &mut Criterion) {
             let lap = (k / steps.len()) as u64;
             let t = Timestamp::from_micros(t.as_micros() + lap * t_end);
             k += 1;
-            black_box(live.on_step_with_front(
-                t,
-                step.rear_rev,
-                step.front_rev,
-                step.steer_signal,
-                step.yaw_rate_radps,
-            ))
+            black_box(hand_over(&mut live, t, step))
         });
     });
-    let once = canodom_offline::online::refit(
-        &config,
-        job.window.base,
-        &job.window.samples,
-        &job.window.fixes,
-        &DriveOptions::default(),
-        job.t_s,
-    );
-    eprintln!("the refit reads the front tyres: {:?}", once.front_ratio);
+    say_whether_the_refit_reads_the_front_tyres(&config, job);
     group.sample_size(10);
     group.bench_function("refit_180s_1hz", |b| {
         b.iter(|| {
@@ -146,6 +128,32 @@ fn bench(c: &mut Criterion) {
         });
     });
     group.finish();
+}
+
+/// A pipeline step handed to the live calibration, as the daemon's
+/// calibration task hands it.
+fn hand_over(live: &mut LiveCalibration, t: Timestamp, step: &Step) -> Vec<Output> {
+    live.on_step_with_front(
+        t,
+        step.rear_rev,
+        step.front_rev,
+        step.steer_signal,
+        step.yaw_rate_radps,
+    )
+}
+
+/// Whether the benchmarked refit reads the front tyres' ratio (a window
+/// too slow or too short for it does not), on stderr.
+fn say_whether_the_refit_reads_the_front_tyres(config: &Config, job: &RefitJob) {
+    let once = canodom_offline::online::refit(
+        config,
+        job.window.base,
+        &job.window.samples,
+        &job.window.fixes,
+        &DriveOptions::default(),
+        job.t_s,
+    );
+    eprintln!("the refit reads the front tyres: {:?}", once.front_ratio);
 }
 
 criterion_group!(benches, bench);
