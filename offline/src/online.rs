@@ -248,15 +248,17 @@ pub fn refit(
         cal,
         &crate::drive::drive_gate(&config.calibration, base.rear_tread_m),
     );
-    let front = found.is_empty().then(|| {
+    // Read only off a fit that is judged: its rear ratio reads the stretches.
+    let front = if found.is_empty() {
         let geometry = FrontGeometry {
             rear_tread_m: base.rear_tread_m * cal.rear_tread.value,
             front_tread_m: config.params.front_tread_m(),
             wheelbase_m: config.params.wheelbase_m(),
         };
         front_ratio(samples, &geometry, cal.rear_ratio.value)
-    });
-    let front = front.flatten();
+    } else {
+        None
+    };
     if let Some(f) = &front {
         estimates.push(("front_ratio", f.value, f.sigma, true));
     }
