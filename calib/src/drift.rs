@@ -346,6 +346,12 @@ impl Watcher {
         self.watch
     }
 
+    /// The front tyres' ratio the watch judges against (its first reading,
+    /// or one restored), if it has one.
+    pub fn front_baseline(&self) -> Option<FrontRatio> {
+        self.front_baseline
+    }
+
     /// Takes `baseline` as the front tyres' first reading (what a previous
     /// run of the daemon judged against, from its state file), so that a
     /// front tyre changed while the car stood is judged as one changed

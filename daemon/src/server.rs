@@ -942,7 +942,10 @@ impl<Tx: FrameSink + Clone> OdometryTask<Tx> {
             param_identity: self.pipeline.param_identity(),
             state_file: None,
             gnss: None,
-            drift: Some(self.links.drift.borrow().clone()).filter(|d| d.refits > 0),
+            // Before its first refit the watch has nothing to say, unless
+            // it holds the front tyres' first reading from a previous run.
+            drift: Some(self.links.drift.borrow().clone())
+                .filter(|d| d.refits > 0 || d.front_baseline.is_some()),
         }
     }
 

@@ -258,6 +258,22 @@ pub struct SavedDrift {
     pub learnt: Vec<SavedDriftReading>,
     /// The learnt set offered for COMMIT, if one is.
     pub candidate: Option<canodom_params::persist::ParamValues>,
+    /// The front tyres' ratio the watch judges `front_ratio` against (its
+    /// first reading, or one a previous run read): no parameter set
+    /// carries the front tyres, so the next start takes it from here.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub front_ratio_first_read: Option<SavedFrontRatio>,
+}
+
+/// The front tyres' right/left ratio the drift watch judges against.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SavedFrontRatio {
+    /// The ratio (front-right's effective diameter over front-left's,
+    /// relative to the diameters in use).
+    pub ratio: f64,
+    /// Its σ.
+    pub sigma: f64,
 }
 
 /// One parameter of the last refit.
@@ -297,29 +313,24 @@ impl From<&canodom_live::drift_watch::DriftReport> for SavedDrift {
                 })
                 .collect(),
             candidate: d.candidate,
+            front_ratio_first_read: d.front_baseline.map(|f| SavedFrontRatio {
+                ratio: f.value,
+                sigma: f.sigma,
+            }),
         }
     }
 }
 
 /// The front tyres' ratio the drift watch of the run that wrote `state`
-/// judged against (its `front_ratio` reading's value in use), with that
-/// reading's σ (at least the baseline's own): what the next start's watch
-/// judges against, since no parameter set carries the front tyres.
+/// judged against: what the next start's watch judges against, since no
+/// parameter set carries the front tyres.
 pub fn saved_front_baseline(state: &SavedState) -> Option<canodom_calib::front_ratio::FrontRatio> {
-    let name = canodom_calib::drift::Param::FrontRatio.name();
-    let r = state
-        .drift
-        .as_ref()?
-        .learnt
-        .iter()
-        .find(|r| r.parameter == name)?;
-    (r.in_use.is_finite() && r.sigma.is_finite()).then_some(
-        canodom_calib::front_ratio::FrontRatio {
-            value: r.in_use,
-            sigma: r.sigma,
-            distance_m: 0.0,
-        },
-    )
+    let f = state.drift.as_ref()?.front_ratio_first_read?;
+    (f.ratio.is_finite() && f.sigma.is_finite()).then_some(canodom_calib::front_ratio::FrontRatio {
+        value: f.ratio,
+        sigma: f.sigma,
+        distance_m: 0.0,
+    })
 }
 
 pub use canodom_params::learnt::{

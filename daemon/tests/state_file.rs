@@ -637,6 +637,11 @@ mod format {
             t_s: Some(1_700_000_240.0),
             distance_m: 2_500.0,
             candidate: Some(canodom_params::persist::ParamValues::plain(0.3, 0.09)),
+            front_baseline: Some(canodom_calib::front_ratio::FrontRatio {
+                value: 1.0003,
+                sigma: 0.00005,
+                distance_m: 400.0,
+            }),
         };
         let drift = SavedDrift::from(&report);
         assert_eq!(drift.flagged, ["rear_ratio"]);
@@ -667,6 +672,58 @@ mod format {
             canodom::state_file::saved_front_baseline(&load(&path).unwrap()),
             None
         );
+        fs::remove_dir_all(dir).unwrap();
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn the_front_tyres_first_reading_comes_back_at_the_next_start_and_stays() {
+        let (logs, _guard) = crate::util::Logs::capture();
+        let dir = scratch("front-baseline");
+        let path = dir.join("state.json");
+        let config = Arc::new(config());
+        let options = || Observers {
+            state_file: Some(StateFileOptions {
+                path: path.clone(),
+                every: Duration::from_secs(10),
+            }),
+            ..Observers::default()
+        };
+        let daemon = InProcessDaemon::spawn(Arc::clone(&config), 1024, options());
+        tokio::time::sleep(Duration::from_millis(50)).await;
+        daemon.stop().await.unwrap();
+        let mut state = load(&path).unwrap();
+        assert_eq!(state.drift, None, "no refit, no first reading: no section");
+        assert!(!logs.take().contains("front tyres are judged against"));
+        // The run before read the front pair at 1.0031.
+        state.drift = Some(SavedDrift {
+            refits: 12,
+            flagged: Vec::new(),
+            at_unix_s: Some(1_700_000_720.0),
+            distance_m: 9_000.0,
+            learnt: Vec::new(),
+            candidate: None,
+            front_ratio_first_read: Some(canodom::state_file::SavedFrontRatio {
+                ratio: 1.0031,
+                sigma: 0.00004,
+            }),
+        });
+        save(&path, &state).unwrap();
+        let daemon = InProcessDaemon::spawn(Arc::clone(&config), 1024, options());
+        tokio::time::sleep(Duration::from_millis(50)).await;
+        daemon.stop().await.unwrap();
+        let log = logs.take();
+        assert!(
+            log.contains(
+                "drift watch: the front tyres are judged against the ratio the last run read"
+            ) && log.contains("front_ratio=1.0031"),
+            "{log}"
+        );
+        // This run refitted nothing (no fixes), and still keeps it for the
+        // next.
+        let kept = load(&path).unwrap().drift.unwrap();
+        assert_eq!(kept.refits, 0);
+        let front = canodom::state_file::saved_front_baseline(&load(&path).unwrap()).unwrap();
+        assert_eq!((front.value, front.sigma), (1.0031, 0.00004));
         fs::remove_dir_all(dir).unwrap();
     }
 

@@ -48,6 +48,10 @@ pub struct DriftReport {
     pub distance_m: f64,
     /// The learnt set offered for COMMIT, if one is.
     pub candidate: Option<ParamValues>,
+    /// The front tyres' ratio the watch judges against (its first reading,
+    /// or the one a previous run read), kept by the state file even when
+    /// no refit ran since.
+    pub front_baseline: Option<canodom_calib::front_ratio::FrontRatio>,
 }
 
 /// What a judged refit changed: the flags that rose or cleared and the
@@ -170,6 +174,7 @@ impl OnlineWatch {
             t_s: Some(job.t_s),
             distance_m: job.window.odometer_m,
             candidate,
+            front_baseline: self.watch.front_baseline(),
         };
         Some((
             Judged {
@@ -184,6 +189,7 @@ impl OnlineWatch {
     /// file): see [`Watcher::restore_front_baseline`].
     pub fn restore_front_baseline(&mut self, baseline: canodom_calib::front_ratio::FrontRatio) {
         self.watch.restore_front_baseline(baseline);
+        self.report.front_baseline = self.watch.front_baseline();
     }
 
     /// The candidate was committed (or withdrawn): the report no longer
