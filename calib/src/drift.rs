@@ -149,13 +149,13 @@ impl Default for DriftConfig {
     ///   0.5 % is 2.5 times it.
     /// - front ratio 0.2 %: as the rear's (a tyre 0.5 % soft is 2.5
     ///   tolerances). Its reading is steadier than a refit's: on nine
-    ///   steady 20-minute multi-body drives it moved by at most 0.03 %
-    ///   between 3-minute windows, with a σ of 0.001–0.017 %.
+    ///   steady 20-minute multi-body drives it stayed within 0.05 % of
+    ///   its first 3-minute window, with a σ of 0.0005–0.011 %.
     ///
     /// And `k_sigma` 4, from the false flags a user can live with: none in
     /// many hours of steady driving (issue #46: none in an hour). The
     /// watch judges seven parameters at every refit whose σ can reach
-    /// their tolerance (the front ratio's is a hundredth of it), once a
+    /// their tolerance (the front ratio's is a twentieth of it or less), once a
     /// minute over 3-minute windows, so about 20 independent judgements an
     /// hour each, 140 in all. At 3 σ each crosses by noise alone with a chance of
     /// 0.27 %: a false flag every 2.6 hours wherever k σ rather than the
@@ -356,12 +356,33 @@ impl Watcher {
     /// run of the daemon judged against, from its state file), so that a
     /// front tyre changed while the car stood is judged as one changed
     /// while it drove. A baseline that is not a plausible ratio (not
-    /// finite, beyond ±10 %, a σ not finite) is ignored.
-    pub fn restore_front_baseline(&mut self, baseline: FrontRatio) {
-        if (baseline.value - 1.0).abs() < 0.1 && baseline.sigma.is_finite() && baseline.sigma >= 0.0
-        {
+    /// finite, beyond ±10 %, a σ not finite) is ignored; returns whether it
+    /// was taken.
+    pub fn restore_front_baseline(&mut self, baseline: FrontRatio) -> bool {
+        let plausible = (baseline.value - 1.0).abs() < 0.1
+            && baseline.sigma.is_finite()
+            && baseline.sigma >= 0.0;
+        if plausible {
             self.front_baseline = Some(baseline);
         }
+        plausible
+    }
+
+    /// A refit's readings: those of its fit `cal` (made of samples recorded
+    /// with `base`, against `in_use`: [`readings`]) and of the front tyres'
+    /// ratio it read ([`Self::front_reading`]); none of a fit not judged.
+    pub fn refit_readings(
+        &mut self,
+        base: &ParamValues,
+        cal: Option<&DriveCalibration>,
+        front: Option<&FrontRatio>,
+        in_use: &ParamValues,
+    ) -> Vec<Reading> {
+        let mut read = cal
+            .map(|cal| readings(base, cal, in_use))
+            .unwrap_or_default();
+        read.extend(front.map(|f| self.front_reading(f)));
+        read
     }
 
     /// A refit's front tyres' ratio as a reading to judge
@@ -752,7 +773,7 @@ mod tests {
             distance_m: 600.0,
         };
         let mut w = Watcher::default();
-        w.restore_front_baseline(front(1.001));
+        assert!(w.restore_front_baseline(front(1.001)));
         let r = w.front_reading(&front(0.996));
         assert_eq!(r.in_use, 1.001);
         let changes = w.judge(&[r], &config);
@@ -761,14 +782,14 @@ mod tests {
         // the baseline again.
         for bad in [f64::NAN, 1.5, 0.0] {
             let mut w = Watcher::default();
-            w.restore_front_baseline(front(bad));
+            assert!(!w.restore_front_baseline(front(bad)));
             assert_eq!(w.front_reading(&front(0.996)).in_use, 0.996);
         }
         let mut w = Watcher::default();
-        w.restore_front_baseline(FrontRatio {
+        assert!(!w.restore_front_baseline(FrontRatio {
             sigma: f64::INFINITY,
             ..front(1.0)
-        });
+        }));
         assert_eq!(w.front_reading(&front(0.996)).in_use, 0.996);
     }
 

@@ -279,12 +279,19 @@ pub async fn run<C: Connector>(
         && let Ok(state) = crate::state_file::load(&options.path)
         && let Some(front) = crate::state_file::saved_front_baseline(&state)
     {
-        info!(
-            file = %options.path.display(),
-            front_ratio = front.value,
-            "drift watch: the front tyres are judged against the ratio the last run read"
-        );
-        live.restore_front_baseline(front);
+        if live.restore_front_baseline(front) {
+            info!(
+                file = %options.path.display(),
+                front_ratio = front.value,
+                "drift watch: the front tyres are judged against the ratio the last run read"
+            );
+        } else {
+            warn!(
+                file = %options.path.display(),
+                front_ratio = front.value,
+                "drift watch: the front tyres' ratio of the last run is not plausible; it is read anew"
+            );
+        }
     }
     let calib_cmd_id = config.calibration.command_id;
     let encoder = PoseEncoder::with_dbc(&own)?;

@@ -324,9 +324,11 @@ impl From<&canodom_live::drift_watch::DriftReport> for SavedDrift {
 /// The front tyres' ratio the drift watch of the run that wrote `state`
 /// judged against: what the next start's watch judges against, since no
 /// parameter set carries the front tyres.
+/// The watch judges whether it is plausible
+/// (`canodom_calib::drift::Watcher::restore_front_baseline`).
 pub fn saved_front_baseline(state: &SavedState) -> Option<canodom_calib::front_ratio::FrontRatio> {
     let f = state.drift.as_ref()?.front_ratio_first_read?;
-    (f.ratio.is_finite() && f.sigma.is_finite()).then_some(canodom_calib::front_ratio::FrontRatio {
+    Some(canodom_calib::front_ratio::FrontRatio {
         value: f.ratio,
         sigma: f.sigma,
         distance_m: 0.0,

@@ -12,9 +12,7 @@
 //! pool, at most one at a time.
 
 use canodom_calib::calibrator::OnlineWindow;
-use canodom_calib::drift::{
-    Change, Param, Reading, Watch, Watcher, fixes_span_s, readings, window_is_full,
-};
+use canodom_calib::drift::{Change, Param, Reading, Watch, Watcher, fixes_span_s, window_is_full};
 use canodom_offline::online::Epoch;
 use canodom_params::persist::ParamValues;
 use canodom_pipeline::config::DriftWatchConfig;
@@ -147,13 +145,12 @@ impl OnlineWatch {
         if job.window.generation != generation {
             return None;
         }
-        let mut read = epoch
-            .and_then(|e| e.judged.as_ref())
-            .map(|cal| readings(&job.window.base, cal, in_use))
-            .unwrap_or_default();
-        if let Some(front) = epoch.and_then(|e| e.front_ratio.as_ref()) {
-            read.push(self.watch.front_reading(front));
-        }
+        let read = self.watch.refit_readings(
+            &job.window.base,
+            epoch.and_then(|e| e.judged.as_ref()),
+            epoch.and_then(|e| e.front_ratio.as_ref()),
+            in_use,
+        );
         let changes = self.watch.judge(&read, &self.config.judge);
         let next = self.watch.watch();
         // A set is offered only for what a set carries: committing one
@@ -186,10 +183,14 @@ impl OnlineWatch {
     }
 
     /// The front tyres' ratio a previous run judged against (its state
-    /// file): see [`Watcher::restore_front_baseline`].
-    pub fn restore_front_baseline(&mut self, baseline: canodom_calib::front_ratio::FrontRatio) {
-        self.watch.restore_front_baseline(baseline);
+    /// file): see [`Watcher::restore_front_baseline`]; whether it was taken.
+    pub fn restore_front_baseline(
+        &mut self,
+        baseline: canodom_calib::front_ratio::FrontRatio,
+    ) -> bool {
+        let taken = self.watch.restore_front_baseline(baseline);
         self.report.front_baseline = self.watch.front_baseline();
+        taken
     }
 
     /// The candidate was committed (or withdrawn): the report no longer

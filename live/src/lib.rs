@@ -146,9 +146,13 @@ impl LiveCalibration {
 
     /// The front tyres' ratio a previous run's drift watch judged against
     /// (its state file): a front tyre changed while the daemon was down is
-    /// then flagged as one changed while it ran.
-    pub fn restore_front_baseline(&mut self, baseline: canodom_calib::front_ratio::FrontRatio) {
-        self.online.restore_front_baseline(baseline);
+    /// then flagged as one changed while it ran. Whether it was taken (an
+    /// implausible ratio from a damaged file is not).
+    pub fn restore_front_baseline(
+        &mut self,
+        baseline: canodom_calib::front_ratio::FrontRatio,
+    ) -> bool {
+        self.online.restore_front_baseline(baseline)
     }
 
     /// What the drift watch knows now, the candidate as it awaits COMMIT.

@@ -19,7 +19,7 @@
 //! since. [`drift_watch`] judges the refits against the set in use.
 
 use crate::drive::{DriveLog, fit_samples};
-use canodom_calib::drift::{Change, DriftConfig, Watch, Watcher, readings, window_is_full};
+use canodom_calib::drift::{Change, DriftConfig, Watch, Watcher, window_is_full};
 use canodom_calib::drive::{DriveCalibration, DriveOptions, DriveSample, Fix};
 use canodom_calib::drive_gate::misfits;
 use canodom_calib::front_ratio::{FrontGeometry, FrontRatio, front_ratio};
@@ -162,14 +162,8 @@ pub fn drift_watch(
             if !window_is_full(e.fixes_span_s, window_s) {
                 return (watcher.watch(), Vec::new());
             }
-            let mut read = e
-                .judged
-                .as_ref()
-                .map(|cal| readings(base, cal, in_use))
-                .unwrap_or_default();
-            if let Some(front) = &e.front_ratio {
-                read.push(watcher.front_reading(front));
-            }
+            let read =
+                watcher.refit_readings(base, e.judged.as_ref(), e.front_ratio.as_ref(), in_use);
             let changes = watcher.judge(&read, judge);
             (watcher.watch(), changes)
         })
