@@ -1,5 +1,6 @@
 //! Live GNSS (`[gnss]`, #46 item 1, #43 item 2): the configured source —
-//! gpsd (`canodom-gnss`'s client) or a ROS 2 `NavSatFix` subscription
+//! gpsd (`canodom-gnss`'s client), a receiver's NMEA on a serial port
+//! (`canodom-gnss`'s serial reader) or a ROS 2 `NavSatFix` subscription
 //! (`canodom-ros2`'s) — read on a thread of the blocking pool, each accepted
 //! fix handed to the calibration task as [`CalibInput::Fix`] on the bus clock.
 //!
@@ -24,7 +25,8 @@ use canodom_can::time::Timestamp;
 use canodom_gnss::accept::HORIZONTAL_95_TO_SIGMA;
 use canodom_gnss::status::RateWindow;
 use canodom_gnss::{
-    Acceptance, Event, GpsdClient, GpsdClientConfig, OutcomeChanges, SourceStatus, Tpv,
+    Acceptance, Event, GpsdClient, GpsdClientConfig, NmeaDevice, NmeaDeviceConfig, OutcomeChanges,
+    SourceStatus, Tpv,
 };
 use canodom_pipeline::config::{Config, GnssConfig, GnssSource};
 use canodom_ros2::fixes::FixSubscriber;
@@ -181,6 +183,7 @@ impl Ros2Source {
 /// The running source.
 enum Source {
     Gpsd(GpsdClient),
+    Nmea(NmeaDevice),
     Ros2(Box<Ros2Source>),
 }
 
@@ -196,6 +199,13 @@ impl Source {
                     GpsdClientConfig::new(address, gnss.max_error_m).map_err(|e| e.to_string())?;
                 GpsdClient::spawn(client_config, epoch)
                     .map(Self::Gpsd)
+                    .map_err(|e| e.to_string())
+            }
+            GnssSource::Nmea { device, baud } => {
+                let device_config = NmeaDeviceConfig::new(device, *baud, gnss.max_error_m)
+                    .map_err(|e| e.to_string())?;
+                NmeaDevice::spawn(device_config, epoch)
+                    .map(Self::Nmea)
                     .map_err(|e| e.to_string())
             }
             GnssSource::Ros2 { topic } => {
@@ -222,6 +232,7 @@ impl Source {
     fn next(&mut self, timeout: Duration) -> Option<Event> {
         match self {
             Self::Gpsd(client) => client.recv_timeout(timeout),
+            Self::Nmea(device) => device.recv_timeout(timeout),
             Self::Ros2(source) => source.next(timeout),
         }
     }
@@ -262,6 +273,7 @@ impl Forwarder {
     ) -> (Self, GnssLinks) {
         let name = match &gnss.source {
             GnssSource::Gpsd { address } => format!("gpsd {address}"),
+            GnssSource::Nmea { device, .. } => format!("nmea {}", device.display()),
             GnssSource::Ros2 { topic } => format!("ros2 {topic}"),
         };
         let (fixes, fixes_rx) = mpsc::channel(FIX_QUEUE);
@@ -315,6 +327,7 @@ impl Forwarder {
         // task still takes fixes; once it has stopped, counted as dropped.
         let rest = match &mut source {
             Source::Gpsd(client) => client.finish(),
+            Source::Nmea(device) => device.finish(),
             // Its counts as of the last fix (a status goes out once a second).
             Source::Ros2(source) => vec![Event::Status(source.status.clone())],
         };
@@ -459,6 +472,14 @@ mod tests {
         assert_eq!(
             canodom_pipeline::config::DEFAULT_GPSD_ADDRESS,
             canodom_gnss::client::DEFAULT_ADDRESS
+        );
+        assert_eq!(
+            canodom_pipeline::config::DEFAULT_NMEA_MAX_ERROR_M,
+            canodom_gnss::serial::DEFAULT_MAX_ERROR_M
+        );
+        assert_eq!(
+            canodom_pipeline::config::NMEA_BAUD_RATES,
+            canodom_gnss::serial::BAUD_RATES
         );
     }
 

@@ -1,3 +1,7 @@
+//! `[gnss] source = "nmea"` live (#46): a serial receiver (a named pipe
+//! here) unplugged and plugged in again mid-drive, in the daemon's run loop
+//! with a simulated vehicle; every epoch reaches the calibration.
+//!
 //! `[gnss] source = "gpsd"` live (#46): the daemon's own run loop on the
 //! in-process bus (there is no SocketCAN here; `canodom run` needs one)
 //! with a simulated vehicle sending in real time, and a real gpsd under
@@ -100,4 +104,129 @@ async fn gpsd_fixes_reach_the_calibration_and_no_can_frame_is_lost() {
         "every accepted fix reached the calibration"
     );
     assert_eq!((gnss.dropped, gnss.before_bus), (0, 0));
+}
+
+/// A sentence with its checksum and CR LF.
+fn nmea(body: &str) -> String {
+    let sum = body.bytes().fold(0_u8, |a, b| a ^ b);
+    format!("${body}*{sum:02X}\r\n")
+}
+
+/// Epoch `k` of a 5 Hz receiver (RMC, GGA with HDOP 1.2, GSV), its time of
+/// day from the wall clock so that its latency is the pipe's.
+fn nmea_epoch(k: u32) -> String {
+    let now = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap();
+    let day_s = now.as_secs() % 86_400;
+    let centi = now.subsec_millis() / 10;
+    let time = format!(
+        "{:02}{:02}{:02}.{centi:02}",
+        day_s / 3600,
+        day_s / 60 % 60,
+        day_s % 60
+    );
+    let lat = format!("4809.{:07}", 1_000 * k);
+    // The date of the clock, as a receiver's RMC carries it.
+    let days = now.as_secs() / 86_400;
+    let date = chrono::DateTime::from_timestamp((days * 86_400) as i64, 0)
+        .unwrap()
+        .format("%d%m%y");
+    nmea(&format!(
+        "GPRMC,{time},A,{lat},N,01134.8000000,E,5.0,0.0,{date},,,A"
+    )) + &nmea(&format!(
+        "GPGGA,{time},{lat},N,01134.8000000,E,1,09,1.2,520.0,M,47.0,M,,"
+    )) + &nmea("GPGSV,1,1,01,05,45,120,40")
+}
+
+#[tokio::test]
+async fn a_serial_receiver_unplugged_mid_drive_is_reopened_and_no_fix_or_frame_is_lost() {
+    // `[gnss] source = "nmea"` (#46 item 1): the receiver is a named pipe
+    // (a tty is what a USB receiver is; `canodom-gnss`'s own tests read a
+    // pseudo-terminal), whose writer leaves for a second in the middle of
+    // the drive, as an unplugged receiver does.
+    let dir = std::env::temp_dir().join(format!("canodom-nmea-live-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let fifo = dir.join("ttyACM0");
+    let _ = std::fs::remove_file(&fifo);
+    nix::unistd::mkfifo(&fifo, nix::sys::stat::Mode::S_IRWXU).unwrap();
+    let path = crate::util::rc_car_toml();
+    let text = std::fs::read_to_string(&path).unwrap();
+    let text = format!(
+        "{text}\n[gnss]\nsource = \"nmea\"\ndevice = \"{}\"\nbaud = 9600\n",
+        fifo.display()
+    );
+    let config = Arc::new(Config::from_toml(&text, &path).unwrap());
+    let bus = InProcessBus::new(&config.interface, 8192);
+    let daemon = InProcessDaemon::spawn_on(Arc::clone(&config), bus, Observers::default());
+    tokio::time::sleep(Duration::from_millis(10)).await;
+    let (_rx, tx) = daemon.bus.open().unwrap();
+    let sim = canodom_sim::drive::simulator_at(&config, PathKind::Random, None, 4, false, 20, None)
+        .unwrap();
+    let stop = CancellationToken::new();
+    // The receiver: 5 Hz, 2 s, unplugged 1 s, 2 s again; it starts once the
+    // bus has frames (a fix before the first frame has no bus time).
+    let receiver = {
+        let fifo = fifo.clone();
+        std::thread::spawn(move || {
+            use std::io::Write as _;
+            std::thread::sleep(Duration::from_millis(300));
+            let mut written = 0_u32;
+            for session in 0..2 {
+                let mut w = std::fs::OpenOptions::new().write(true).open(&fifo).unwrap();
+                for _ in 0..10 {
+                    w.write_all(nmea_epoch(written).as_bytes()).unwrap();
+                    written += 1;
+                    std::thread::sleep(Duration::from_millis(200));
+                }
+                drop(w);
+                if session == 0 {
+                    std::thread::sleep(Duration::from_secs(1));
+                }
+            }
+            written
+        })
+    };
+    let timer = {
+        let stop = stop.clone();
+        tokio::spawn(async move {
+            tokio::time::sleep(Duration::from_secs(7)).await;
+            stop.cancel();
+        })
+    };
+    let (sent, failed) = canodom_sim::drive::drive(&config, sim, &tx, 100.0, stop, |_| {})
+        .await
+        .unwrap();
+    timer.abort();
+    let written = receiver.join().unwrap();
+    let summary = daemon.stop().await.unwrap();
+    let _ = std::fs::remove_dir_all(&dir);
+    let gnss = summary.gnss.clone().expect("the serial source started");
+    let s = &gnss.status;
+    assert_eq!(failed, 0);
+    assert_eq!(
+        summary.stats.frames, sent,
+        "every CAN frame sent was counted"
+    );
+    assert_eq!(summary.frames_lost, 0);
+    assert!(gnss.source.starts_with("nmea "), "{}", gnss.source);
+    // Opened at the start, reopened after the unplug, and again after the
+    // writer left at 5.3 s (a named pipe opens without a writer; a tty
+    // whose receiver is unplugged does not, and is retried with backoff).
+    assert_eq!(
+        gnss.connections, 3,
+        "reopened after each time the writer left"
+    );
+    assert!(s.reconnects >= 1, "{s:?}");
+    assert_eq!(s.accepted, u64::from(written), "{s:?}");
+    assert_eq!(s.refused, [0, 0, 0], "{s:?}");
+    assert_eq!((s.dropped, gnss.dropped, gnss.before_bus), (0, 0, 0));
+    assert_eq!(
+        gnss.forwarded,
+        u64::from(written),
+        "every epoch reached the calibration"
+    );
+    // Its latency is the pipe's and the epoch gathering's: well under a second.
+    let latency = gnss.last_latency_s.expect("a latency");
+    assert!((0.0..0.5).contains(&latency), "{latency}");
 }

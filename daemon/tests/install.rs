@@ -286,3 +286,33 @@ fn the_unit_hands_the_key_file_over_as_a_credential_and_the_recipe_starts_with_i
         "{stderr}"
     );
 }
+
+#[test]
+fn the_unit_lets_gpsd_and_ros2_through_on_the_loopback_only() {
+    // #46: gpsd on localhost:2947 and ROS 2's UDP need AF_INET; the unit
+    // once allowed AF_CAN, AF_UNIX and AF_NETLINK only, and the service
+    // could not reach the gpsd the README sets up.
+    let unit = std::fs::read_to_string(manifest().join("dist/canodom.service")).unwrap();
+    let families = unit
+        .lines()
+        .find_map(|l| l.strip_prefix("RestrictAddressFamilies="))
+        .expect("RestrictAddressFamilies=");
+    for family in ["AF_CAN", "AF_UNIX", "AF_NETLINK", "AF_INET", "AF_INET6"] {
+        assert!(
+            families.split_whitespace().any(|f| f == family),
+            "{family} missing: {families}"
+        );
+    }
+    for line in ["IPAddressDeny=any", "IPAddressAllow=localhost"] {
+        assert!(unit.lines().any(|l| l.trim() == line), "{line} missing");
+    }
+    // The README's drop-ins name what the unit leaves closed.
+    let readme = std::fs::read_to_string(manifest().join("../README.md")).unwrap();
+    for needle in [
+        "IPAddressAllow=",
+        "DeviceAllow=",
+        "SupplementaryGroups=dialout",
+    ] {
+        assert!(readme.contains(needle), "README lacks {needle}");
+    }
+}

@@ -87,15 +87,24 @@ pub enum Event {
     Status(SourceStatus),
 }
 
-struct Shared {
+/// The queue between a source's thread and its consumer, and the stop flag.
+pub(crate) struct Shared {
     queue: Mutex<(VecDeque<Event>, u64)>,
     ready: Condvar,
-    stop: AtomicBool,
+    pub(crate) stop: AtomicBool,
 }
 
 impl Shared {
+    fn new() -> Self {
+        Self {
+            queue: Mutex::new((VecDeque::new(), 0)),
+            ready: Condvar::new(),
+            stop: AtomicBool::new(false),
+        }
+    }
+
     /// Queues `event`, dropping the oldest when full; returns the drop count.
-    fn push(&self, event: Event, cap: usize) -> u64 {
+    pub(crate) fn push(&self, event: Event, cap: usize) -> u64 {
         let mut q = self.queue.lock().unwrap_or_else(PoisonError::into_inner);
         if q.0.len() >= cap.max(1) {
             q.0.pop_front();
@@ -107,47 +116,39 @@ impl Shared {
         self.ready.notify_one();
         dropped
     }
+
+    /// Whether the consumer asked the thread to stop.
+    pub(crate) fn stopped(&self) -> bool {
+        self.stop.load(Ordering::Relaxed)
+    }
 }
 
-/// A running gpsd client; dropping it stops the thread.
-pub struct GpsdClient {
+/// A source's thread and its queue: what [`GpsdClient`] and
+/// [`crate::serial::NmeaDevice`] share.
+pub(crate) struct Worker {
     shared: Arc<Shared>,
     thread: Option<JoinHandle<()>>,
-    epoch: Instant,
 }
 
-impl GpsdClient {
-    /// Starts the client thread. Receipt times are seconds since `epoch` (the
-    /// caller's clock, so they can be placed on the CAN frames' time base).
-    ///
-    /// # Errors
-    /// [`Error::Io`] only when the thread cannot be spawned; gpsd being down is not an error.
-    pub fn spawn(config: GpsdClientConfig, epoch: Instant) -> Result<Self, Error> {
-        let shared = Arc::new(Shared {
-            queue: Mutex::new((VecDeque::new(), 0)),
-            ready: Condvar::new(),
-            stop: AtomicBool::new(false),
-        });
+impl Worker {
+    /// Starts `run` on a thread named `name`.
+    pub(crate) fn spawn(
+        name: &str,
+        run: impl FnOnce(&Shared) + Send + 'static,
+    ) -> std::io::Result<Self> {
+        let shared = Arc::new(Shared::new());
         let thread_shared = Arc::clone(&shared);
-        let address = config.address.clone();
         let thread = std::thread::Builder::new()
-            .name("gpsd".into())
-            .spawn(move || run(&config, &thread_shared, epoch))
-            .map_err(|source| Error::Io { address, source })?;
+            .name(name.into())
+            .spawn(move || run(&thread_shared))?;
         Ok(Self {
             shared,
             thread: Some(thread),
-            epoch,
         })
     }
 
-    /// The clock receipt times are measured on.
-    pub fn epoch(&self) -> Instant {
-        self.epoch
-    }
-
     /// The next event, waiting up to `timeout`.
-    pub fn recv_timeout(&self, timeout: Duration) -> Option<Event> {
+    pub(crate) fn recv_timeout(&self, timeout: Duration) -> Option<Event> {
         let q = self
             .shared
             .queue
@@ -162,7 +163,7 @@ impl GpsdClient {
     }
 
     /// Every queued event, without waiting.
-    pub fn drain(&self) -> Vec<Event> {
+    pub(crate) fn drain(&self) -> Vec<Event> {
         let mut q = self
             .shared
             .queue
@@ -170,28 +171,62 @@ impl GpsdClient {
             .unwrap_or_else(PoisonError::into_inner);
         q.0.drain(..).collect()
     }
-}
 
-impl GpsdClient {
-    /// Stops the thread and returns what it still queued: the last fixes
-    /// and its final status (whose counts then cover every fix it sent).
-    pub fn finish(&mut self) -> Vec<Event> {
-        self.halt();
-        self.drain()
-    }
-
-    fn halt(&mut self) {
+    /// Stops the thread (it looks at the flag at least every read timeout,
+    /// 200 ms) and waits for it.
+    pub(crate) fn halt(&mut self) {
         self.shared.stop.store(true, Ordering::Relaxed);
         if let Some(t) = self.thread.take() {
-            // The thread checks `stop` at least every read timeout (200 ms).
             let _ = t.join();
         }
     }
 }
 
-impl Drop for GpsdClient {
+impl Drop for Worker {
     fn drop(&mut self) {
         self.halt();
+    }
+}
+
+/// A running gpsd client; dropping it stops the thread.
+pub struct GpsdClient {
+    worker: Worker,
+    epoch: Instant,
+}
+
+impl GpsdClient {
+    /// Starts the client thread. Receipt times are seconds since `epoch` (the
+    /// caller's clock, so they can be placed on the CAN frames' time base).
+    ///
+    /// # Errors
+    /// [`Error::Io`] only when the thread cannot be spawned; gpsd being down is not an error.
+    pub fn spawn(config: GpsdClientConfig, epoch: Instant) -> Result<Self, Error> {
+        let address = config.address.clone();
+        let worker = Worker::spawn("gpsd", move |shared| run(&config, shared, epoch))
+            .map_err(|source| Error::Io { address, source })?;
+        Ok(Self { worker, epoch })
+    }
+
+    /// The clock receipt times are measured on.
+    pub fn epoch(&self) -> Instant {
+        self.epoch
+    }
+
+    /// The next event, waiting up to `timeout`.
+    pub fn recv_timeout(&self, timeout: Duration) -> Option<Event> {
+        self.worker.recv_timeout(timeout)
+    }
+
+    /// Every queued event, without waiting.
+    pub fn drain(&self) -> Vec<Event> {
+        self.worker.drain()
+    }
+
+    /// Stops the thread and returns what it still queued: the last fixes
+    /// and its final status (whose counts then cover every fix it sent).
+    pub fn finish(&mut self) -> Vec<Event> {
+        self.worker.halt();
+        self.worker.drain()
     }
 }
 
@@ -208,7 +243,8 @@ fn connect(address: &str) -> std::io::Result<TcpStream> {
     Err(last)
 }
 
-fn sleep_unless_stopped(shared: &Shared, total: Duration) {
+/// Sleeps `total`, waking early when the consumer asks the thread to stop.
+pub(crate) fn sleep_unless_stopped(shared: &Shared, total: Duration) {
     let until = Instant::now() + total;
     while !shared.stop.load(Ordering::Relaxed) {
         let now = Instant::now();
@@ -386,11 +422,7 @@ mod tests {
 
     #[test]
     fn a_full_queue_drops_the_oldest_and_counts() {
-        let shared = Shared {
-            queue: Mutex::new((VecDeque::new(), 0)),
-            ready: Condvar::new(),
-            stop: AtomicBool::new(false),
-        };
+        let shared = Shared::new();
         for i in 0..5 {
             shared.push(
                 Event::Status(SourceStatus {

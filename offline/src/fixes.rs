@@ -15,12 +15,8 @@
 //! same epoch (the receiver's own error estimate), else GGA's HDOP times
 //! [`HDOP_UERE_M`]. Without any, the fit estimates it from its residuals.
 //!
-//! The two sentences are read here by hand, and why: the `nmea` crate (0.7
-//! and 0.8) declares `serde_with ~3.9`/`~3.11` as an optional dependency,
-//! which Cargo's resolver counts even unused and which conflicts with
-//! foxglove's `serde_with ^3.14` (no lock file resolves); `nmea-parser`
-//! (0.10) drops GGA's fractions of a second and dates GGA with today's date,
-//! while a receiver's 0.2 s latency is what this reader must keep.
+//! The sentences are read by `canodom_gnss::nmea`, which the live serial
+//! reader shares (why by hand: see there).
 //!
 //! The geodetic-to-local conversion is `map_3d`'s `geodetic2enu` on WGS-84
 //! (exact ECEF differences rotated into the tangent plane), not a flat-earth
@@ -29,16 +25,11 @@
 
 use crate::{Error, Result};
 use canodom_calib::drive::{Fix, FixRow, FixRowsError, fix_rows};
-use chrono::{NaiveDate, NaiveTime, Timelike as _};
+use canodom_gnss::nmea::{self, Position};
+use chrono::{NaiveTime, Timelike as _};
 
-/// The 1σ error per horizontal axis, metres, of a consumer receiver's fix
-/// at HDOP 1, by which GGA's HDOP becomes a σ when no GST sentence states
-/// one (`σ = HDOP × HDOP_UERE_M`). From u-blox's NEO-M8 data sheet
-/// (UBX-15031086): 2.5 m CEP horizontal (GPS + GLONASS, 24 h static, open
-/// sky, where HDOP is near 1); CEP is 1.1774 σ for a circular normal error,
-/// so σ ≈ 2.1 m per axis. A receiver with SBAS or RTK does better and says
-/// so in GST; this is what a plain receiver's HDOP alone supports.
-pub const HDOP_UERE_M: f64 = 2.1;
+/// The 1σ per axis of a fix at HDOP 1 (see [`canodom_gnss::nmea::HDOP_UERE_M`]).
+pub use canodom_gnss::nmea::HDOP_UERE_M;
 
 /// What a fixes file held.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -173,163 +164,10 @@ fn parse_geodetic_csv(text: &str, name: &str) -> Result<Vec<Fix>> {
     Ok(to_local(&geo))
 }
 
-/// One NMEA sentence's fix before dates are known.
+/// One NMEA position sentence and the line it is on.
 struct Sentence {
     line: usize,
-    time: NaiveTime,
-    /// RMC's date.
-    date: Option<NaiveDate>,
-    lat_deg: f64,
-    lon_deg: f64,
-    alt_m: Option<f64>,
-    /// GGA's horizontal dilution of precision.
-    hdop: Option<f64>,
-}
-
-/// What one NMEA sentence holds.
-enum Read {
-    /// A sentence other than GGA/RMC.
-    Other,
-    /// A GGA/RMC without a valid fix.
-    NoFix,
-    /// A fix (its line still 0).
-    Fix(Sentence),
-    /// A GST sentence: the receiver's 1σ error per horizontal axis at a time of day.
-    Gst(NaiveTime, f64),
-}
-
-/// One sentence, its checksum checked.
-///
-/// # Errors
-/// A bad checksum or a malformed field, in words.
-fn sentence_fix(line: &str) -> std::result::Result<Read, String> {
-    let body = &line[1..];
-    let (data, sum) = match body.rsplit_once('*') {
-        Some((data, sum)) => (data, Some(sum)),
-        None => (body, None),
-    };
-    let Some(sum) = sum else {
-        return Err("no checksum (*hh)".to_owned());
-    };
-    let want =
-        u8::from_str_radix(sum.trim(), 16).map_err(|_| format!("checksum {sum:?} is not hex"))?;
-    let got = data.bytes().fold(0_u8, |a, b| a ^ b);
-    if got != want {
-        return Err(format!(
-            "checksum {want:02X} but the sentence sums to {got:02X}"
-        ));
-    }
-    let fields: Vec<&str> = data.split(',').collect();
-    let kind = fields[0].get(2..).unwrap_or("");
-    let field = |k: usize| fields.get(k).copied().unwrap_or("");
-    let (time, lat, ns, lon, ew) = match kind {
-        "GGA" => (field(1), field(2), field(3), field(4), field(5)),
-        "RMC" => (field(1), field(3), field(4), field(5), field(6)),
-        "GST" => return gst(&fields),
-        _ => return Ok(Read::Other),
-    };
-    let valid = match kind {
-        "GGA" => !matches!(field(6), "" | "0"),
-        _ => field(2) == "A" || field(2) == "D",
-    };
-    if !valid || time.is_empty() || lat.is_empty() || lon.is_empty() {
-        return Ok(Read::NoFix);
-    }
-    let time = NaiveTime::parse_from_str(time, "%H%M%S%.f")
-        .or_else(|_| NaiveTime::parse_from_str(time, "%H%M%S"))
-        .map_err(|_| format!("time {time:?} is not hhmmss.ss"))?;
-    let angle =
-        |text: &str, degree_digits: usize, hemisphere: &str, positive: &str, negative: &str| {
-            let bad = || format!("{text:?} {hemisphere:?} is not a d..dmm.mmm angle");
-            let (deg, min) = (
-                text.get(..degree_digits).ok_or_else(bad)?,
-                text.get(degree_digits..).ok_or_else(bad)?,
-            );
-            let value = deg.parse::<f64>().map_err(|_| bad())?
-                + min.parse::<f64>().map_err(|_| bad())? / 60.0;
-            match hemisphere {
-                h if h == positive => Ok(value),
-                h if h == negative => Ok(-value),
-                _ => Err(bad()),
-            }
-        };
-    let lat_deg = angle(lat, 2, ns, "N", "S")?;
-    let lon_deg = angle(lon, 3, ew, "E", "W")?;
-    // An HDOP of 0 is a receiver that does not compute it: no σ.
-    let hdop = match (kind, field(8)) {
-        ("GGA", h) if !h.is_empty() => h
-            .parse::<f64>()
-            .ok()
-            .filter(|h| h.is_finite() && *h >= 0.0)
-            .ok_or_else(|| format!("HDOP {h:?} is not a number ≥ 0"))
-            .map(|h| (h > 0.0).then_some(h))?,
-        _ => None,
-    };
-    let (date, alt_m) = if kind == "RMC" {
-        let d = field(9);
-        let date = NaiveDate::parse_from_str(d, "%d%m%y")
-            .map_err(|_| format!("date {d:?} is not ddmmyy"))?;
-        (Some(date), None)
-    } else {
-        let a = field(9);
-        (
-            None,
-            if a.is_empty() {
-                None
-            } else {
-                Some(
-                    a.parse::<f64>()
-                        .map_err(|_| format!("altitude {a:?} is not a number"))?,
-                )
-            },
-        )
-    };
-    Ok(Read::Fix(Sentence {
-        line: 0,
-        time,
-        date,
-        lat_deg,
-        lon_deg,
-        alt_m,
-        hdop,
-    }))
-}
-
-/// A GST sentence (`$--GST,time,rms,major,minor,orient,lat_err,lon_err,alt_err`):
-/// the 1σ error per horizontal axis, `√((σ_lat² + σ_lon²)/2)`, or from the
-/// error ellipse's axes when the latitude and longitude errors are empty (the
-/// same trace). A GST without either is skipped as an unknown sentence.
-fn gst(fields: &[&str]) -> std::result::Result<Read, String> {
-    let field = |k: usize| fields.get(k).copied().unwrap_or("");
-    let time = field(1);
-    let number = |k: usize| -> std::result::Result<Option<f64>, String> {
-        let text = field(k);
-        if text.is_empty() {
-            return Ok(None);
-        }
-        text.parse::<f64>()
-            .ok()
-            .filter(|v| v.is_finite() && *v >= 0.0)
-            .map(Some)
-            .ok_or_else(|| format!("GST field {k} {text:?} is not a σ in metres"))
-    };
-    let pair = match (number(6)?, number(7)?) {
-        (Some(a), Some(b)) => Some((a, b)),
-        _ => number(3)?.zip(number(4)?),
-    };
-    let (Some((a, b)), false) = (pair, time.is_empty()) else {
-        return Ok(Read::Other);
-    };
-    let time = NaiveTime::parse_from_str(time, "%H%M%S%.f")
-        .or_else(|_| NaiveTime::parse_from_str(time, "%H%M%S"))
-        .map_err(|_| format!("time {time:?} is not hhmmss.ss"))?;
-    let sigma = a.hypot(b) / std::f64::consts::SQRT_2;
-    // A σ of 0 is a receiver that does not know (as a driver's empty covariance).
-    Ok(if sigma > 0.0 {
-        Read::Gst(time, sigma)
-    } else {
-        Read::Other
-    })
+    position: Position,
 }
 
 fn parse_nmea(text: &str, name: &str) -> Result<Vec<Fix>> {
@@ -351,16 +189,16 @@ fn parse_nmea(text: &str, name: &str) -> Result<Vec<Fix>> {
                 line.chars().take(60).collect::<String>()
             )));
         }
-        match sentence_fix(line) {
-            Ok(Read::Fix(mut s)) => {
-                s.line = i + 1;
-                sentences.push(s);
+        match nmea::parse_sentence(line) {
+            Ok(nmea::Sentence::Fix(position)) => sentences.push(Sentence {
+                line: i + 1,
+                position,
+            }),
+            Ok(nmea::Sentence::Gst { time, sigma_m }) => {
+                gst_sigma.insert(time, sigma_m);
             }
-            Ok(Read::Gst(time, sigma)) => {
-                gst_sigma.insert(time, sigma);
-            }
-            Ok(Read::NoFix) => invalid += 1,
-            Ok(Read::Other) => other += 1,
+            Ok(nmea::Sentence::NoFix { .. }) => invalid += 1,
+            Ok(nmea::Sentence::Other) => other += 1,
             Err(e) => bad.push(format!("line {}: {e}", i + 1)),
         }
     }
@@ -371,7 +209,7 @@ fn parse_nmea(text: &str, name: &str) -> Result<Vec<Fix>> {
             bad[0]
         )));
     }
-    let Some(first_date) = sentences.iter().find_map(|s| s.date) else {
+    let Some(first_date) = sentences.iter().find_map(|s| s.position.date) else {
         return Err(err(format!(
             "no RMC sentence with a date and a valid fix ({} GGA/RMC with a fix, {invalid} without, \
              {other} other sentences): GGA carries the time of day only",
@@ -384,7 +222,7 @@ fn parse_nmea(text: &str, name: &str) -> Result<Vec<Fix>> {
     let mut previous: Option<NaiveTime> = None;
     let mut geo: Vec<Geodetic> = Vec::new();
     let mut altitude: Option<f64> = None;
-    for s in &sentences {
+    for Sentence { line, position: s } in &sentences {
         if let Some(d) = s.date {
             date = d;
         } else if previous.is_some_and(|p| {
@@ -393,13 +231,9 @@ fn parse_nmea(text: &str, name: &str) -> Result<Vec<Fix>> {
             date = date.succ_opt().unwrap_or(date);
         }
         previous = Some(s.time);
-        let when = date.and_time(s.time).and_utc();
-        let t_s = when.timestamp() as f64 + f64::from(s.time.nanosecond() % 1_000_000_000) * 1e-9;
+        let t_s = nmea::unix_s(date, s.time);
         altitude = s.alt_m.or(altitude);
-        let sigma_m = gst_sigma
-            .get(&s.time)
-            .copied()
-            .or(s.hdop.map(|h| h * HDOP_UERE_M));
+        let sigma_m = nmea::epoch_sigma_m(gst_sigma.get(&s.time).copied(), s.hdop);
         // One fix an epoch: GGA and RMC of the same instant are one.
         match geo.last_mut() {
             Some(last) if (last.t_s - t_s).abs() < 1e-6 => {
@@ -411,8 +245,8 @@ fn parse_nmea(text: &str, name: &str) -> Result<Vec<Fix>> {
             }
             Some(last) if t_s < last.t_s => {
                 return Err(err(format!(
-                    "line {}: the time {} goes back before the previous fix's",
-                    s.line, s.time
+                    "line {line}: the time {} goes back before the previous fix's",
+                    s.time
                 )));
             }
             _ => geo.push(Geodetic {

@@ -28,7 +28,10 @@ use canodom_fusion::ekf::EkfConfig;
 use canodom_fusion::wheel::SpeedUnit;
 use canodom_fusion::{VehicleParams, WheelSet};
 use canodom_protocol::own_dbc::BaseId;
-pub use gnss::{DEFAULT_GPSD_ADDRESS, DEFAULT_MAX_ERROR_M, GnssConfig, GnssSource};
+pub use gnss::{
+    DEFAULT_GPSD_ADDRESS, DEFAULT_MAX_ERROR_M, DEFAULT_NMEA_MAX_ERROR_M, GnssConfig, GnssSource,
+    NMEA_BAUD_RATES,
+};
 use raw::RawConfig;
 use std::ffi::OsStr;
 use std::path::{Path, PathBuf};

@@ -1,6 +1,7 @@
 //! `[gnss]` (#46): a live GNSS source beside the bus's own fixes
-//! (`[calibration.fixes]`): gpsd on TCP, or a ROS 2 `sensor_msgs/NavSatFix`
-//! topic. Off unless the section is written.
+//! (`[calibration.fixes]`): gpsd on TCP, a receiver's NMEA on a serial port
+//! read directly, or a ROS 2 `sensor_msgs/NavSatFix` topic. Off unless the
+//! section is written.
 
 use super::ConfigError;
 use super::validator::Validator;
@@ -28,6 +29,18 @@ pub const DEFAULT_GPSD_ADDRESS: &str = "localhost:2947";
 /// few metres) is then hardly limited: lower `max_error_m` for it.
 pub const DEFAULT_MAX_ERROR_M: f64 = 120.0;
 
+/// The default `max_error_m` of a receiver read directly (`source =
+/// "nmea"`), metres: there the 95 % estimate is canodom's own, 2.448 σ with
+/// σ = HDOP × 2.1 m (or the receiver's GST σ), not gpsd's `HDOP × 19 m`; 32 m
+/// passes HDOP ≤ 6.3 as gpsd's default does (`canodom_gnss::serial`'s
+/// default, which a test of the daemon checks).
+pub const DEFAULT_NMEA_MAX_ERROR_M: f64 = 32.0;
+
+/// The baud rates `[gnss] baud` takes (termios's standard rates from 4800).
+pub const NMEA_BAUD_RATES: [u32; 9] = [
+    4800, 9600, 19_200, 38_400, 57_600, 115_200, 230_400, 460_800, 921_600,
+];
+
 /// Where live fixes come from.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum GnssSource {
@@ -35,6 +48,16 @@ pub enum GnssSource {
     Gpsd {
         /// gpsd's `host:port`.
         address: String,
+    },
+    /// A receiver's NMEA 0183 (GGA, RMC, GST) read from a serial device,
+    /// without gpsd.
+    Nmea {
+        /// The device, absolute (`/dev/ttyACM0`; `/dev/serial/by-id/...`
+        /// keeps its name across replugs).
+        device: std::path::PathBuf,
+        /// The baud rate set on it; `None` leaves the device's (a USB
+        /// CDC-ACM receiver ignores it).
+        baud: Option<u32>,
     },
     /// A ROS 2 `sensor_msgs/NavSatFix` topic (the domain, discovery and
     /// namespace are `[ros2]`'s).
@@ -50,7 +73,8 @@ pub struct GnssConfig {
     /// The source.
     pub source: GnssSource,
     /// Largest accepted 95 % horizontal error estimate, metres (gpsd's
-    /// `max(epx, epy)`, else `eph`; a NavSatFix's 2.448 σ of its covariance).
+    /// `max(epx, epy)`, else `eph`; a NavSatFix's 2.448 σ of its covariance;
+    /// a serial receiver's 1.96 σ of its GST, else 2.448 × HDOP × 2.1 m).
     pub max_error_m: f64,
 }
 
@@ -61,6 +85,8 @@ pub(super) struct RawGnss {
     source: String,
     address: Option<String>,
     topic: Option<String>,
+    device: Option<String>,
+    baud: Option<u32>,
     max_error_m: Option<f64>,
 }
 
@@ -68,10 +94,6 @@ impl Validator<'_> {
     /// `[gnss]`: each key checked against the source it belongs to.
     pub(super) fn gnss(&self, raw: Option<&RawGnss>) -> Result<Option<GnssConfig>, ConfigError> {
         let Some(raw) = raw else { return Ok(None) };
-        let max_error_m = self.positive(
-            "gnss.max_error_m",
-            raw.max_error_m.unwrap_or(DEFAULT_MAX_ERROR_M),
-        )?;
         let only = |key: &str, source: &str| {
             self.err(
                 key,
@@ -79,11 +101,22 @@ impl Validator<'_> {
                 format!("source = {:?}", raw.source),
             )
         };
-        let source = match raw.source.as_str() {
+        // Each key belongs to one source.
+        let owners = [
+            ("gnss.address", raw.address.is_some(), "gpsd"),
+            ("gnss.device", raw.device.is_some(), "nmea"),
+            ("gnss.baud", raw.baud.is_some(), "nmea"),
+            ("gnss.topic", raw.topic.is_some(), "ros2"),
+        ];
+        if ["gpsd", "nmea", "ros2"].contains(&raw.source.as_str())
+            && let Some((key, _, owner)) = owners
+                .iter()
+                .find(|(_, given, owner)| *given && *owner != raw.source)
+        {
+            return Err(only(key, owner));
+        }
+        let (source, default_max_error_m) = match raw.source.as_str() {
             "gpsd" => {
-                if raw.topic.is_some() {
-                    return Err(only("gnss.topic", "ros2"));
-                }
                 let address = raw.address.as_deref().unwrap_or(DEFAULT_GPSD_ADDRESS);
                 if !valid_address(address) {
                     return Err(self.err(
@@ -92,14 +125,35 @@ impl Validator<'_> {
                         format!("{address:?}"),
                     ));
                 }
-                GnssSource::Gpsd {
+                let source = GnssSource::Gpsd {
                     address: address.to_owned(),
+                };
+                (source, DEFAULT_MAX_ERROR_M)
+            }
+            "nmea" => {
+                let device = raw.device.as_deref().unwrap_or_default();
+                if !device.starts_with('/') || device.ends_with('/') {
+                    return Err(self.err(
+                        "gnss.device",
+                        "the receiver's device, an absolute path such as \"/dev/ttyACM0\" \
+                         (\"/dev/serial/by-id/...\" keeps its name across replugs)",
+                        format!("{device:?}"),
+                    ));
                 }
+                if let Some(b) = raw.baud.filter(|b| !NMEA_BAUD_RATES.contains(b)) {
+                    return Err(self.err(
+                        "gnss.baud",
+                        &format!("one of {NMEA_BAUD_RATES:?} (or no `baud`: the device's own)"),
+                        b.to_string(),
+                    ));
+                }
+                let source = GnssSource::Nmea {
+                    device: std::path::PathBuf::from(device),
+                    baud: raw.baud,
+                };
+                (source, DEFAULT_NMEA_MAX_ERROR_M)
             }
             "ros2" => {
-                if raw.address.is_some() {
-                    return Err(only("gnss.address", "gpsd"));
-                }
                 let topic = raw.topic.as_deref().unwrap_or_default();
                 if !valid_topic(topic) {
                     return Err(self.err(
@@ -108,14 +162,23 @@ impl Validator<'_> {
                         format!("{topic:?}"),
                     ));
                 }
-                GnssSource::Ros2 {
+                let source = GnssSource::Ros2 {
                     topic: topic.to_owned(),
-                }
+                };
+                (source, DEFAULT_MAX_ERROR_M)
             }
             other => {
-                return Err(self.err("gnss.source", "\"gpsd\" or \"ros2\"", format!("{other:?}")));
+                return Err(self.err(
+                    "gnss.source",
+                    "\"gpsd\", \"nmea\" (a serial receiver) or \"ros2\"",
+                    format!("{other:?}"),
+                ));
             }
         };
+        let max_error_m = self.positive(
+            "gnss.max_error_m",
+            raw.max_error_m.unwrap_or(default_max_error_m),
+        )?;
         Ok(Some(GnssConfig {
             source,
             max_error_m,

@@ -450,12 +450,70 @@ fn the_gnss_section_is_off_unless_written_and_fills_its_defaults() {
             max_error_m: DEFAULT_MAX_ERROR_M,
         })
     );
+    let text = format!("{RC_CAR}\n[gnss]\nsource = \"nmea\"\ndevice = \"/dev/ttyACM0\"\n");
+    let c = Config::from_toml(&text, &path()).unwrap();
+    assert_eq!(
+        c.gnss,
+        Some(GnssConfig {
+            source: GnssSource::Nmea {
+                device: "/dev/ttyACM0".into(),
+                baud: None,
+            },
+            max_error_m: DEFAULT_NMEA_MAX_ERROR_M,
+        })
+    );
+    let text = format!(
+        "{RC_CAR}\n[gnss]\nsource = \"nmea\"\ndevice = \"/dev/serial/by-id/usb-u-blox\"\nbaud = 38400\n"
+    );
+    let c = Config::from_toml(&text, &path()).unwrap();
+    assert_eq!(
+        c.gnss.map(|g| g.source),
+        Some(GnssSource::Nmea {
+            device: "/dev/serial/by-id/usb-u-blox".into(),
+            baud: Some(38_400),
+        })
+    );
 }
 
 #[test]
 fn every_bad_gnss_key_is_named() {
     for (section, key, expected) in [
-        ("source = \"serial\"", "gnss.source", "\"gpsd\" or \"ros2\""),
+        (
+            "source = \"serial\"",
+            "gnss.source",
+            "\"nmea\" (a serial receiver)",
+        ),
+        ("source = \"nmea\"", "gnss.device", "/dev/ttyACM0"),
+        (
+            "source = \"nmea\"\ndevice = \"ttyACM0\"",
+            "gnss.device",
+            "absolute path",
+        ),
+        (
+            "source = \"nmea\"\ndevice = \"/dev/ttyACM0\"\nbaud = 9601",
+            "gnss.baud",
+            "9600",
+        ),
+        (
+            "source = \"nmea\"\ndevice = \"/dev/ttyACM0\"\naddress = \"a:1\"",
+            "gnss.address",
+            "source = \"gpsd\"",
+        ),
+        (
+            "source = \"gpsd\"\nbaud = 9600",
+            "gnss.baud",
+            "source = \"nmea\"",
+        ),
+        (
+            "source = \"ros2\"\ntopic = \"/fix\"\ndevice = \"/dev/ttyUSB0\"",
+            "gnss.device",
+            "source = \"nmea\"",
+        ),
+        (
+            "source = \"nmea\"\ndevice = \"/dev/ttyACM0\"\nmax_error_m = 0.0",
+            "gnss.max_error_m",
+            "> 0",
+        ),
         (
             "source = \"gpsd\"\naddress = \"localhost\"",
             "gnss.address",
