@@ -200,6 +200,16 @@ fn replay_truth_agrees(
     let err = String::from_utf8(out.stderr).unwrap();
     assert!(out.status.success(), "{err}");
     println!("{err}");
+    // What the gyro taught the filter is told: the calibrated car's gyro
+    // carries the heading, and its bias stays within the drift watch's
+    // tolerance (0.05 °/s) of the calibration's −0.394 °/s.
+    let yaw = err
+        .lines()
+        .find_map(|l| l.strip_prefix("replay: yaw-rate sensor: bias "))
+        .expect("the yaw-rate sensor's line");
+    assert!(yaw.ends_with("the gyro carries the heading: yes"), "{yaw}");
+    let bias_dps: f64 = yaw.split(' ').next().unwrap().parse().unwrap();
+    assert!((bias_dps + 0.394).abs() < 0.05, "{yaw}");
     let metres = |who: &str| -> f64 {
         let line = err
             .lines()
