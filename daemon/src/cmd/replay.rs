@@ -267,25 +267,7 @@ pub fn execute(args: &ReplayArgs) -> anyhow::Result<()> {
         );
     }
     eprintln!("replay: wheel scales: {}", summary.state.wheel_scales());
-    if let Some(y) = summary.state.learnt().yaw_bias {
-        // What the gyro taught the filter: a user sees whether the gyro
-        // carries the heading and what it found the wheels to be.
-        eprintln!(
-            "replay: yaw-rate sensor: bias {:+.4} ± {:.4} °/s; rear wheels against it: ratio {:+.3} ± {:.3} %, \
-             effective tread {:+.2} ± {:.2} %; the gyro carries the heading: {}",
-            y.yaw_bias_radps.to_degrees(),
-            y.yaw_bias_sigma_radps.to_degrees(),
-            100.0 * y.rear_ratio_err,
-            100.0 * y.rear_ratio_sigma,
-            100.0 * y.tread_err,
-            100.0 * y.tread_sigma,
-            if summary.state.aided_leads() {
-                "yes"
-            } else {
-                "no (the wheels do)"
-            }
-        );
-    }
+    print_yaw_learnt(&summary.state);
     if let Some(drift) = &learnt.drift_summary {
         eprintln!("replay: {drift}");
     }
@@ -299,6 +281,30 @@ pub fn execute(args: &ReplayArgs) -> anyhow::Result<()> {
         compare_with_truth(args, &truth, &summary.track, summary.first_frame)?;
     }
     Ok(())
+}
+
+/// What the gyro taught the filter, when it has one: a user without a
+/// reference trajectory sees whether the gyro carries the heading and what
+/// it found the wheels to be.
+fn print_yaw_learnt(state: &canodom_fusion::ekf::State) {
+    let Some(y) = state.learnt().yaw_bias else {
+        return;
+    };
+    eprintln!(
+        "replay: yaw-rate sensor: bias {:+.4} ± {:.4} °/s; rear wheels against it: ratio {:+.3} ± {:.3} %, \
+         effective tread {:+.2} ± {:.2} %; the gyro carries the heading: {}",
+        y.yaw_bias_radps.to_degrees(),
+        y.yaw_bias_sigma_radps.to_degrees(),
+        100.0 * y.rear_ratio_err,
+        100.0 * y.rear_ratio_sigma,
+        100.0 * y.tread_err,
+        100.0 * y.tread_sigma,
+        if state.aided_leads() {
+            "yes"
+        } else {
+            "no (the wheels do)"
+        }
+    );
 }
 
 /// The `--out` file of a replay still running: removed when dropped before
