@@ -21,6 +21,7 @@
 //! sender; this task handles everything still queued, waits for a store in
 //! flight (a commit is stored whole or not at all), and returns.
 
+use crate::gnss_task::GnssSummary;
 use canodom_calib::calibrator::{Job, JobOutcome};
 use canodom_calib::session::Phase;
 use canodom_calib::standstill::Standstill;
@@ -33,6 +34,7 @@ use canodom_offline::online::Epoch;
 use canodom_params::persist::{ParamFile, ParamValues};
 use canodom_pipeline::config::Config;
 use canodom_pipeline::gate::SecurityGate;
+use canodom_protocol::calib_wire::GnssSourceKind;
 use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
@@ -124,6 +126,9 @@ pub struct CalibTask<Tx> {
     /// Fixes of a live GNSS source (`[gnss]`), on a channel of their own so
     /// that they never take room the odometry task's inputs need.
     pub gnss: Option<mpsc::Receiver<CalibInput>>,
+    /// The live GNSS source's kind and summary, for `CALIB_STATUS` page 6
+    /// (set by [`CalibTask::watch_gnss`]).
+    gnss_status: Option<(GnssSourceKind, watch::Receiver<Option<GnssSummary>>)>,
     /// The configuration the online calibration's refits fit with.
     pub refit_config: Arc<Config>,
     /// The drift watch's report, to the odometry task (state file, diagnostics).
@@ -181,6 +186,7 @@ impl<Tx: FrameSink + Clone> CalibTask<Tx> {
             param_file,
             report_root,
             gnss: None,
+            gnss_status: None,
             refit_config,
             drift,
             refit: None,
@@ -194,6 +200,30 @@ impl<Tx: FrameSink + Clone> CalibTask<Tx> {
             drift: drift_rx,
         };
         (task, links)
+    }
+
+    /// Shows the live GNSS source of kind `kind` on `CALIB_STATUS` page 6,
+    /// from its summaries on `status` (not connected until the first).
+    pub fn watch_gnss(
+        &mut self,
+        kind: GnssSourceKind,
+        status: watch::Receiver<Option<GnssSummary>>,
+    ) {
+        self.live
+            .set_gnss_status(crate::gnss_task::wire_status(kind, None));
+        self.gnss_status = Some((kind, status));
+    }
+
+    /// Takes the GNSS source's latest summary into the status pages.
+    fn refresh_gnss(&mut self) {
+        let Some((kind, rx)) = &mut self.gnss_status else {
+            return;
+        };
+        if rx.has_changed().unwrap_or(false) {
+            let summary = rx.borrow_and_update().clone();
+            let status = crate::gnss_task::wire_status(*kind, summary.as_ref());
+            self.live.set_gnss_status(status);
+        }
     }
 
     /// Runs until the odometry task closes the input channel.
@@ -235,6 +265,7 @@ impl<Tx: FrameSink + Clone> CalibTask<Tx> {
                     None => self.gnss = None,
                 },
                 _ = tick.tick() => {
+                    self.refresh_gnss();
                     if let Some(now) = self.now() {
                         let out = self.live.tick(now);
                         if let Some(h) = self.carry_out(out).await {

@@ -29,6 +29,7 @@ use canodom_gnss::{
     SourceStatus, Tpv,
 };
 use canodom_pipeline::config::{Config, GnssConfig, GnssSource};
+use canodom_protocol::calib_wire::{GnssSourceKind, GnssStatus};
 use canodom_ros2::fixes::FixSubscriber;
 use canodom_ros2::msg::NavSatFix;
 use std::time::{Duration, Instant};
@@ -82,6 +83,43 @@ impl GnssSummary {
             reconnects: s.reconnects,
             last_latency_s: self.last_latency_s,
         }
+    }
+}
+
+/// The kind of `source` as `CALIB_STATUS` page 6 names it.
+pub fn wire_kind(source: &GnssSource) -> GnssSourceKind {
+    match source {
+        GnssSource::Gpsd { .. } => GnssSourceKind::Gpsd,
+        GnssSource::Nmea { .. } => GnssSourceKind::Nmea,
+        GnssSource::Ros2 { .. } => GnssSourceKind::Ros2,
+    }
+}
+
+/// `CALIB_STATUS` page 6 of a source of kind `kind` whose latest summary is
+/// `summary` (`None`: it has not reported yet, so not connected). Counts
+/// that the page cannot hold saturate (refusals, reconnects) or wrap
+/// (forwarded, modulo 65536).
+pub fn wire_status(kind: GnssSourceKind, summary: Option<&GnssSummary>) -> GnssStatus {
+    let Some(summary) = summary else {
+        return GnssStatus {
+            source: kind,
+            connected: false,
+            fixes_per_s: 0.0,
+            error_95_m: None,
+            forwarded: 0,
+            refused: 0,
+            reconnects: 0,
+        };
+    };
+    let state = summary.state();
+    GnssStatus {
+        source: kind,
+        connected: state.connected,
+        fixes_per_s: state.fixes_per_s,
+        error_95_m: state.last_error_m,
+        forwarded: (state.forwarded % 65_536) as u16,
+        refused: u8::try_from(state.refused.iter().sum::<u64>()).unwrap_or(u8::MAX),
+        reconnects: u8::try_from(state.reconnects.min(3)).unwrap_or(3),
     }
 }
 

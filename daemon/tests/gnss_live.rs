@@ -14,7 +14,9 @@
 
 use canodom::server::{InProcessDaemon, Observers};
 use canodom_can::bus::InProcessBus;
+use canodom_can::bus::{BusEvent, FrameSource as _};
 use canodom_pipeline::config::Config;
+use canodom_protocol::calib_wire::{CalibWire, GnssSourceKind, StatusPage};
 use canodom_sim::vehicle::PathKind;
 use std::sync::Arc;
 use std::time::Duration;
@@ -160,33 +162,16 @@ async fn a_serial_receiver_unplugged_mid_drive_is_reopened_and_no_fix_or_frame_i
     let bus = InProcessBus::new(&config.interface, 8192);
     let daemon = InProcessDaemon::spawn_on(Arc::clone(&config), bus, Observers::default());
     tokio::time::sleep(Duration::from_millis(10)).await;
-    let (_rx, tx) = daemon.bus.open().unwrap();
+    let (rx, tx) = daemon.bus.open().unwrap();
+    // CALIB_STATUS page 6 as the bus carries it (#46: the source's state in
+    // the status frames), heard by a listener of the test's own.
+    let (pages, listener) = gnss_pages(rx, config.output.base_id);
     let sim = canodom_sim::drive::simulator_at(&config, PathKind::Random, None, 4, false, 20, None)
         .unwrap();
     let stop = CancellationToken::new();
     // The receiver: 5 Hz, 2 s, unplugged 1 s, 2 s again; it starts once the
     // bus has frames (a fix before the first frame has no bus time).
-    let receiver = {
-        let fifo = fifo.clone();
-        std::thread::spawn(move || {
-            use std::io::Write as _;
-            std::thread::sleep(Duration::from_millis(300));
-            let mut written = 0_u32;
-            for session in 0..2 {
-                let mut w = std::fs::OpenOptions::new().write(true).open(&fifo).unwrap();
-                for _ in 0..10 {
-                    w.write_all(nmea_epoch(written).as_bytes()).unwrap();
-                    written += 1;
-                    std::thread::sleep(Duration::from_millis(200));
-                }
-                drop(w);
-                if session == 0 {
-                    std::thread::sleep(Duration::from_secs(1));
-                }
-            }
-            written
-        })
-    };
+    let receiver = spawn_receiver(fifo.clone());
     let timer = {
         let stop = stop.clone();
         tokio::spawn(async move {
@@ -229,4 +214,68 @@ async fn a_serial_receiver_unplugged_mid_drive_is_reopened_and_no_fix_or_frame_i
     // Its latency is the pipe's and the epoch gathering's: well under a second.
     let latency = gnss.last_latency_s.expect("a latency");
     assert!((0.0..0.5).contains(&latency), "{latency}");
+    // Page 6 went out once a second: the source named, connected while the
+    // receiver wrote (5 Hz, HDOP 1.2: 2.448 × 1.2 × 2.1 m = 6.2 m), not
+    // connected before it was opened, the forwarded count rising to all.
+    listener.abort();
+    let pages = pages.lock().unwrap().clone();
+    assert!(pages.len() >= 5, "{pages:?}");
+    assert!(pages.iter().all(|g| g.source == GnssSourceKind::Nmea));
+    let live: Vec<_> = pages.iter().filter(|g| g.fixes_per_s > 0.0).collect();
+    assert!(!live.is_empty(), "{pages:?}");
+    for g in &live {
+        assert!(g.connected, "{g:?}");
+        assert!(g.fixes_per_s <= 5.5, "{g:?}");
+        assert!(g.error_95_m.is_some_and(|e| (e - 6.2).abs() < 0.1), "{g:?}");
+    }
+    let forwarded: Vec<u16> = pages.iter().map(|g| g.forwarded).collect();
+    assert!(forwarded.windows(2).all(|w| w[0] <= w[1]), "{forwarded:?}");
+    assert!(*forwarded.last().unwrap() > 0, "{forwarded:?}");
+}
+
+/// The `CALIB_STATUS` page 6 frames `rx` hears, gathered by a task.
+fn gnss_pages(
+    mut rx: canodom_can::bus::InProcessRx,
+    base_id: canodom_protocol::own_dbc::BaseId,
+) -> (
+    Arc<std::sync::Mutex<Vec<canodom_protocol::calib_wire::GnssStatus>>>,
+    tokio::task::JoinHandle<()>,
+) {
+    let pages = Arc::new(std::sync::Mutex::new(Vec::new()));
+    let heard = Arc::clone(&pages);
+    let wire = CalibWire::new(base_id).unwrap();
+    let task = tokio::spawn(async move {
+        while let Ok(ev) = rx.recv().await {
+            let BusEvent::Frame(r) = ev else { continue };
+            if r.frame.id() == wire.status_id()
+                && let Ok((StatusPage::Gnss(g), _)) = wire.decode_status(r.frame.data())
+            {
+                heard.lock().unwrap().push(g);
+            }
+        }
+    });
+    (pages, task)
+}
+
+/// A 5 Hz receiver writing into the named pipe `fifo`: 2 s, unplugged for
+/// 1 s, 2 s again, starting 0.3 s in; the epochs it wrote.
+fn spawn_receiver(fifo: std::path::PathBuf) -> std::thread::JoinHandle<u32> {
+    std::thread::spawn(move || {
+        use std::io::Write as _;
+        std::thread::sleep(Duration::from_millis(300));
+        let mut written = 0_u32;
+        for session in 0..2 {
+            let mut w = std::fs::OpenOptions::new().write(true).open(&fifo).unwrap();
+            for _ in 0..10 {
+                w.write_all(nmea_epoch(written).as_bytes()).unwrap();
+                written += 1;
+                std::thread::sleep(Duration::from_millis(200));
+            }
+            drop(w);
+            if session == 0 {
+                std::thread::sleep(Duration::from_secs(1));
+            }
+        }
+        written
+    })
 }

@@ -35,8 +35,9 @@ use canodom_fusion::{Pose, VehicleParams};
 use canodom_params::persist::{ParamFile, ParamValues};
 use canodom_pipeline::config::CalibrationConfig;
 use canodom_protocol::calib_wire::{
-    Ack, AckStatus, CalibWire, Command, Counts, DEFAULT_RUNS_PER_DIRECTION, InstructionCode,
-    ParamSet as WireSet, Progress, Reason, StartPoint, State, StatusPage, WireDirection, Writeback,
+    Ack, AckStatus, CalibWire, Command, Counts, DEFAULT_RUNS_PER_DIRECTION, GnssStatus,
+    InstructionCode, ParamSet as WireSet, Progress, Reason, StartPoint, State, StatusPage,
+    WireDirection, Writeback,
 };
 use canodom_report::committed::Report;
 use canodom_report::report::CalibrationReport;
@@ -95,6 +96,9 @@ pub struct LiveCalibration {
     status_counter: u8,
     params_counter: u8,
     online: OnlineWatch,
+    /// The live GNSS source's state for `CALIB_STATUS` page 6 (`None`
+    /// without `[gnss]`: the page is not sent).
+    gnss: Option<GnssStatus>,
 }
 
 fn seconds(t: Timestamp) -> f64 {
@@ -141,7 +145,14 @@ impl LiveCalibration {
             status_counter: 0,
             params_counter: 0,
             online,
+            gnss: None,
         }
+    }
+
+    /// The live GNSS source's state, sent as `CALIB_STATUS` page 6 from the
+    /// next status on (#46: connected, fixes per second, error estimate).
+    pub fn set_gnss_status(&mut self, status: GnssStatus) {
+        self.gnss = Some(status);
     }
 
     /// The front tyres' ratio a previous run's drift watch judged against
@@ -758,6 +769,7 @@ impl LiveCalibration {
                 cmd_seq: self.cmd_seq,
             }),
         ];
+        pages.extend(self.gnss.map(StatusPage::Gnss));
         pages.extend(self.result_pages());
         let id = self.wire.status_id();
         let mut out = Vec::with_capacity(pages.len());

@@ -824,3 +824,53 @@ fn a_steering_fit_whose_arcs_disagree_is_refused_as_too_uncertain() {
     assert!(!out.iter().any(|o| matches!(o, Output::Apply(..))));
     assert_eq!(live.file().current.as_ref().unwrap().version, 1);
 }
+
+#[test]
+fn the_gnss_page_goes_out_only_with_a_source_and_tells_its_state() {
+    use canodom_protocol::calib_wire::{GnssSourceKind, GnssStatus};
+    let c = config();
+    let (mut live, w, _) = core(&c, two_sets(), false);
+    let gnss_of = |out: &[Output]| {
+        status_pages(&w, out).find_map(|p| match p {
+            StatusPage::Gnss(g) => Some(g),
+            _ => None,
+        })
+    };
+    // Without `[gnss]` no status carries page 6.
+    let mut sent = 0;
+    for ms in (0..2100).step_by(50) {
+        let out = live.tick(at(ms));
+        sent += usize::from(progress(&w, &out).is_some());
+        assert_eq!(gnss_of(&out), None);
+    }
+    assert!(sent >= 2);
+    let state = GnssStatus {
+        source: GnssSourceKind::Nmea,
+        connected: true,
+        fixes_per_s: 1.0,
+        error_95_m: Some(7.3),
+        forwarded: 612,
+        refused: 4,
+        reconnects: 1,
+    };
+    live.inner.set_gnss_status(state);
+    let with_page: Vec<GnssStatus> = (2100..4200)
+        .step_by(50)
+        .filter_map(|ms| gnss_of(&live.tick(at(ms))))
+        .collect();
+    // Every status from then on carries it (once a second when idle).
+    assert_eq!(with_page.len(), 2, "{with_page:?}");
+    let got = with_page[0];
+    assert_eq!(
+        (
+            got.source,
+            got.connected,
+            got.forwarded,
+            got.refused,
+            got.reconnects
+        ),
+        (GnssSourceKind::Nmea, true, 612, 4, 1)
+    );
+    assert!((got.fixes_per_s - 1.0).abs() < 1e-9);
+    assert!(got.error_95_m.is_some_and(|e| (e - 7.3).abs() < 1e-9));
+}

@@ -28,8 +28,8 @@ pub use codes::{
     AckStatus, CmdCode, InstructionCode, Reason, StartPoint, State, WireDirection, Writeback,
 };
 pub use messages::{
-    Ack, Command, CommandFrame, Counts, DEFAULT_RUNS_PER_DIRECTION, ParamSet, ParamsData,
-    ParamsPage, Progress, StatusPage,
+    Ack, Command, CommandFrame, Counts, DEFAULT_RUNS_PER_DIRECTION, GnssSourceKind, GnssStatus,
+    ParamSet, ParamsData, ParamsPage, Progress, StatusPage,
 };
 
 /// Why a frame could not be encoded or decoded.
@@ -80,6 +80,12 @@ pub enum WireError {
 /// Result of this module.
 pub type Result<T> = std::result::Result<T, WireError>;
 
+/// `GNSS_ERROR_95`'s raw value for "the source stated no error estimate".
+const GNSS_ERROR_NOT_STATED: u64 = 4095;
+
+/// The largest error estimate `GNSS_ERROR_95` carries, metres (raw 4094).
+const GNSS_ERROR_95_MAX_M: f64 = 409.4;
+
 /// Handles of `CALIB_STATUS` signals.
 #[derive(Debug)]
 struct StatusHandles {
@@ -87,6 +93,76 @@ struct StatusHandles {
     p0: [SignalHandle; 12],
     p1: [SignalHandle; 9],
     results: [[SignalHandle; 3]; 4],
+    gnss: [SignalHandle; 7],
+}
+
+impl StatusHandles {
+    /// The `CALIB_STATUS` signals, looked up by name with `st`.
+    fn new(
+        st: &impl Fn(&str) -> std::result::Result<SignalHandle, canodom_dbc::Error>,
+    ) -> Result<Self> {
+        Ok(StatusHandles {
+            page: st("PAGE")?,
+            p0: [
+                st("STATE")?,
+                st("INSTRUCTION")?,
+                st("RUN_INDEX")?,
+                st("RUNS_TOTAL")?,
+                st("DIRECTION")?,
+                st("START_POINT")?,
+                st("RUN_DISTANCE")?,
+                st("WRITEBACK")?,
+                st("STANDSTILL")?,
+                st("WB_ATTEMPTS")?,
+                st("DRIFT")?,
+                st("DRIFT_CANDIDATE")?,
+            ],
+            p1: [
+                st("CW_ACCEPTED")?,
+                st("CW_REJECTED")?,
+                st("CCW_ACCEPTED")?,
+                st("CCW_REJECTED")?,
+                st("REJECT_REASON")?,
+                st("LAST_CMD")?,
+                st("CMD_REASON")?,
+                st("ACTIVE_VERSION")?,
+                st("CMD_SEQ")?,
+            ],
+            results: [
+                [
+                    st("RES_REAR_TREAD")?,
+                    st("RES_REAR_TREAD_STD")?,
+                    st("RES_DIAMETER_RATIO")?,
+                ],
+                [
+                    st("RES_DIAMETER_RATIO_STD")?,
+                    st("END_ERR_BEFORE")?,
+                    st("END_ERR_AFTER")?,
+                ],
+                [
+                    st("RES_STEER_GAIN")?,
+                    st("RES_STEER_GAIN_STD")?,
+                    st("RES_STEER_OFFSET")?,
+                ],
+                [
+                    st("RES_STEER_OFFSET_STD")?,
+                    st("RES_VERSION")?,
+                    // Page 5 has two signals; the third slot repeats the
+                    // first so the array stays rectangular.
+                    st("RES_STEER_OFFSET_STD")?,
+                ],
+            ],
+            gnss: [
+                st("GNSS_SOURCE")?,
+                st("GNSS_CONNECTED")?,
+                st("GNSS_FIXES_PER_S")?,
+                st("GNSS_ERROR_95")?,
+                st("GNSS_FORWARDED")?,
+                st("GNSS_REFUSED")?,
+                st("GNSS_RECONNECTS")?,
+            ],
+        })
+    }
 }
 
 /// The codec of the four calibration frames at one base id.
@@ -158,58 +234,7 @@ impl CalibWire {
                 s(CMD, "END_DY")?,
                 s(CMD, "END_DTHETA")?,
             ],
-            status: StatusHandles {
-                page: st("PAGE")?,
-                p0: [
-                    st("STATE")?,
-                    st("INSTRUCTION")?,
-                    st("RUN_INDEX")?,
-                    st("RUNS_TOTAL")?,
-                    st("DIRECTION")?,
-                    st("START_POINT")?,
-                    st("RUN_DISTANCE")?,
-                    st("WRITEBACK")?,
-                    st("STANDSTILL")?,
-                    st("WB_ATTEMPTS")?,
-                    st("DRIFT")?,
-                    st("DRIFT_CANDIDATE")?,
-                ],
-                p1: [
-                    st("CW_ACCEPTED")?,
-                    st("CW_REJECTED")?,
-                    st("CCW_ACCEPTED")?,
-                    st("CCW_REJECTED")?,
-                    st("REJECT_REASON")?,
-                    st("LAST_CMD")?,
-                    st("CMD_REASON")?,
-                    st("ACTIVE_VERSION")?,
-                    st("CMD_SEQ")?,
-                ],
-                results: [
-                    [
-                        st("RES_REAR_TREAD")?,
-                        st("RES_REAR_TREAD_STD")?,
-                        st("RES_DIAMETER_RATIO")?,
-                    ],
-                    [
-                        st("RES_DIAMETER_RATIO_STD")?,
-                        st("END_ERR_BEFORE")?,
-                        st("END_ERR_AFTER")?,
-                    ],
-                    [
-                        st("RES_STEER_GAIN")?,
-                        st("RES_STEER_GAIN_STD")?,
-                        st("RES_STEER_OFFSET")?,
-                    ],
-                    [
-                        st("RES_STEER_OFFSET_STD")?,
-                        st("RES_VERSION")?,
-                        // Page 5 has two signals; the third slot repeats the
-                        // first so the array stays rectangular.
-                        st("RES_STEER_OFFSET_STD")?,
-                    ],
-                ],
-            },
+            status: StatusHandles::new(&st)?,
             params: [
                 p("PAGE")?,
                 p("PARAM_VERSION")?,
@@ -453,6 +478,20 @@ impl CalibWire {
                 h.results[3][0].encode_saturating(*steer_offset_std_rad, &mut buf);
                 h.results[3][1].encode_raw(u64::from(*version), &mut buf);
             }
+            StatusPage::Gnss(g) => {
+                let p = &h.gnss;
+                p[0].encode_raw(u64::from(g.source.code()), &mut buf);
+                p[1].encode_raw(u64::from(g.connected), &mut buf);
+                p[2].encode_saturating(g.fixes_per_s, &mut buf);
+                match g.error_95_m {
+                    // Beyond the range reads as its top, never as NOT_STATED.
+                    Some(e) => p[3].encode_saturating(e.min(GNSS_ERROR_95_MAX_M), &mut buf),
+                    None => p[3].encode_raw(GNSS_ERROR_NOT_STATED, &mut buf),
+                };
+                p[4].encode_raw(u64::from(g.forwarded), &mut buf);
+                p[5].encode_raw(u64::from(g.refused), &mut buf);
+                p[6].encode_raw(u64::from(g.reconnects.min(3)), &mut buf);
+            }
         }
         self.seal(1, counter, buf)
     }
@@ -527,6 +566,18 @@ impl CalibWire {
                 steer_offset_std_rad: val(&h.results[3][0]),
                 version: raw(&h.results[3][1]) as u16,
             },
+            6 => {
+                let p = &h.gnss;
+                StatusPage::Gnss(GnssStatus {
+                    source: GnssSourceKind::from_code(raw(&p[0]) as u8),
+                    connected: raw(&p[1]) == 1,
+                    fixes_per_s: val(&p[2]),
+                    error_95_m: (raw(&p[3]) != GNSS_ERROR_NOT_STATED).then(|| val(&p[3])),
+                    forwarded: raw(&p[4]) as u16,
+                    refused: raw(&p[5]) as u8,
+                    reconnects: raw(&p[6]) as u8,
+                })
+            }
             other => {
                 return Err(WireError::UnknownCode {
                     message: STATUS,

@@ -6,7 +6,8 @@
 //! terminal, a dashboard) shows the same words.
 
 use crate::calib_wire::{
-    CmdCode, Counts, InstructionCode, Progress, Reason, State, StatusPage, WireDirection, Writeback,
+    CmdCode, Counts, GnssSourceKind, GnssStatus, InstructionCode, Progress, Reason, State,
+    StatusPage, WireDirection, Writeback,
 };
 use std::fmt::Write as _;
 
@@ -138,6 +139,8 @@ pub struct GuideState {
     results: Results,
     /// Track length, m, when the radius is known.
     pub track_length_m: Option<f64>,
+    /// The latest GNSS page (sent while `[gnss]` is configured).
+    pub gnss: Option<GnssStatus>,
 }
 
 impl GuideState {
@@ -183,6 +186,7 @@ impl GuideState {
                 steer_offset_std_rad,
                 version,
             } => self.results.extra = Some((steer_offset_std_rad, version)),
+            StatusPage::Gnss(g) => self.gnss = Some(g),
         }
         *self != before
     }
@@ -233,6 +237,33 @@ fn drift_text(p: &Progress) -> Option<String> {
             }
         )
     })
+}
+
+/// The live GNSS source's line.
+pub fn gnss_text(g: &GnssStatus) -> String {
+    let source = match g.source {
+        GnssSourceKind::None => "none",
+        GnssSourceKind::Gpsd => "gpsd",
+        GnssSourceKind::Nmea => "serial NMEA",
+        GnssSourceKind::Ros2 => "ROS 2",
+    };
+    let error = g.error_95_m.map_or("no error estimate".to_owned(), |e| {
+        format!("95 % error {e:.1} m")
+    });
+    format!(
+        "GNSS ({source}): {}, {:.1} fixes/s, {error}, {} forwarded (mod 65536), {}{} refused, {}{} reconnects",
+        if g.connected {
+            "connected"
+        } else {
+            "not connected"
+        },
+        g.fixes_per_s,
+        g.forwarded,
+        g.refused,
+        if g.refused == u8::MAX { "+" } else { "" },
+        g.reconnects,
+        if g.reconnects >= 3 { "+" } else { "" },
+    )
 }
 
 /// The guide as a block of lines (for a terminal, redrawn in place).
@@ -305,38 +336,45 @@ pub fn render_guide(g: &GuideState) -> String {
     if let Some(line) = drift_text(&p) {
         let _ = writeln!(s, "  {line}");
     }
+    if let Some(gnss) = &g.gnss {
+        let _ = writeln!(s, "  {}", gnss_text(gnss));
+    }
     if g.shows_results() {
-        let r = &g.results;
-        if let Some([t, ts, ratio]) = r.geometry {
-            let ratio_std = r
-                .quality
-                .map_or(String::new(), |q| format!(" ± {:.5}", q[0]));
-            let _ = writeln!(
-                s,
-                "  result: rear tread {t:.4} m ± {ts:.4} m, diameter ratio (R/L) {ratio:.5}{ratio_std}"
-            );
-        }
-        if let Some([_, before, after]) = r.quality {
-            let _ = writeln!(
-                s,
-                "          end error {before:.3} m with nominal → {after:.3} m calibrated"
-            );
-        }
-        if let Some([gain, gain_std, off]) = r.steering {
-            let off_std = r.extra.map_or(String::new(), |(sd, _)| {
-                format!(" ± {:.2}°", sd.to_degrees())
-            });
-            let _ = writeln!(
-                s,
-                "          steering gain {gain:.4} ± {gain_std:.4}, offset {:.2}°{off_std}",
-                off.to_degrees()
-            );
-        }
-        if let Some((_, v)) = r.extra {
-            let _ = writeln!(s, "          committed as version {v}");
-        }
+        render_results(&mut s, &g.results);
     }
     s
+}
+
+/// The results of the last compute, as lines.
+fn render_results(s: &mut String, r: &Results) {
+    if let Some([t, ts, ratio]) = r.geometry {
+        let ratio_std = r
+            .quality
+            .map_or(String::new(), |q| format!(" ± {:.5}", q[0]));
+        let _ = writeln!(
+            s,
+            "  result: rear tread {t:.4} m ± {ts:.4} m, diameter ratio (R/L) {ratio:.5}{ratio_std}"
+        );
+    }
+    if let Some([_, before, after]) = r.quality {
+        let _ = writeln!(
+            s,
+            "          end error {before:.3} m with nominal → {after:.3} m calibrated"
+        );
+    }
+    if let Some([gain, gain_std, off]) = r.steering {
+        let off_std = r.extra.map_or(String::new(), |(sd, _)| {
+            format!(" ± {:.2}°", sd.to_degrees())
+        });
+        let _ = writeln!(
+            s,
+            "          steering gain {gain:.4} ± {gain_std:.4}, offset {:.2}°{off_std}",
+            off.to_degrees()
+        );
+    }
+    if let Some((_, v)) = r.extra {
+        let _ = writeln!(s, "          committed as version {v}");
+    }
 }
 
 /// The guide in one line (when standard output is not a terminal).
@@ -362,6 +400,14 @@ pub fn render_line(g: &GuideState) -> String {
         }
     }
     let _ = write!(s, " | write-back {}", p.writeback);
+    if let Some(gnss) = &g.gnss {
+        let _ = write!(
+            s,
+            " | GNSS {} {:.1}/s",
+            if gnss.connected { "up" } else { "down" },
+            gnss.fixes_per_s
+        );
+    }
     if g.shows_results()
         && let Some([t, ts, ratio]) = g.results.geometry
     {

@@ -137,6 +137,62 @@ pub struct Counts {
     pub cmd_seq: u8,
 }
 
+/// Which live GNSS source `[gnss]` names (`GNSS_SOURCE`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum GnssSourceKind {
+    /// No source (a page that says nothing is running).
+    None,
+    /// gpsd's JSON on TCP.
+    Gpsd,
+    /// A receiver's NMEA read from a serial port.
+    Nmea,
+    /// A ROS 2 `NavSatFix` topic.
+    Ros2,
+}
+
+impl GnssSourceKind {
+    /// The wire code.
+    pub fn code(self) -> u8 {
+        match self {
+            Self::None => 0,
+            Self::Gpsd => 1,
+            Self::Nmea => 2,
+            Self::Ros2 => 3,
+        }
+    }
+
+    /// The kind of a wire code (2 bits: every code is defined).
+    pub fn from_code(code: u8) -> Self {
+        match code & 3 {
+            1 => Self::Gpsd,
+            2 => Self::Nmea,
+            3 => Self::Ros2,
+            _ => Self::None,
+        }
+    }
+}
+
+/// `CALIB_STATUS` page 6: the live GNSS source (#46), sent while `[gnss]`
+/// is configured.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GnssStatus {
+    /// Which source.
+    pub source: GnssSourceKind,
+    /// Connected (socket or device open, topic's fixes arriving).
+    pub connected: bool,
+    /// Accepted fixes per second (0.1 resolution, up to 25.5).
+    pub fixes_per_s: f64,
+    /// The last fix's 95 % horizontal error estimate, metres (0.1 m
+    /// resolution, up to 409.5); `None` when the source stated none.
+    pub error_95_m: Option<f64>,
+    /// Fixes handed to the calibration, modulo 65536.
+    pub forwarded: u16,
+    /// Reports refused, saturating at 255.
+    pub refused: u8,
+    /// Reconnection attempts, saturating at 3.
+    pub reconnects: u8,
+}
+
 /// A `CALIB_STATUS` frame.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum StatusPage {
@@ -178,6 +234,8 @@ pub enum StatusPage {
         /// Version the computed set will have when committed.
         version: u16,
     },
+    /// Page 6.
+    Gnss(GnssStatus),
 }
 
 impl StatusPage {
@@ -190,6 +248,7 @@ impl StatusPage {
             Self::ResultQuality { .. } => 3,
             Self::ResultSteering { .. } => 4,
             Self::ResultExtra { .. } => 5,
+            Self::Gnss(_) => 6,
         }
     }
 }

@@ -285,6 +285,24 @@ fn every_status_page_round_trips() {
             steer_offset_std_rad: 0.0005,
             version: 42,
         },
+        StatusPage::Gnss(GnssStatus {
+            source: GnssSourceKind::Nmea,
+            connected: true,
+            fixes_per_s: 1.0,
+            error_95_m: Some(7.3),
+            forwarded: 60_001,
+            refused: 17,
+            reconnects: 2,
+        }),
+        StatusPage::Gnss(GnssStatus {
+            source: GnssSourceKind::Gpsd,
+            connected: false,
+            fixes_per_s: 0.0,
+            error_95_m: None,
+            forwarded: 0,
+            refused: 255,
+            reconnects: 3,
+        }),
     ];
     for (k, page) in pages.iter().enumerate() {
         let data = w.encode_status(page, k as u8 + 9);
@@ -319,6 +337,54 @@ fn every_status_page_round_trips() {
     assert_eq!(end_err_after_m, 0.0);
 }
 
+#[test]
+fn the_gnss_page_saturates_and_never_reads_a_large_error_as_not_stated() {
+    // A GNSS error beyond the signal's range reads as its top, never as
+    // NOT_STATED; fixes per second beyond 25.5 saturate.
+    let w = wire();
+    let far = StatusPage::Gnss(GnssStatus {
+        source: GnssSourceKind::Ros2,
+        connected: true,
+        fixes_per_s: 50.0,
+        error_95_m: Some(1e4),
+        forwarded: 1,
+        refused: 0,
+        reconnects: 9,
+    });
+    let (back, _) = w.decode_status(&w.encode_status(&far, 0)).unwrap();
+    let StatusPage::Gnss(g) = back else {
+        panic!("page 6 expected")
+    };
+    assert!((g.fixes_per_s - 25.5).abs() < 1e-9, "{g:?}");
+    assert!(
+        g.error_95_m.is_some_and(|e| (e - 409.4).abs() < 1e-9),
+        "{g:?}"
+    );
+    assert_eq!((g.source, g.reconnects), (GnssSourceKind::Ros2, 3));
+}
+
+#[test]
+fn the_gnss_source_codes_equal_the_dbc_value_table() {
+    let w = wire();
+    let ours: Vec<(u8, &str)> = [
+        (GnssSourceKind::None, "NONE"),
+        (GnssSourceKind::Gpsd, "GPSD"),
+        (GnssSourceKind::Nmea, "NMEA"),
+        (GnssSourceKind::Ros2, "ROS2"),
+    ]
+    .into_iter()
+    .map(|(k, n)| {
+        assert_eq!(GnssSourceKind::from_code(k.code()), k);
+        (k.code(), n)
+    })
+    .collect();
+    same_table(&w, STATUS, "GNSS_SOURCE", ours);
+    assert_eq!(
+        table(&w, STATUS, "GNSS_ERROR_95"),
+        [(GNSS_ERROR_NOT_STATED as i64, "NOT_STATED".to_owned())]
+    );
+}
+
 fn close(a: &StatusPage, b: &StatusPage) {
     let num = |p: &StatusPage| -> Vec<f64> {
         match *p {
@@ -343,6 +409,7 @@ fn close(a: &StatusPage, b: &StatusPage) {
                 steer_offset_std_rad,
                 ..
             } => vec![steer_offset_std_rad],
+            StatusPage::Gnss(g) => vec![g.fixes_per_s, g.error_95_m.unwrap_or(-1.0)],
         }
     };
     for (x, y) in num(a).into_iter().zip(num(b)) {
@@ -366,6 +433,18 @@ fn close(a: &StatusPage, b: &StatusPage) {
             StatusPage::ResultExtra { version: x, .. },
             StatusPage::ResultExtra { version: y, .. },
         ) => assert_eq!(x, y),
+        (StatusPage::Gnss(x), StatusPage::Gnss(y)) => assert_eq!(
+            GnssStatus {
+                fixes_per_s: 0.0,
+                error_95_m: x.error_95_m.map(|_| 0.0),
+                ..*x
+            },
+            GnssStatus {
+                fixes_per_s: 0.0,
+                error_95_m: y.error_95_m.map(|_| 0.0),
+                ..*y
+            }
+        ),
         _ => {}
     }
 }
