@@ -21,7 +21,6 @@
 //! sender; this task handles everything still queued, waits for a store in
 //! flight (a commit is stored whole or not at all), and returns.
 
-use crate::gnss_task::GnssSummary;
 use canodom_calib::calibrator::{Job, JobOutcome};
 use canodom_calib::session::Phase;
 use canodom_calib::standstill::Standstill;
@@ -34,7 +33,7 @@ use canodom_offline::online::Epoch;
 use canodom_params::persist::{ParamFile, ParamValues};
 use canodom_pipeline::config::Config;
 use canodom_pipeline::gate::SecurityGate;
-use canodom_protocol::calib_wire::GnssSourceKind;
+use canodom_protocol::calib_wire::GnssStatus;
 use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
@@ -126,9 +125,9 @@ pub struct CalibTask<Tx> {
     /// Fixes of a live GNSS source (`[gnss]`), on a channel of their own so
     /// that they never take room the odometry task's inputs need.
     pub gnss: Option<mpsc::Receiver<CalibInput>>,
-    /// The live GNSS source's kind and summary, for `CALIB_STATUS` page 6
-    /// (set by [`CalibTask::watch_gnss`]).
-    gnss_status: Option<(GnssSourceKind, watch::Receiver<Option<GnssSummary>>)>,
+    /// The live GNSS source's `CALIB_STATUS` page 6 as its forwarder keeps
+    /// it (set by [`CalibTask::watch_gnss`]).
+    gnss_status: Option<watch::Receiver<GnssStatus>>,
     /// The configuration the online calibration's refits fit with.
     pub refit_config: Arc<Config>,
     /// The drift watch's report, to the odometry task (state file, diagnostics).
@@ -202,26 +201,19 @@ impl<Tx: FrameSink + Clone> CalibTask<Tx> {
         (task, links)
     }
 
-    /// Shows the live GNSS source of kind `kind` on `CALIB_STATUS` page 6,
-    /// from its summaries on `status` (not connected until the first).
-    pub fn watch_gnss(
-        &mut self,
-        kind: GnssSourceKind,
-        status: watch::Receiver<Option<GnssSummary>>,
-    ) {
-        self.live
-            .set_gnss_status(crate::gnss_task::wire_status(kind, None));
-        self.gnss_status = Some((kind, status));
+    /// Shows the live GNSS source on `CALIB_STATUS` page 6, as its
+    /// forwarder keeps it in `status`.
+    pub fn watch_gnss(&mut self, mut status: watch::Receiver<GnssStatus>) {
+        self.live.set_gnss_status(*status.borrow_and_update());
+        self.gnss_status = Some(status);
     }
 
-    /// Takes the GNSS source's latest summary into the status pages.
+    /// Takes the GNSS source's latest page into the status pages.
     fn refresh_gnss(&mut self) {
-        let Some((kind, rx)) = &mut self.gnss_status else {
-            return;
-        };
-        if rx.has_changed().unwrap_or(false) {
-            let summary = rx.borrow_and_update().clone();
-            let status = crate::gnss_task::wire_status(*kind, summary.as_ref());
+        if let Some(rx) = &mut self.gnss_status
+            && rx.has_changed().unwrap_or(false)
+        {
+            let status = *rx.borrow_and_update();
             self.live.set_gnss_status(status);
         }
     }

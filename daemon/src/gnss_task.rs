@@ -287,6 +287,9 @@ pub struct Forwarder {
     fixes: mpsc::Sender<CalibInput>,
     clock: BusClock,
     status: watch::Sender<Option<GnssSummary>>,
+    /// The summary as `CALIB_STATUS` page 6 carries it.
+    page: watch::Sender<GnssStatus>,
+    kind: GnssSourceKind,
     token: CancellationToken,
     summary: GnssSummary,
 }
@@ -298,6 +301,9 @@ pub struct GnssLinks {
     pub fixes: mpsc::Receiver<CalibInput>,
     /// The latest summary, updated at each event of the source.
     pub status: watch::Receiver<Option<GnssSummary>>,
+    /// The latest summary as `CALIB_STATUS` page 6 (not connected before
+    /// the source's first report).
+    pub page: watch::Receiver<GnssStatus>,
 }
 
 impl Forwarder {
@@ -316,6 +322,8 @@ impl Forwarder {
         };
         let (fixes, fixes_rx) = mpsc::channel(FIX_QUEUE);
         let (status, status_rx) = watch::channel(None);
+        let kind = wire_kind(&gnss.source);
+        let (page, page_rx) = watch::channel(wire_status(kind, None));
         let forwarder = Self {
             gnss: gnss.clone(),
             ros2: config.ros2.clone(),
@@ -323,6 +331,8 @@ impl Forwarder {
             fixes,
             clock,
             status,
+            page,
+            kind,
             token,
             summary: GnssSummary {
                 source: name,
@@ -334,6 +344,7 @@ impl Forwarder {
             GnssLinks {
                 fixes: fixes_rx,
                 status: status_rx,
+                page: page_rx,
             },
         )
     }
@@ -403,6 +414,8 @@ impl Forwarder {
             }
         }
         self.status.send_replace(Some(self.summary.clone()));
+        self.page
+            .send_replace(wire_status(self.kind, Some(&self.summary)));
         true
     }
 

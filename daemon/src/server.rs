@@ -346,10 +346,7 @@ pub async fn run<C: Connector>(
                 token.clone(),
             );
             calib.gnss = Some(gnss_links.fixes);
-            calib.watch_gnss(
-                crate::gnss_task::wire_kind(&g.source),
-                gnss_links.status.clone(),
-            );
+            calib.watch_gnss(gnss_links.page);
             (
                 tracker.spawn_blocking(move || forwarder.run()),
                 gnss_links.status,

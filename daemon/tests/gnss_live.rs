@@ -211,9 +211,11 @@ async fn a_serial_receiver_unplugged_mid_drive_is_reopened_and_no_fix_or_frame_i
         u64::from(written),
         "every epoch reached the calibration"
     );
-    // Its latency is the pipe's and the epoch gathering's: well under a second.
+    // Its latency is the pipe's and the reader thread's: under a second
+    // even on a loaded machine, where a wrong date or time zone would be
+    // hours or a day off.
     let latency = gnss.last_latency_s.expect("a latency");
-    assert!((0.0..0.5).contains(&latency), "{latency}");
+    assert!((0.0..1.0).contains(&latency), "{latency}");
     // Page 6 went out once a second: the source named, connected while the
     // receiver wrote (5 Hz, HDOP 1.2: 2.448 × 1.2 × 2.1 m = 6.2 m), not
     // connected before it was opened, the forwarded count rising to all.
