@@ -110,8 +110,7 @@ async fn gpsd_fixes_reach_the_calibration_and_no_can_frame_is_lost() {
 
 /// A sentence with its checksum and CR LF.
 fn nmea(body: &str) -> String {
-    let sum = body.bytes().fold(0_u8, |a, b| a ^ b);
-    format!("${body}*{sum:02X}\r\n")
+    canodom_gnss::nmea::with_checksum(body) + "\r\n"
 }
 
 /// Epoch `k` of a 5 Hz receiver (RMC, GGA with HDOP 1.2, GSV), its time of

@@ -222,6 +222,13 @@ fn gst(fields: &[&str]) -> Result<Sentence, String> {
     })
 }
 
+/// `$body*HH`: a sentence body (`GPGGA,...`, without `$`) with its
+/// checksum, as a receiver writes it (tests, simulators, bridges).
+pub fn with_checksum(body: &str) -> String {
+    let sum = body.bytes().fold(0_u8, |a, b| a ^ b);
+    format!("${body}*{sum:02X}")
+}
+
 /// The 1σ per axis of an epoch: its GST's, else its HDOP's (× [`HDOP_UERE_M`]).
 pub fn epoch_sigma_m(gst_sigma_m: Option<f64>, hdop: Option<f64>) -> Option<f64> {
     gst_sigma_m.or(hdop.map(|h| h * HDOP_UERE_M))
@@ -411,11 +418,7 @@ mod tests {
     use crate::Acceptance;
     use proptest::prelude::*;
 
-    /// A sentence with its checksum.
-    fn sentence(body: &str) -> String {
-        let sum = body.bytes().fold(0_u8, |a, b| a ^ b);
-        format!("${body}*{sum:02X}")
-    }
+    use super::with_checksum as sentence;
 
     /// 15 Nov 2023 12:06:40 UTC.
     const T0: f64 = 1_700_050_000.0;

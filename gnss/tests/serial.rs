@@ -13,8 +13,7 @@ use std::time::{Duration, Instant};
 
 /// A sentence with its checksum and CR LF.
 fn sentence(body: &str) -> String {
-    let sum = body.bytes().fold(0_u8, |a, b| a ^ b);
-    format!("${body}*{sum:02X}\r\n")
+    canodom_gnss::nmea::with_checksum(body) + "\r\n"
 }
 
 /// One epoch as a u-blox receiver sends it: RMC, GGA (HDOP given), GSV,

@@ -266,11 +266,7 @@ mod tests {
     #![allow(clippy::unwrap_used)]
     use super::*;
 
-    /// A sentence with its checksum.
-    fn sentence(body: &str) -> String {
-        let sum = body.bytes().fold(0_u8, |a, b| a ^ b);
-        format!("${body}*{sum:02X}")
-    }
+    use canodom_gnss::nmea::with_checksum as sentence;
 
     #[test]
     fn nmea_gga_and_rmc_become_local_metres_on_the_unix_clock() {
