@@ -4,8 +4,10 @@
 //!
 //! Usage: `gpsd_fixes ADDRESS SECONDS [MAX_ERROR_M]` (default `DEFAULT_MAX_ERROR_M`, gpsd's 95 % estimate).
 
-use canodom_gnss::{Event, GpsdClient, GpsdClientConfig};
-use std::time::{Duration, Instant};
+use canodom_gnss::{GpsdClient, GpsdClientConfig};
+use std::time::Instant;
+
+mod common;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     tracing_subscriber_init();
@@ -20,26 +22,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .map_or(Ok(canodom_gnss::client::DEFAULT_MAX_ERROR_M), |a| a.parse())?;
     let start = Instant::now();
     let client = GpsdClient::spawn(GpsdClientConfig::new(&address, max_error_m)?, start)?;
-    let mut last_connected = None;
-    while start.elapsed().as_secs_f64() < seconds {
-        match client.recv_timeout(Duration::from_millis(200)) {
-            Some(Event::Fix(f)) => println!(
-                "fix,{:.3},{:.9},{:.9},{}",
-                f.gnss_time_unix_s.unwrap_or(f64::NAN),
-                f.lat_deg,
-                f.lon_deg,
-                f.sigma_m.map_or(String::new(), |s| format!("{s:.3}"))
-            ),
-            Some(Event::Status(s)) if last_connected != Some(s.connected) => {
-                println!(
-                    "status,{},{},{},refused={:?},last_error_m={:?}",
-                    s.connected, s.reconnects, s.accepted, s.refused, s.last_error_m
-                );
-                last_connected = Some(s.connected);
-            }
-            _ => {}
-        }
-    }
+    common::print_events(start, seconds, |wait| client.recv_timeout(wait));
     Ok(())
 }
 

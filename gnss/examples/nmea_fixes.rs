@@ -7,9 +7,11 @@
 //! Usage: `nmea_fixes DEVICE SECONDS [BAUD] [MAX_ERROR_M]`, e.g.
 //! `cargo run -p canodom-gnss --example nmea_fixes -- /dev/ttyACM0 10 9600`.
 
-use canodom_gnss::{Event, NmeaDevice, NmeaDeviceConfig};
+use canodom_gnss::{NmeaDevice, NmeaDeviceConfig};
 use std::path::Path;
-use std::time::{Duration, Instant};
+use std::time::Instant;
+
+mod common;
 
 const USAGE: &str = "usage: nmea_fixes DEVICE SECONDS [BAUD] [MAX_ERROR_M]";
 
@@ -28,25 +30,6 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let start = Instant::now();
     let config = NmeaDeviceConfig::new(Path::new(&device), baud, max_error_m)?;
     let dev = NmeaDevice::spawn(config, start)?;
-    let mut last_connected = None;
-    while start.elapsed().as_secs_f64() < seconds {
-        match dev.recv_timeout(Duration::from_millis(200)) {
-            Some(Event::Fix(f)) => println!(
-                "fix,{:.3},{:.9},{:.9},{}",
-                f.gnss_time_unix_s.unwrap_or(f64::NAN),
-                f.lat_deg,
-                f.lon_deg,
-                f.sigma_m.map_or(String::new(), |s| format!("{s:.3}"))
-            ),
-            Some(Event::Status(s)) if last_connected != Some(s.connected) => {
-                println!(
-                    "status,{},{},{},refused={:?},last_error_m={:?},last_error={:?}",
-                    s.connected, s.reconnects, s.accepted, s.refused, s.last_error_m, s.last_error
-                );
-                last_connected = Some(s.connected);
-            }
-            _ => {}
-        }
-    }
+    common::print_events(start, seconds, |wait| dev.recv_timeout(wait));
     Ok(())
 }

@@ -358,7 +358,7 @@ fn session(
                         st.status.last_error_m = estimate;
                         let verdict = st.acceptance.judge(&tpv, now_s);
                         if st.outcomes.changed(verdict.err()) {
-                            log_outcome(verdict.err(), estimate, config.max_error_m);
+                            log_outcome("gpsd", verdict.err(), estimate, config.max_error_m);
                         }
                         if let Ok(fix) = verdict {
                             st.rate.push(now_s);
@@ -394,17 +394,23 @@ fn session(
     Ok(())
 }
 
-/// The log line of a change in what becomes of the TPV reports (not one per fix).
-fn log_outcome(refusal: Option<Refusal>, estimate_m: Option<f64>, max_error_m: f64) {
+/// The log line of a change in what becomes of a source's reports (not
+/// one per fix); `source` names it (`gpsd`, `GNSS receiver`).
+pub(crate) fn log_outcome(
+    source: &str,
+    refusal: Option<Refusal>,
+    estimate_m: Option<f64>,
+    max_error_m: f64,
+) {
     match refusal {
-        None => tracing::info!(error_estimate_m = ?estimate_m, "gpsd: fixes accepted"),
+        None => tracing::info!(error_estimate_m = ?estimate_m, "{source}: fixes accepted"),
         Some(Refusal::ErrorTooLarge) => tracing::warn!(
             reason = Refusal::ErrorTooLarge.name(),
             error_estimate_m = ?estimate_m,
             max_error_m,
-            "gpsd: fixes refused: the 95 % error estimate exceeds max_error_m"
+            "{source}: fixes refused: the 95 % error estimate exceeds max_error_m"
         ),
-        Some(r) => tracing::warn!(reason = r.name(), "gpsd: fixes refused: {}", r.name()),
+        Some(r) => tracing::warn!(reason = r.name(), "{source}: fixes refused: {}", r.name()),
     }
 }
 

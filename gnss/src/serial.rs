@@ -13,9 +13,9 @@
 //! with [`Backoff`]; the log says so once, not per attempt.
 
 use crate::Error;
-use crate::accept::{Acceptance, OutcomeChanges, Refusal};
+use crate::accept::{Acceptance, OutcomeChanges};
 use crate::backoff::Backoff;
-use crate::client::{Event, Shared, Worker, sleep_unless_stopped};
+use crate::client::{Event, Shared, Worker, log_outcome, sleep_unless_stopped};
 use crate::nmea::EpochAssembler;
 use crate::status::{RateWindow, SourceStatus};
 use nix::poll::{PollFd, PollFlags, PollTimeout, poll};
@@ -283,7 +283,7 @@ impl Reading {
         self.status.last_error_m = estimate;
         let verdict = self.acceptance.judge(tpv, receipt_s);
         if self.outcomes.changed(verdict.err()) {
-            log_outcome(verdict.err(), estimate, config.max_error_m);
+            log_outcome("GNSS receiver", verdict.err(), estimate, config.max_error_m);
         }
         if let Ok(fix) = verdict {
             self.rate.push(receipt_s);
@@ -391,24 +391,6 @@ fn read_available(
         st.line.clear();
     }
     Ok(())
-}
-
-/// The log line of a change in what becomes of the epochs (not one per fix).
-fn log_outcome(refusal: Option<Refusal>, estimate_m: Option<f64>, max_error_m: f64) {
-    match refusal {
-        None => tracing::info!(error_estimate_m = ?estimate_m, "GNSS receiver: fixes accepted"),
-        Some(Refusal::ErrorTooLarge) => tracing::warn!(
-            reason = Refusal::ErrorTooLarge.name(),
-            error_estimate_m = ?estimate_m,
-            max_error_m,
-            "GNSS receiver: fixes refused: the 95 % error estimate exceeds max_error_m"
-        ),
-        Some(r) => tracing::warn!(
-            reason = r.name(),
-            "GNSS receiver: fixes refused: {}",
-            r.name()
-        ),
-    }
 }
 
 #[cfg(test)]
