@@ -620,6 +620,51 @@ mod tests {
     }
 
     #[test]
+    fn the_gnss_page_is_a_line_of_the_guide_and_a_field_of_the_one_line_form() {
+        let mut g = GuideState::new(None);
+        g.apply(&StatusPage::Progress(progress(
+            State::Idle,
+            InstructionCode::None,
+        )));
+        assert!(!render_guide(&g).contains("GNSS"));
+        let gnss = GnssStatus {
+            source: GnssSourceKind::Nmea,
+            connected: true,
+            fixes_per_s: 1.0,
+            error_95_m: Some(7.3),
+            forwarded: 612,
+            refused: 255,
+            reconnects: 3,
+        };
+        assert!(g.apply(&StatusPage::Gnss(gnss)));
+        let screen = render_guide(&g);
+        assert!(
+            screen.contains(
+                "GNSS (serial NMEA): connected, 1.0 fixes/s, 95 % error 7.3 m, 612 forwarded \
+                 (mod 65536), 255+ refused, 3+ reconnects"
+            ),
+            "{screen}"
+        );
+        assert!(
+            render_line(&g).contains("| GNSS up 1.0/s"),
+            "{}",
+            render_line(&g)
+        );
+        let silent = GnssStatus {
+            connected: false,
+            error_95_m: None,
+            fixes_per_s: 0.0,
+            ..gnss
+        };
+        g.apply(&StatusPage::Gnss(silent));
+        assert!(
+            render_guide(&g).contains("not connected, 0.0 fixes/s, no error estimate"),
+            "{}",
+            render_guide(&g)
+        );
+    }
+
+    #[test]
     fn the_progress_bar_is_bounded() {
         assert_eq!(progress_bar(0.0, 10.0, 4), "[....] 0.00 m of 10.00 m (0 %)");
         assert_eq!(
