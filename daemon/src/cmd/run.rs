@@ -30,9 +30,11 @@ $STATE_DIRECTORY when systemd sets it (StateDirectory=), else beside the configu
 Under systemd the state (what the filter learnt: wheel scales, steering offset, gyro bias) is \
 kept in $STATE_DIRECTORY/canodom-state.json unless --state-file or --no-state-file says otherwise, \
 so a restart resumes what the car taught it.\n\n\
-With [gnss] (README: GNSS on the vehicle) it reads gpsd or a ROS 2 NavSatFix topic and hands \
-each accepted fix to the calibration on the bus clock; the CAN pipeline never waits on it, and \
-a gpsd that is down or restarts is retried with backoff."
+With [gnss] (README: GNSS on the vehicle) it reads gpsd, a receiver's NMEA on a serial port \
+(source = \"nmea\", device = \"/dev/ttyACM0\") or a ROS 2 NavSatFix topic and hands each \
+accepted fix to the calibration on the bus clock; the CAN pipeline never waits on it, a gpsd \
+that is down or restarts and a receiver unplugged are retried with backoff, and the source's \
+state is CALIB_STATUS page 6."
 )]
 pub struct RunArgs {
     /// The configuration file.
