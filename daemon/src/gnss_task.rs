@@ -23,10 +23,8 @@
 use crate::calib_task::{BusClock, CalibInput};
 use canodom_can::time::Timestamp;
 use canodom_gnss::accept::HORIZONTAL_95_TO_SIGMA;
-use canodom_gnss::status::RateWindow;
 use canodom_gnss::{
-    Acceptance, Event, GpsdClient, GpsdClientConfig, NmeaDevice, NmeaDeviceConfig, OutcomeChanges,
-    SourceStatus, Tpv,
+    Event, GpsdClient, GpsdClientConfig, Judge, NmeaDevice, NmeaDeviceConfig, SourceStatus, Tpv,
 };
 use canodom_pipeline::config::{Config, GnssConfig, GnssSource};
 use canodom_protocol::calib_wire::{GnssSourceKind, GnssStatus};
@@ -164,9 +162,7 @@ pub fn tpv_of(fix: &NavSatFix) -> Tpv {
 /// A `NavSatFix` subscription judged as gpsd's reports are.
 struct Ros2Source {
     subscriber: FixSubscriber,
-    acceptance: Acceptance,
-    outcomes: OutcomeChanges,
-    rate: RateWindow,
+    judge: Judge,
     status: SourceStatus,
     epoch: Instant,
     last_status: Instant,
@@ -177,21 +173,17 @@ impl Ros2Source {
         if let Some(nav) = self.subscriber.recv_timeout(timeout) {
             let now_s = self.epoch.elapsed().as_secs_f64();
             let tpv = tpv_of(&nav);
-            self.status.last_error_m = Acceptance::error_estimate_m(&tpv);
-            let verdict = self.acceptance.judge(&tpv, now_s);
-            if self.outcomes.changed(verdict.err()) {
+            let (verdict, changed) = self.judge.judge(&tpv, now_s, &mut self.status);
+            if changed {
                 match verdict.err() {
                     None => info!("ROS 2 fixes: accepted"),
                     Some(r) => {
                         warn!(reason = r.name(), error_estimate_m = ?self.status.last_error_m,
-                        max_error_m = self.acceptance.max_error_m, "ROS 2 fixes: refused");
+                        max_error_m = self.judge.acceptance.max_error_m, "ROS 2 fixes: refused");
                     }
                 }
             }
-            self.status.accepted = self.acceptance.accepted;
-            self.status.refused = self.acceptance.refused;
             if let Ok(fix) = verdict {
-                self.rate.push(now_s);
                 return Some(Event::Fix(fix));
             }
         }
@@ -199,7 +191,7 @@ impl Ros2Source {
             return None;
         }
         self.last_status = Instant::now();
-        self.status.fixes_per_s = self.rate.rate(self.epoch.elapsed().as_secs_f64());
+        self.status.fixes_per_s = self.judge.rate.rate(self.epoch.elapsed().as_secs_f64());
         // A topic has no connection: "connected" is fixes arriving.
         let connected = self.status.fixes_per_s > 0.0;
         if connected != self.status.connected {
@@ -256,9 +248,7 @@ impl Source {
                 let subscriber = FixSubscriber::start(&resolved).map_err(err)?;
                 Ok(Self::Ros2(Box::new(Ros2Source {
                     subscriber,
-                    acceptance: Acceptance::new(gnss.max_error_m),
-                    outcomes: OutcomeChanges::default(),
-                    rate: RateWindow::default(),
+                    judge: Judge::new(gnss.max_error_m),
                     status: SourceStatus::default(),
                     epoch,
                     last_status: Instant::now(),
@@ -467,6 +457,7 @@ impl Forwarder {
 mod tests {
     use super::*;
     use canodom_export::cdr::RosTime;
+    use canodom_gnss::Acceptance;
 
     #[test]
     fn receipt_times_go_onto_the_bus_clock() {

@@ -1,6 +1,7 @@
 //! Which TPV reports become fixes (pure), and why the others are refused.
 
 use crate::protocol::Tpv;
+use crate::status::{RateWindow, SourceStatus};
 
 /// gpsd documents `epx`/`epy` as 95 % confidence per axis: for a normal error
 /// that is 1.96 σ, so σ per axis = ep / 1.96.
@@ -162,6 +163,50 @@ impl OutcomeChanges {
     }
 }
 
+/// One source's judgement of its reports, as gpsd's client, the serial
+/// reader and the daemon's ROS 2 source all make it: the rule, the last
+/// outcome (a change is logged once, not per report) and the accepted
+/// fixes' receipt times (fixes per second).
+#[derive(Debug, Clone)]
+pub struct Judge {
+    /// The rule and its counts.
+    pub acceptance: Acceptance,
+    outcomes: OutcomeChanges,
+    /// Receipt times of the accepted fixes.
+    pub rate: RateWindow,
+}
+
+impl Judge {
+    /// A judge refusing error estimates above `max_error_m` (95 %, metres).
+    pub fn new(max_error_m: f64) -> Self {
+        Self {
+            acceptance: Acceptance::new(max_error_m),
+            outcomes: OutcomeChanges::default(),
+            rate: RateWindow::default(),
+        }
+    }
+
+    /// Judges `tpv`, received at `receipt_s`, into `status` (its error
+    /// estimate and the counts); the verdict, and whether it differs from
+    /// the previous report's (the caller logs it then).
+    pub fn judge(
+        &mut self,
+        tpv: &Tpv,
+        receipt_s: f64,
+        status: &mut SourceStatus,
+    ) -> (Result<Fix, Refusal>, bool) {
+        status.last_error_m = Acceptance::error_estimate_m(tpv);
+        let verdict = self.acceptance.judge(tpv, receipt_s);
+        let changed = self.outcomes.changed(verdict.err());
+        if verdict.is_ok() {
+            self.rate.push(receipt_s);
+        }
+        status.accepted = self.acceptance.accepted;
+        status.refused = self.acceptance.refused;
+        (verdict, changed)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -179,6 +224,30 @@ mod tests {
             time_unix_s: Some(100.0),
             ..Tpv::default()
         }
+    }
+
+    #[test]
+    fn the_judge_fills_the_status_counts_accepted_fixes_and_tells_each_change_once() {
+        let mut j = Judge::new(30.0);
+        let mut status = SourceStatus::default();
+        let reports = [
+            (tpv(3, None, None, Some(10.0)), true, true),
+            (tpv(3, None, None, Some(12.0)), true, false),
+            (tpv(3, None, None, Some(50.0)), false, true),
+            (tpv(3, None, None, Some(60.0)), false, false),
+            (tpv(1, None, None, None), false, true),
+            (tpv(3, Some(4.0), Some(5.0), None), true, true),
+        ];
+        for (k, (report, accepted, changed)) in reports.iter().enumerate() {
+            let (verdict, told) = j.judge(report, k as f64, &mut status);
+            assert_eq!((verdict.is_ok(), told), (*accepted, *changed), "report {k}");
+            assert_eq!(status.last_error_m, Acceptance::error_estimate_m(report));
+        }
+        assert_eq!(status.accepted, 3);
+        assert_eq!(status.refused, [1, 0, 2]);
+        // Only accepted fixes count towards fixes per second (at 0, 1 and
+        // 5 s); at 5.5 s the window holds those after 0.5 s.
+        assert!((j.rate.rate(5.5) - 2.0 / crate::status::RATE_WINDOW_S).abs() < 1e-12);
     }
 
     #[test]

@@ -8,10 +8,10 @@
 //! [`Backoff`], never a failure.
 
 use crate::Error;
-use crate::accept::{Acceptance, Fix, OutcomeChanges, Refusal};
+use crate::accept::{Fix, Judge, Refusal};
 use crate::backoff::Backoff;
 use crate::protocol::{self, Message, WATCH_COMMAND};
-use crate::status::{RateWindow, SourceStatus};
+use crate::status::SourceStatus;
 use std::collections::VecDeque;
 use std::io::{BufRead, BufReader, ErrorKind, Write};
 use std::net::{TcpStream, ToSocketAddrs};
@@ -91,7 +91,7 @@ pub enum Event {
 pub(crate) struct Shared {
     queue: Mutex<(VecDeque<Event>, u64)>,
     ready: Condvar,
-    pub(crate) stop: AtomicBool,
+    stop: AtomicBool,
 }
 
 impl Shared {
@@ -246,7 +246,7 @@ fn connect(address: &str) -> std::io::Result<TcpStream> {
 /// Sleeps `total`, waking early when the consumer asks the thread to stop.
 pub(crate) fn sleep_unless_stopped(shared: &Shared, total: Duration) {
     let until = Instant::now() + total;
-    while !shared.stop.load(Ordering::Relaxed) {
+    while !shared.stopped() {
         let now = Instant::now();
         if now >= until {
             return;
@@ -257,16 +257,14 @@ pub(crate) fn sleep_unless_stopped(shared: &Shared, total: Duration) {
 
 fn run(config: &GpsdClientConfig, shared: &Shared, epoch: Instant) {
     let mut backoff = config.backoff.clone();
-    let mut acceptance = Acceptance::new(config.max_error_m);
-    let mut rate = RateWindow::default();
+    let mut judge = Judge::new(config.max_error_m);
     let mut status = SourceStatus::default();
-    let mut outcomes = OutcomeChanges::default();
     let mut attempts = 0u64;
     // Set once a loss (or the first failed attempt) and the reconnect after it
     // are logged: later failed attempts go to debug, so a gpsd that stays down
     // writes two lines, not one per attempt. Cleared by a connection.
     let mut quiet = false;
-    while !shared.stop.load(Ordering::Relaxed) {
+    while !shared.stopped() {
         if attempts > 0 {
             status.reconnects += 1;
             let delay = backoff.next_delay();
@@ -278,7 +276,7 @@ fn run(config: &GpsdClientConfig, shared: &Shared, epoch: Instant) {
                 quiet = true;
             }
             sleep_unless_stopped(shared, delay);
-            if shared.stop.load(Ordering::Relaxed) {
+            if shared.stopped() {
                 break;
             }
         }
@@ -288,11 +286,9 @@ fn run(config: &GpsdClientConfig, shared: &Shared, epoch: Instant) {
             shared,
             epoch,
             &mut Session {
-                acceptance: &mut acceptance,
-                rate: &mut rate,
+                judge: &mut judge,
                 status: &mut status,
                 backoff: &mut backoff,
-                outcomes: &mut outcomes,
             },
         );
         if std::mem::replace(&mut status.connected, false) {
@@ -313,11 +309,9 @@ fn run(config: &GpsdClientConfig, shared: &Shared, epoch: Instant) {
 
 /// What one connection updates, kept across connections.
 struct Session<'a> {
-    acceptance: &'a mut Acceptance,
-    rate: &'a mut RateWindow,
+    judge: &'a mut Judge,
     status: &'a mut SourceStatus,
     backoff: &'a mut Backoff,
-    outcomes: &'a mut OutcomeChanges,
 }
 
 /// One connection: `?WATCH`, then reports until it fails or the client stops.
@@ -341,7 +335,7 @@ fn session(
     let mut line = String::new();
     let mut last_status = Instant::now();
     let mut malformed_logged: Option<Instant> = None;
-    while !shared.stop.load(Ordering::Relaxed) {
+    while !shared.stopped() {
         match reader.read_line(&mut line) {
             Ok(0) => {
                 return Err(io(std::io::Error::new(
@@ -354,18 +348,14 @@ fn session(
                 match protocol::parse_line(&line) {
                     Ok(Message::Tpv(tpv)) => {
                         st.backoff.reset();
-                        let estimate = Acceptance::error_estimate_m(&tpv);
-                        st.status.last_error_m = estimate;
-                        let verdict = st.acceptance.judge(&tpv, now_s);
-                        if st.outcomes.changed(verdict.err()) {
+                        let (verdict, changed) = st.judge.judge(&tpv, now_s, st.status);
+                        if changed {
+                            let estimate = st.status.last_error_m;
                             log_outcome("gpsd", verdict.err(), estimate, config.max_error_m);
                         }
                         if let Ok(fix) = verdict {
-                            st.rate.push(now_s);
                             st.status.dropped = shared.push(Event::Fix(fix), config.queue_len);
                         }
-                        st.status.accepted = st.acceptance.accepted;
-                        st.status.refused = st.acceptance.refused;
                     }
                     Ok(Message::Version { release }) => tracing::info!(release, "gpsd: version"),
                     Ok(_) => {}
@@ -386,7 +376,7 @@ fn session(
             Err(e) => return Err(io(e)),
         }
         if last_status.elapsed() >= Duration::from_secs(1) {
-            st.status.fixes_per_s = st.rate.rate(epoch.elapsed().as_secs_f64());
+            st.status.fixes_per_s = st.judge.rate.rate(epoch.elapsed().as_secs_f64());
             st.status.dropped = shared.push(Event::Status(st.status.clone()), config.queue_len);
             last_status = Instant::now();
         }

@@ -27,7 +27,7 @@ pub mod protocol;
 pub mod serial;
 pub mod status;
 
-pub use accept::{Acceptance, Fix, OutcomeChanges, Refusal};
+pub use accept::{Acceptance, Fix, Judge, OutcomeChanges, Refusal};
 pub use backoff::Backoff;
 pub use client::{Event, GpsdClient, GpsdClientConfig};
 pub use protocol::{Message, Tpv};

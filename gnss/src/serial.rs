@@ -13,11 +13,11 @@
 //! with [`Backoff`]; the log says so once, not per attempt.
 
 use crate::Error;
-use crate::accept::{Acceptance, OutcomeChanges};
+use crate::accept::Judge;
 use crate::backoff::Backoff;
 use crate::client::{Event, Shared, Worker, log_outcome, sleep_unless_stopped};
 use crate::nmea::EpochAssembler;
-use crate::status::{RateWindow, SourceStatus};
+use crate::status::SourceStatus;
 use nix::poll::{PollFd, PollFlags, PollTimeout, poll};
 use nix::sys::termios::{self, BaudRate, ControlFlags, SetArg};
 use std::fs::{File, OpenOptions};
@@ -195,10 +195,8 @@ fn utc_now_s() -> f64 {
 fn run(config: &NmeaDeviceConfig, shared: &Shared, epoch: Instant) {
     let path = config.path.display().to_string();
     let mut st = Reading {
-        acceptance: Acceptance::new(config.max_error_m),
-        rate: RateWindow::default(),
+        judge: Judge::new(config.max_error_m),
         status: SourceStatus::default(),
-        outcomes: OutcomeChanges::default(),
         assembler: EpochAssembler::default(),
         malformed_logged: None,
         line: Vec::with_capacity(MAX_LINE),
@@ -257,10 +255,8 @@ fn run(config: &NmeaDeviceConfig, shared: &Shared, epoch: Instant) {
 
 /// What the reader keeps across reopenings.
 struct Reading {
-    acceptance: Acceptance,
-    rate: RateWindow,
+    judge: Judge,
     status: SourceStatus,
-    outcomes: OutcomeChanges,
     assembler: EpochAssembler,
     /// When a damaged sentence was last logged.
     malformed_logged: Option<Instant>,
@@ -279,18 +275,14 @@ impl Reading {
         config: &NmeaDeviceConfig,
         shared: &Shared,
     ) {
-        let estimate = Acceptance::error_estimate_m(tpv);
-        self.status.last_error_m = estimate;
-        let verdict = self.acceptance.judge(tpv, receipt_s);
-        if self.outcomes.changed(verdict.err()) {
+        let (verdict, changed) = self.judge.judge(tpv, receipt_s, &mut self.status);
+        if changed {
+            let estimate = self.status.last_error_m;
             log_outcome("GNSS receiver", verdict.err(), estimate, config.max_error_m);
         }
         if let Ok(fix) = verdict {
-            self.rate.push(receipt_s);
             self.status.dropped = shared.push(Event::Fix(fix), config.queue_len);
         }
-        self.status.accepted = self.acceptance.accepted;
-        self.status.refused = self.acceptance.refused;
     }
 }
 
@@ -326,7 +318,7 @@ fn read_until_lost(
             st.judge(&e.tpv, e.receipt_s, config, shared);
         }
         if last_status.elapsed() >= Duration::from_secs(1) {
-            st.status.fixes_per_s = st.rate.rate(epoch.elapsed().as_secs_f64());
+            st.status.fixes_per_s = st.judge.rate.rate(epoch.elapsed().as_secs_f64());
             st.status.dropped = shared.push(Event::Status(st.status.clone()), config.queue_len);
             last_status = Instant::now();
         }
