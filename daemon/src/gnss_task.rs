@@ -85,7 +85,7 @@ impl GnssSummary {
 }
 
 /// The kind of `source` as `CALIB_STATUS` page 6 names it.
-pub fn wire_kind(source: &GnssSource) -> GnssSourceKind {
+fn wire_kind(source: &GnssSource) -> GnssSourceKind {
     match source {
         GnssSource::Gpsd { .. } => GnssSourceKind::Gpsd,
         GnssSource::Nmea { .. } => GnssSourceKind::Nmea,
@@ -97,7 +97,7 @@ pub fn wire_kind(source: &GnssSource) -> GnssSourceKind {
 /// `summary` (`None`: it has not reported yet, so not connected). Counts
 /// that the page cannot hold saturate (refusals, reconnects) or wrap
 /// (forwarded, modulo 65536).
-pub fn wire_status(kind: GnssSourceKind, summary: Option<&GnssSummary>) -> GnssStatus {
+fn wire_status(kind: GnssSourceKind, summary: Option<&GnssSummary>) -> GnssStatus {
     let Some(summary) = summary else {
         return GnssStatus {
             source: kind,
