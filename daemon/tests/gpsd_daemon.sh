@@ -51,7 +51,9 @@ for line in open(path):
     out.append(line)
 open(path, "w").writelines(out)
 PY
-cargo test -q -p canodom --test tests --no-run 2>/dev/null
+# The daemon's test binary as `cargo test --workspace` built it (no second build in CI; see
+# the helper), run from the package's directory as cargo runs it.
+tests_bin=$(python3 .ci/test-artifact.py daemon test tests)
 
 gpsd_pid() { ss -ltnpH "sport = :$port" | grep -o 'pid=[0-9]*' | head -1 | cut -d= -f2; }
 # gpsfake at 1 fix/s (GGA and RMC 0.5 s apart); gpspipe, the independent client, records what
@@ -72,7 +74,7 @@ stop_gpsd() {
 start_gpsd 1
 sleep 0.5
 CANODOM_TEST_GPSD="127.0.0.1:$port" CANODOM_TEST_SECONDS=36 CANODOM_TEST_CONNECTIONS=2 \
-    cargo test -q -p canodom --test tests gnss_live -- --ignored --nocapture \
+    bash -c 'cd daemon && exec "$0" gnss_live --ignored --nocapture' "$tests_bin" \
     >"$work/test.out" 2>"$work/daemon.log" &
 test_pid=$!
 pids+=($test_pid)

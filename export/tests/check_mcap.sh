@@ -20,9 +20,11 @@ if [ ! -x "$venv/bin/python" ] || ! "$venv/bin/python" -c 'import mcap, mcap_ros
     "$venv/bin/pip" install --quiet mcap mcap-ros2-support rosbags >&2
 fi
 echo "== build" >&2
-# The dev build (CI's tests have built it already); the files are the same.
-CARGO_TARGET_DIR=$target cargo build -q -p canodom
-bin=$target/debug/canodom
+# The release binary the README's main command builds (CI reuses it: a dev
+# `cargo build -p canodom` after the workspace's tests recompiled 42 crates,
+# their features resolved without the dev-dependencies: 7 min at -j1).
+CARGO_TARGET_DIR=$target cargo build --release -q -p canodom
+bin=$target/release/canodom
 config=daemon/examples/rc_car.toml
 
 "$bin" simulate --config "$config" --log "$work/lap.log" --laps 1 2>/dev/null

@@ -28,8 +28,8 @@ python3 -m venv "$work/venv"
 "$work/venv/bin/pip" install -q numpy pynmea2 pymap3d
 "$work/venv/bin/python" sim/multibody/fixes.py data/multibody/bmw320i/seed-5 --out "$work" \
     --window-s 60 --sigma-m 1.5 --jumps 2 --seed 3 >/dev/null
-cargo build -q -p canodom-gnss --example gpsd_fixes
-client="${CARGO_TARGET_DIR:-target}/debug/examples/gpsd_fixes"
+# The example as `cargo test --workspace` built it (no second build in CI; see the helper).
+client=$(python3 .ci/test-artifact.py gnss example gpsd_fixes)
 
 gpsd_pid() { ss -ltnpH "sport = :$port" | grep -o 'pid=[0-9]*' | head -1 | cut -d= -f2; }
 

@@ -29,8 +29,11 @@ trap 'rm -rf "$work"' EXIT
 echo "== compile the Fast DDS subscriber" >&2
 g++ -std=c++17 -O1 -o "$work/sub" ros2/tests/fastdds_subscriber.cpp -lfastrtps -lfastcdr
 echo "== build" >&2
-CARGO_TARGET_DIR=$target cargo build -q -p canodom
-canodom=$target/debug/canodom
+# The release binary the README's main command builds (CI reuses it: a dev
+# `cargo build -p canodom` after the workspace's tests recompiled 42 crates,
+# their features resolved without the dev-dependencies: 7 min at -j1).
+CARGO_TARGET_DIR=$target cargo build --release -q -p canodom
+canodom=$target/release/canodom
 data=data/comma2k19-rav4
 sed "s|^dbc *= *\"\\([^\"]*\\)\"|dbc = \"$root/$data/\\1\"|" $data/config.toml >"$work/config.toml"
 printf '\n[ros2]\ndomain_id = %s\ndiscovery = "localhost"\n' "$domain" >>"$work/config.toml"

@@ -27,4 +27,7 @@ else
     "$venv/bin/python" "$here/check_packer.py" "$target/opendbc-packed.json" --check "$here/packed.json"
 fi
 # canodom's side: every frame's checksum recomputed (the fixture test).
-CARGO_TARGET_DIR=$target cargo test -q -p canodom-dbc --test tests opendbc_packer
+# The test binary as `cargo test --workspace` built it (no second build in CI), run from its
+# package's directory as cargo runs it.
+tests_bin=$(CARGO_TARGET_DIR=$target python3 .ci/test-artifact.py can-dbc test tests)
+(cd can-dbc && "$tests_bin" -q opendbc_packer)

@@ -2,7 +2,7 @@
 # Every `config init` platform: a drive packed by opendbc's own packer with
 # that platform's conventions, replayed from `canodom config init --car`'s
 # configuration (issue #32). Installs opendbc into the venv check_packer.sh
-# uses, builds canodom (dev), prints the table; exits 1 when a platform misses
+# uses, builds canodom (release), prints the table; exits 1 when a platform misses
 # (a checksum or counter reject, a warning, fused worse than rear-only or more
 # than 1 % of the distance off).
 #
@@ -16,6 +16,9 @@ if [ ! -x "$venv/bin/python" ] || ! "$venv/bin/python" -c 'import opendbc.can.pa
     python3 -m venv "$venv"
     "$venv/bin/pip" install --quiet "opendbc==0.3.1" >&2
 fi
-CARGO_TARGET_DIR=$target cargo build -q -p canodom
+# The release binary the README's main command builds (CI reuses it: a dev
+# `cargo build -p canodom` after the workspace's tests recompiled 42 crates,
+# their features resolved without the dev-dependencies: 7 min at -j1).
+CARGO_TARGET_DIR=$target cargo build --release -q -p canodom
 cd can-dbc/tests/opendbc
-"$venv/bin/python" drives.py "$target/debug/canodom" "$@"
+"$venv/bin/python" drives.py "$target/release/canodom" "$@"
