@@ -13,6 +13,11 @@ so cargo compiled those crates and everything above them a second time
 (after the workspace's test build: 5 min at -j1 for the daemon's test
 binary, 3 min for the gpsd example). Run standalone, this builds what is
 missing first (`cargo test --workspace --no-run`, progress on stderr).
+
+For the same reason the scripts that need the canodom binary itself (MCAP
+readers, Cyclone DDS, Fast DDS, the opendbc drives) run the release build of
+the README's main command: a dev `cargo build -p canodom` after the
+workspace's tests recompiled 42 crates (7 min at -j1).
 """
 
 import json

@@ -20,9 +20,7 @@ if [ ! -x "$venv/bin/python" ] || ! "$venv/bin/python" -c 'import mcap, mcap_ros
     "$venv/bin/pip" install --quiet mcap mcap-ros2-support rosbags >&2
 fi
 echo "== build" >&2
-# The release binary the README's main command builds (CI reuses it: a dev
-# `cargo build -p canodom` after the workspace's tests recompiled 42 crates,
-# their features resolved without the dev-dependencies: 7 min at -j1).
+# The release binary the README's main command builds: CI builds nothing here (.ci/test-artifact.py says why).
 CARGO_TARGET_DIR=$target cargo build --release -q -p canodom
 bin=$target/release/canodom
 config=daemon/examples/rc_car.toml

@@ -17,9 +17,7 @@ if [ ! -x "$venv/bin/python" ] || ! "$venv/bin/python" -c 'import cyclonedds.dom
     "$venv/bin/pip" install --quiet "cyclonedds==11.0.1" >&2
 fi
 echo "== build" >&2
-# The release binary the README's main command builds (CI reuses it: a dev
-# `cargo build -p canodom` after the workspace's tests recompiled 42 crates,
-# their features resolved without the dev-dependencies: 7 min at -j1).
+# The release binary the README's main command builds: CI builds nothing here (.ci/test-artifact.py says why).
 CARGO_TARGET_DIR=$target cargo build --release -q -p canodom
 "$venv/bin/python" ros2/tests/cyclone_subscriber.py --canodom "$target/release/canodom" \
     --config data/comma2k19-rav4/config.toml --log data/comma2k19-rav4/drive.log "$@"

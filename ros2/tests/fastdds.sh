@@ -29,9 +29,7 @@ trap 'rm -rf "$work"' EXIT
 echo "== compile the Fast DDS subscriber" >&2
 g++ -std=c++17 -O1 -o "$work/sub" ros2/tests/fastdds_subscriber.cpp -lfastrtps -lfastcdr
 echo "== build" >&2
-# The release binary the README's main command builds (CI reuses it: a dev
-# `cargo build -p canodom` after the workspace's tests recompiled 42 crates,
-# their features resolved without the dev-dependencies: 7 min at -j1).
+# The release binary the README's main command builds: CI builds nothing here (.ci/test-artifact.py says why).
 CARGO_TARGET_DIR=$target cargo build --release -q -p canodom
 canodom=$target/release/canodom
 data=data/comma2k19-rav4

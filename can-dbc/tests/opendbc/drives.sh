@@ -16,9 +16,7 @@ if [ ! -x "$venv/bin/python" ] || ! "$venv/bin/python" -c 'import opendbc.can.pa
     python3 -m venv "$venv"
     "$venv/bin/pip" install --quiet "opendbc==0.3.1" >&2
 fi
-# The release binary the README's main command builds (CI reuses it: a dev
-# `cargo build -p canodom` after the workspace's tests recompiled 42 crates,
-# their features resolved without the dev-dependencies: 7 min at -j1).
+# The release binary the README's main command builds: CI builds nothing here (.ci/test-artifact.py says why).
 CARGO_TARGET_DIR=$target cargo build --release -q -p canodom
 cd can-dbc/tests/opendbc
 "$venv/bin/python" drives.py "$target/release/canodom" "$@"
