@@ -40,8 +40,9 @@
 //! few non-zero entries applied as row and column operations. In a turn
 //! (`z` 0) `Q_θθ` holds, beside the gyro's white noise, a walk of the
 //! rounding a steady rate keeps for as long as it stays within a step:
-//! `ρ² T_h Δt`, `ρ` the rounding bound of the first standstill or straight
-//! (0 where noise dithers the steps), `T_h` = `ROUNDING_HOLD_S`.
+//! `ρ² min(2t, T_h) Δt`, `t` how long the readings have stayed within a
+//! step, `ρ` the rounding bound of the first standstill or straight (0
+//! where noise dithers the steps), `T_h` = `ROUNDING_HOLD_S`.
 //!
 //! **Measurement** at the end of each window (`aided_window_s`): the rear
 //! wheels' turn `Θ_w = Σ (d_R − d_L)/b_t` against the state's
@@ -91,8 +92,9 @@ const STRAIGHT_MAX_HEADING_GAIN: f64 = 2.0;
 /// (0.22 %), while at 100 m it lost them (0.48 %).
 const MAX_POSITION_LEVER_M: f64 = 300.0;
 
-/// How long a turn's rounding error holds, s (twice its correlation time):
-/// about a steady part of a curve. On the multi-body drives re-noised to
+/// How long a turn's rounding error holds at most, s (twice its
+/// correlation time): about a steady part of a curve. It holds only while
+/// the rate stays within a step (`Aided::hold_s`). On the multi-body drives re-noised to
 /// 0.02°/s (no dithering), 3 s left the Vanagon's (seed 8) heading inside
 /// 3σ on 76 % of its steps and 5 s on 100 % (32 % without the walk); 10 s
 /// cost the Escort of seed 105 (0.05°/s, partly dithered) 0.14 % of its
@@ -197,6 +199,12 @@ pub(crate) struct Aided {
     win_steer_max: f64,
     /// How long the car has driven straight (wheels and steering), s.
     straight_s: f64,
+    /// The gyro reading a turn's rounding error is held at (rad/s), and
+    /// for how long the readings have stayed within a step of it, s: a
+    /// rate that moves on by more than a step sweeps the rounding's whole
+    /// sawtooth, and its error starts anew.
+    hold_ref_radps: f64,
+    hold_s: f64,
     /// How long every wheel has read 0, s.
     still_s: f64,
     /// The last sample's centre speed, m/s: the reference when both axles
@@ -250,6 +258,8 @@ impl Aided {
             win_v0_mps: 0.0,
             win_steer_max: 0.0,
             straight_s: 0.0,
+            hold_ref_radps: 0.0,
+            hold_s: 0.0,
             rounding_radps: 0.0,
             tread_evidence: Evidence::default(),
             model_evidence: Evidence::default(),
@@ -353,6 +363,34 @@ impl Aided {
     /// tells them.
     pub(crate) fn gyro_known(&self) -> bool {
         self.p[BIAS][BIAS].max(0.0).sqrt() < super::AIDED_LEAD_BIAS_SIGMA_RADPS
+    }
+
+    /// The heading variance a turn's rounding adds over `dt`, rad²: an
+    /// error of up to `ρ` held for `t` turns the heading by `ρ t`, so the
+    /// variance grows by `2ρ² t dt` while the reading `g` stays within a
+    /// step of the one the hold started at, up to `ρ² T_h dt`
+    /// ([`ROUNDING_HOLD_S`]). A rate that moves on by more than a step has
+    /// swept the rounding's sawtooth and averaged its error out; the hold
+    /// restarts. Held for `T_h` in every turn, the multi-body curves, whose
+    /// rates rarely hold a step (Escort, seed 105: σ 0.05°/s on 0.244°/s
+    /// steps), gave the wheels two thirds of each window's turn, and their
+    /// effective tread, which changes along a curve, turned the heading by
+    /// 0.7° in one curve where the gyro was within 0.1°.
+    fn rounding_walk(&mut self, g: f64, zero: f64, q: f64, dt: f64) -> f64 {
+        if zero > 0.0 || self.rounding_radps <= 0.0 {
+            self.hold_s = 0.0;
+            self.hold_ref_radps = g;
+            return 0.0;
+        }
+        // 1.5 steps: noise flickers a steady rate's reading between two
+        // neighbouring steps.
+        if (g - self.hold_ref_radps).abs() > 1.5 * q {
+            self.hold_s = 0.0;
+            self.hold_ref_radps = g;
+        }
+        self.hold_s += dt;
+        let rho_sq = self.rounding_radps * self.rounding_radps;
+        rho_sq * (2.0 * self.hold_s).min(ROUNDING_HOLD_S) * dt
     }
 
     /// Moves the learnt rear ratio error by `delta` (the wheels are read with
@@ -729,7 +767,7 @@ pub(crate) fn step(
         // In a turn the rounding of a steady rate holds for as long as the
         // rate stays within a step: an error that walks the heading, not
         // white noise (a gyro whose noise does not dither its steps).
-        let walk = (1.0 - zero) * a.rounding_radps * a.rounding_radps * ROUNDING_HOLD_S * dt;
+        let walk = a.rounding_walk(gyro.unwrap_or(0.0), zero, cfg.yaw_quantum_radps, dt);
         let var = cfg.yaw_sigma_radps * cfg.yaw_sigma_radps * dt * dt + walk;
         (
             turn,
@@ -1096,6 +1134,63 @@ mod tests {
         st.aided.still_s = stand_s;
         close_window(cfg, 1.0 / 1.5, &mut st);
         st.aided
+    }
+
+    #[test]
+    fn a_turns_rounding_walks_the_heading_only_while_its_rate_holds_a_step() {
+        let q = 0.244f64.to_radians();
+        let rho = q / std::f64::consts::PI;
+        let dt = 0.01;
+        let seeded = || {
+            let mut a = Aided::zeroed();
+            a.rounding_radps = rho;
+            a
+        };
+        let total = |a: &mut Aided, readings: &mut dyn Iterator<Item = (f64, f64)>| {
+            readings
+                .map(|(g, zero)| a.rounding_walk(g, zero, q, dt))
+                .sum::<f64>()
+        };
+        // 20 s of a steady 10°/s turn: the error held from the start, ρt,
+        // until the hold's cap; then ρ² T_h per second.
+        let steady_rate = 10f64.to_radians();
+        let mut a = seeded();
+        let held = total(&mut a, &mut (0..2000).map(|_| (steady_rate, 0.0)));
+        let cap_at_s = 0.5 * ROUNDING_HOLD_S;
+        let expected = rho * rho * (cap_at_s * cap_at_s + ROUNDING_HOLD_S * (20.0 - cap_at_s));
+        assert!(
+            (held / expected - 1.0).abs() < 0.01,
+            "{held} against {expected}"
+        );
+        // Noise flickering the reading to the next step holds it too.
+        let mut a = seeded();
+        let flicker = total(
+            &mut a,
+            &mut (0..2000).map(|k| (steady_rate + if k % 3 == 0 { q } else { 0.0 }, 0.0)),
+        );
+        assert!((flicker / held - 1.0).abs() < 1e-9);
+        // A rate sweeping 2°/s² crosses a step every 0.12 s: its rounding
+        // averages out, the walk restarts each time.
+        let mut a = seeded();
+        let swept = total(
+            &mut a,
+            &mut (0..2000).map(|k| {
+                let rate = steady_rate + 2f64.to_radians() * dt * f64::from(k);
+                ((rate / q).round() * q, 0.0)
+            }),
+        );
+        assert!(swept < 0.1 * held, "{swept} against {held}");
+        // On a straight the offset state `r` carries it: no walk, and the
+        // next turn's hold starts at 0.
+        let mut a = seeded();
+        assert_eq!(total(&mut a, &mut (0..500).map(|_| (0.0, 1.0))), 0.0);
+        assert_eq!(a.hold_s, 0.0);
+        // A gyro whose noise dithers its steps has no rounding to hold.
+        let mut a = Aided::zeroed();
+        assert_eq!(
+            total(&mut a, &mut (0..500).map(|_| (steady_rate, 0.0))),
+            0.0
+        );
     }
 
     #[test]
