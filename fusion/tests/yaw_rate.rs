@@ -202,3 +202,71 @@ fn with_exact_wheels_the_wheels_keep_the_pose_on_most_drives() {
         assert!(led < 10, "{name}: {led} of 20");
     }
 }
+
+#[test]
+fn a_car_wider_than_configured_with_a_large_rear_tyre_is_carried_by_the_gyro() {
+    // A user's car: its treads 2 % wider than the preset's typical ones and
+    // its rear right tyre 0.5 % large. The wheels' learning finds the tyre;
+    // the tread only the gyro tells, and it must go on learning it after
+    // the tyre's scale is applied (it stopped there once: every window
+    // after it counted as filled from the geometry, and opendbc's drives
+    // ended 3–4.4 % off).
+    let mut worst_pct: f64 = 0.0;
+    for seed in 0..10 {
+        let mut drive = family::full_size_car(seed).unwrap();
+        let p = drive.sim.true_params;
+        let mut d = p.wheel_diameters_m();
+        d.rear_right *= 1.005;
+        drive.sim.true_params = p
+            .with_treads(1.02 * p.rear_tread_m(), 1.02 * p.front_tread_m())
+            .unwrap()
+            .with_diameters(d)
+            .unwrap();
+        drive.sim.standstill_s = 3.0;
+        drive.sim.yaw_rate_sensor = FINE_GYRO;
+        let run = simulate(&drive.sim, &drive.plan, seed).unwrap();
+        let ekf = Ekf::new(EkfConfig {
+            yaw_quantum_radps: FINE_GYRO.quantum_radps,
+            ..EkfConfig::new(drive.nominal)
+        })
+        .unwrap();
+        let rear = Ekf::new(EkfConfig::rear_only(drive.nominal)).unwrap();
+        let fused = replay_yaw(&run, &drive.nominal, Wheels::speeds(), &[ekf])[0];
+        let rear_only = replay(&run, &drive.nominal, Wheels::speeds(), &[rear])[0];
+        let distance = run.samples.last().unwrap().true_distance_m;
+        let (e_fused, e_rear) = (end_error(&fused, &run), end_error(&rear_only, &run));
+        let scales = fused.wheel_scales();
+        let tread = fused
+            .learnt()
+            .yaw_bias
+            .map_or((0.0, 0.0), |y| (y.tread_err, y.tread_sigma));
+        println!(
+            "drive {seed}: {distance:4.0} m, rear-only {:.2} %, fused {:.3} %; RR scale {:.4}, \
+             effective tread {:+.2} ± {:.2} %, gyro leads {}",
+            100.0 * e_rear / distance,
+            100.0 * e_fused / distance,
+            scales.scale.rear_right,
+            100.0 * tread.0,
+            100.0 * tread.1,
+            fused.aided_leads()
+        );
+        // The tread learnt within 3σ of the truth's +2 %, to better than
+        // 1 %: learnt on after the tyre's scale was applied.
+        assert!(tread.1 < 0.01, "drive {seed}: tread σ {}", tread.1);
+        assert!(
+            (tread.0 - 0.02).abs() < 3.0 * tread.1,
+            "drive {seed}: tread {tread:?}"
+        );
+        assert!(
+            fused.aided_leads(),
+            "drive {seed}: the gyro carries the heading"
+        );
+        assert!(e_fused < e_rear, "drive {seed}: {e_fused} vs {e_rear}");
+        worst_pct = worst_pct.max(100.0 * e_fused / distance);
+    }
+    // Not asserted at the issue's 1 % (#45, for kinematic cars at 0.7 g):
+    // this family's tyres slip sideways in its 10–20 m circles, and drive 4
+    // ends 1.03 % off (rear-only with the tyre learnt: 4.57 %). Before the
+    // fix no drive's gyro led and the worst ended 4.57 %.
+    println!("worst fused end error {worst_pct:.2} % of the distance");
+}
