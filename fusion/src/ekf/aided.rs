@@ -772,36 +772,37 @@ pub(crate) fn step(
     }
 
     // The heading increment and its Jacobian row.
-    let (dtheta, theta_ops, q_theta) = if let (Some(turn), Some((r, zero))) = (turn_gyro, rate) {
-        // In a turn the rounding of a steady rate holds for as long as the
-        // rate stays within a step: an error that walks the heading, not
-        // white noise (a gyro whose noise does not dither its steps).
-        let walk = a.rounding_walk(gyro.unwrap_or(0.0), zero, cfg.yaw_quantum_radps, dt);
-        let var = cfg.yaw_sigma_radps * cfg.yaw_sigma_radps * dt * dt + walk;
-        (
-            turn,
-            [
-                (BIAS, -(1.0 + a.x[GSCALE]) * dt),
-                (GSCALE, r * dt),
-                (ROUND, -zero * (1.0 + a.x[GSCALE]) * dt),
-            ],
-            var,
-        )
-    } else {
-        // No gyro this sample: the rear wheels, corrected by what was learnt
-        // (their slip is not repaired here: the steering decides nothing).
-        let corrected = wheel_turn + a.x[RATIO] * d * ib;
-        let var = 2.0 * cfg.k_rear_m * d.abs() * ib * ib;
-        (
-            corrected * (1.0 - a.x[TREAD]),
-            [
-                (RATIO, d * ib * (1.0 - a.x[TREAD])),
-                (TREAD, -corrected),
-                (ROUND, 0.0),
-            ],
-            var,
-        )
-    };
+    let (dtheta, theta_ops, q_theta) =
+        if let (Some(g), Some(turn), Some((r, zero))) = (gyro, turn_gyro, rate) {
+            // In a turn the rounding of a steady rate holds for as long as the
+            // rate stays within a step: an error that walks the heading, not
+            // white noise (a gyro whose noise does not dither its steps).
+            let walk = a.rounding_walk(g, zero, cfg.yaw_quantum_radps, dt);
+            let var = cfg.yaw_sigma_radps * cfg.yaw_sigma_radps * dt * dt + walk;
+            (
+                turn,
+                [
+                    (BIAS, -(1.0 + a.x[GSCALE]) * dt),
+                    (GSCALE, r * dt),
+                    (ROUND, -zero * (1.0 + a.x[GSCALE]) * dt),
+                ],
+                var,
+            )
+        } else {
+            // No gyro this sample: the rear wheels, corrected by what was learnt
+            // (their slip is not repaired here: the steering decides nothing).
+            let corrected = wheel_turn + a.x[RATIO] * d * ib;
+            let var = 2.0 * cfg.k_rear_m * d.abs() * ib * ib;
+            (
+                corrected * (1.0 - a.x[TREAD]),
+                [
+                    (RATIO, d * ib * (1.0 - a.x[TREAD])),
+                    (TREAD, -corrected),
+                    (ROUND, 0.0),
+                ],
+                var,
+            )
+        };
     let distance = d * (1.0 + a.x[DSCALE]);
     let ((s_m, c_m), cs) = advance_heading(a.cs, dtheta);
     a.cs = cs;
