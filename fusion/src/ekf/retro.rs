@@ -17,8 +17,10 @@ use super::State;
 use crate::wrap_angle;
 
 /// The highest power of the rear pair's moments: the correction's series in
-/// `β·S` is cut after it (0.6 rad leaves 7·10⁻⁴ of the displacement).
-pub(super) const RETRO_ORDER: usize = 5;
+/// `β·S` is cut after it, which leaves `(β·S)¹⁷/17!` of the displacement:
+/// 5·10⁻⁵ at [`RETRO_MAX_TURN_RAD`], 2·10⁻¹⁶ at 0.6 rad. Each order adds four
+/// numbers to the state.
+pub(super) const RETRO_ORDER: usize = 16;
 
 /// The least change of the rear pair's scale difference, `|Δ ln s_RR −
 /// Δ ln s_RL|`, that moves the history: a decision (a wheel found off,
@@ -30,12 +32,17 @@ pub(super) const RETRO_ORDER: usize = 5;
 /// it went.
 const RETRO_MIN_CHANGE: f64 = 5e-4;
 
-/// The largest turn, rad, that a change may give the history (`Δβ·S`):
-/// the series cut after [`RETRO_ORDER`] leaves 1.4·10⁻³ of the
-/// displacement at 1 rad and diverges beyond. A decision that late in a
-/// drive (a 0.3 % tyre told after 700 m) is applied from then on, and the
-/// history restarts so that a later decision is judged on what follows.
-const RETRO_MAX_TURN_RAD: f64 = 1.0;
+/// The largest turn, rad, that a change may give the history (`Δβ·S`): a
+/// 0.3 % tyre told within 2 km on a 1.5 m tread. Without a yaw-rate sensor
+/// the multi-body cars, whose tyres slip in every curve, tell a rear tyre
+/// 0.3 % large from the front one on its side only 490–760 m into a drive
+/// (a history turned by 1.3–2.1 rad); with the history cut at 1 rad, as
+/// the order-5 series needed, those decisions were applied from then on,
+/// and the six such drives of 1.1 km ended 22–77 % of their distance off,
+/// as rear-only did; moved back to the start, 1.8–16 %. A decision later
+/// still is applied from then on, and the history restarts so that a later
+/// decision is judged on what follows.
+const RETRO_MAX_TURN_RAD: f64 = 4.0;
 
 /// Adds a window's global displacement `moved` to the rear pair's moments,
 /// at the middle of its rear distance and turn `rear` (`None` when the
@@ -209,10 +216,75 @@ mod tests {
         assert!((st.rear_distance_m - 10_000.0).abs() < 1e-6, "history kept");
     }
 
+    /// A state that drove `windows` windows of 10 m turning by
+    /// `turn_of(k)` each (the rear wheels' turn, integrated at the mid
+    /// heading), its learner holding the rear-left wheel 0.3 % large,
+    /// nothing applied yet; and each window's displacement, mid distance
+    /// and mid turn.
+    fn curved(windows: usize, turn_of: impl Fn(usize) -> f64) -> (State, Vec<[f64; 4]>) {
+        let mut st = driven(0.0, 1.003, false);
+        let (mut heading, mut x, mut y) = (0.0_f64, 0.0, 0.0);
+        let mut history = Vec::with_capacity(windows);
+        for k in 0..windows {
+            let turn = turn_of(k);
+            let mid = heading + 0.5 * turn;
+            let moved = [10.0 * mid.cos(), 10.0 * mid.sin()];
+            history.push([moved[0], moved[1], 10.0 * k as f64 + 5.0, mid]);
+            add_rear_moments(&mut st, moved, Some((10.0, turn)));
+            heading += turn;
+            x += moved[0];
+            y += moved[1];
+        }
+        st.anchor.x = x;
+        st.anchor.y = y;
+        st.anchor.z = wrap_angle(heading);
+        st.anchor_heading_unwrapped_rad = heading;
+        (st, history)
+    }
+
+    #[test]
+    fn a_late_decision_moves_a_winding_history_as_if_applied_from_the_start() {
+        // 1.5 km of bends both ways: 0.3 % turns that history by 3 rad,
+        // beyond where the order-5 series held (1 rad).
+        let (mut st, history) = curved(150, |k| 0.12 * ((k as f64) * 0.21).sin());
+        let history_turn = st.anchor_heading_unwrapped_rad;
+        let [rl0, rr0, _, _] = st.applied_ln_scale;
+        let [rl, rr, _, _] = st.scales.ln_scale();
+        let d_beta = ((rr - rr0) - (rl - rl0)) * INV_TREAD;
+        let d_mean = 0.5 * ((rr - rr0) + (rl - rl0));
+        assert!(
+            (d_beta * 1500.0).abs() > 2.5,
+            "history turn {}",
+            d_beta * 1500.0
+        );
+        reapply_rear_pair(&mut st, INV_TREAD);
+        // Each window's displacement turned by −Δβ·s − Δμ·Θ at its middle
+        // and scaled by e^(−Δμ): what the scales would have given.
+        let scale = (-d_mean).exp();
+        let (mut x, mut y) = (0.0, 0.0);
+        for [mx, my, s_mid, theta_mid] in &history {
+            let (sin, cos) = (-d_beta * s_mid - d_mean * theta_mid).sin_cos();
+            x += scale * (cos * mx - sin * my);
+            y += scale * (sin * mx + cos * my);
+        }
+        let miss = (st.anchor.x - x).hypot(st.anchor.y - y);
+        // The truncation leaves (3 rad)¹⁷/17! of 1.5 km; the first-order
+        // turn by Δμ·Θ leaves (Δμ·Θ)²/2 of it.
+        assert!(
+            miss < 0.05,
+            "anchor ({}, {}) vs exact ({x}, {y}): {miss} m",
+            st.anchor.x,
+            st.anchor.y
+        );
+        let turned = st.anchor_heading_unwrapped_rad;
+        let exact = history_turn * (1.0 - d_mean) - d_beta * 1500.0;
+        assert!((turned - exact).abs() < 1e-9, "heading {turned} vs {exact}");
+    }
+
     #[test]
     fn a_decision_too_late_for_the_series_restarts_the_history() {
-        // 0.3 % after 1 km: 2 rad, past where the cut series holds.
-        let mut st = driven(1_000.0, 1.003, false);
+        // 0.3 % after 3 km: 6 rad, past where the cut series holds.
+        let mut st = driven(3_000.0, 1.003, false);
         let before = st.anchor;
         reapply_rear_pair(&mut st, INV_TREAD);
         assert_eq!(
