@@ -96,6 +96,19 @@ impl Fault {
         }
     }
 
+    /// For one wheel off, the index (RL, RR, FL, FR) of the wheel on the
+    /// same side of the other axle: the one whose opposite error, with a
+    /// steering offset, reads the same to first order in the curvature.
+    fn same_side_partner(self) -> Option<usize> {
+        match self {
+            Self::RearLeft => Some(2),
+            Self::RearRight => Some(3),
+            Self::FrontLeft => Some(0),
+            Self::FrontRight => Some(1),
+            Self::None | Self::FrontAxle => None,
+        }
+    }
+
     /// The explanation of this [`Fault::as_str`] name.
     pub fn from_name(name: &str) -> Option<Self> {
         Self::ALL.into_iter().find(|f| f.as_str() == name)
@@ -425,6 +438,22 @@ impl ScaleLearner {
         let applied = best.wheel_sensitivity().map(|s| s * eps);
         let held =
             (best != Fault::None && self.ln_scale != applied).then(|| self.why_held(k, prob));
+        // The σ is about the scales as applied: a correction held back is
+        // that much doubt on its wheel, and a rear tyre held until the car
+        // has turned both ways is still the front one on its side as well
+        // (the mixture alone, sure of the rear one after turns one way,
+        // gave both ±0.0001 on the multi-body cars while neither was applied).
+        let mut var = self.ln_scale_var;
+        for (v, (&a, &d)) in var.iter_mut().zip(applied.iter().zip(&self.ln_scale)) {
+            if held.is_some() {
+                *v += (a - d) * (a - d);
+            }
+        }
+        if held == Some(Held::TurnsOneWay)
+            && let Some(partner) = best.same_side_partner()
+        {
+            var[partner] += eps * eps;
+        }
         let set = |v: [f64; 4]| WheelSet {
             rear_left: v[0],
             rear_right: v[1],
@@ -433,7 +462,7 @@ impl ScaleLearner {
         };
         WheelScales {
             scale: set(self.ln_scale.map(f64::exp)),
-            sigma: set(self.ln_scale_var.map(|v| v.max(0.0).sqrt())),
+            sigma: set(var.map(|v| v.max(0.0).sqrt())),
             likeliest: (best, prob),
             likeliest_error: eps.exp() - 1.0,
             held,
@@ -947,6 +976,9 @@ mod tests {
         ];
         let s = drive(&legs, [1.0, 1.003, 1.0, 1.0], 0.0);
         assert_eq!(s.ln_scale(), [0.0; 4], "{:?}", s.learnt());
+        // Nothing applied, the σ says where the doubt is.
+        let l = s.learnt();
+        assert!(l.sigma.rear_right > 0.5 * 1.003f64.ln(), "{l:?}");
         // The other way too: now it is applied.
         let mut both = legs.to_vec();
         both.push((94.2, -1.0 / 15.0));
@@ -955,6 +987,44 @@ mod tests {
             (s.ln_scale()[1] - 1.003f64.ln()).abs() < 1e-4,
             "{:?}",
             s.learnt()
+        );
+    }
+
+    #[test]
+    fn a_rear_tyre_held_for_turns_one_way_leaves_its_doubt_on_both_axles() {
+        // The multi-body cars' tyres make the evidence sure of the rear
+        // wheel after turns one way; the rule still holds it, and the σ
+        // must then say that the front wheel on its side is as much in play.
+        let error = 1.003f64.ln();
+        let mut s = ScaleLearner::new();
+        for (k, h) in s.hyps.iter_mut().enumerate() {
+            h.log_evidence = if k == 2 { 0.0 } else { -MAX_LOG_LAG };
+        }
+        s.hyps[2].x[0] = error;
+        s.hyps[2].p[0][0] = 1e-8;
+        s.windows = 150;
+        s.turned_right = 4.0 * TURN_BALANCE_PER_M;
+        s.mix();
+        let l = s.learnt();
+        assert_eq!(l.likeliest.0, Fault::RearRight, "{l:?}");
+        assert_eq!(l.held, Some(Held::TurnsOneWay), "{l:?}");
+        assert_eq!(s.ln_scale(), [0.0; 4]);
+        assert!(
+            l.sigma.rear_right > 0.9 * error && l.sigma.front_right > 0.9 * error,
+            "{l:?}"
+        );
+        assert!(
+            l.sigma.rear_left < 0.01 * error && l.sigma.front_left < 0.01 * error,
+            "{l:?}"
+        );
+        // Turned the other way too, it is applied, and the σ is its own.
+        s.turned_left = TURN_BALANCE_PER_M;
+        s.mix();
+        let l = s.learnt();
+        assert_eq!(l.held, None, "{l:?}");
+        assert!(
+            l.sigma.rear_right < 1e-3 && l.sigma.front_right < 1e-3,
+            "{l:?}"
         );
     }
 
