@@ -223,6 +223,35 @@ const RATIO_DECISION: f64 = 1e-4;
 /// 1.5 m tread by under 2° a kilometre.
 pub const AIDED_LEAD_MIN_RATIO: f64 = 5e-5;
 
+/// How far the aided estimator must have driven since it started (or since
+/// a decision of the wheels' learning started its rear ratio afresh) before
+/// the learner takes that ratio, m: the ratio parts from the gyro's bias
+/// only as the speed varies, which a few hundred metres of driving do.
+const GYRO_RATIO_MIN_DISTANCE_M: f64 = 200.0;
+
+/// What the yaw-rate sensor says of the rear pair, for the wheels'
+/// learner: `ln s_RL − ln s_RR` of the raw readings and its σ, once the
+/// aided estimator carries the pose and has learnt its rear ratio (on the
+/// wheels as it reads them, with `st.lead.factor`, which no decision of
+/// the learner changes from then on) over [`GYRO_RATIO_MIN_DISTANCE_M`] to
+/// [`scales::GYRO_RATIO_MAX_SIGMA`]; `None` before, and without a gyro.
+///
+/// Only once it carries the pose: a decision the gyro told while the
+/// wheels still carried it started the aided estimator's rear ratio afresh
+/// (a decision does), and on the multi-body cars the corrected wheels then
+/// kept the pose, whose tyres slip in curves (a rear tyre 0.3 % large, seed
+/// 27: 0.27 % → 9.1 % of the distance).
+fn gyro_rear_ratio(st: &State) -> Option<(f64, f64)> {
+    if !st.aided_on || !st.lead.leads || st.lead.distance_m < GYRO_RATIO_MIN_DISTANCE_M {
+        return None;
+    }
+    let [_, (ratio, sd), _] = st.aided.learnt();
+    // The aided estimator's wheels read d·f: its ratio error is
+    // (ln s_RL + ln f_RL) − (ln s_RR + ln f_RR).
+    let [f_rl, f_rr, _, _] = st.lead.factor;
+    (sd < scales::GYRO_RATIO_MAX_SIGMA).then(|| (ratio - f_rl.ln() + f_rr.ln(), sd))
+}
+
 /// One sample's input: each wheel's distance since the previous sample and
 /// the measured road-wheel angle (the steering signal mapped through the
 /// steering map in use).
@@ -741,6 +770,18 @@ impl Ekf {
         self.advance(next, input)
     }
 
+    /// Gives the wheels' learner the sample's raw wheels, and what the gyro
+    /// says of the rear pair.
+    #[inline]
+    fn teach_scales(&self, st: &mut State, input: &OdometryInput, phi: f64) {
+        // Only what the wheels read themselves, while both axles move as
+        // a car can.
+        let clean = input.front_valid && st.axle_watch.calm();
+        st.scales.set_gyro_rear_ratio(gyro_rear_ratio(st));
+        st.scales
+            .accumulate(&self.k.geometry, &input.wheel_m, phi, input.dt_s, clean);
+    }
+
     /// The body of [`Ekf::step`], on a copy of the previous state.
     #[inline]
     fn advance(&self, st: &mut State, input: &OdometryInput) -> Result<()> {
@@ -761,12 +802,7 @@ impl Ekf {
         };
         st.axle_watch.watch(input, w, self.cfg.max_accel_mps2);
         if self.cfg.learn_wheel_scales {
-            // Only what the wheels read themselves, while both axles move as
-            // a car can.
-            let clean = input.front_valid && st.axle_watch.calm();
-            let geo = &self.k.geometry;
-            st.scales
-                .accumulate(geo, &input.wheel_m, phi, input.dt_s, clean);
+            self.teach_scales(st, input, phi);
         }
         // Every wheel locked while the car slides on: the distance the
         // wheels cannot read is bridged (wheel-speed sensors, four wheels).

@@ -39,6 +39,21 @@
 //! between explanations still in play: where the sources cannot tell which
 //! wheel is off, the σ says so rather than the estimate picking one.
 //!
+//! **With a yaw-rate sensor** the rear pair's scale difference is first
+//! order: the aided estimator learns it against the gyro (its rear ratio).
+//! Once the aided estimator carries the pose, an explanation whose rear
+//! pair that ratio contradicts is left out ([`ScaleLearner::set_gyro_rear_ratio`]),
+//! and a rear wheel it confirms needs no turns both ways. On 21 multi-body
+//! drives with a rear tyre 0.3 % large the wheels alone named it on 6 and
+//! held it on 9 (turns one way), took it for the front-left tyre on 3 and
+//! stayed undecided on 3; with the gyro's ratio a rear wheel is named on
+//! all 21 (the rear-left on 19, the rear-right reading as much too far on
+//! two), and on 21 drives with a front tyre 0.3 % large none is applied to
+//! a rear wheel (the front-right named on 19; one stays undecided). The
+//! pose is the aided estimator's then, as before: the 42 replays' poses and
+//! the 34 matched multi-body ones are the same byte for byte, and the 160
+//! opendbc drives' end points to the millimetre.
+//!
 //! A window is used only when every wheel rolled the same way, the front was
 //! valid, no wheel sat at its sensor's floor, neither axle was suspected of
 //! slipping, and the car went faster than [`MIN_SPEED_MPS`]; one that no
@@ -133,7 +148,7 @@ impl std::fmt::Display for WheelScales {
         write!(
             f,
             "RL {:.4} ± {:.4}, RR {:.4} ± {:.4}, FL {:.4} ± {:.4}, FR {:.4} ± {:.4} \
-             (likeliest: {} off, p {:.3}; {} windows)",
+             (likeliest: {} off, p {:.3}{}; {} windows)",
             s.rear_left,
             sd.rear_left,
             s.rear_right,
@@ -147,6 +162,11 @@ impl std::fmt::Display for WheelScales {
                 other => other.as_str(),
             },
             self.likeliest.1,
+            if self.told_by_gyro {
+                " with the yaw-rate sensor's rear ratio"
+            } else {
+                ""
+            },
             self.windows
         )?;
         if let Some(h) = self.held {
@@ -199,6 +219,15 @@ const DECIDED: f64 = 0.95;
 /// circles the same way), front-right tyre 0.3 % large, was taken for the
 /// rear-right one at p 1.000 and ended 32 % off.
 const TURN_BALANCE_PER_M: f64 = 0.075;
+
+/// The yaw-rate sensor's rear ratio counts once the aided estimator has
+/// learnt it this well (relative: the rear wheels' log scale difference) …
+pub(crate) const GYRO_RATIO_MAX_SIGMA: f64 = 5e-4;
+/// … and an explanation whose rear pair disagrees with it by more than
+/// this (or four of its σ) is not the car's: a rear tyre 0.3 % large
+/// reads 0.27–0.33 % against the gyro on the multi-body cars, matched rear
+/// tyres (each ±0.025 %) within 0.035 %.
+const GYRO_RATIO_TOLERANCE: f64 = 1e-3;
 
 /// The least scale error applied: tyres that match leave spurious ones below
 /// it where the kinematic model meets real tyres (slip angles, the km/h
@@ -311,6 +340,9 @@ pub struct WheelScales {
     pub likeliest_error: f64,
     /// Why the scales applied are not the likeliest explanation's, if not.
     pub held: Option<Held>,
+    /// Whether the yaw-rate sensor's rear ratio left explanations out
+    /// (those whose rear pair it contradicts).
+    pub told_by_gyro: bool,
     /// Windows used so far.
     pub windows: u32,
 }
@@ -343,6 +375,9 @@ pub(crate) struct ScaleLearner {
     /// its value for most samples).
     last_phi_rad: f64,
     last_tan_phi: f64,
+    /// What the yaw-rate sensor says of the rear pair: `ln s_RL − ln s_RR`
+    /// of the raw readings and its σ (see [`ScaleLearner::set_gyro_rear_ratio`]).
+    gyro_rear_ratio: Option<(f64, f64)>,
 }
 
 impl ScaleLearner {
@@ -385,6 +420,7 @@ impl ScaleLearner {
             turned_right: 0.0,
             last_phi_rad: 0.0,
             last_tan_phi: 0.0,
+            gyro_rear_ratio: None,
         }
     }
 
@@ -466,6 +502,7 @@ impl ScaleLearner {
             likeliest: (best, prob),
             likeliest_error: eps.exp() - 1.0,
             held,
+            told_by_gyro: self.gyro_allows().contains(&false),
             windows: self.windows,
         }
     }
@@ -551,16 +588,57 @@ impl ScaleLearner {
     }
 
     fn weights(&self) -> [f64; HYPOTHESES] {
+        let allowed = self.gyro_allows();
         let max = self
             .hyps
             .iter()
-            .fold(f64::NEG_INFINITY, |m, h| m.max(h.log_evidence));
-        let mut w = self.hyps.map(|h| (h.log_evidence - max).exp());
+            .zip(allowed)
+            .filter(|(_, ok)| *ok)
+            .fold(f64::NEG_INFINITY, |m, (h, _)| m.max(h.log_evidence));
+        let mut w = [0.0; HYPOTHESES];
+        for ((v, h), ok) in w.iter_mut().zip(&self.hyps).zip(allowed) {
+            if ok {
+                *v = (h.log_evidence - max).exp();
+            }
+        }
         let sum: f64 = w.iter().sum();
         for v in &mut w {
             *v /= sum;
         }
         w
+    }
+
+    /// Tells the learner what the yaw-rate sensor says of the rear pair:
+    /// `ln s_RL − ln s_RR` of the raw readings (`s` a wheel's scale, as in
+    /// [`WheelScales`]) and its σ, or `None` while it says nothing yet.
+    /// The odd term that tells a rear tyre from the front one on its side
+    /// is second order in the curvature; on tyres that slip in curves (the
+    /// multi-body cars) it tells them apart slowly or the wrong way, while
+    /// the gyro against the rear pair tells it at once.
+    pub(crate) fn set_gyro_rear_ratio(&mut self, told: Option<(f64, f64)>) {
+        self.gyro_rear_ratio = told.filter(|(v, sd)| v.is_finite() && sd.is_finite());
+    }
+
+    /// Which explanations the yaw-rate sensor allows: each predicts the rear
+    /// pair's log difference; one off the gyro's by more than
+    /// [`GYRO_RATIO_TOLERANCE`] (or 4σ) is left out, unless that would
+    /// leave none (then the gyro is the odd one, and says nothing here).
+    fn gyro_allows(&self) -> [bool; HYPOTHESES] {
+        let Some((told, sd)) = self.gyro_rear_ratio else {
+            return [true; HYPOTHESES];
+        };
+        let tolerance = GYRO_RATIO_TOLERANCE.max(4.0 * sd);
+        let mut allowed = [true; HYPOTHESES];
+        for ((ok, h), fault) in allowed.iter_mut().zip(&self.hyps).zip(Fault::ALL) {
+            let sens = fault.wheel_sensitivity();
+            let predicted = (sens[0] - sens[1]) * h.x[0];
+            *ok = (predicted - told).abs() <= tolerance;
+        }
+        if allowed.iter().any(|ok| *ok) {
+            allowed
+        } else {
+            [true; HYPOTHESES]
+        }
     }
 
     /// Accumulates one sample's raw wheel distances (floor fill not
@@ -740,6 +818,34 @@ impl ScaleLearner {
         self.mix();
     }
 
+    /// Whether the yaw-rate sensor tells the rear wheel `fault` from the
+    /// front one on its side: it sees the rear pair off as that wheel
+    /// would make it, and not matched as the front one would leave it. A
+    /// front wheel it only tells from the rear one: which front wheel,
+    /// the left or the right, is the wheels' evidence alone, and on the
+    /// multi-body cars that took a front-right tyre for the front-left
+    /// one after turns one way (Escort seed 24).
+    fn gyro_tells(&self, fault: Fault) -> bool {
+        if !matches!(fault, Fault::RearLeft | Fault::RearRight) {
+            return false;
+        }
+        let Some(partner) = fault.same_side_partner() else {
+            return false;
+        };
+        let allowed = self.gyro_allows();
+        let index = |f: Fault| Fault::ALL.iter().position(|g| *g == f);
+        let partner_fault = [
+            Fault::RearLeft,
+            Fault::RearRight,
+            Fault::FrontLeft,
+            Fault::FrontRight,
+        ][partner];
+        match (index(fault), index(partner_fault)) {
+            (Some(a), Some(b)) => self.gyro_rear_ratio.is_some() && allowed[a] && !allowed[b],
+            _ => false,
+        }
+    }
+
     /// The mixture's per-wheel variance, and the scales applied: those of
     /// the leading explanation once it holds [`DECIDED`] of the
     /// probability, else the ones applied before. A half-applied correction
@@ -768,7 +874,9 @@ impl ScaleLearner {
         let best = Fault::ALL[k];
         let one_wheel = !matches!(best, Fault::None | Fault::FrontAxle);
         if p < DECIDED
-            || (one_wheel && self.turned_left.min(self.turned_right) < TURN_BALANCE_PER_M)
+            || (one_wheel
+                && !self.gyro_tells(best)
+                && self.turned_left.min(self.turned_right) < TURN_BALANCE_PER_M)
         {
             return;
         }
@@ -1026,6 +1134,80 @@ mod tests {
             l.sigma.rear_right < 1e-3 && l.sigma.front_right < 1e-3,
             "{l:?}"
         );
+    }
+
+    /// A learner whose evidence leads with `lead` (p ≈ 1) over `second`,
+    /// each explanation holding `error` as its scale error, after turns to
+    /// the right only.
+    fn leaning(lead: Fault, second: Fault, error: f64) -> ScaleLearner {
+        let mut s = ScaleLearner::new();
+        for (h, fault) in s.hyps.iter_mut().zip(Fault::ALL) {
+            h.log_evidence = if fault == lead {
+                0.0
+            } else if fault == second {
+                -10.0
+            } else {
+                -MAX_LOG_LAG
+            };
+            if fault != Fault::None {
+                h.x[0] = error;
+                h.p[0][0] = 1e-8;
+            }
+        }
+        s.windows = 150;
+        s.turned_right = 4.0 * TURN_BALANCE_PER_M;
+        s.mix();
+        s
+    }
+
+    #[test]
+    fn the_gyro_tells_a_rear_tyre_from_the_front_one_on_its_side() {
+        // The wheels' evidence took a large rear-left tyre (reads 0.3 %
+        // short) for the front-left one, as on three multi-body cars; the
+        // gyro against the rear pair says the rear pair is off by the tyre.
+        let error = 0.997f64.ln();
+        let mut s = leaning(Fault::FrontLeft, Fault::RearLeft, error);
+        assert_eq!(s.learnt().likeliest.0, Fault::FrontLeft);
+        s.set_gyro_rear_ratio(Some((error, 2e-5)));
+        s.mix();
+        let l = s.learnt();
+        assert_eq!(l.likeliest.0, Fault::RearLeft, "{l:?}");
+        assert!(l.told_by_gyro, "{l:?}");
+        // Applied although the car turned one way only: the gyro told the
+        // two apart.
+        assert!((s.ln_scale()[0] - error).abs() < 1e-12, "{l:?}");
+        assert_eq!(l.held, None, "{l:?}");
+    }
+
+    #[test]
+    fn the_gyro_keeps_a_front_tyre_from_being_taken_for_the_rear_one() {
+        // A front-right tyre read as the rear-right one (its turns one way
+        // held it, as on two multi-body cars); the gyro finds the rear
+        // pair matched, so the rear explanation is out.
+        let error = 1.003f64.ln();
+        let mut s = leaning(Fault::RearRight, Fault::FrontRight, error);
+        assert_eq!(s.learnt().held, Some(Held::TurnsOneWay));
+        s.set_gyro_rear_ratio(Some((-2e-4, 2e-5)));
+        s.mix();
+        let l = s.learnt();
+        assert_eq!(l.likeliest.0, Fault::FrontRight, "{l:?}");
+        // Still held for turns one way: the gyro does not see the front pair.
+        assert_eq!(l.held, Some(Held::TurnsOneWay), "{l:?}");
+        assert_eq!(s.ln_scale(), [0.0; 4]);
+    }
+
+    #[test]
+    fn a_gyro_that_contradicts_every_explanation_says_nothing() {
+        let error = 1.003f64.ln();
+        let mut s = leaning(Fault::RearRight, Fault::FrontRight, error);
+        let before = s.learnt();
+        s.set_gyro_rear_ratio(Some((0.05, 1e-5)));
+        s.mix();
+        let l = s.learnt();
+        assert_eq!(l.likeliest, before.likeliest, "{l:?}");
+        assert!(!l.told_by_gyro, "{l:?}");
+        s.set_gyro_rear_ratio(Some((f64::NAN, 1e-5)));
+        assert_eq!(s.learnt().likeliest, before.likeliest);
     }
 
     #[test]
