@@ -826,24 +826,20 @@ impl ScaleLearner {
     /// multi-body cars that took a front-right tyre for the front-left
     /// one after turns one way (Escort seed 24).
     fn gyro_tells(&self, fault: Fault) -> bool {
-        if !matches!(fault, Fault::RearLeft | Fault::RearRight) {
-            return false;
-        }
-        let Some(partner) = fault.same_side_partner() else {
-            return false;
+        // Indices into `Fault::ALL`: the rear wheel and the front one on its side.
+        const _: () = assert!(
+            matches!(Fault::ALL[1], Fault::RearLeft)
+                && matches!(Fault::ALL[2], Fault::RearRight)
+                && matches!(Fault::ALL[3], Fault::FrontLeft)
+                && matches!(Fault::ALL[4], Fault::FrontRight)
+        );
+        let (own, partner) = match fault {
+            Fault::RearLeft => (1, 3),
+            Fault::RearRight => (2, 4),
+            _ => return false,
         };
         let allowed = self.gyro_allows();
-        let index = |f: Fault| Fault::ALL.iter().position(|g| *g == f);
-        let partner_fault = [
-            Fault::RearLeft,
-            Fault::RearRight,
-            Fault::FrontLeft,
-            Fault::FrontRight,
-        ][partner];
-        match (index(fault), index(partner_fault)) {
-            (Some(a), Some(b)) => self.gyro_rear_ratio.is_some() && allowed[a] && !allowed[b],
-            _ => false,
-        }
+        self.gyro_rear_ratio.is_some() && allowed[own] && !allowed[partner]
     }
 
     /// The mixture's per-wheel variance, and the scales applied: those of
