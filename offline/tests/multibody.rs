@@ -265,7 +265,7 @@ fn a_rear_tyre_that_is_off_is_told_and_its_error_taken_back() {
     assert_eq!(
         summary.state.wheel_scales().likeliest.0,
         Fault::FrontLeft,
-        "what the wheels alone tell (if this changes, the case above is stale)"
+        "what the wheels alone tell (if this changes, the gyro check below proves nothing)"
     );
     let (with, summary) = judge_with_summary(&dir, "config_yaw.toml");
     let scales = summary.state.wheel_scales();

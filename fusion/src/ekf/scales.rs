@@ -480,8 +480,8 @@ impl ScaleLearner {
         // (the mixture alone, sure of the rear one after turns one way,
         // gave both ±0.0001 on the multi-body cars while neither was applied).
         let mut var = self.ln_scale_var;
-        for (v, (&a, &d)) in var.iter_mut().zip(applied.iter().zip(&self.ln_scale)) {
-            if held.is_some() {
+        if held.is_some() {
+            for (v, (&a, &d)) in var.iter_mut().zip(applied.iter().zip(&self.ln_scale)) {
                 *v += (a - d) * (a - d);
             }
         }
