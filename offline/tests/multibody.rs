@@ -134,7 +134,9 @@ fn drives() -> Vec<PathBuf> {
         }
     }
     found.sort();
-    assert_eq!(found.len(), 6, "two drives per vehicle: {found:?}");
+    // Two drives per vehicle, and the Escort of seed 105, whose tyres slip
+    // enough in its curves to hide its effective tread from the gyro (2.3σ).
+    assert_eq!(found.len(), 7, "the family's drives: {found:?}");
     found
 }
 
@@ -160,8 +162,9 @@ fn with_the_yaw_rate_sensor_every_drive_ends_within_one_percent_and_sigma_covers
         inside += j.heading_in_3_sigma;
         drives_n += 1.0;
     }
-    // Consistency is the family's: one drive (Escort seed 3) is inside 3σ on
-    // only 71 % of its steps, the six together on 95 %.
+    // Consistency is the family's: one drive (Escort seed 3) was once inside
+    // 3σ on only 71 % of its steps, the six together on 95 % (each of the
+    // seven is on 100 % now).
     assert!(
         inside / drives_n >= 0.9,
         "heading inside 3σ on {:.0} % of steps",
